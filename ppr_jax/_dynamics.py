@@ -1,0 +1,129 @@
+"""Equations of motion of every model level from one generic projection.
+
+For a model with independent coordinates z (n,), bodies with COM p_b(z), angle a_b(z), mass m_b and
+central inertia I_b, Lagrange's equations of T = sum_b (m_b |p_b'|^2 + I_b a_b'^2)/2 and
+U = (k/2) sum_j d_j(z)^2 read (Kane's form)
+
+    M(z) z'' + h(z, z') = Q,     M = sum_b m_b Jp_b^T Jp_b + I_b Ja_b^T Ja_b,
+    h = sum_b m_b Jp_b^T (Jp_b' z') + I_b Ja_b^T (Ja_b' z'),
+    Q = -k Jd^T d - c_s Jd^T Jd z' - c_a Jth^T Jth z' + Jth^T tau_a + JX^T w,
+
+with Jp = dp/dz etc. The convective accelerations Jp' z' are second directional derivatives of the
+body positions along z' (two nested forward-mode JVPs), so no closed-form derivation is needed and
+the same code serves L0, L1 and L2. For L1 (z = X) this is exactly the paper's eq 54: M = J^T M J
+and h = J^T (M J' + C J) X'; `tests/test_paper_eom.py` checks it against the paper's closed form
+(eqs 30-35, 41, 47). c_s is the viscous damping of each spring, c_a the viscous friction of the
+actuated joints, tau_a (3,) the actuator torques (N m), w (3,) an external platform wrench
+(F_x [N], F_y [N], M_z [N m]). Gravity acts normal to the plane of the robot and does no work.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array, Float
+from ._model import AbstractModel, Kin
+from ._params import RobotParams
+from ._prb import Derived
+
+
+class EOM(eqx.Module):
+    """Terms of M z'' + h = Q at one state. `Jth` (3, n) = d th_a / d z, `JX` (3, n) = d X / d z."""
+
+    M: Array
+    h: Array
+    Q_passive: Array  # spring, damping, friction (no actuator torque, no wrench)
+    Jth: Array
+    JX: Array
+    kin: Kin
+
+
+def eom_terms(
+    model: AbstractModel,
+    params: RobotParams,
+    dv: Derived,
+    z: Float[Array, " n"],
+    zdot: Float[Array, " n"],
+) -> EOM:
+    """Mass matrix, velocity terms and passive generalized forces at (z, z')."""
+
+    def kin(z):
+        return model.kinematics(params, dv, z)
+
+    def vel(z):
+        return jax.jvp(kin, (z,), (zdot,))[1]
+
+    k, jac = kin(z), jax.jacfwd(kin)(z)
+    acc = jax.jvp(vel, (z,), (zdot,))[1]
+    m, I = model.masses(params, dv)
+    Jp, Ja = jac.body_p, jac.body_ang  # (nb, 2, n), (nb, n)
+    M = jnp.einsum("b,bki,bkj->ij", m, Jp, Jp) + jnp.einsum("b,bi,bj->ij", I, Ja, Ja)
+    h = jnp.einsum("b,bki,bk->i", m, Jp, acc.body_p) + jnp.einsum("b,bi,b->i", I, Ja, acc.body_ang)
+    Jd, Jth = jac.defl, jac.th_a
+    kk = model.stiffness(params, dv)
+    Q = -kk * (Jd.T @ k.defl) - params.c_spring * (Jd.T @ (Jd @ zdot))
+    Q = Q - params.c_act * (Jth.T @ (Jth @ zdot))
+    return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=jac.X, kin=k)
+
+
+def generalized_force(eom: EOM, tau_a, wrench) -> Array:
+    """Total generalized force Q for actuator torques tau_a (3,) and platform wrench (3,)."""
+    return eom.Q_passive + eom.Jth.T @ tau_a + eom.JX.T @ wrench
+
+
+def accelerations(eom: EOM, tau_a, wrench) -> Array:
+    """Torque-driven forward dynamics: z'' = M^-1 (Q - h)."""
+    return jnp.linalg.solve(eom.M, generalized_force(eom, tau_a, wrench) - eom.h)
+
+
+def energy(model: AbstractModel, params: RobotParams, dv: Derived, z, zdot):
+    """(kinetic, potential) energy (J)."""
+    k, kd = jax.jvp(lambda z: model.kinematics(params, dv, z), (z,), (zdot,))
+    m, I = model.masses(params, dv)
+    T = 0.5 * (jnp.sum(m * jnp.sum(kd.body_p**2, axis=-1)) + jnp.sum(I * kd.body_ang**2))
+    U = 0.5 * model.stiffness(params, dv) * jnp.sum(k.defl**2)
+    return T, U
+
+
+def lagrangian_eom(model: AbstractModel, params: RobotParams, dv: Derived, z, zdot):
+    """Reference equations of motion from automatic differentiation of L = T - U (slow; for tests):
+    returns (M, h + dU/dz) with M = d2T/dz'2 and h = d2T/dz'dz z' - dT/dz."""
+
+    def T(z, zdot):
+        return energy(model, params, dv, z, zdot)[0]
+
+    def U(z):
+        return energy(model, params, dv, z, jnp.zeros_like(z))[1]
+
+    M = jax.hessian(T, argnums=1)(z, zdot)
+    dTdzd_dz = jax.jacfwd(jax.grad(T, argnums=1), argnums=0)(z, zdot)
+    h = dTdzd_dz @ zdot - jax.grad(T, argnums=0)(z, zdot)
+    return M, h + jax.grad(U)(z)
+
+
+def inverse_dynamics(
+    model: AbstractModel,
+    params: RobotParams,
+    dv: Derived,
+    X: Float[Array, "3"],
+    Xdot: Float[Array, "3"],
+    Xddot: Float[Array, "3"],
+    wrench=None,
+):
+    """Actuator torques tau_a (3,) (N m) that move a model with z = X (L0, L1) along (X, X', X'').
+
+    Solves S^T tau_a = M X'' + h - Q_passive - w (eq 54 solved for tau_a, S = d th_a/dX, eq 52).
+    Returns (tau_a, eom); the caller checks `eom.kin.margin` and the conditioning of S.
+    """
+    if model.actuated_index is not None:
+        raise ValueError(
+            f"inverse_dynamics along a platform trajectory needs a model whose coordinates are the "
+            f"pose (rigid, reduced); {model.name!r} has internal degrees of freedom: simulate it "
+            f"motion-driven instead"
+        )
+    w = jnp.zeros(3) if wrench is None else wrench
+    eom = eom_terms(model, params, dv, X, Xdot)
+    rhs = eom.M @ Xddot + eom.h - eom.Q_passive - w
+    return jnp.linalg.solve(eom.Jth.T, rhs), eom

@@ -1,0 +1,183 @@
+"""Kinematics of the planar 3-RRR robot (MODEL.md sections 2 and 4, paper 1.2).
+
+Conventions: e(alpha) = (cos alpha, sin alpha); chain i (i = 0, 1, 2 in code, 1..3 in the paper)
+runs A_i -> B_i -> D_i -> E_i with absolute link angles th_i1, th_i2, th_i3. The elbow orientation
+sigma makes the joint turn by sigma*theta_c at rest (sigma = -1: clockwise).
+
+Every solver here is closed form or a fixed number of Newton steps, so it is jit-able with static
+shapes and differentiable; the public wrappers check reachability and residuals and raise a clear
+error instead of returning NaN.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array, Float
+from ._params import RobotParams
+from ._prb import Derived
+
+BETA = jnp.array([7 * jnp.pi / 6, -jnp.pi / 6, jnp.pi / 2])  # platform joint directions
+
+
+def e(alpha):
+    """Unit vector(s) e(alpha) = (cos alpha, sin alpha), shape alpha.shape + (2,)."""
+    return jnp.stack([jnp.cos(alpha), jnp.sin(alpha)], axis=-1)
+
+
+def home_pose(params: RobotParams) -> Float[Array, "3"]:
+    """Home pose X_h = (a/2, sqrt(3) a/6, 0), the base centroid."""
+    a = params.a
+    return jnp.stack([a / 2, jnp.sqrt(3.0) * a / 6, jnp.zeros_like(a)])
+
+
+def base_points(params: RobotParams) -> Float[Array, "3 2"]:
+    """Actuated joints A_1, A_2, A_3 (m)."""
+    a = params.a
+    z = jnp.zeros_like(a)
+    return jnp.stack(
+        [jnp.stack([z, z]), jnp.stack([a, z]), jnp.stack([a / 2, jnp.sqrt(3.0) * a / 2])]
+    )
+
+
+def platform_points(dv: Derived, X: Float[Array, "3"]) -> Float[Array, "3 2"]:
+    """Platform joints E_i = (x, y) + rho_E e(beta_i + phi) (m)."""
+    return X[:2] + dv.rho_E * e(BETA + X[2])
+
+
+def two_link(d, la, lb, elbow):
+    """Solve la e(th_a) + lb e(th_b) = d for (th_a, th_b) on the branch sign(th_b - th_a) = elbow.
+
+    Returns (th_a, th_b, margin) where margin = 1 - |cos(th_b - th_a)| is 0 at the reach limit
+    (a singular, stretched or folded, configuration) and negative when d is out of reach; the angles
+    are then computed from the clipped cosine and must not be used (callers check `margin`).
+    """
+    dd = jnp.sum(d**2, axis=-1)
+    c = (dd - la**2 - lb**2) / (2 * la * lb)
+    margin = 1 - jnp.abs(c)
+    # Clip away from +-1 so that neither the value nor the gradient is NaN at the reach limit;
+    # the margin reports the problem.
+    cc = jnp.clip(c, -1 + 1e-15, 1 - 1e-15)
+    delta = elbow * jnp.arccos(cc)
+    th_a = jnp.arctan2(d[..., 1], d[..., 0]) - jnp.arctan2(
+        lb * jnp.sin(delta), la + lb * jnp.cos(delta)
+    )
+    return th_a, th_a + delta, margin
+
+
+def _chain_vectors(params: RobotParams, dv: Derived, X):
+    return platform_points(dv, X) - base_points(params)
+
+
+# ---------------------------------------------------------------------------------------------
+# Inverse kinematics
+# ---------------------------------------------------------------------------------------------
+
+N_NEWTON_IK = 3
+
+
+def ik_reduced(params: RobotParams, dv: Derived, X: Float[Array, "3"]):
+    """L1 inverse kinematics under the quasi-static assumption th_i1 - 2 th_i2 + th_i3 = 0 (eq 29).
+
+    Returns (th (3, 3) chain angles [i, (th_i1, th_i2, th_i3)], margin (3,)).
+    The closed form (MODEL.md section 4) with u = (th1 + th3)/2, v = (th3 - th1)/2:
+    (2 r cos v + r2) e(u) = E_i - A_i, is exact when r1 = r3; for r1 != r3 it is the initial guess
+    of `N_NEWTON_IK` Newton steps on the 2x2 chain closure (exact to machine precision for
+    |r1 - r3| of a few mm; a Newton step costs nothing when r1 = r3 because its update is zero).
+    """
+    d = _chain_vectors(params, dv, X)
+    rbar = (dv.r1 + dv.r3) / 2
+    dist = jnp.linalg.norm(d, axis=-1)
+    c = (dist - dv.r2) / (2 * rbar)
+    margin = 1 - jnp.abs(c)
+    v = params.sigma * jnp.arccos(jnp.clip(c, -1 + 1e-15, 1 - 1e-15))
+    u = jnp.arctan2(d[:, 1], d[:, 0])
+    th1, th3 = u - v, u + v
+
+    def resid(th13, di):
+        t1, t3 = th13
+        t2 = (t1 + t3) / 2
+        return dv.r1 * e(t1) + dv.r2 * e(t2) + dv.r3 * e(t3) - di
+
+    def newton(th13, di):
+        for _ in range(N_NEWTON_IK):
+            Jc = jax.jacfwd(resid)(th13, di)
+            th13 = th13 - jnp.linalg.solve(Jc, resid(th13, di))
+        return th13
+
+    th13 = jnp.stack([th1, th3], axis=-1)
+    # Only one branch runs outside vmap: the default robot (l1 = l3) pays nothing for Newton.
+    th13 = jax.lax.cond(
+        dv.r1 != dv.r3, lambda x: jax.vmap(newton)(x, d), lambda x: x, th13
+    )
+    th1, th3 = th13[:, 0], th13[:, 1]
+    th = jnp.stack([th1, (th1 + th3) / 2, th3], axis=-1)
+    return th, margin
+
+
+def ik_rigid(params: RobotParams, dv: Derived, X: Float[Array, "3"]):
+    """L0 inverse kinematics of the rigid 3-RRR (links R1, R3 meeting at the virtual corner C_i).
+
+    Returns (th (3, 2) [i, (th_i1, th_i3)], margin (3,)).
+    """
+    d = _chain_vectors(params, dv, X)
+    t1, t3, margin = two_link(d, dv.R1, dv.R3, params.sigma)
+    return jnp.stack([t1, t3], axis=-1), margin
+
+
+def chain_closure_double1r(params: RobotParams, dv: Derived, X, th_a):
+    """L2: given the platform pose X and the actuated angles th_a (3,), close each chain with the
+    two-link (r2, r3) solution on the elbow branch sigma. Returns (th (3, 3), margin (3,))."""
+    B = base_points(params) + dv.r1 * e(th_a)
+    d = platform_points(dv, X) - B
+    t2, t3, margin = two_link(d, dv.r2, dv.r3, params.sigma)
+    return jnp.stack([th_a, t2, t3], axis=-1), margin
+
+
+def loop_residual(params: RobotParams, dv: Derived, th, X) -> Float[Array, "3 2"]:
+    """Loop closure (eq 12): A_i + r1 e(th_i1) + r2 e(th_i2) + r3 e(th_i3) - E_i (m), th (3, 3)."""
+    chain = (
+        base_points(params)
+        + dv.r1 * e(th[:, 0])
+        + dv.r2 * e(th[:, 1])
+        + dv.r3 * e(th[:, 2])
+    )
+    return chain - platform_points(dv, X)
+
+
+def loop_residual_rigid(params: RobotParams, dv: Derived, th, X) -> Float[Array, "3 2"]:
+    """L0 loop closure A_i + R1 e(th_i1) + R3 e(th_i3) - E_i (m), th (3, 2)."""
+    chain = base_points(params) + dv.R1 * e(th[:, 0]) + dv.R3 * e(th[:, 1])
+    return chain - platform_points(dv, X)
+
+
+# ---------------------------------------------------------------------------------------------
+# Deflections
+# ---------------------------------------------------------------------------------------------
+
+
+def deflections(params: RobotParams, dv: Derived, th) -> Float[Array, "3 2"]:
+    """Spring deflections of the double-1R model (MODEL.md section 4), th (3, 3):
+    d_i1 = (th_i2 - th_i1) - sigma psi0, d_i2 = (th_i3 - th_i2) - sigma psi0 (rad)."""
+    return jnp.stack(
+        [
+            th[:, 1] - th[:, 0] - params.sigma * dv.psi0,
+            th[:, 2] - th[:, 1] - params.sigma * dv.psi0,
+        ],
+        axis=-1,
+    )
+
+
+def deflection_rigid(params: RobotParams, dv: Derived, th) -> Float[Array, "3"]:
+    """L0 pin deflection (th_i3 - th_i1) - sigma theta_c (rad), th (3, 2)."""
+    return th[:, 1] - th[:, 0] - params.sigma * params.theta_c
+
+
+def singularity_measure(S: Float[Array, "3 3"], r1) -> Array:
+    """Inverse condition number of the actuation Jacobian S = d th_a / d X, with the translation
+    columns scaled by the link length r1 so that S is dimensionless: 1 is isotropic, 0 singular."""
+    Sn = S * jnp.stack([r1, r1, jnp.ones_like(r1)])[None, :]
+    sv = jnp.linalg.svd(Sn, compute_uv=False)
+    return sv[-1] / sv[0]

@@ -1,0 +1,186 @@
+"""Robot parameters (MODEL.md section 1, the paper's Table 1).
+
+`RobotParams` is an `equinox.Module` whose fields are float64 array leaves, so a batch of robots is
+one pytree with a leading axis (`stack_params`) and every field is differentiable. The elbow
+orientation `sigma` is a discrete branch choice and therefore a static field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Optional
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._custom_types import Array
+
+jax.config.update("jax_enable_x64", True)
+
+
+def _f(x):
+    return jnp.asarray(x, dtype=jnp.float64)
+
+
+def _field(default):
+    return eqx.field(default_factory=lambda: _f(default), converter=_f)
+
+
+def _optional(x):
+    return None if x is None else _f(x)
+
+
+#: Physical ranges of every settable parameter: name -> (low, high, unit, meaning).
+#: Bounds are open at 0 where the quantity must be strictly positive.
+PARAM_RANGES: dict[str, tuple[float, float, str, str]] = {
+    "a": (1e-3, 100.0, "m", "base side"),
+    "h": (1e-4, 10.0, "m", "platform side"),
+    "t_p": (1e-5, 1.0, "m", "platform plate thickness"),
+    "l1": (1e-3, 100.0, "m", "drive link length"),
+    "l3": (1e-3, 100.0, "m", "connecting link length"),
+    "b_r": (1e-5, 1.0, "m", "link width (in plane)"),
+    "t_r": (1e-5, 1.0, "m", "link thickness"),
+    "r": (1e-5, 1.0, "m", "compliant joint radius (actual strip)"),
+    "theta_c": (1e-3, 3.0, "rad", "compliant joint arc angle"),
+    "w": (1e-5, 1.0, "m", "strip width"),
+    "t": (1e-6, 1e-2, "m", "strip thickness"),
+    "E": (1e6, 1e13, "Pa", "Young's modulus"),
+    "rho_m": (1.0, 1e5, "kg/m^3", "density"),
+    "gamma": (0.5, 1.0, "-", "PRB characteristic radius factor"),
+    "rho": (0.1, 1.5, "-", "PRB characteristic radius (fraction of half length)"),
+    "K_theta": (0.5, 5.0, "-", "PRB stiffness coefficient"),
+    "J_rotor": (0.0, 10.0, "kg m^2", "reflected actuator rotor inertia"),
+    "c_spring": (0.0, 100.0, "N m s/rad", "viscous damping of each compliant-joint spring"),
+    "c_act": (0.0, 100.0, "N m s/rad", "viscous friction of each actuated joint"),
+}
+#: `sigma` (elbow orientation) is +1 or -1.
+SIGMA_VALUES = (-1, 1)
+
+
+class RobotParams(eqx.Module):
+    """Parameters of the planar 3-RRR robot with compliant joints (SI units).
+
+    Defaults are MODEL.md section 1 (paper Table 1, strip thickness of the simulation, 0.3 mm).
+    `gamma`, `rho`, `K_theta` are the PRB parameters of each half of the compliant joint
+    (MODEL.md section 3). `rho=None` means Howell's geometric definition (the PRB link ends at the
+    unloaded tip). All float fields are differentiable array leaves (scalars, or a leading batch
+    axis for a batch of robots).
+    """
+
+    a: Array = _field(0.900)
+    h: Array = _field(0.080)
+    t_p: Array = _field(0.025)
+    l1: Array = _field(0.366)
+    l3: Array = _field(0.366)
+    b_r: Array = _field(0.023)
+    t_r: Array = _field(0.010)
+    r: Array = _field(0.020)
+    theta_c: Array = _field(1.88)
+    w: Array = _field(0.026)
+    t: Array = _field(0.3e-3)
+    E: Array = _field(71.0e9)
+    rho_m: Array = _field(2780.0)
+    gamma: Array = _field(0.81)
+    K_theta: Array = _field(2.50)
+    rho: Optional[Array] = eqx.field(default=None, converter=_optional)
+    J_rotor: Array = _field(0.0)
+    c_spring: Array = _field(0.0)
+    c_act: Array = _field(0.0)
+    sigma: int = eqx.field(static=True, default=-1)
+
+    def __check_init__(self):
+        if self.sigma not in SIGMA_VALUES:
+            raise ValueError(f"sigma (elbow orientation) must be -1 or +1, got {self.sigma!r}")
+        check_params(self)
+
+    def replace(self, **changes: Any) -> "RobotParams":
+        """A copy with some fields changed (validated like the constructor)."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise ValueError(
+                f"unknown parameter(s) {sorted(unknown)}; allowed: {sorted(settable_names())}"
+            )
+        kw = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        kw.update(changes)
+        return RobotParams(**kw)
+
+
+def settable_names() -> list[str]:
+    """Names accepted by `RobotParams.replace` and the CLI's ``--set``."""
+    return list(PARAM_RANGES) + ["sigma"]
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def check_params(params: RobotParams) -> None:
+    """Raise `ValueError` naming the parameter and its allowed range if a concrete value is out of
+    range (or not finite). Traced values (inside jit/vmap) are skipped here and checked by
+    `validate_traced` instead."""
+    for name, (lo, hi, unit, meaning) in PARAM_RANGES.items():
+        v = getattr(params, name)
+        if v is None or not _is_concrete(v):
+            continue
+        arr = np.asarray(v)
+        bad = ~np.isfinite(arr) | (arr < lo) | (arr > hi)
+        if np.any(bad):
+            where = "" if arr.ndim == 0 else f" at batch index {np.flatnonzero(bad).tolist()}"
+            raise ValueError(
+                f"parameter {name!r} ({meaning}) = {arr[bad].tolist() if arr.ndim else float(arr)}"
+                f"{where} is out of its physical range [{lo:g}, {hi:g}] {unit}"
+            )
+
+
+def validate_traced(params: RobotParams, x):
+    """Inside jit: attach range checks on the parameters to `x` (returns `x`; use the result)."""
+    for name, (lo, hi, unit, meaning) in PARAM_RANGES.items():
+        v = getattr(params, name)
+        if v is None:
+            continue
+        x = eqx.error_if(
+            x,
+            ~jnp.isfinite(v) | (v < lo) | (v > hi),
+            f"parameter {name!r} ({meaning}) is out of its physical range [{lo:g}, {hi:g}] {unit}",
+        )
+    return x
+
+
+def stack_params(params_list: list[RobotParams]) -> RobotParams:
+    """Stack robots into one batched `RobotParams` (leading axis) for `jax.vmap`."""
+    sig = {p.sigma for p in params_list}
+    if len(sig) != 1:
+        raise ValueError("all robots of a batch must share sigma (a static branch choice)")
+    rho_none = {p.rho is None for p in params_list}
+    if len(rho_none) != 1:
+        raise ValueError("either every robot of a batch gives rho explicitly or none does")
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *params_list)
+
+
+def unstack_params(params: RobotParams) -> list[RobotParams]:
+    """Inverse of `stack_params`."""
+    n = params.a.shape[0]
+    return [jax.tree_util.tree_map(lambda x: x[i], params) for i in range(n)]
+
+
+def parse_value(name: str, text: str):
+    """Parse a CLI ``NAME=VALUE`` value (floats; ``sigma`` int; ``rho=none`` for the default)."""
+    if name not in settable_names():
+        raise ValueError(f"unknown parameter {name!r}; allowed: {', '.join(settable_names())}")
+    if name == "sigma":
+        v = int(float(text))
+        if v not in SIGMA_VALUES:
+            raise ValueError(f"parameter 'sigma' must be -1 or +1, got {text!r}")
+        return v
+    if name == "rho" and text.strip().lower() in ("none", "auto", "geometry"):
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        raise ValueError(f"parameter {name!r}: cannot read {text!r} as a number") from None
+    if not math.isfinite(v):
+        raise ValueError(f"parameter {name!r} must be finite, got {text!r}")
+    return v

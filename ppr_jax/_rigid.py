@@ -1,0 +1,51 @@
+"""L0 `rigid`: the paper's "simplified model" (MODEL.md section 5).
+
+A rigid 3-RRR: one pin per compliant joint at the virtual corner C_i where the links' centre lines
+meet, links R1 = l1 + r_i tan(theta_c/2), R3 = l3 + r_i tan(theta_c/2), a torsion spring
+K0 = E I / L with rest turn sigma theta_c, strip mass neglected. Coordinates z = X (3 DOF).
+The physical links keep their own mass properties: the drive link's COM is l1/2 from A_i and the
+connecting link's l3/2 from E_i.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from ._kinematics import base_points, deflection_rigid, e, ik_rigid, platform_points
+from ._model import AbstractModel, Kin, rotor_inertia
+
+
+class Rigid(AbstractModel):
+    name = "rigid"
+    level = 0
+    n_dof = 3
+
+    def kinematics(self, params, dv, z):
+        X = z
+        th, margin = ik_rigid(params, dv, X)
+        A = base_points(params)
+        E = platform_points(dv, X)
+        p1 = A + (params.l1 / 2) * e(th[:, 0])
+        p3 = E - (params.l3 / 2) * e(th[:, 1])
+        p = jnp.concatenate([p1, p3, X[None, :2]], axis=0)
+        ang = jnp.concatenate([th[:, 0], th[:, 1], X[2:3]])
+        return Kin(
+            X=X, th=th, body_p=p, body_ang=ang, defl=deflection_rigid(params, dv, th),
+            th_a=th[:, 0], margin=margin,
+        )
+
+    def masses(self, params, dv):
+        one = jnp.ones(3, dtype=jnp.float64)
+        m = jnp.concatenate([dv.m1 * one, dv.m3 * one, dv.m4[None]])
+        I = jnp.concatenate([rotor_inertia(params, dv) * one, dv.I3 * one, dv.I4[None]])
+        return m, I
+
+    def stiffness(self, params, dv):
+        return dv.K0
+
+    def coords_from_pose(self, params, dv, X):
+        return X
+
+    def joint_end_rotations(self, params, dv, kin):
+        # One pin: each end of the joint carries half of the pin's rotation.
+        return jnp.stack([kin.defl / 2, kin.defl / 2], axis=-1)

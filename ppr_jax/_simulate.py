@@ -1,0 +1,222 @@
+"""Forward simulation with diffrax (MODEL.md sections 5 and 6).
+
+`simulate` integrates a model under an actuation from (z0, z0') and returns a `Solution` at the
+requested output times, with solver statistics and the diffrax result code. It is jit-compiled once
+per (model, actuation type, solver, shapes) and vmappable over parameter batches; a failure (max
+steps, step size collapse, a chain leaving its reach) is raised as `SimulationError`, naming the
+failed batch members when the call is batched.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._actuation import MotionDriven, PDServo, TorqueDriven
+from ._custom_types import Array, Float
+from ._dynamics import EOM, eom_terms, generalized_force
+from ._model import AbstractModel
+from ._params import RobotParams, validate_traced
+from ._prb import derived
+from ._trajectory import derivatives
+
+SOLVERS = {
+    "tsit5": diffrax.Tsit5,
+    "dopri5": diffrax.Dopri5,
+    "dopri8": diffrax.Dopri8,
+    "kvaerno5": diffrax.Kvaerno5,
+    "kvaerno3": diffrax.Kvaerno3,
+}
+
+
+def get_solver(solver) -> diffrax.AbstractSolver:
+    """A diffrax solver from a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5) or an instance."""
+    if isinstance(solver, diffrax.AbstractSolver):
+        return solver
+    try:
+        return SOLVERS[str(solver).lower()]()
+    except KeyError:
+        raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}") from None
+
+
+class SimulationError(RuntimeError):
+    """A simulation failed (the message says which batch members, why, and what to try)."""
+
+
+class Solution(eqx.Module):
+    """Result of `simulate`. ts (m,), z and zdot (m, n) the model's coordinates and velocities,
+    tau (m, 3) actuator torques (applied, or the reaction torques when motion-driven) (N m),
+    result the diffrax result code, num_steps / num_accepted / num_rejected solver statistics."""
+
+    ts: Array
+    z: Array
+    zdot: Array
+    tau: Array
+    result: diffrax.RESULTS
+    num_steps: Array
+    num_accepted: Array
+    num_rejected: Array
+
+
+def _split(model: AbstractModel, actuation):
+    """(free, prescribed) coordinate indices."""
+    n = model.n_dof
+    if isinstance(actuation, MotionDriven):
+        if model.actuated_index is None:
+            raise ValueError(
+                f"model {model.name!r} has no free degree of freedom when motion-driven: its pose "
+                f"follows from the actuated angles by forward kinematics (use "
+                f"ppr_jax.forward_kinematics_path); no ODE is needed"
+            )
+        p = tuple(model.actuated_index)
+        return tuple(i for i in range(n) if i not in p), p
+    if not isinstance(actuation, (TorqueDriven, PDServo)):
+        raise TypeError(f"unknown actuation {type(actuation).__name__}")
+    return tuple(range(n)), ()
+
+
+def _full_state(model, actuation, t, zf, zfd):
+    free, pres = _split(model, actuation)
+    if not pres:
+        return zf, zfd, None
+    tha, thad, thadd = derivatives(actuation.angles, t)
+    n = model.n_dof
+    z = jnp.zeros(n).at[jnp.array(free)].set(zf).at[jnp.array(pres)].set(tha)
+    zd = jnp.zeros(n).at[jnp.array(free)].set(zfd).at[jnp.array(pres)].set(thad)
+    return z, zd, thadd
+
+
+def _torque(actuation, t, eom: EOM, zd):
+    if isinstance(actuation, TorqueDriven):
+        return actuation.torque(t)
+    return actuation(t, eom.kin.th_a, eom.Jth @ zd)
+
+
+def _accel(model, params, dv, actuation, wrench, t, zf, zfd):
+    """(z, z', z'', tau) at time t from the free state."""
+    free, pres = _split(model, actuation)
+    z, zd, thadd = _full_state(model, actuation, t, zf, zfd)
+    eom = eom_terms(model, params, dv, z, zd)
+    if not pres:
+        tau = _torque(actuation, t, eom, zd)
+        zdd = jnp.linalg.solve(eom.M, generalized_force(eom, tau, wrench) - eom.h)
+        return z, zd, zdd, tau
+    f, p = jnp.array(free), jnp.array(pres)
+    rhs = generalized_force(eom, jnp.zeros(3), wrench) - eom.h
+    Mff = eom.M[f][:, f]
+    zdd_f = jnp.linalg.solve(Mff, rhs[f] - eom.M[f][:, p] @ thadd)
+    zdd = jnp.zeros(model.n_dof).at[f].set(zdd_f).at[p].set(thadd)
+    # The actuated coordinates are th_a themselves, so their rows give the reaction torques.
+    tau = (eom.M @ zdd - rhs)[p]
+    return z, zd, zdd, tau
+
+
+@eqx.filter_jit
+def _simulate_core(
+    model, params, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0, max_steps, wrench,
+    throw, progress_meter,
+):
+    dv = derived(params)
+    free, _ = _split(model, actuation)
+    f = jnp.array(free)
+    y0 = (z0[f], zdot0[f])
+    y0 = validate_traced(params, y0)
+
+    def vf(t, y, args):
+        _, _, zdd, _ = _accel(model, params, dv, actuation, wrench, t, *y)
+        return (y[1], zdd[f])
+
+    sol = diffrax.diffeqsolve(
+        diffrax.ODETerm(vf), solver, ts[0], ts[-1], dt0, y0,
+        saveat=diffrax.SaveAt(ts=ts), stepsize_controller=stepsize_controller,
+        max_steps=max_steps, throw=throw, progress_meter=progress_meter,
+    )
+    z, zd, _, tau = jax.vmap(
+        lambda t, a, b: _accel(model, params, dv, actuation, wrench, t, a, b)
+    )(sol.ts, *sol.ys)
+    return Solution(
+        ts=sol.ts, z=z, zdot=zd, tau=tau, result=sol.result,
+        num_steps=sol.stats["num_steps"], num_accepted=sol.stats["num_accepted_steps"],
+        num_rejected=sol.stats["num_rejected_steps"],
+    )
+
+
+def _is_traced(tree) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
+
+
+def check_result(result: diffrax.RESULTS, what: str = "simulation") -> None:
+    """Raise `SimulationError` if any (batch member's) result is not successful."""
+    codes = np.asarray(result._value)
+    ok = codes == int(diffrax.RESULTS.successful._value)
+    if np.all(ok):
+        return
+    msgs = np.atleast_1d(np.asarray(diffrax.RESULTS[result]))
+    bad = np.flatnonzero(~np.atleast_1d(ok))
+    detail = "; ".join(f"member {i}: {msgs[i] if msgs.size > 1 else msgs[0]}" for i in bad[:10])
+    if codes.ndim == 0:
+        detail = str(msgs[0])
+    raise SimulationError(
+        f"{what} failed ({len(bad)} of {max(codes.size, 1)} batch members): {detail}. A chain that "
+        f"leaves its reach or a singular configuration makes the step size collapse; a stiff model "
+        f"(thin strip, L2) may need more steps (max_steps) or an implicit solver (kvaerno5)."
+    )
+
+
+def simulate(
+    model: AbstractModel,
+    params: RobotParams,
+    actuation,
+    z0: Float[Array, " n"],
+    zdot0: Float[Array, " n"],
+    ts: Float[Array, " m"],
+    *,
+    solver="tsit5",
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    dt0: Optional[float] = None,
+    max_steps: int = 200_000,
+    wrench: Optional[Float[Array, "3"]] = None,
+    stepsize_controller: Optional[diffrax.AbstractStepSizeController] = None,
+    progress: bool = False,
+) -> Solution:
+    """Integrate `model` under `actuation` from (z0, z0') and save at times `ts` (increasing).
+
+    `solver`: a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5) or a diffrax solver; adaptive
+    steps with a PID controller at (rtol, atol) unless `stepsize_controller` is given (then `dt0`
+    is the constant step). For a motion-driven model the prescribed coordinates of z0 are ignored
+    (they follow the actuation). On failure raises `SimulationError`; called under a JAX
+    transformation (grad, vmap of the caller) the failure is raised by diffrax inside the trace.
+    """
+    ts = jnp.asarray(ts, dtype=jnp.float64)
+    z0 = jnp.asarray(z0, dtype=jnp.float64)
+    zdot0 = jnp.asarray(zdot0, dtype=jnp.float64)
+    if z0.shape != (model.n_dof,) or zdot0.shape != (model.n_dof,):
+        raise ValueError(
+            f"z0 and zdot0 must have shape ({model.n_dof},) for model {model.name!r}; got "
+            f"{z0.shape} and {zdot0.shape}"
+        )
+    if ts.ndim != 1 or ts.shape[0] < 2:
+        raise ValueError("ts must be a 1-D array of at least two increasing output times")
+    if not _is_traced(ts) and not bool(np.all(np.diff(np.asarray(ts)) > 0)):
+        raise ValueError("ts must be strictly increasing")
+    if stepsize_controller is None:
+        # Array tolerances: changing them does not recompile.
+        stepsize_controller = diffrax.PIDController(
+            rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64)
+        )
+    w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
+    traced = _is_traced((params, actuation, z0, zdot0, ts, w))
+    meter = diffrax.TextProgressMeter() if progress else diffrax.NoProgressMeter()
+    sol = _simulate_core(
+        model, params, actuation, z0, zdot0, ts, get_solver(solver), stepsize_controller, dt0,
+        max_steps, w, traced, meter,
+    )
+    if not traced:
+        check_result(sol.result)
+    return sol

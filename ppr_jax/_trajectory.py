@@ -1,0 +1,73 @@
+"""Time functions: the nominal platform trajectory (eq 55) and actuator inputs.
+
+Every time function is an `equinox.Module` with `__call__(t) -> array`; `derivatives(f, t)`
+returns (f, f', f'') by forward-mode differentiation, so analytic inputs are exact to rounding.
+"""
+
+from __future__ import annotations
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array, Float
+
+
+def derivatives(f, t):
+    """(f(t), f'(t), f''(t)) of a time function by two nested forward-mode JVPs."""
+    t = jnp.asarray(t, dtype=jnp.float64)
+    one = jnp.ones_like(t)
+
+    def first(t):
+        return jax.jvp(f, (t,), (one,))
+
+    (x, xd), (_, xdd) = jax.jvp(first, (t,), (one,))
+    return x, xd, xdd
+
+
+class Circle(eqx.Module):
+    """The paper's nominal motion (eq 55): x = cx + R cos(omega t), y = cy + R sin(omega t),
+    phi = -phi_amp sin(omega t). Defaults: c = (0.45, 0.15 sqrt 3) m, R = 0.1 m,
+    omega = 5/6 rad/s, phi_amp = 0.05 rad, t in [0, 7.54] s (one turn is 2 pi/omega = 7.54 s)."""
+
+    center: Array = eqx.field(default_factory=lambda: jnp.array([0.45, 0.15 * jnp.sqrt(3.0)]))
+    radius: Array = eqx.field(default_factory=lambda: jnp.asarray(0.1))
+    omega: Array = eqx.field(default_factory=lambda: jnp.asarray(5.0 / 6.0))
+    phi_amp: Array = eqx.field(default_factory=lambda: jnp.asarray(0.05))
+
+    def __call__(self, t) -> Float[Array, "3"]:
+        wt = self.omega * t
+        return jnp.stack(
+            [
+                self.center[0] + self.radius * jnp.cos(wt),
+                self.center[1] + self.radius * jnp.sin(wt),
+                -self.phi_amp * jnp.sin(wt),
+            ]
+        )
+
+
+class Hold(eqx.Module):
+    """A constant value (e.g. zero torque or locked actuators)."""
+
+    value: Array
+
+    def __call__(self, t):
+        return self.value + 0.0 * t
+
+
+class Interpolated(eqx.Module):
+    """Cubic Hermite interpolation of samples ys (m, k) at increasing times ts (m,) (C1, exact at
+    the samples; tangents from backward differences as diffrax.backward_hermite_coefficients).
+    Outside [ts[0], ts[-1]] it extrapolates the end cubic: keep simulations inside the data."""
+
+    interp: diffrax.CubicInterpolation
+
+    def __init__(self, ts, ys):
+        ts = jnp.asarray(ts, dtype=jnp.float64)
+        ys = jnp.asarray(ys, dtype=jnp.float64)
+        coeffs = diffrax.backward_hermite_coefficients(ts, ys)
+        self.interp = diffrax.CubicInterpolation(ts, coeffs)
+
+    def __call__(self, t):
+        return self.interp.evaluate(t)
