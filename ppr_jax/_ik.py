@@ -1,0 +1,204 @@
+"""Public kinematics: inverse and forward kinematics, Jacobians J and S, singularity measure and
+the pre-deflection of the home pose (MODEL.md section 4; paper eqs 12-15, 46-47, 52)."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+
+from ._checks import raise_if
+from ._custom_types import Array, Float
+from ._kinematics import deflections, home_pose, singularity_measure
+from ._model import AbstractModel
+from ._params import RobotParams
+from ._prb import derived
+from ._reduced import Reduced
+
+#: below this inverse condition number of S (dimensionless) a configuration counts as singular
+SINGULAR_TOL = 1e-6
+#: below this reach margin (1 - |cos| of a chain's closure angle) a chain counts as stretched out
+REACH_TOL = 1e-12
+
+
+class IKResult(eqx.Module):
+    """Inverse kinematics at a pose X.
+
+    th: (3, k) chain angles (k = 3: th_i1, th_i2, th_i3 for L1; k = 2: th_i1, th_i3 for L0) (rad);
+    th_a: (3,) actuated angles; J: (3k + 3, 3) dq/dX with q = (th_11, th_12, ..., x, y, phi)
+    (eq 47); S: (3, 3) d th_a / dX (eq 52); singularity: inverse condition number of the
+    dimensionless S (0 singular, 1 isotropic); margin: (3,) reach margin of each chain;
+    deflection: spring deflections (rad) ((3, 2) for L1, (3,) for L0).
+    """
+
+    th: Array
+    th_a: Array
+    J: Array
+    S: Array
+    singularity: Array
+    margin: Array
+    deflection: Array
+
+
+def _ik(model: AbstractModel, params: RobotParams, X) -> IKResult:
+    dv = derived(params)
+
+    def q_of_X(X):
+        k = model.kinematics(params, dv, model.coords_from_pose(params, dv, X))
+        return k.th.reshape(-1), k.th_a
+
+    (thf, th_a) = q_of_X(X)
+    Jth, S = jax.jacfwd(q_of_X)(X)
+    k = model.kinematics(params, dv, model.coords_from_pose(params, dv, X))
+    J = jnp.concatenate([Jth, jnp.eye(3)], axis=0)
+    defl = k.defl.reshape(3, -1).squeeze(-1) if k.defl.size == 3 else k.defl.reshape(3, 2)
+    return IKResult(
+        th=k.th, th_a=th_a, J=J, S=S, singularity=singularity_measure(S, dv.r1), margin=k.margin,
+        deflection=defl,
+    )
+
+
+_ik_jit = eqx.filter_jit(_ik)
+
+
+def check_pose(res: IKResult, X):
+    """Raise on an unreachable pose or a singular configuration (works under jit and vmap)."""
+    th = raise_if(
+        res.th, jnp.any(res.margin <= REACH_TOL, axis=-1),
+        "unreachable pose: a chain cannot close (|E_i - A_i| outside the chain's reach); "
+        "allowed poses keep every chain's closure angle inside (0, pi)",
+    )
+    th = raise_if(
+        th, res.singularity < SINGULAR_TOL,
+        f"singular configuration: the actuation Jacobian S = d th_a/dX is (nearly) singular "
+        f"(inverse condition number < {SINGULAR_TOL:g})",
+    )
+    return eqx.tree_at(lambda r: r.th, res, th)
+
+
+def inverse_kinematics(
+    params: RobotParams, X: Float[Array, "3"], model: Optional[AbstractModel] = None
+) -> IKResult:
+    """Inverse kinematics of the L1 (default) or L0 model at pose X = (x, y, phi) (m, m, rad).
+
+    L1 imposes the quasi-static assumption th_i1 - 2 th_i2 + th_i3 = 0 (eq 29) and is closed form
+    when r1 = r3 (Newton otherwise); L0 is the rigid two-link closure. Raises `PPRError` for an
+    unreachable pose or a singular configuration (under jit: an equinox runtime error).
+    """
+    model = Reduced() if model is None else model
+    if model.actuated_index is not None:
+        raise ValueError(
+            f"inverse_kinematics is defined for models whose pose fixes every joint (rigid, "
+            f"reduced), not {model.name!r}"
+        )
+    X = jnp.asarray(X, dtype=jnp.float64)
+    return check_pose(_ik_jit(model, params, X), X)
+
+
+def jacobians(params: RobotParams, X, model: Optional[AbstractModel] = None):
+    """(J, S) at pose X: J = dq/dX (12, 3) (eq 47, the last 3 rows the identity), S = d th_a/dX."""
+    r = inverse_kinematics(params, X, model)
+    return r.J, r.S
+
+
+def predeflection(params: RobotParams, X=None) -> dict:
+    """Spring deflections at pose X (default home) for L1 (per pivot) and L0 (per pin) (rad).
+
+    Table 1's lengths do not put the home pose exactly on the joint's natural (spring-free) arc:
+    the default robot carries about -0.0152 rad per L1 pivot at home (MODEL.md section 4)."""
+    from ._rigid import Rigid
+
+    X = home_pose(params) if X is None else jnp.asarray(X, dtype=jnp.float64)
+    r1 = inverse_kinematics(params, X, Reduced())
+    r0 = inverse_kinematics(params, X, Rigid())
+    return {"reduced": r1.deflection, "rigid": r0.deflection}
+
+
+# ---------------------------------------------------------------------------------------------
+# Forward kinematics (Newton, warm-startable)
+# ---------------------------------------------------------------------------------------------
+
+
+def _fk(model, params, th_a, X_guess, rtol, atol, max_steps):
+    dv = derived(params)
+
+    def resid(X, th_a):
+        k = model.kinematics(params, dv, model.coords_from_pose(params, dv, X))
+        return k.th_a - th_a
+
+    sol = optx.root_find(
+        resid, optx.Newton(rtol=rtol, atol=atol), X_guess, args=th_a, max_steps=max_steps,
+        throw=False,
+    )
+    return sol.value, sol.result
+
+
+_fk_jit = eqx.filter_jit(_fk)
+
+
+def forward_kinematics(
+    params: RobotParams,
+    th_a: Float[Array, "3"],
+    X_guess: Optional[Float[Array, "3"]] = None,
+    model: Optional[AbstractModel] = None,
+    *,
+    rtol: float = 1e-13,
+    atol: float = 1e-13,
+    max_steps: int = 50,
+) -> Float[Array, "3"]:
+    """Platform pose X (m, m, rad) of the L1 (default) or L0 model from the actuated angles th_a.
+
+    Newton on th_a(X) = th_a (optimistix, differentiable by the implicit function theorem),
+    started at `X_guess` (default home): pass the previous solution to warm-start along a path.
+    The assembly mode found is the one nearest the guess. Raises `PPRError` if Newton does not
+    converge or lands on an unreachable / singular configuration."""
+    model = Reduced() if model is None else model
+    th_a = jnp.asarray(th_a, dtype=jnp.float64)
+    X_guess = home_pose(params) if X_guess is None else jnp.asarray(X_guess, dtype=jnp.float64)
+    X, result = _fk_jit(model, params, th_a, X_guess, rtol, atol, max_steps)
+    X = raise_if(
+        X, result != optx.RESULTS.successful,
+        "forward kinematics did not converge: the actuated angles are out of reach or near a "
+        "singular configuration; try a closer X_guess",
+    )
+    check_pose(_ik_jit(model, params, X), X)
+    return X
+
+
+def _fk_path(model, params, th_a_path, X0, rtol, atol, max_steps):
+    def step(X, th_a):
+        Xn, res = _fk(model, params, th_a, X, rtol, atol, max_steps)
+        return Xn, (Xn, res._value)
+
+    _, (Xs, codes) = jax.lax.scan(step, X0, th_a_path)
+    return Xs, codes
+
+
+_fk_path_jit = eqx.filter_jit(_fk_path)
+
+
+def forward_kinematics_path(
+    params: RobotParams,
+    th_a_path: Float[Array, "m 3"],
+    X0: Optional[Float[Array, "3"]] = None,
+    model: Optional[AbstractModel] = None,
+    *,
+    rtol: float = 1e-13,
+    atol: float = 1e-13,
+    max_steps: int = 50,
+) -> Float[Array, "m 3"]:
+    """Forward kinematics along a sampled path of actuated angles, each Newton solve warm-started
+    from the previous pose (one `lax.scan`, compiled once per shape)."""
+    model = Reduced() if model is None else model
+    th_a_path = jnp.asarray(th_a_path, dtype=jnp.float64)
+    X0 = home_pose(params) if X0 is None else jnp.asarray(X0, dtype=jnp.float64)
+    Xs, codes = _fk_path_jit(model, params, th_a_path, X0, rtol, atol, max_steps)
+    Xs = raise_if(
+        Xs, jnp.any(codes != 0),
+        "forward kinematics along the path did not converge at some sample (out of reach, "
+        "singular, or a jump between samples too large for the warm start)",
+    )
+    return Xs

@@ -1,0 +1,85 @@
+"""Natural frequencies linearized about a static equilibrium (MODEL.md section 6, scene `modes`).
+
+K_eff = -dQ/dz at the equilibrium includes the geometric stiffness of the pre-load (the springs'
+pre-deflection times the curvature of their deflection maps), so an unstable equilibrium has a
+negative eigenvalue; it is reported as a negative signed frequency and a growth rate, never NaN.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array
+from ._dynamics import eom_terms, generalized_force
+from ._kinematics import home_pose
+from ._model import AbstractModel
+from ._params import RobotParams
+from ._prb import derived
+from ._statics import _assemble, static_equilibrium
+
+
+class Modes(eqx.Module):
+    """freq_hz (k,): signed natural frequencies sign(lambda) sqrt(|lambda|)/(2 pi), ascending;
+    growth_rate (k,): sqrt(-lambda) (1/s) for unstable modes, 0 otherwise; eigvals (k,) lambda
+    (rad^2/s^2); shapes (k, k) mass-normalized mode shapes in the free coordinates; z_eq (n,)
+    the equilibrium; free: indices of the free coordinates; M, K (k, k) the linearization."""
+
+    freq_hz: Array
+    growth_rate: Array
+    eigvals: Array
+    shapes: Array
+    z_eq: Array
+    M: Array
+    K: Array
+    free: tuple = eqx.field(static=True)
+
+
+def modes(
+    model: AbstractModel,
+    params: RobotParams,
+    X=None,
+    *,
+    actuators: str = "locked",
+    wrench=None,
+) -> Modes:
+    """Linear modes of `model` about its static equilibrium near pose X (default home).
+
+    actuators="locked": the actuated angles are held at the L1 inverse-kinematics angles of X
+    (the L0 model's own for L0); L0 and L1 then have no free coordinate and no mode.
+    actuators="free": zero actuator torque, every coordinate free.
+    """
+    if actuators not in ("locked", "free"):
+        raise ValueError(f"actuators must be 'locked' or 'free', got {actuators!r}")
+    dv = derived(params)
+    X = home_pose(params) if X is None else jnp.asarray(X, dtype=jnp.float64)
+    w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
+    locked = actuators == "locked"
+    z_eq, free = static_equilibrium(
+        model, params, model.coords_from_pose(params, dv, X), locked=locked, wrench=w
+    )
+    n = model.n_dof
+    if not free:
+        e = jnp.zeros((0,))
+        return Modes(e, e, e, jnp.zeros((0, 0)), z_eq, jnp.zeros((0, 0)), jnp.zeros((0, 0)), ())
+    known = tuple(i for i in range(n) if i not in free)
+    f = jnp.array(free)
+    zk = z_eq[jnp.array(known)] if known else None
+
+    def Q(zf):
+        z = _assemble(n, free, zf, known, zk)
+        return generalized_force(eom_terms(model, params, dv, z, jnp.zeros(n)), jnp.zeros(3), w)[f]
+
+    K = -jax.jacfwd(Q)(z_eq[f])
+    K = (K + K.T) / 2  # symmetric at an equilibrium of conservative forces; remove rounding
+    M = eom_terms(model, params, dv, z_eq, jnp.zeros(n)).M[f][:, f]
+    Lc = jnp.linalg.cholesky(M)
+    Li = jnp.linalg.inv(Lc)
+    lam, V = jnp.linalg.eigh(Li @ K @ Li.T)
+    shapes = Li.T @ V
+    freq = jnp.sign(lam) * jnp.sqrt(jnp.abs(lam)) / (2 * jnp.pi)
+    growth = jnp.where(lam < 0, jnp.sqrt(jnp.abs(lam)), 0.0)
+    return Modes(freq, growth, lam, shapes, z_eq, M, K, free)

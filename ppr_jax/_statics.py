@@ -1,0 +1,140 @@
+"""Static equilibria and quasi-static (L1-consistent) initial states.
+
+Every residual here is the generalized force balance of `_dynamics.py`, solved with optimistix
+Newton (differentiable by the implicit function theorem, forward and reverse mode).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+
+from ._checks import raise_if
+from ._dynamics import eom_terms, generalized_force
+from ._model import AbstractModel
+from ._params import RobotParams
+from ._prb import derived
+from ._trajectory import derivatives
+
+
+def _assemble(n, idx_u, zu, idx_k, zk):
+    z = jnp.zeros(n, dtype=jnp.float64)
+    if idx_u:
+        z = z.at[jnp.array(idx_u)].set(zu)
+    if idx_k:
+        z = z.at[jnp.array(idx_k)].set(zk)
+    return z
+
+
+def _newton(resid, y0, args, rtol=1e-12, atol=1e-12, max_steps=100):
+    sol = optx.root_find(
+        resid, optx.Newton(rtol=rtol, atol=atol), y0, args=args, max_steps=max_steps, throw=False
+    )
+    return sol.value, sol.result
+
+
+def static_equilibrium(
+    model: AbstractModel,
+    params: RobotParams,
+    z_guess,
+    *,
+    locked: bool,
+    tau=None,
+    wrench=None,
+    check: bool = True,
+):
+    """Static equilibrium z* of `model` near `z_guess`.
+
+    locked=True: the actuated angles stay at their values in `z_guess` and only the other
+    coordinates move (L2: the pose; L0/L1 have none left and `z_guess` is returned).
+    locked=False: every coordinate is free and the actuators apply constant torques `tau`
+    (default 0, "free actuators"). `wrench` (3,) is a constant platform load.
+    Returns (z*, free_index) with free_index the coordinates that were free."""
+    dv = derived(params)
+    n = model.n_dof
+    tau = jnp.zeros(3) if tau is None else jnp.asarray(tau, dtype=jnp.float64)
+    w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
+    z_guess = jnp.asarray(z_guess, dtype=jnp.float64)
+    if locked:
+        if model.actuated_index is None:
+            return z_guess, ()
+        known = tuple(model.actuated_index)
+    else:
+        known = ()
+    free = tuple(i for i in range(n) if i not in known)
+    zk = z_guess[jnp.array(known)] if known else None
+
+    def resid(zf, _):
+        z = _assemble(n, free, zf, known, zk)
+        eom = eom_terms(model, params, dv, z, jnp.zeros(n))
+        return generalized_force(eom, tau, w)[jnp.array(free)]
+
+    zf, result = _newton(resid, z_guess[jnp.array(free)], None)
+    if check:
+        zf = raise_if(
+            zf, result != optx.RESULTS.successful,
+            "static equilibrium not found (Newton did not converge): the load may exceed what "
+            "the joints hold, or the guess is far from an equilibrium",
+        )
+    return _assemble(n, free, zf, known, zk), free
+
+
+def quasi_static_state(
+    model: AbstractModel,
+    params: RobotParams,
+    trajectory: Callable,
+    t,
+    *,
+    motion_driven: bool,
+    torque: Optional[Callable] = None,
+    wrench=None,
+):
+    """Initial state (z, z') of `model` consistent with the L1 motion along `trajectory` at t.
+
+    The reference is the model's coordinates on the L1 manifold, z_ref(t) =
+    coords_from_pose(X(t)), with its velocity and acceleration. Models without internal degrees of
+    freedom (L0, L1) return it as is. For L2 the coordinates not fixed by the scene are put at the
+    quasi-static state: their rows of M z'' + h = Q balance with the reference accelerations
+    (torque-driven: the pose is the nominal one and the actuated angles balance the applied torque;
+    motion-driven: the actuated angles are prescribed and the pose balances). Their velocity is the
+    time derivative of that quasi-static solution (implicit differentiation through Newton), so
+    no fast internal vibration is excited at t = 0 beyond what the model mismatch implies.
+    """
+    dv = derived(params)
+    n = model.n_dof
+    w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
+
+    def ref(t):
+        return model.coords_from_pose(params, dv, trajectory(t))
+
+    t = jnp.asarray(t, dtype=jnp.float64)
+    if model.actuated_index is None:
+        z, zd, _ = derivatives(ref, t)
+        return z, zd
+    act = tuple(model.actuated_index)
+    unknown = tuple(i for i in range(n) if i not in act) if motion_driven else act
+    known = tuple(i for i in range(n) if i not in unknown)
+    iu, ik = jnp.array(unknown), jnp.array(known)
+
+    def solve_at(t):
+        z_r, zd_r, zdd_r = derivatives(ref, t)
+        tau = jnp.zeros(3) if (motion_driven or torque is None) else torque(t)
+
+        def resid(zu, _):
+            z = _assemble(n, unknown, zu, known, z_r[ik])
+            eom = eom_terms(model, params, dv, z, zd_r)
+            r = eom.M @ zdd_r + eom.h - generalized_force(eom, tau, w)
+            return r[iu]
+
+        zu, result = _newton(resid, z_r[iu], None)
+        return zu, result._value
+
+    (zu, code), (zu_dot, _) = jax.jvp(solve_at, (t,), (jnp.ones_like(t),))
+    z_r, zd_r, _ = derivatives(ref, t)
+    zu = raise_if(zu, code != 0, "quasi-static initial state not found (Newton did not converge)")
+    z = _assemble(n, unknown, zu, known, z_r[ik])
+    zd = _assemble(n, unknown, zu_dot, known, zd_r[ik])
+    return z, zd
