@@ -1,15 +1,45 @@
-"""ppr_jax: differentiable dynamics of planar parallel robots with compliant joints."""
+"""ppr_jax: differentiable dynamics of planar parallel robots with compliant joints.
+
+float64 is enabled on import. See README.md for the model levels, scenes and CLI.
+"""
 
 import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
-from ._params import RobotParams as RobotParams, stack_params as stack_params  # noqa: E402
+from ._params import (  # noqa: E402
+    RobotParams as RobotParams,
+    PARAM_RANGES as PARAM_RANGES,
+    stack_params as stack_params,
+    unstack_params as unstack_params,
+)
 from ._prb import Derived as Derived, derived as derived  # noqa: E402
+from ._model import AbstractModel as AbstractModel, Kin as Kin  # noqa: E402
 from ._rigid import Rigid as Rigid  # noqa: E402
 from ._reduced import Reduced as Reduced  # noqa: E402
 from ._double1r import Double1R as Double1R  # noqa: E402
-from ._trajectory import Circle as Circle, Hold as Hold, Interpolated as Interpolated  # noqa: E402
+from ._checks import PPRError as PPRError  # noqa: E402
+from ._kinematics import home_pose as home_pose  # noqa: E402
+from ._ik import (  # noqa: E402
+    IKResult as IKResult,
+    inverse_kinematics as inverse_kinematics,
+    forward_kinematics as forward_kinematics,
+    forward_kinematics_path as forward_kinematics_path,
+    jacobians as jacobians,
+    predeflection as predeflection,
+)
+from ._dynamics import (  # noqa: E402
+    EOM as EOM,
+    eom_terms as eom_terms,
+    energy as energy,
+    inverse_dynamics as inverse_dynamics,
+)
+from ._trajectory import (  # noqa: E402
+    Circle as Circle,
+    Hold as Hold,
+    Interpolated as Interpolated,
+    derivatives as derivatives,
+)
 from ._actuation import (  # noqa: E402
     TorqueDriven as TorqueDriven,
     MotionDriven as MotionDriven,
@@ -22,3 +52,19 @@ from ._simulate import (  # noqa: E402
     Solution as Solution,
     SimulationError as SimulationError,
 )
+from ._statics import (  # noqa: E402
+    static_equilibrium as static_equilibrium,
+    quasi_static_state as quasi_static_state,
+)
+from ._modes import Modes as Modes, modes as modes  # noqa: E402
+from ._metrics import outputs as outputs, metrics as metrics  # noqa: E402
+from ._scenes import (  # noqa: E402
+    SceneResult as SceneResult,
+    paper_circle as paper_circle,
+    servo_circle as servo_circle,
+    modes_scene as modes_scene,
+    scene_params as scene_params,
+    get_model as get_model,
+)
+
+__version__ = "0.1.0"

@@ -10,7 +10,6 @@ from __future__ import annotations
 from typing import Callable, Optional
 
 import equinox as eqx
-import jax.numpy as jnp
 
 from ._custom_types import Array
 from ._dynamics import inverse_dynamics
@@ -78,9 +77,3 @@ class InverseKinematicsAngles(eqx.Module):
 
 def _pose_coords(f: InverseKinematicsAngles, X):
     return f.model.coords_from_pose(f.params, derived(f.params), X)
-
-
-def zero_torque() -> TorqueDriven:
-    from ._trajectory import Hold
-
-    return TorqueDriven(Hold(jnp.zeros(3)))

@@ -17,7 +17,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from ._custom_types import Array, Float
-from ._kinematics import base_points, e
+from ._kinematics import base_points, e, loop_residual
 from ._params import RobotParams
 from ._prb import Derived
 
@@ -67,6 +67,10 @@ class AbstractModel(eqx.Module):
     @abc.abstractmethod
     def coords_from_pose(self, params: RobotParams, dv: Derived, X: Float[Array, "3"]):
         """Coordinates z at platform pose X on the model's quasi-static (L1-consistent) manifold."""
+
+    def loop_residual(self, params: RobotParams, dv: Derived, kin: Kin) -> Float[Array, "3 2"]:
+        """Loop-closure residual of each chain (eq 12) (m)."""
+        return loop_residual(params, dv, kin.th, kin.X)
 
     def joint_end_rotations(self, params: RobotParams, dv: Derived, kin: Kin) -> Float[Array, "3 2"]:
         """Rotations of the two ends of each compliant joint relative to the joint's chord

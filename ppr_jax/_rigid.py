@@ -11,7 +11,14 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._kinematics import base_points, deflection_rigid, e, ik_rigid, platform_points
+from ._kinematics import (
+    base_points,
+    deflection_rigid,
+    e,
+    ik_rigid,
+    loop_residual_rigid,
+    platform_points,
+)
 from ._model import AbstractModel, Kin, rotor_inertia
 
 
@@ -45,6 +52,9 @@ class Rigid(AbstractModel):
 
     def coords_from_pose(self, params, dv, X):
         return X
+
+    def loop_residual(self, params, dv, kin):
+        return loop_residual_rigid(params, dv, kin.th, kin.X)
 
     def joint_end_rotations(self, params, dv, kin):
         # One pin: each end of the joint carries half of the pin's rotation.
