@@ -1,0 +1,318 @@
+"""Command line interface `ppr-jax` (see README.md, "Command line")."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+PAPER_REFERENCE = {
+    "paper-circle": {
+        "source": "paper section 2.2, theory vs ADAMS-ANSYS, t = 0.3 mm",
+        "radial_error_max_m": 2.41e-3,
+        "radial_error_min_m": -0.99e-3,
+        "radial_error_mean_m": 0.84e-3,
+        "radial_error_max_relative_percent": 2.41,
+        "end_rotation_diff_max_deg": 5.60,
+        "end_rotation_diff_min_deg": -7.62,
+        "end_rotation_diff_mean_deg": -0.04,
+        "end_rotation_diff_max_relative_percent": 6.60,
+        "computation_time_s": 60.0,
+        "cosimulation_time_s": 28 * 60.0,
+    },
+    "servo-circle": {
+        "source": "paper section 3, theory vs experiment (NDI Optotrak), t = 0.5 mm",
+        "radial_error_max_m": 4.69e-3,
+        "radial_error_min_m": -3.59e-3,
+        "radial_error_mean_m": 0.71e-3,
+        "radial_error_max_relative_percent": 4.69,
+    },
+}
+
+
+def _parse_sets(items, scene):
+    from ._params import parse_value
+    from ._scenes import scene_params
+
+    kw = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ValueError(f"--set expects NAME=VALUE, got {item!r}")
+        name, value = item.split("=", 1)
+        name = name.strip()
+        kw[name] = parse_value(name, value)
+    return scene_params(scene, **kw)
+
+
+def _params_dict(params):
+    import dataclasses
+
+    out = {}
+    for f in dataclasses.fields(params):
+        v = getattr(params, f.name)
+        out[f.name] = None if v is None else (v if isinstance(v, int) else float(v))
+    return out
+
+
+def _derived_dict(params):
+    import dataclasses
+
+    from ._prb import derived
+
+    dv = derived(params)
+    return {f.name: float(getattr(dv, f.name)) for f in dataclasses.fields(dv)}
+
+
+def _log(msg):
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _models(text, default):
+    names = [m.strip() for m in (text or default).split(",") if m.strip()]
+    from ._scenes import MODELS
+
+    for m in names:
+        if m not in MODELS:
+            raise ValueError(f"unknown model {m!r}; allowed: {', '.join(MODELS)}")
+    return names
+
+
+def cmd_simulate(args):
+    from ._plots import scene_figures
+    from ._scenes import modes_scene, paper_circle, servo_circle
+    from ._trajectory import Circle
+
+    scene = args.scene
+    params = _parse_sets(args.set, scene)
+    os.makedirs(args.out, exist_ok=True)
+    if scene == "modes":
+        models = _models(args.model, "reduced,double1r")
+        res = []
+        for m in models:
+            for act in ("locked", "free"):
+                _log(f"modes: {m}, actuators {act} ...")
+                res.append(modes_scene(params, model=m, actuators=act))
+        summary = {"scene": scene, "params": _params_dict(params), "modes": res}
+        _write_json(os.path.join(args.out, "summary.json"), summary)
+        for r in res:
+            f = ", ".join(f"{x:.4g}" for x in r["frequencies_hz"]) or "none (no free coordinate)"
+            print(f"{r['model']:>9s} actuators {r['actuators']:>6s}: {f} Hz")
+        print(f"wrote {args.out}/summary.json")
+        return 0
+    models = _models(args.model, "rigid,reduced,double1r")
+    kw = dict(t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol,
+              atol=args.atol, max_steps=args.max_steps)
+    results = []
+    for i, m in enumerate(models):
+        _log(f"[{i + 1}/{len(models)}] {scene}: model {m} (compiling, then running) ...")
+        t0 = time.perf_counter()
+        if scene == "paper-circle":
+            r = paper_circle(params, model=m, torque_model=args.torque_model, **kw)
+        else:
+            r = servo_circle(params, model=m, **kw)
+        _log(f"      done in {time.perf_counter() - t0:.1f} s (compile {r.timing['compile_s']:.1f} s, "
+             f"run {r.timing['run_s'] * 1e3:.1f} ms, {r.metrics['num_steps']} steps)")
+        results.append(r)
+    traj = Circle()
+    summary = {
+        "scene": scene,
+        "torque_model": args.torque_model if scene == "paper-circle" else None,
+        "t_end_s": args.t_end,
+        "n_out": args.n_out,
+        "params": _params_dict(params),
+        "derived": _derived_dict(params),
+        "models": {r.model: dict(r.metrics, solver=r.solver) for r in results},
+        "paper_reference": PAPER_REFERENCE.get(scene),
+    }
+    _write_json(os.path.join(args.out, "summary.json"), summary)
+    _write_csv(os.path.join(args.out, "trajectory.csv"), results)
+    scene_figures(results, args.out, np.asarray(traj.center), float(traj.radius))
+    _print_table(scene, results, args)
+    print(f"wrote {args.out}/summary.json, trajectory.csv, trajectory.png, angle.png, radial_error.png")
+    return 0
+
+
+def _print_table(scene, results, args):
+    ref = PAPER_REFERENCE.get(scene, {})
+    hdr = (f"{'model':>10s} {'e_r max':>9s} {'e_r min':>9s} {'e_r mean':>9s} {'max|e_r|/R':>10s} "
+           f"{'|dphi| max':>10s} {'d_end max':>9s} {'d_end min':>9s} {'d_end mean':>10s} "
+           f"{'rel':>6s} {'resid':>8s} {'steps':>6s} {'run':>8s}")
+    units = (f"{'':>10s} {'mm':>9s} {'mm':>9s} {'mm':>9s} {'%':>10s} {'mrad':>10s} {'deg':>9s} "
+             f"{'deg':>9s} {'deg':>10s} {'%':>6s} {'m':>8s} {'':>6s} {'ms':>8s}")
+    print(f"\nScene {scene} (t = {float(results[0].params.t) * 1e3:.2f} mm); radial error "
+          f"e_r = |(x,y) - c| - R against the nominal circle (eq 55); d_end = difference of chain "
+          f"1's joint end rotations")
+    print(hdr)
+    print(units)
+    for r in results:
+        m = r.metrics
+        print(f"{r.model:>10s} {m['radial_error_max_m'] * 1e3:9.4f} {m['radial_error_min_m'] * 1e3:9.4f} "
+              f"{m['radial_error_mean_m'] * 1e3:9.4f} {m['radial_error_max_relative_percent']:10.4f} "
+              f"{m['phi_error_max_rad'] * 1e3:10.4f} {m['end_rotation_diff_max_deg']:9.4f} "
+              f"{m['end_rotation_diff_min_deg']:9.4f} {m['end_rotation_diff_mean_deg']:10.4f} "
+              f"{m['end_rotation_diff_max_relative_percent']:6.2f} "
+              f"{m['constraint_residual_max_m']:8.1e} {m['num_steps']:6d} {r.timing['run_s'] * 1e3:8.2f}")
+    if ref:
+        print(f"{'paper':>10s} {ref['radial_error_max_m'] * 1e3:9.4f} {ref['radial_error_min_m'] * 1e3:9.4f} "
+              f"{ref['radial_error_mean_m'] * 1e3:9.4f} {ref['radial_error_max_relative_percent']:10.4f}"
+              f"   ({ref['source']})")
+    for r in results:
+        if r.metrics["radial_error_max_relative_percent"] > 20:
+            print(f"note: {r.model} runs far off the circle ({r.metrics['radial_error_max_relative_percent']:.0f}% "
+                  f"of R): open-loop torques of another model amplify the mismatch (L0's pin is about "
+                  f"half as stiff as the double-1R joint); use --torque-model {r.model} for its own torques")
+
+
+def _write_json(path, obj):
+    with open(path, "w") as f:
+        json.dump(obj, f, indent=2)
+
+
+def _write_csv(path, results):
+    from ._metrics import radial_error
+    from ._trajectory import Circle
+
+    c = Circle()
+    center, R = np.asarray(c.center), float(c.radius)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["model", "t", "x", "y", "phi", "e_r", "tau_1", "tau_2", "tau_3",
+                    "end_rot_1", "end_rot_2"])
+        r0 = results[0]
+        er = np.asarray(radial_error(r0.X_nominal, center, R))
+        for k in range(len(r0.ts)):
+            w.writerow(["nominal", r0.ts[k], *r0.X_nominal[k], er[k], "", "", "", "", ""])
+        for r in results:
+            er = np.asarray(radial_error(r.X, center, R))
+            for k in range(len(r.ts)):
+                w.writerow([r.model, r.ts[k], *r.X[k], er[k], *r.tau[k], *r.end_rot[k]])
+
+
+def cmd_torques(args):
+    import jax
+    import jax.numpy as jnp
+
+    from ._actuation import InverseDynamicsTorque
+    from ._scenes import get_model
+    from ._trajectory import Circle
+
+    params = _parse_sets(args.set, "paper-circle")
+    model = get_model(args.model)
+    if model.actuated_index is not None:
+        raise ValueError(f"torques: inverse dynamics along eq 55 needs model rigid or reduced, "
+                         f"not {model.name!r}")
+    ts = jnp.linspace(0.0, args.t_end, args.n_out)
+    tau = jax.jit(jax.vmap(InverseDynamicsTorque(model, params, Circle())))(ts)
+    tau = np.asarray(tau)
+    if not np.all(np.isfinite(tau)):
+        raise ValueError("inverse dynamics produced non-finite torques (singular configuration)")
+    os.makedirs(args.out, exist_ok=True)
+    path = os.path.join(args.out, "torques.csv")
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t", "tau_1", "tau_2", "tau_3"])
+        for k in range(len(ts)):
+            w.writerow([float(ts[k]), *tau[k]])
+    print(f"max |tau| = {np.abs(tau).max():.6g} N m; wrote {path}")
+    return 0
+
+
+def cmd_modes(args):
+    from ._scenes import modes_scene
+
+    params = _parse_sets(args.set, "modes")
+    X = None if args.pose is None else [float(v) for v in args.pose.split(",")]
+    r = modes_scene(params, model=args.model, actuators=args.actuators, X=X)
+    if args.json:
+        print(json.dumps(r, indent=2))
+    else:
+        f = ", ".join(f"{x:.6g}" for x in r["frequencies_hz"]) or "none"
+        print(f"{r['model']} actuators {r['actuators']}: {f} Hz\n{r['note']}")
+    return 0
+
+
+def cmd_prb(args):
+    from ._ik import predeflection
+
+    params = _parse_sets(args.set, "paper-circle")
+    out = {"params": _params_dict(params), "derived": _derived_dict(params)}
+    pd = predeflection(params)
+    out["predeflection_home_rad"] = {
+        "reduced_per_pivot": [float(v) for v in np.asarray(pd["reduced"])[:, 0]],
+        "rigid_per_pin": [float(v) for v in np.asarray(pd["rigid"])],
+    }
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        for k, v in out["derived"].items():
+            print(f"{k:>8s} = {v:.8g}")
+        print(f"pre-deflection at home: {out['predeflection_home_rad']}")
+    return 0
+
+
+def build_parser():
+    from ._params import settable_names
+
+    p = argparse.ArgumentParser(prog="ppr-jax", description=__doc__)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    set_help = ("override a parameter, NAME=VALUE (SI units); repeatable; names: "
+                + ", ".join(settable_names()))
+
+    s = sub.add_parser("simulate", help="run a scene and write summary.json, trajectory.csv, figures")
+    s.add_argument("--scene", default="paper-circle", choices=["paper-circle", "servo-circle", "modes"])
+    s.add_argument("--model", default=None,
+                   help="rigid, reduced, double1r or a comma list (default: all three)")
+    s.add_argument("--torque-model", default="reduced", choices=["rigid", "reduced"],
+                   help="paper-circle: the model whose inverse dynamics gives the torques")
+    s.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
+    s.add_argument("--out", default="out")
+    s.add_argument("--solver", default=None, help="tsit5, dopri5, dopri8, kvaerno3, kvaerno5")
+    s.add_argument("--rtol", type=float, default=1e-8)
+    s.add_argument("--atol", type=float, default=1e-10)
+    s.add_argument("--max-steps", type=int, default=200_000)
+    s.add_argument("--t-end", type=float, default=7.54)
+    s.add_argument("--n-out", type=int, default=755)
+    s.set_defaults(func=cmd_simulate)
+
+    t = sub.add_parser("torques", help="inverse-dynamics torques along eq 55 as CSV")
+    t.add_argument("--model", default="reduced", choices=["rigid", "reduced"])
+    t.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
+    t.add_argument("--out", required=True)
+    t.add_argument("--t-end", type=float, default=7.54)
+    t.add_argument("--n-out", type=int, default=755)
+    t.set_defaults(func=cmd_torques)
+
+    m = sub.add_parser("modes", help="natural frequencies about a static equilibrium (Hz)")
+    m.add_argument("--model", default="double1r", choices=["rigid", "reduced", "double1r"])
+    m.add_argument("--actuators", default="locked", choices=["locked", "free"])
+    m.add_argument("--pose", default=None, help="x,y,phi (default: home)")
+    m.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
+    m.add_argument("--json", action="store_true")
+    m.set_defaults(func=cmd_modes)
+
+    r = sub.add_parser("prb", help="every derived quantity of the PRB joint (MODEL.md section 3)")
+    r.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
+    r.add_argument("--json", action="store_true")
+    r.set_defaults(func=cmd_prb)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    from ._checks import PPRError
+    from ._simulate import SimulationError
+
+    try:
+        return args.func(args)
+    except (ValueError, PPRError, SimulationError) as err:
+        print(f"ppr-jax: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
