@@ -47,6 +47,11 @@ def platform_points(dv: Derived, X: Float[Array, "3"]) -> Float[Array, "3 2"]:
     return X[:2] + dv.rho_E * e(BETA + X[2])
 
 
+def wrap(x):
+    """Angle wrapped to (-pi, pi] (smooth away from +-pi: derivative 1)."""
+    return jnp.arctan2(jnp.sin(x), jnp.cos(x))
+
+
 def two_link(d, la, lb, elbow):
     """Solve la e(th_a) + lb e(th_b) = d for (th_a, th_b) on the branch sign(th_b - th_a) = elbow.
 
@@ -133,6 +138,10 @@ def chain_closure_double1r(params: RobotParams, dv: Derived, X, th_a):
     B = base_points(params) + dv.r1 * e(th_a)
     d = platform_points(dv, X) - B
     t2, t3, margin = two_link(d, dv.r2, dv.r3, params.sigma)
+    # th_a is an unbounded coordinate while atan2 wraps: keep the chain's angles continuous with
+    # it so that joint angles, plots and deflections never jump by 2 pi.
+    t2 = th_a + wrap(t2 - th_a)
+    t3 = t2 + wrap(t3 - t2)
     return jnp.stack([th_a, t2, t3], axis=-1), margin
 
 
@@ -163,8 +172,8 @@ def deflections(params: RobotParams, dv: Derived, th) -> Float[Array, "3 2"]:
     d_i1 = (th_i2 - th_i1) - sigma psi0, d_i2 = (th_i3 - th_i2) - sigma psi0 (rad)."""
     return jnp.stack(
         [
-            th[:, 1] - th[:, 0] - params.sigma * dv.psi0,
-            th[:, 2] - th[:, 1] - params.sigma * dv.psi0,
+            wrap(th[:, 1] - th[:, 0] - params.sigma * dv.psi0),
+            wrap(th[:, 2] - th[:, 1] - params.sigma * dv.psi0),
         ],
         axis=-1,
     )
@@ -172,7 +181,7 @@ def deflections(params: RobotParams, dv: Derived, th) -> Float[Array, "3 2"]:
 
 def deflection_rigid(params: RobotParams, dv: Derived, th) -> Float[Array, "3"]:
     """L0 pin deflection (th_i3 - th_i1) - sigma theta_c (rad), th (3, 2)."""
-    return th[:, 1] - th[:, 0] - params.sigma * params.theta_c
+    return wrap(th[:, 1] - th[:, 0] - params.sigma * params.theta_c)
 
 
 def singularity_measure(S: Float[Array, "3 3"], r1) -> Array:

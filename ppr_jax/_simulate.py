@@ -119,7 +119,7 @@ def _accel(model, params, dv, actuation, wrench, t, zf, zfd):
 @eqx.filter_jit
 def _simulate_core(
     model, params, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0, max_steps, wrench,
-    throw, progress_meter,
+    throw, progress_meter, adjoint=None,
 ):
     dv = derived(params)
     free, _ = _split(model, actuation)
@@ -135,6 +135,7 @@ def _simulate_core(
         diffrax.ODETerm(vf), solver, ts[0], ts[-1], dt0, y0,
         saveat=diffrax.SaveAt(ts=ts), stepsize_controller=stepsize_controller,
         max_steps=max_steps, throw=throw, progress_meter=progress_meter,
+        adjoint=diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
     )
     z, zd, _, tau = jax.vmap(
         lambda t, a, b: _accel(model, params, dv, actuation, wrench, t, a, b)
@@ -184,6 +185,7 @@ def simulate(
     wrench: Optional[Float[Array, "3"]] = None,
     stepsize_controller: Optional[diffrax.AbstractStepSizeController] = None,
     progress: bool = False,
+    adjoint: Optional[diffrax.AbstractAdjoint] = None,
 ) -> Solution:
     """Integrate `model` under `actuation` from (z0, z0') and save at times `ts` (increasing).
 
@@ -192,6 +194,8 @@ def simulate(
     is the constant step). For a motion-driven model the prescribed coordinates of z0 are ignored
     (they follow the actuation). On failure raises `SimulationError`; called under a JAX
     transformation (grad, vmap of the caller) the failure is raised by diffrax inside the trace.
+    `adjoint`: how to differentiate: diffrax's default (reverse mode, recursive checkpointing) or
+    `diffrax.ForwardMode()` for `jax.jvp` / `jax.jacfwd`.
     """
     ts = jnp.asarray(ts, dtype=jnp.float64)
     z0 = jnp.asarray(z0, dtype=jnp.float64)
@@ -215,7 +219,7 @@ def simulate(
     meter = diffrax.TextProgressMeter() if progress else diffrax.NoProgressMeter()
     sol = _simulate_core(
         model, params, actuation, z0, zdot0, ts, get_solver(solver), stepsize_controller, dt0,
-        max_steps, w, traced, meter,
+        max_steps, w, traced, meter, adjoint,
     )
     if not traced:
         check_result(sol.result)

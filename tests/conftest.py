@@ -1,0 +1,23 @@
+import jax
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+import ppr_jax as pj  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def params():
+    """Table 1 defaults, t = 0.3 mm."""
+    return pj.RobotParams()
+
+
+@pytest.fixture(scope="session")
+def dv(params):
+    return pj.derived(params)
+
+
+@pytest.fixture(scope="session")
+def paper_circle_L1():
+    """The L1 paper-circle scene (compiled once for the session)."""
+    return pj.paper_circle(model="reduced")

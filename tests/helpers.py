@@ -1,0 +1,39 @@
+"""Shared test helpers: tree comparison and finite-difference directional derivatives."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def tree_allclose(a, b, rtol=1e-10, atol=1e-12):
+    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+    if len(la) != len(lb):
+        return False
+    return all(np.allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol) for x, y in zip(la, lb))
+
+
+def fd_jvp(f, x, v, h=1e-6):
+    """Central finite difference (f(x + h v) - f(x - h v)) / 2h of a function of an array x."""
+    x = jnp.asarray(x)
+    return (f(x + h * v) - f(x - h * v)) / (2 * h)
+
+
+def fd_grad_scalar(f, x0, h):
+    """Central finite difference of a scalar function of a scalar."""
+    return (f(x0 + h) - f(x0 - h)) / (2 * h)
+
+
+def rotate_pose(X, center, k=1):
+    """Rotate a pose by k * 120 degrees about the base centroid, relabelling chain i as i + k.
+
+    The platform is an equilateral triangle, so the relabelled platform keeps its angle phi."""
+    a = 2 * jnp.pi / 3 * k
+    R = jnp.array([[jnp.cos(a), -jnp.sin(a)], [jnp.sin(a), jnp.cos(a)]])
+    p = center + R @ (X[:2] - center)
+    return jnp.concatenate([p, X[2:3]])
+
+
+def rotate_vel(Xd, k=1):
+    a = 2 * jnp.pi / 3 * k
+    R = jnp.array([[jnp.cos(a), -jnp.sin(a)], [jnp.sin(a), jnp.cos(a)]])
+    return jnp.concatenate([R @ Xd[:2], Xd[2:3]])

@@ -1,0 +1,141 @@
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ppr_jax as pj
+
+from helpers import rotate_pose, rotate_vel
+
+TS = jnp.linspace(0.0, 1.5, 151)
+
+
+def _energy(model, params, sol):
+    dv = pj.derived(params)
+    T, U = jax.vmap(lambda z, zd: pj.energy(model, params, dv, z, zd))(sol.z, sol.zdot)
+    return np.asarray(T), np.asarray(U)
+
+
+@pytest.mark.parametrize("model", [pj.Reduced(), pj.Double1R()])
+def test_energy_conservation_undamped_unforced(params, model):
+    dv = pj.derived(params)
+    z0 = model.coords_from_pose(params, dv, jnp.array([0.46, 0.25, 0.01]))
+    zd0 = jnp.concatenate([jnp.array([0.05, -0.04, 0.2]), jnp.zeros(model.n_dof - 3)])
+    if model.n_dof == 6:
+        zd0 = zd0.at[3:].set(jnp.array([0.1, -0.05, 0.02]))
+    sol = pj.simulate(
+        model, params, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), z0, zd0, TS,
+        solver="dopri8", rtol=1e-13, atol=1e-14,
+    )
+    T, U = _energy(model, params, sol)
+    E = T + U
+    drift = np.abs(E - E[0]).max() / T.max()
+    assert drift <= 1e-8, drift
+    assert T.max() > 1e-4  # it really moved
+
+
+def test_damping_dissipates(params):
+    p = params.replace(c_spring=2e-3, c_act=1e-3)
+    model = pj.Double1R()
+    dv = pj.derived(p)
+    z0 = model.coords_from_pose(p, dv, jnp.array([0.46, 0.25, 0.01]))
+    zd0 = jnp.array([0.05, -0.04, 0.2, 0.1, -0.05, 0.02])
+    sol = pj.simulate(model, p, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), z0, zd0, TS,
+                      solver="dopri8", rtol=1e-13, atol=1e-14)
+    T, U = _energy(model, p, sol)
+    E = T + U
+    assert np.all(np.diff(E) <= 1e-14)
+    assert E[-1] < E[0] - 1e-6
+
+
+def test_inverse_then_forward_dynamics_reproduces_circle(paper_circle_L1):
+    r = paper_circle_L1
+    dev = np.linalg.norm(r.X - r.X_nominal, axis=-1).max()
+    assert dev <= 1e-6, dev
+    assert abs(r.metrics["phi_error_max_rad"]) <= 1e-6
+    assert r.metrics["constraint_residual_max_m"] <= 1e-10
+
+
+@pytest.mark.parametrize("model", [pj.Rigid(), pj.Reduced()])
+def test_inverse_dynamics_rotational_symmetry(params, dv, model):
+    c = jnp.array([0.45, 0.45 / jnp.sqrt(3.0)])
+    X, Xd, Xdd = jnp.array([0.5, 0.27, 0.03]), jnp.array([0.1, -0.2, 0.3]), jnp.array([1., .5, -2.])
+    tau, e1 = pj.inverse_dynamics(model, params, dv, X, Xd, Xdd)
+    Xr, Xdr, Xddr = rotate_pose(X, c), rotate_vel(Xd), rotate_vel(Xdd)
+    tau_r, e2 = pj.inverse_dynamics(model, params, dv, Xr, Xdr, Xddr)
+    np.testing.assert_allclose(tau_r, jnp.roll(tau, 1), rtol=1e-9, atol=1e-13)
+    E1 = pj.energy(model, params, dv, X, Xd)
+    E2 = pj.energy(model, params, dv, Xr, Xdr)
+    np.testing.assert_allclose(E1, E2, rtol=1e-11)
+
+
+def test_double1r_accelerations_rotational_symmetry(params, dv):
+    m = pj.Double1R()
+    c = jnp.array([0.45, 0.45 / jnp.sqrt(3.0)])
+    X, Xd = jnp.array([0.5, 0.27, 0.03]), jnp.array([0.1, -0.2, 0.3])
+    z = m.coords_from_pose(params, dv, X) + jnp.array([0, 0, 0, 0.01, -0.02, 0.005])
+    zd = jnp.concatenate([Xd, jnp.array([0.2, -0.1, 0.3])])
+    tau = jnp.array([0.1, -0.2, 0.05])
+    from ppr_jax._dynamics import accelerations
+
+    a = accelerations(pj.eom_terms(m, params, dv, z, zd), tau, jnp.zeros(3))
+    zr = jnp.concatenate([rotate_pose(z[:3], c), jnp.roll(z[3:], 1) + 2 * jnp.pi / 3])
+    zdr = jnp.concatenate([rotate_vel(zd[:3]), jnp.roll(zd[3:], 1)])
+    ar = accelerations(pj.eom_terms(m, params, dv, zr, zdr), jnp.roll(tau, 1), jnp.zeros(3))
+    np.testing.assert_allclose(ar[:3], rotate_vel(a[:3]), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(ar[3:], jnp.roll(a[3:], 1), rtol=1e-9, atol=1e-12)
+
+
+def test_motion_driven_reaction_torques_drive_torque_driven_model(params):
+    """L2 motion-driven along L1's angles; its reaction torques, fed back torque-driven
+    (interpolated), reproduce the same motion: a consistency check of the partitioned EOM."""
+    model = pj.Double1R()
+    traj = pj.Circle()
+    ts = jnp.linspace(0.0, 0.6, 601)
+    angles = pj.InverseKinematicsAngles(pj.Reduced(), params, traj)
+    z0, zd0 = pj.quasi_static_state(model, params, traj, 0.0, motion_driven=True)
+    s1 = pj.simulate(model, params, pj.MotionDriven(angles), z0, zd0, ts, rtol=1e-11, atol=1e-12)
+    s2 = pj.simulate(model, params, pj.TorqueDriven(pj.Interpolated(ts, s1.tau)), s1.z[0],
+                     s1.zdot[0], ts[:201], rtol=1e-11, atol=1e-12)
+    np.testing.assert_allclose(s2.z[:, 3:], s1.z[:201, 3:], atol=2e-7)
+    np.testing.assert_allclose(s2.z[:, :3], s1.z[:201, :3], atol=2e-7)
+
+
+def test_pd_servo_converges_to_motion_driven(params):
+    model = pj.Double1R()
+    traj = pj.Circle()
+    ts = jnp.linspace(0.0, 0.5, 51)
+    angles = pj.InverseKinematicsAngles(pj.Reduced(), params, traj)
+    z0, zd0 = pj.quasi_static_state(model, params, traj, 0.0, motion_driven=True)
+    ref = pj.simulate(model, params, pj.MotionDriven(angles), z0, zd0, ts)
+    ff = pj.InverseDynamicsTorque(pj.Reduced(), params, traj)
+    errs = []
+    for kp in (2e2, 2e3):
+        servo = pj.PDServo(angles, Kp=jnp.asarray(kp), Kd=jnp.asarray(2 * np.sqrt(kp) * 0.15),
+                           feedforward=ff)
+        sol = pj.simulate(model, params, servo, z0, zd0, ts, rtol=1e-8, atol=1e-10)
+        errs.append(float(jnp.abs(sol.z[:, :3] - ref.z[:, :3]).max()))
+    assert errs[1] < errs[0] / 3, errs
+    assert errs[1] < 2e-4, errs
+
+
+def test_max_steps_is_a_clear_error(params):
+    model = pj.Reduced()
+    X0 = pj.home_pose(params)
+    with pytest.raises(pj.SimulationError, match="maximum number of solver steps"):
+        pj.simulate(model, params, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), X0,
+                    jnp.array([0.1, 0.0, 0.3]), TS, max_steps=3)
+
+
+@pytest.mark.slow
+def test_explicit_and_implicit_solvers_agree(params):
+    model = pj.Reduced()
+    X0 = pj.home_pose(params) + jnp.array([0.01, 0.0, 0.0])
+    act = pj.TorqueDriven(pj.Hold(jnp.zeros(3)))
+    a = pj.simulate(model, params, act, X0, jnp.zeros(3), TS, solver="tsit5", rtol=1e-10,
+                    atol=1e-12)
+    b = pj.simulate(model, params, act, X0, jnp.zeros(3), TS, solver="kvaerno5", rtol=1e-10,
+                    atol=1e-12)
+    np.testing.assert_allclose(a.z, b.z, atol=1e-8)
+    assert isinstance(a.result, diffrax.RESULTS)

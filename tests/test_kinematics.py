@@ -1,0 +1,107 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ppr_jax as pj
+from ppr_jax import _kinematics as K
+from ppr_jax._paper_eom import paper_jacobian
+
+from helpers import fd_jvp, rotate_pose
+
+POSES = [
+    [0.45, 0.2598076, 0.0],
+    [0.55, 0.2598076, 0.0],
+    [0.40, 0.32, -0.05],
+    [0.47, 0.20, 0.04],
+]
+
+
+@pytest.mark.parametrize("X", POSES)
+def test_ik_closes_loops_and_keeps_quasi_static_constraint(params, dv, X):
+    r = pj.inverse_kinematics(params, X)
+    res = K.loop_residual(params, dv, r.th, jnp.asarray(X))
+    assert float(jnp.abs(res).max()) < 1e-10
+    np.testing.assert_allclose(r.th[:, 0] - 2 * r.th[:, 1] + r.th[:, 2], 0, atol=1e-13)
+    r0 = pj.inverse_kinematics(params, X, pj.Rigid())
+    assert float(jnp.abs(K.loop_residual_rigid(params, dv, r0.th, jnp.asarray(X))).max()) < 1e-10
+
+
+def test_newton_path_for_unequal_links(params):
+    p = params.replace(l3=0.33)
+    dv = pj.derived(p)
+    X = jnp.array(POSES[2])
+    r = pj.inverse_kinematics(p, X)
+    assert float(jnp.abs(K.loop_residual(p, dv, r.th, X)).max()) < 1e-12
+    np.testing.assert_allclose(r.th[:, 0] - 2 * r.th[:, 1] + r.th[:, 2], 0, atol=1e-13)
+
+
+@pytest.mark.parametrize("X", POSES[1:])
+def test_jacobian_against_finite_differences_and_eq47(params, X):
+    X = jnp.asarray(X)
+    r = pj.inverse_kinematics(params, X)
+    v = jnp.array([0.3, -0.2, 0.5])
+    fd = fd_jvp(lambda X: pj.inverse_kinematics(params, X).th.reshape(-1), X, v, 1e-6)
+    np.testing.assert_allclose(r.J[:9] @ v, fd, rtol=1e-7, atol=1e-8)
+    Jp, _ = paper_jacobian(params, X)
+    np.testing.assert_allclose(r.J, Jp, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(r.S, r.J[jnp.array([0, 3, 6])], rtol=0, atol=0)
+
+
+def test_forward_kinematics_round_trip(params):
+    for model in (pj.Reduced(), pj.Rigid()):
+        X = jnp.array(POSES[3])
+        th_a = pj.inverse_kinematics(params, X, model).th_a
+        Xr = pj.forward_kinematics(params, th_a, model=model)
+        np.testing.assert_allclose(Xr, X, atol=1e-12)
+    path = jnp.stack([pj.inverse_kinematics(params, jnp.array(x)).th_a for x in POSES])
+    Xs = pj.forward_kinematics_path(params, path)
+    np.testing.assert_allclose(Xs, jnp.array(POSES), atol=1e-12)
+
+
+def test_rotational_symmetry_of_kinematics(params, dv):
+    c = jnp.array([0.45, 0.45 / jnp.sqrt(3.0)])
+    X = jnp.array(POSES[2])
+    th = pj.inverse_kinematics(params, X).th
+    th_r = pj.inverse_kinematics(params, rotate_pose(X, c)).th
+    # chain i of the rotated robot is chain i-1 of the original, turned by 120 degrees
+    d = (th_r - jnp.roll(th, 1, axis=0) - 2 * jnp.pi / 3 + jnp.pi) % (2 * jnp.pi) - jnp.pi
+    np.testing.assert_allclose(d, 0, atol=1e-12)
+
+
+def test_predeflection_at_home(params):
+    pd = pj.predeflection(params)
+    np.testing.assert_allclose(pd["reduced"], -0.0152, atol=2e-4)
+    # closed form: d = ((th3 - th1) - sigma theta_c)/2 with cos v = (|E-A| - r2)/(2 r1)
+    dv = pj.derived(params)
+    dist = float(jnp.linalg.norm(K.platform_points(dv, pj.home_pose(params))[0]))
+    v = np.arccos((dist - float(dv.r2)) / (2 * float(dv.r1)))
+    np.testing.assert_allclose(pd["reduced"][0, 0], (-2 * v + 1.88) / 2, rtol=1e-12)
+
+
+def test_unreachable_pose_is_a_clear_error(params):
+    with pytest.raises(pj.PPRError, match="unreachable pose"):
+        pj.inverse_kinematics(params, [1.5, 0.2, 0.0])
+
+
+def test_singular_configuration_is_a_clear_error(params):
+    # det(S) changes sign along phi at the centre: bisect onto the (type II) singularity.
+    c = jnp.array([0.45, 0.45 / np.sqrt(3.0)])
+    from ppr_jax._ik import _ik_jit
+
+    def det(phi):
+        return float(jnp.linalg.det(_ik_jit(pj.Reduced(), params, jnp.array([c[0], c[1], phi])).S))
+
+    grid = np.linspace(-1.2, 1.2, 241)
+    vals = np.array([det(p) for p in grid])
+    k = np.flatnonzero(np.sign(vals[:-1]) != np.sign(vals[1:]))
+    assert k.size > 0, "no singularity found on the grid"
+    lo, hi = grid[k[0]], grid[k[0] + 1]
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if np.sign(det(mid)) == np.sign(det(lo)):
+            lo = mid
+        else:
+            hi = mid
+    with pytest.raises(pj.PPRError, match="singular configuration"):
+        pj.inverse_kinematics(params, [c[0], c[1], lo])
