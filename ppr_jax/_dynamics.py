@@ -63,7 +63,8 @@ def eom_terms(
     h = jnp.einsum("b,bki,bk->i", m, Jp, acc.body_p) + jnp.einsum("b,bi,b->i", I, Ja, acc.body_ang)
     Jd, Jth = jac.defl, jac.th_a
     kk = model.stiffness(params, dv)
-    Q = -kk * (Jd.T @ k.defl) - params.c_spring * (Jd.T @ (Jd @ zdot))
+    # kk is a scalar or one stiffness per spring (the beam's clamp half-springs differ).
+    Q = -(Jd.T @ (kk * k.defl)) - params.c_spring * (Jd.T @ (Jd @ zdot))
     Q = Q - params.c_act * (Jth.T @ (Jth @ zdot))
     return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=jac.X, kin=k)
 
@@ -83,7 +84,7 @@ def energy(model: AbstractModel, params: RobotParams, dv: Derived, z, zdot):
     k, kd = jax.jvp(lambda z: model.kinematics(params, dv, z), (z,), (zdot,))
     m, I = model.masses(params, dv)
     T = 0.5 * (jnp.sum(m * jnp.sum(kd.body_p**2, axis=-1)) + jnp.sum(I * kd.body_ang**2))
-    U = 0.5 * model.stiffness(params, dv) * jnp.sum(k.defl**2)
+    U = 0.5 * jnp.sum(model.stiffness(params, dv) * k.defl**2)
     return T, U
 
 

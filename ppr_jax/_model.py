@@ -62,7 +62,7 @@ class AbstractModel(eqx.Module):
 
     @abc.abstractmethod
     def stiffness(self, params: RobotParams, dv: Derived) -> Array:
-        """Torsion stiffness of each spring (N m/rad)."""
+        """Torsion stiffness of the springs (N m/rad): a scalar, or one per entry of `Kin.defl`."""
 
     @abc.abstractmethod
     def coords_from_pose(self, params: RobotParams, dv: Derived, X: Float[Array, "3"]):

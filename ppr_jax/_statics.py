@@ -98,8 +98,9 @@ def quasi_static_state(
     coords_from_pose(X(t)), with its velocity and acceleration. Models without internal degrees of
     freedom (L0, L1) return it as is. For L2 the coordinates not fixed by the scene are put at the
     quasi-static state: their rows of M z'' + h = Q balance with the reference accelerations
-    (torque-driven: the pose is the nominal one and the actuated angles balance the applied torque;
-    motion-driven: the actuated angles are prescribed and the pose balances). Their velocity is the
+    (torque-driven: the pose is the nominal one and every other coordinate (L2: the actuated
+    angles) balances under the applied torque; motion-driven: the actuated angles are prescribed
+    and the pose and any other internal coordinate balance). Models order z as (X, th_a, rest). Their velocity is the
     time derivative of that quasi-static solution (implicit differentiation through Newton), so
     no fast internal vibration is excited at t = 0 beyond what the model mismatch implies.
     """
@@ -115,7 +116,9 @@ def quasi_static_state(
         z, zd, _ = derivatives(ref, t)
         return z, zd
     act = tuple(model.actuated_index)
-    unknown = tuple(i for i in range(n) if i not in act) if motion_driven else act
+    # torque-driven: the pose is nominal and every internal coordinate balances;
+    # motion-driven: the actuated angles are prescribed and everything else balances.
+    unknown = tuple(i for i in range(n) if i not in act) if motion_driven else tuple(range(3, n))
     known = tuple(i for i in range(n) if i not in unknown)
     iu, ik = jnp.array(unknown), jnp.array(known)
 
