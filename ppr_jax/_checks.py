@@ -28,6 +28,7 @@ def raise_if(x, bad, message: str):
     if b.any():
         if b.ndim >= 1 and b.shape[0] > 1:
             members = np.flatnonzero(b.reshape(b.shape[0], -1).any(axis=1)).tolist()
-            raise PPRError(f"{message} (batch members {members})")
+            shown = members if len(members) <= 10 else members[:10] + ["..."]
+            raise PPRError(f"{message} ({len(members)} batch members: {shown})")
         raise PPRError(message)
     return x

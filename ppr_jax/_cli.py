@@ -207,6 +207,10 @@ def cmd_torques(args):
         raise ValueError(f"torques: inverse dynamics along eq 55 needs model rigid or reduced, "
                          f"not {model.name!r}")
     ts = jnp.linspace(0.0, args.t_end, args.n_out)
+    from ._ik import inverse_kinematics
+
+    # Reachability and singularity along the whole path first: a clear error, never NaN torques.
+    inverse_kinematics(params, jax.vmap(Circle())(ts), model)
     tau = jax.jit(jax.vmap(InverseDynamicsTorque(model, params, Circle())))(ts)
     tau = np.asarray(tau)
     if not np.all(np.isfinite(tau)):

@@ -82,7 +82,8 @@ def check_pose(res: IKResult, X):
 def inverse_kinematics(
     params: RobotParams, X: Float[Array, "3"], model: Optional[AbstractModel] = None
 ) -> IKResult:
-    """Inverse kinematics of the L1 (default) or L0 model at pose X = (x, y, phi) (m, m, rad).
+    """Inverse kinematics of the L1 (default) or L0 model at pose X = (x, y, phi) (m, m, rad),
+    or at a batch of poses X (m, 3) (the result then has a leading axis).
 
     L1 imposes the quasi-static assumption th_i1 - 2 th_i2 + th_i3 = 0 (eq 29) and is closed form
     when r1 = r3 (Newton otherwise); L0 is the rigid two-link closure. Raises `PPRError` for an
@@ -95,6 +96,11 @@ def inverse_kinematics(
             f"reduced), not {model.name!r}"
         )
     X = jnp.asarray(X, dtype=jnp.float64)
+    if X.ndim == 2:  # a batch of poses: one vmapped call; errors name the failing members
+        res = eqx.filter_jit(eqx.filter_vmap(_ik, in_axes=(None, None, 0)))(model, params, X)
+        return check_pose(res, X)
+    if X.shape != (3,):
+        raise ValueError(f"X must be a pose (x, y, phi) of shape (3,) or (m, 3), got {X.shape}")
     return check_pose(_ik_jit(model, params, X), X)
 
 

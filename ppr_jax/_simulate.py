@@ -157,11 +157,13 @@ def check_result(result: diffrax.RESULTS, what: str = "simulation") -> None:
     ok = codes == int(diffrax.RESULTS.successful._value)
     if np.all(ok):
         return
-    msgs = np.atleast_1d(np.asarray(diffrax.RESULTS[result]))
+    flat = np.atleast_1d(codes)
     bad = np.flatnonzero(~np.atleast_1d(ok))
-    detail = "; ".join(f"member {i}: {msgs[i] if msgs.size > 1 else msgs[0]}" for i in bad[:10])
+    messages = diffrax.RESULTS._index_to_message
     if codes.ndim == 0:
-        detail = str(msgs[0])
+        detail = messages[int(codes)]
+    else:
+        detail = "; ".join(f"member {i}: {messages[int(flat[i])]}" for i in bad[:10])
     raise SimulationError(
         f"{what} failed ({len(bad)} of {max(codes.size, 1)} batch members): {detail}. A chain that "
         f"leaves its reach or a singular configuration makes the step size collapse; a stiff model "

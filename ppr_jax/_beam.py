@@ -1,0 +1,377 @@
+"""L3 `beam`: each compliant strip as a discretized geometrically exact beam (MODEL.md section 5).
+
+The strip
+---------
+A planar, inextensible, unshearable Euler-Bernoulli strip of the *actual* radius r, length
+L = r theta_c, bending stiffness EI = E w t^3/12 (N m^2) and mass rho_m w t per length (kg/m),
+clamped to the *inner* sides of the two links: the inner side of a link is offset b_r/2 from its
+centre line towards the centre of the bend, and the unloaded strip is the circular arc tangent to
+both inner sides. Gravity acts normal to the plane and does no work.
+
+Discretization (a Hencky bar chain, why and how)
+-----------------------------------------------
+The strip is N rigid segments (N = `Beam.n_elements`); segment k has absolute angle theta_k,
+which stands for the tangent angle at the middle of the k-th arclength cell [(k-1) ds, k ds],
+ds = L/N. Bending energy (EI/2) int (theta' - kappa)^2 ds, kappa = sigma/r the signed rest
+curvature, is lumped into rotational springs:
+
+* between consecutive segments: stiffness EI/ds, rest turn kappa ds (a central difference of
+  theta' over one cell: second-order accurate);
+* at each clamp a half-cell spring: stiffness 2 EI/ds, rest turn kappa ds/2, between the drive
+  link's tangent (= th_a) and segment 1, and between segment N and the connecting link (th3).
+
+The total rest turn is sigma theta_c. Segment k carries mass m = rho_m w t ds (the total strip
+mass is exact), central inertia m ds^2/12, at its midpoint.
+
+Segment *length*. Each segment is the chord of its unloaded arc cell,
+h = 2 r sin(ds/(2r)) = ds (1 - O(ds^2)), rather than ds. Both are consistent second-order
+quadratures of x' = e(theta) (midpoint rule with h = ds; for h = chord the rule is exact for
+any arc of the rest curvature), but the chord makes the *unloaded* chain lie exactly on the
+arc: the rest geometry of the robot (link centre lines meeting at the virtual corner, no
+discretization pre-deflection) is then exact for every N, and the convergence to the elastica
+under load is still O(1/N^2) (tests/test_beam.py, benchmarks/beam_convergence.py).
+
+Coordinates: independent, loop closures exact to rounding
+--------------------------------------------------------
+z = (x, y, phi, th_a1, th_a2, th_a3, [phi_i2 .. phi_iN for i = 1, 2, 3]), n = 3 + 3N, with
+phi_ik = theta_ik - theta_i,k-1 the relative angles of the strip's interior joints. For chain i
+the first segment's angle theta_i1 and the connecting link's angle th_i3 are dependent: with the
+relative angles fixed the strip is a rigid shape whose chord is c (in the frame of segment 1),
+and the connecting link is the rigid offset vector g = (l3, -sigma b_r/2) in its own frame
+(from the strip end P2 to E_i: the link's centre line starts b_r/2 off the strip end). The loop
+E_i - P1 = R(theta_1) c + R(th3) g is the two-link problem of `_kinematics.two_link` (law of
+cosines), on the branch of the unloaded shape (elbow sigma when theta_c/2 > atan(b_r/(2 l3)),
+the default geometry). So z is a set of independent coordinates, the loop closes to rounding for
+every z, and the generic Kane equations of `_dynamics.py` (no Lagrange multipliers), `simulate`,
+`static_equilibrium`, `quasi_static_state` and `modes` work unchanged. `Kin.margin` is the
+two-link reach margin (<= 0: the platform joint is out of the strip's reach).
+
+Geometry of chain i (sigma = -1 turns clockwise; n_in = sigma e(th_a + pi/2) points from the
+drive link towards the centre of the bend):
+P1 = A_i + l1 e(th_a) + (b_r/2) n_in (strip start, tangent th_a); nodes
+P1 + h sum_{j<=k} e(theta_j); P2 the last node; connecting-link centre line through
+Q2 = P2 - sigma (b_r/2) e(th3 + pi/2), E_i = Q2 + l3 e(th3).
+
+Bodies (in `Kin.body_p` order): 3 drive links (COM l1/2 from A_i, inertia I1 + J_rotor),
+3N strip segments (chain-major), 3 connecting links (COM l3/2 from E_i), the platform.
+`Kin.th` (3, N + 2) = (th_a, theta_1 .. theta_N, th3) per chain; `Kin.defl` (3 (N + 1),) the
+spring deflections chain-major (clamp half-spring, N - 1 interior springs, clamp half-spring),
+with `Beam.stiffness` the matching vector (2 EI/ds, EI/ds, ..., EI/ds, 2 EI/ds).
+
+Also here: `solve_strip`, the same discrete strip as an end-loaded cantilever (Newton on the
+potential energy), the discrete counterpart of `ppr_jax.elastica.solve_cantilever` used to
+check the O(1/N^2) convergence of the discretization.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+
+from ._custom_types import Array, Float
+from ._kinematics import base_points, e, ik_reduced, platform_points, two_link, wrap
+from ._model import AbstractModel, Kin, rotor_inertia
+from ._params import RobotParams
+from ._prb import Derived
+
+
+# ---------------------------------------------------------------------------------------------
+# Strip constants
+# ---------------------------------------------------------------------------------------------
+
+
+class StripConstants(eqx.Module):
+    """Discretization constants of one strip with N elements (SI units, radians).
+
+    EI bending stiffness (N m^2); ds = L/N cell arclength (m); h = 2 r sin(ds/(2r)) segment
+    (chord) length (m); dtheta = theta_c/N rest turn of an interior spring in magnitude (rad;
+    the signed rest turn is sigma dtheta); k_in = EI/ds, k_end = 2 EI/ds (N m/rad);
+    m_seg = rho_m w t ds (kg) and I_seg = m_seg ds^2/12 (kg m^2) per segment."""
+
+    EI: Array
+    ds: Array
+    h: Array
+    dtheta: Array
+    k_in: Array
+    k_end: Array
+    m_seg: Array
+    I_seg: Array
+
+
+def strip_constants(params: RobotParams, n_elements: int) -> StripConstants:
+    """`StripConstants` of the robot's strips discretized into `n_elements` segments."""
+    p = params
+    N = n_elements
+    EI = p.E * p.w * p.t**3 / 12
+    L = p.r * p.theta_c
+    ds = L / N
+    h = 2 * p.r * jnp.sin(ds / (2 * p.r))
+    m = p.rho_m * p.w * p.t * ds
+    return StripConstants(
+        EI=EI, ds=ds, h=h, dtheta=p.theta_c / N, k_in=EI / ds, k_end=2 * EI / ds, m_seg=m,
+        I_seg=m * ds**2 / 12,
+    )
+
+
+def _elbow(params: RobotParams):
+    # Branch of the unloaded shape: the chord of the arc turns sigma theta_c/2 from th_a, the
+    # offset vector g turns sigma (theta_c - atan(b_r/(2 l3))): their difference has the sign of
+    # sigma (theta_c/2 - atan(b_r/(2 l3))).
+    s = params.sigma
+    return jnp.where(params.theta_c / 2 >= jnp.arctan2(params.b_r / 2, params.l3), s, -s)
+
+
+# ---------------------------------------------------------------------------------------------
+# The model
+# ---------------------------------------------------------------------------------------------
+
+
+class Beam(AbstractModel):
+    """L3 `beam`: the compliant strips as N-element Hencky bar chains (module docstring).
+
+    `n_elements` (static) is N, the number of rigid segments per strip; n_dof = 3 + 3N.
+    z = (x, y, phi, th_a1, th_a2, th_a3, phi_12..phi_1N, phi_22..phi_2N, phi_32..phi_3N)
+    (m, m, rad, rad...). Converges to the elastica as O(1/N^2)."""
+
+    n_elements: int = eqx.field(static=True, default=8)
+
+    name = "beam"
+    level = 3
+    actuated_index = (3, 4, 5)
+
+    def __check_init__(self):
+        if not (isinstance(self.n_elements, int) and self.n_elements >= 2):
+            raise ValueError(f"n_elements must be an integer >= 2, got {self.n_elements!r}")
+
+    @property
+    def n_dof(self) -> int:  # type: ignore[override]
+        return 3 + 3 * self.n_elements
+
+    # -- coordinates ----------------------------------------------------------------------------
+
+    def split(self, z):
+        """(X (3,), th_a (3,), phi (3, N - 1) interior relative angles) from z."""
+        N = self.n_elements
+        return z[:3], z[3:6], z[6:].reshape(3, N - 1)
+
+    def _chains(self, params: RobotParams, dv: Derived, z):
+        """Close the three chains. Returns a dict of (3, ...) arrays: th (3, N+2), P1, nodes
+        (3, N+1, 2), Q2, E (chain's E_i), margin."""
+        sc = strip_constants(params, self.n_elements)
+        sig = params.sigma
+        X, th_a, phi = self.split(z)
+        alpha = jnp.concatenate([jnp.zeros((3, 1)), jnp.cumsum(phi, axis=1)], axis=1)  # (3, N)
+        c = sc.h * jnp.sum(e(alpha), axis=1)  # chord in the frame of segment 1 (3, 2)
+        A = base_points(params)
+        P1 = A + params.l1 * e(th_a) + (params.b_r / 2) * sig * e(th_a + jnp.pi / 2)
+        g = jnp.stack([params.l3, -sig * params.b_r / 2])
+        arg_g = jnp.arctan2(g[1], g[0])
+        E = platform_points(dv, X)
+        la = jnp.linalg.norm(c, axis=-1)
+        ta, tb, margin = two_link(E - P1, la, jnp.linalg.norm(g), _elbow(params))
+        theta1 = ta - jnp.arctan2(c[:, 1], c[:, 0])
+        # keep the angles continuous with the unbounded coordinate th_a (atan2 wraps)
+        theta1 = th_a + wrap(theta1 - th_a)
+        thetas = theta1[:, None] + alpha  # (3, N)
+        th3 = tb - arg_g
+        th3 = thetas[:, -1] + wrap(th3 - thetas[:, -1])
+        steps = sc.h * e(thetas)  # (3, N, 2)
+        nodes = jnp.concatenate(
+            [P1[:, None, :], P1[:, None, :] + jnp.cumsum(steps, axis=1)], axis=1
+        )
+        P2 = nodes[:, -1]
+        Q2 = P2 - sig * (params.b_r / 2) * e(th3 + jnp.pi / 2)
+        E_chain = Q2 + params.l3 * e(th3)
+        th = jnp.concatenate([th_a[:, None], thetas, th3[:, None]], axis=1)
+        return dict(th=th, P1=P1, nodes=nodes, Q2=Q2, E=E_chain, margin=margin, sc=sc)
+
+    def kinematics(self, params, dv, z):
+        N = self.n_elements
+        X, th_a, phi = self.split(z)
+        ch = self._chains(params, dv, z)
+        sc, th, nodes = ch["sc"], ch["th"], ch["nodes"]
+        thetas, th3 = th[:, 1:-1], th[:, -1]
+        A = base_points(params)
+        p1 = A + (params.l1 / 2) * e(th_a)
+        pseg = (nodes[:, :-1] + nodes[:, 1:]) / 2  # (3, N, 2)
+        p3 = ch["Q2"] + (params.l3 / 2) * e(th3)
+        p = jnp.concatenate([p1, pseg.reshape(3 * N, 2), p3, X[None, :2]], axis=0)
+        ang = jnp.concatenate([th_a, thetas.reshape(-1), th3, X[2:3]])
+        sig = params.sigma
+        d_first = wrap(thetas[:, 0] - th_a - sig * sc.dtheta / 2)
+        d_mid = phi - sig * sc.dtheta
+        d_last = wrap(th3 - thetas[:, -1] - sig * sc.dtheta / 2)
+        defl = jnp.concatenate([d_first[:, None], d_mid, d_last[:, None]], axis=1).reshape(-1)
+        return Kin(X=X, th=th, body_p=p, body_ang=ang, defl=defl, th_a=th_a, margin=ch["margin"])
+
+    def masses(self, params, dv):
+        N = self.n_elements
+        sc = strip_constants(params, N)
+        one = jnp.ones(3, dtype=jnp.float64)
+        ones = jnp.ones(3 * N, dtype=jnp.float64)
+        m = jnp.concatenate([dv.m1 * one, sc.m_seg * ones, dv.m3 * one, dv.m4[None]])
+        I = jnp.concatenate(
+            [rotor_inertia(params, dv) * one, sc.I_seg * ones, dv.I3 * one, dv.I4[None]]
+        )
+        return m, I
+
+    def stiffness(self, params, dv):
+        N = self.n_elements
+        sc = strip_constants(params, N)
+        one_chain = jnp.concatenate(
+            [sc.k_end[None], sc.k_in * jnp.ones(N - 1, dtype=jnp.float64), sc.k_end[None]]
+        )
+        return jnp.tile(one_chain, 3)
+
+    def coords_from_pose(self, params, dv, X):
+        """A smooth guess on the L1 manifold: th_a from L1's inverse kinematics (eq 29) and every
+        interior joint at its rest turn plus an equal share of the L1 joint's total deflection
+        (th_i3 - th_i1 - sigma theta_c; a pure-moment distribution: an end half-spring, twice as
+        stiff, takes half a share, so N shares in all). A Newton starting point for
+        `static_equilibrium` / `quasi_static_state`, not an equilibrium of L3."""
+        N = self.n_elements
+        th, _ = ik_reduced(params, dv, X)
+        D = wrap(th[:, 2] - th[:, 0] - params.sigma * params.theta_c)
+        phi = jnp.broadcast_to(((params.sigma * params.theta_c + D) / N)[:, None], (3, N - 1))
+        return jnp.concatenate([X, th[:, 0], phi.reshape(-1)])
+
+    # -- outputs --------------------------------------------------------------------------------
+
+    def chain_points(self, params, dv, th):
+        """(P1, P2, Q2, E) each (3, 2) (m) from the chain angles th (3, N + 2) of `Kin.th`:
+        strip start and end, start of the connecting link's centre line, the chain's E_i."""
+        sc = strip_constants(params, self.n_elements)
+        sig = params.sigma
+        th_a, thetas, th3 = th[:, 0], th[:, 1:-1], th[:, -1]
+        P1 = base_points(params) + params.l1 * e(th_a) + (params.b_r / 2) * sig * e(
+            th_a + jnp.pi / 2
+        )
+        P2 = P1 + sc.h * jnp.sum(e(thetas), axis=1)
+        Q2 = P2 - sig * (params.b_r / 2) * e(th3 + jnp.pi / 2)
+        return P1, P2, Q2, Q2 + params.l3 * e(th3)
+
+    def chain_E(self, params, dv, th):
+        """Chain end E_i (3, 2) (m) from the chain angles th (3, N + 2) of `Kin.th`."""
+        return self.chain_points(params, dv, th)[3]
+
+    def loop_residual(self, params, dv, kin):
+        """The chain's E_i minus the platform's E_i (3, 2) (m): zero to rounding."""
+        return self.chain_E(params, dv, kin.th) - platform_points(dv, kin.X)
+
+    def joint_end_rotations(self, params, dv, kin):
+        """Rotations (3, 2) (rad) of the strip's two end tangents relative to its chord P1 -> P2,
+        minus their rest values: (chord - th_a) - sigma theta_c/2 and (th3 - chord) -
+        sigma theta_c/2. The unloaded chord is parallel to L2's pseudo-link, so these compare
+        with L2's pivot deflections (d_i1, d_i2) and sum to the same total th3 - th_a -
+        sigma theta_c."""
+        th = kin.th
+        ch = jnp.sum(e(th[:, 1:-1]), axis=1)
+        chord = jnp.arctan2(ch[:, 1], ch[:, 0])
+        half = params.sigma * params.theta_c / 2
+        r1 = wrap(chord - th[:, 0] - half)
+        r2 = wrap(th[:, -1] - chord - half)
+        return jnp.stack([r1, r2], axis=-1)
+
+    def strip_nodes(self, params, dv, z) -> Float[Array, "3 n 2"]:
+        """Strip node positions (3, N + 1, 2) (m) (P1 first, P2 last) at coordinates z."""
+        return self._chains(params, dv, z)["nodes"]
+
+    def corners(self, params, dv, th):
+        """Where each chain's drive-link and connecting-link centre lines meet (3, 2) (m), from
+        the chain angles th (3, N + 2) of `Kin.th`: the virtual corner C_i of L0 (at
+        R1 = l1 + r_i tan(theta_c/2) from A_i) when the strip is at rest."""
+        _, _, Q2, _ = self.chain_points(params, dv, th)
+        A = base_points(params)
+        d1, d3 = e(th[:, 0]), e(th[:, -1])
+        # A + s d1 = Q2 + u d3  ->  [d1, -d3] (s, u) = Q2 - A
+        Mtx = jnp.stack([d1, -d3], axis=-1)  # (3, 2, 2)
+        su = jnp.linalg.solve(Mtx, (Q2 - A)[..., None])[..., 0]
+        return A + su[:, :1] * d1
+
+    def rest_angles(self, params, th_a):
+        """Chain angles th (3, N + 2) of the unloaded (natural-arc) strips for drive angles
+        th_a (3,): every spring at its rest turn."""
+        N = self.n_elements
+        sc = strip_constants(params, N)
+        sig = params.sigma
+        thetas = th_a[:, None] + sig * sc.dtheta * (jnp.arange(N) + 0.5)
+        th3 = th_a + sig * params.theta_c
+        return jnp.concatenate([th_a[:, None], thetas, th3[:, None]], axis=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The discrete strip as a cantilever (check against the elastica)
+# ---------------------------------------------------------------------------------------------
+
+
+class StripSolution(eqx.Module):
+    """Equilibrium of the discrete cantilever strip, in the clamp tangent frame of
+    `ppr_jax.elastica.solve_cantilever`. s (N+1,) nominal arclength of the nodes (m); x, y (N+1,)
+    node positions (m); theta (N,) segment angles (rad); tip (3,) (x, y, tip tangent angle)
+    (m, m, rad); result the optimistix result code of the last Newton solve."""
+
+    s: Array
+    x: Array
+    y: Array
+    theta: Array
+    tip: Array
+    result: optx.RESULTS
+
+
+@partial(jax.jit, static_argnames=("n_elements", "n_continuation"))
+def solve_strip(
+    length, EI, kappa0, force, moment, *, n_elements: int, n_continuation: int = 4
+) -> StripSolution:
+    """Static equilibrium of the N-element strip clamped at s = 0 under an end load.
+
+    Same conventions as `ppr_jax.elastica.solve_cantilever`: clamp at the origin with tangent +x,
+    rest curvature kappa0/length towards +y (kappa0 = length/R, nondimensional), dead end force
+    `force` (2,) (N) and end moment `moment` (N m, counterclockwise). The discretization is the
+    one of `Beam`: clamp half-spring 2 EI/ds, N - 1 interior springs EI/ds, segments of chord
+    length h = ds sinc(kappa0/(2N)); the tip tangent is a zero-length stub behind an end
+    half-spring 2 EI/ds (the robot's clamp to the connecting link), which gives the tip angle
+    theta_N + (kappa0/L + moment/EI) ds/2. Unknowns (theta_1..theta_N, tip angle): Newton on
+    the gradient of the potential energy, with `n_continuation` load steps from the unloaded
+    arc. Differentiable (implicit function theorem)."""
+    N = n_elements
+    length, EI, kappa0, moment = (jnp.asarray(v, jnp.float64) for v in (length, EI, kappa0, moment))
+    force = jnp.asarray(force, jnp.float64)
+    ds = length / N
+    dth = kappa0 / N
+    h = ds * jnp.sinc(dth / (2 * jnp.pi))  # 2 (L/kappa0) sin(kappa0/(2N)), also for kappa0 = 0
+    k_in, k_end = EI / ds, 2 * EI / ds
+
+    def energy(q, lam):
+        theta, tip_angle = q[:N], q[N]
+        d0 = theta[0] - dth / 2
+        dm = jnp.diff(theta) - dth
+        dN = tip_angle - theta[-1] - dth / 2
+        U = 0.5 * k_end * (d0**2 + dN**2) + 0.5 * k_in * jnp.sum(dm**2)
+        tip = h * jnp.sum(e(theta), axis=0)
+        return U - lam * (force @ tip + moment * tip_angle)
+
+    grad = jax.grad(energy)
+
+    def resid(q, lam):
+        return grad(q, lam) / k_in  # nondimensional (rad)
+
+    q = jnp.concatenate([dth * (jnp.arange(N) + 0.5), kappa0[None]])
+    result = optx.RESULTS.successful
+    for k in range(1, n_continuation + 1):
+        lam = jnp.asarray(k / n_continuation, jnp.float64)
+        sol = optx.root_find(
+            resid, optx.Newton(rtol=1e-13, atol=1e-13), q, args=lam, max_steps=50, throw=False
+        )
+        q = sol.value
+        result = sol.result
+    theta, tip_angle = q[:N], q[N]
+    steps = h * e(theta)
+    nodes = jnp.concatenate([jnp.zeros((1, 2)), jnp.cumsum(steps, axis=0)], axis=0)
+    return StripSolution(
+        s=jnp.linspace(0.0, 1.0, N + 1) * length, x=nodes[:, 0], y=nodes[:, 1], theta=theta,
+        tip=jnp.stack([nodes[-1, 0], nodes[-1, 1], tip_angle]), result=result,
+    )

@@ -1,0 +1,66 @@
+"""The command line as a user runs it (in-process, through `ppr_jax._cli.main`)."""
+
+import csv
+import json
+import os
+
+import numpy as np
+import pytest
+
+from ppr_jax._cli import main
+
+
+def test_prb_json_lists_every_derived_quantity(capsys):
+    assert main(["prb", "--json", "--set", "t=0.5e-3"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    for k in ["r_i", "l", "kappa0", "s", "Theta_i", "Theta_0", "r2", "K", "r1", "r3", "psi0",
+              "R1", "R3", "K0", "gamma", "rho", "K_theta"]:
+        assert k in out["derived"]
+    assert out["params"]["t"] == 0.5e-3
+    assert len(out["predeflection_home_rad"]["reduced_per_pivot"]) == 3
+
+
+@pytest.mark.parametrize(
+    "args,msg",
+    [
+        (["prb", "--set", "t=-1"], "'t'"),
+        (["prb", "--set", "thickness=1"], "allowed:"),
+        (["prb", "--set", "t"], "NAME=VALUE"),
+        (["prb", "--set", "gamma=abc"], "cannot read"),
+        (["torques", "--model", "reduced", "--set", "a=3", "--out", "x"], "unreachable"),
+    ],
+)
+def test_bad_input_is_a_clear_error(capsys, tmp_path, args, msg):
+    args = [a if a != "x" else str(tmp_path) for a in args]
+    assert main(args) == 2
+    assert msg in capsys.readouterr().err
+
+
+def test_torques_csv(tmp_path, capsys):
+    assert main(["torques", "--out", str(tmp_path)]) == 0
+    with open(tmp_path / "torques.csv") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["t", "tau_1", "tau_2", "tau_3"]
+    tau = np.array(rows[1:], dtype=float)
+    assert tau.shape == (755, 4) and np.all(np.isfinite(tau))
+
+
+def test_modes_json(capsys):
+    assert main(["modes", "--model", "reduced", "--actuators", "free", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["frequencies_hz"][0] < 0 and len(out["unstable_growth_rates_per_s"]) == 1
+
+
+def test_simulate_writes_summary_csv_and_figures(tmp_path, capsys, paper_circle_L1):
+    out = tmp_path / "run"
+    assert main(["simulate", "--model", "reduced", "--t-end", "2.0", "--out", str(out)]) == 0
+    for f in ["summary.json", "trajectory.csv", "trajectory.png", "angle.png", "radial_error.png"]:
+        assert os.path.getsize(out / f) > 0
+    s = json.loads((out / "summary.json").read_text())
+    m = s["models"]["reduced"]
+    assert abs(m["radial_error_max_m"]) < 1e-6 and m["num_steps"] > 0
+    assert s["paper_reference"]["radial_error_max_m"] == 2.41e-3
+    with open(out / "trajectory.csv") as f:
+        header = next(csv.reader(f))
+    assert header[:5] == ["model", "t", "x", "y", "phi"]
+    assert "Scene paper-circle" in capsys.readouterr().out
