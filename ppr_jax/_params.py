@@ -65,8 +65,11 @@ class RobotParams(eqx.Module):
 
     Defaults are MODEL.md section 1 (paper Table 1, strip thickness of the simulation, 0.3 mm).
     `gamma`, `rho`, `K_theta` are the PRB parameters of each half of the compliant joint
-    (MODEL.md section 3). `rho=None` means Howell's geometric definition (the PRB link ends at the
-    unloaded tip). All float fields are differentiable array leaves (scalars, or a leading batch
+    (MODEL.md section 3). `gamma=None` / `K_theta=None` (the default) take them from the PRB table
+    fitted to the elastica (`ppr_jax.prb_parameters(kappa0)`, kappa0 = theta_c/2; MODEL.md
+    section 8); `rho=None` means Howell's geometric definition (the PRB link ends at the unloaded
+    tip). The paper's Table-2 style values used before the fit landed were gamma = 0.81,
+    K_theta = 2.50. All float fields are differentiable array leaves (scalars, or a leading batch
     axis for a batch of robots).
     """
 
@@ -83,8 +86,8 @@ class RobotParams(eqx.Module):
     t: Array = _field(0.3e-3)
     E: Array = _field(71.0e9)
     rho_m: Array = _field(2780.0)
-    gamma: Array = _field(0.81)
-    K_theta: Array = _field(2.50)
+    gamma: Optional[Array] = eqx.field(default=None, converter=_optional)
+    K_theta: Optional[Array] = eqx.field(default=None, converter=_optional)
     rho: Optional[Array] = eqx.field(default=None, converter=_optional)
     J_rotor: Array = _field(0.0)
     c_spring: Array = _field(0.0)
@@ -154,9 +157,11 @@ def stack_params(params_list: list[RobotParams]) -> RobotParams:
     sig = {p.sigma for p in params_list}
     if len(sig) != 1:
         raise ValueError("all robots of a batch must share sigma (a static branch choice)")
-    rho_none = {p.rho is None for p in params_list}
-    if len(rho_none) != 1:
-        raise ValueError("either every robot of a batch gives rho explicitly or none does")
+    for name in ("gamma", "rho", "K_theta"):
+        if len({getattr(p, name) is None for p in params_list}) != 1:
+            raise ValueError(
+                f"either every robot of a batch gives {name} explicitly or none does"
+            )
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *params_list)
 
 
@@ -167,7 +172,8 @@ def unstack_params(params: RobotParams) -> list[RobotParams]:
 
 
 def parse_value(name: str, text: str):
-    """Parse a CLI ``NAME=VALUE`` value (floats; ``sigma`` int; ``rho=none`` for the default)."""
+    """Parse a CLI ``NAME=VALUE`` value (floats; ``sigma`` int; ``gamma``/``rho``/``K_theta``
+    ``=auto`` for the default source: the fitted PRB table, Howell's geometric rho)."""
     if name not in settable_names():
         raise ValueError(f"unknown parameter {name!r}; allowed: {', '.join(settable_names())}")
     if name == "sigma":
@@ -175,7 +181,9 @@ def parse_value(name: str, text: str):
         if v not in SIGMA_VALUES:
             raise ValueError(f"parameter 'sigma' must be -1 or +1, got {text!r}")
         return v
-    if name == "rho" and text.strip().lower() in ("none", "auto", "geometry"):
+    if name in ("gamma", "rho", "K_theta") and text.strip().lower() in (
+        "none", "auto", "table", "geometry"
+    ):
         return None
     try:
         v = float(text)

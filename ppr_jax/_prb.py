@@ -11,6 +11,7 @@ import jax.numpy as jnp
 
 from ._custom_types import Array
 from ._params import RobotParams
+from ._prb_fit import prb_parameters
 
 
 class Derived(eqx.Module):
@@ -70,7 +71,10 @@ def derived(params: RobotParams) -> Derived:
     kappa0 = l_h / r_i  # eq 3 (the printed "r" is r_i): = theta_c / 2
     a_i = r_i * jnp.sin(kappa0)
     b_i = r_i * (1 - jnp.cos(kappa0))
-    gamma, K_theta = p.gamma, p.K_theta
+    if p.gamma is None or p.K_theta is None:
+        gamma_t, _, K_theta_t = prb_parameters(kappa0)
+    gamma = gamma_t if p.gamma is None else p.gamma
+    K_theta = K_theta_t if p.K_theta is None else p.K_theta
     s = (1 - gamma) * l_h
     Theta_i = jnp.arctan2(b_i, a_i - s)  # eq 4, with l/2
     rho = jnp.sqrt((a_i - s) ** 2 + b_i**2) / l_h if p.rho is None else p.rho

@@ -12,7 +12,8 @@ def test_defaults_match_table1(params):
     assert params.a.dtype == jnp.float64
 
 
-def test_derived_by_hand(dv):
+def test_derived_by_hand(params):
+    dv = pj.derived(params.replace(gamma=0.81, K_theta=2.5))
     # Independent hand computation of MODEL.md section 3 with numpy.
     r_i = 0.02 + 0.023 / 2
     l_h = r_i * 1.88 / 2
@@ -36,8 +37,19 @@ def test_derived_by_hand(dv):
     np.testing.assert_allclose(float(dv.m4), 2780 * np.sqrt(3) / 4 * 0.08**2 * 0.025, rtol=1e-14)
 
 
+def test_default_prb_parameters_come_from_the_elastica_table(params, dv):
+    from ppr_jax._prb_fit import prb_parameters
+
+    g, rho, K = prb_parameters(0.94)
+    assert float(dv.gamma) == float(g) and float(dv.K_theta) == float(K)
+    np.testing.assert_allclose(float(dv.rho), float(rho), rtol=1e-13)
+    assert 0.80 < float(g) < 0.86 and 2.4 < float(K) < 2.9
+
+
 def test_psi0_independent_of_prb_parameters(params):
     g = jax.grad(lambda g_: pj.derived(params.replace(gamma=g_)).psi0)(0.81)
+    gk = jax.grad(lambda th: pj.derived(params.replace(theta_c=th)).s)(1.88)
+    assert np.isfinite(float(gk)) and float(gk) != 0.0  # table-derived gamma is differentiable
     assert float(g) == 0.0
     assert float(pj.derived(params.replace(gamma=0.9, rho=0.7)).psi0) == pytest.approx(0.94)
 

@@ -1,0 +1,132 @@
+"""Benchmark the `paper-circle` scene: compile time, run time, steps and error against a
+tight-tolerance reference, for every model level and solver; and batched (vmapped) throughput.
+
+Protocol: compile ahead of time (timed separately), warm up, then the minimum of `REPEATS` runs
+with `block_until_ready`. Solvers are compared at matched error (the work-precision plot), not at
+matched tolerance. Writes benchmarks/results/paper_circle.json and paper_circle_work_precision.png.
+
+Run: python benchmarks/bench_paper_circle.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import ppr_jax as pj
+from ppr_jax._scenes import _paper_circle_core, get_solver
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+OUT = os.path.join(HERE, "results")
+REPEATS = 5
+
+
+def ctrl(rtol):
+    return diffrax.PIDController(rtol=jnp.asarray(rtol), atol=jnp.asarray(rtol * 1e-2))
+
+
+def run_case(fn, model, params, ts, solver, rtol):
+    args = (model, pj.Reduced(), params, pj.Circle(), ts, get_solver(solver), ctrl(rtol), 400_000,
+            False)
+    t0 = time.perf_counter()
+    compiled = fn.lower(*args).compile()
+    t_compile = time.perf_counter() - t0
+    out = compiled(*args)
+    jax.block_until_ready(out)
+    times = []
+    for _ in range(REPEATS):
+        t0 = time.perf_counter()
+        out = compiled(*args)
+        jax.block_until_ready(out)
+        times.append(time.perf_counter() - t0)
+    sol, o = out
+    return sol, o, t_compile, min(times)
+
+
+def main(quick: bool):
+    os.makedirs(OUT, exist_ok=True)
+    fn = eqx.filter_jit(_paper_circle_core)
+    params = pj.scene_params("paper-circle")
+    ts = jnp.linspace(0.0, 7.54, 755)
+    tols = [1e-4, 1e-6, 1e-8, 1e-10] if not quick else [1e-6, 1e-8]
+    solvers = ["tsit5", "dopri8"]
+    models = ["reduced", "double1r", "rigid"]
+    results = {"machine": platform.processor() or platform.machine(), "jax": jax.__version__,
+               "devices": [str(d) for d in jax.devices()], "cases": [], "batched": []}
+    for mname in models:
+        model = pj.get_model(mname)
+        ref_sol, ref_o, _, _ = run_case(fn, model, params, ts, "dopri8", 1e-13)
+        compiled_once = {}
+        for solver in solvers:
+            for rtol in tols:
+                sol, o, tc, tr = run_case(fn, model, params, ts, solver, rtol)
+                compiled_once.setdefault(solver, tc)
+                err = float(jnp.linalg.norm(o.X[:, :2] - ref_o.X[:, :2], axis=-1).max())
+                case = {
+                    "model": mname, "solver": solver, "rtol": rtol, "atol": rtol * 1e-2,
+                    "compile_s": tc, "run_s": tr, "steps": int(sol.num_steps),
+                    "rejected": int(sol.num_rejected), "error_vs_reference_m": err,
+                }
+                results["cases"].append(case)
+                print(json.dumps(case))
+    # Batched throughput: vmap over thickness, L1 and L2 at rtol 1e-8.
+    for mname in ["reduced", "double1r"]:
+        model = pj.get_model(mname)
+        for B in ([8, 64] if not quick else [8]):
+            batch = pj.stack_params([params.replace(t=float(t)) for t in np.linspace(0.28e-3, 0.4e-3, B)])
+            f = eqx.filter_jit(eqx.filter_vmap(
+                lambda p: _paper_circle_core(model, pj.Reduced(), p, pj.Circle(), ts,
+                                             get_solver("tsit5"), ctrl(1e-8), 400_000, False)))
+            t0 = time.perf_counter()
+            compiled = f.lower(batch).compile()
+            tc = time.perf_counter() - t0
+            jax.block_until_ready(compiled(batch))
+            times = []
+            for _ in range(3):
+                t0 = time.perf_counter()
+                jax.block_until_ready(compiled(batch))
+                times.append(time.perf_counter() - t0)
+            row = {"model": mname, "batch": B, "compile_s": tc, "run_s": min(times),
+                   "per_robot_ms": min(times) / B * 1e3}
+            results["batched"].append(row)
+            print(json.dumps(row))
+    with open(os.path.join(OUT, "paper_circle.json"), "w") as f:
+        json.dump(results, f, indent=2)
+    plot(results)
+
+
+def plot(results):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for mname in sorted({c["model"] for c in results["cases"]}):
+        for solver, mk in (("tsit5", "o-"), ("dopri8", "s--")):
+            cs = [c for c in results["cases"] if c["model"] == mname and c["solver"] == solver]
+            if cs:
+                ax.loglog([max(c["error_vs_reference_m"], 1e-16) for c in cs],
+                          [c["run_s"] * 1e3 for c in cs], mk, label=f"{mname} {solver}")
+    ax.set_xlabel("max position error vs reference (m)")
+    ax.set_ylabel("run time after compilation (ms)")
+    ax.set_title("paper-circle work-precision (CPU)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(OUT, "paper_circle_work_precision.png"), dpi=120)
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true")
+    main(ap.parse_args().quick)
