@@ -67,4 +67,12 @@ from ._scenes import (  # noqa: E402
     get_model as get_model,
 )
 
+from . import elastica as elastica  # noqa: E402
+from ._prb_fit import (  # noqa: E402
+    fit_prb as fit_prb,
+    prb_error as prb_error,
+    prb_parameters as prb_parameters,
+    prb_table as prb_table,
+)
+
 __version__ = "0.1.0"

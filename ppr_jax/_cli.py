@@ -240,9 +240,73 @@ def cmd_modes(args):
     return 0
 
 
+def _prb_at_kappa0(args):
+    from ._prb_fit import fit_prb, prb_parameters, prb_table
+
+    k = float(args.kappa0)
+    g, rho, K = prb_parameters(k)
+    tab = prb_table()
+    kk = np.asarray(tab["kappa0"])
+    out = {
+        "kappa0": k,
+        "gamma": float(g),
+        "rho": float(rho),
+        "K_theta": float(K),
+        "source": "cubic spline of the shipped elastica-fitted table (ppr_jax/data/prb_table.json)",
+        "table_tip_error_max": float(np.interp(k, kk, tab["tip_error_max"])),
+        "table_load_error_max": float(np.interp(k, kk, tab["load_error_max"])),
+        "error_note": "tip error in units of the beam length; load error relative to the largest "
+                      "torque of the load direction; linear interpolation between table rows",
+    }
+    if args.fit:
+        f = fit_prb(k)
+        out["fit"] = {name: float(getattr(f, name)) for name in f._fields}
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        for key, v in out.items():
+            print(f"{key:>22s} = {v}")
+    if args.figure:
+        _prb_figure(args.figure, tab)
+    return 0
+
+
+def _prb_figure(path, tab):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ._prb_fit import prb_parameters
+
+    k = np.linspace(0.0, 2.0, 201)
+    g, rho, K = (np.asarray(v) for v in prb_parameters(k))
+    fig, axs = plt.subplots(1, 3, figsize=(11, 3.4))
+    for ax, v, name in zip(axs, (g, rho, K), ("gamma", "rho", "K_theta")):
+        ax.plot(k, v, "-", lw=1.2, label="spline")
+        ax.plot(tab["kappa0"], tab[name], "o", ms=3, label="fitted")
+        ax.set_xlabel("kappa0 = l/R")
+        ax.set_title(name)
+        ax.grid(alpha=0.3)
+    axs[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    print(f"wrote {path}", file=sys.stderr)
+
+
 def cmd_prb(args):
     from ._ik import predeflection
 
+    if args.kappa0 is not None:
+        return _prb_at_kappa0(args)
+    if args.fit or args.figure:
+        if args.figure:
+            from ._prb_fit import prb_table
+
+            _prb_figure(args.figure, prb_table())
+        if not args.fit:
+            return 0
     params = _parse_sets(args.set, "paper-circle")
     out = {"params": _params_dict(params), "derived": _derived_dict(params)}
     pd = predeflection(params)
@@ -302,6 +366,12 @@ def build_parser():
     r = sub.add_parser("prb", help="every derived quantity of the PRB joint (MODEL.md section 3)")
     r.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
     r.add_argument("--json", action="store_true")
+    r.add_argument("--kappa0", type=float, default=None,
+                   help="PRB parameters of an initially curved cantilever of curvature kappa0 "
+                        "in [0, 2] (from the elastica-fitted table)")
+    r.add_argument("--fit", action="store_true",
+                   help="with --kappa0: also fit gamma, rho, K_theta afresh from the elastica")
+    r.add_argument("--figure", default=None, help="write gamma, rho, K_theta vs kappa0 (PNG)")
     r.set_defaults(func=cmd_prb)
     return p
 

@@ -54,9 +54,13 @@ def modes(
     """
     if actuators not in ("locked", "free"):
         raise ValueError(f"actuators must be 'locked' or 'free', got {actuators!r}")
-    dv = derived(params)
     X = home_pose(params) if X is None else jnp.asarray(X, dtype=jnp.float64)
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
+    return _modes_jit(model, params, X, actuators, w)
+
+
+def _modes_core(model, params, X, actuators, w) -> Modes:
+    dv = derived(params)
     locked = actuators == "locked"
     z_eq, free = static_equilibrium(
         model, params, model.coords_from_pose(params, dv, X), locked=locked, wrench=w
@@ -83,3 +87,6 @@ def modes(
     freq = jnp.sign(lam) * jnp.sqrt(jnp.abs(lam)) / (2 * jnp.pi)
     growth = jnp.where(lam < 0, jnp.sqrt(jnp.abs(lam)), 0.0)
     return Modes(freq, growth, lam, shapes, z_eq, M, K, free)
+
+
+_modes_jit = eqx.filter_jit(_modes_core)

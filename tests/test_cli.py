@@ -64,3 +64,13 @@ def test_simulate_writes_summary_csv_and_figures(tmp_path, capsys, paper_circle_
         header = next(csv.reader(f))
     assert header[:5] == ["model", "t", "x", "y", "phi"]
     assert "Scene paper-circle" in capsys.readouterr().out
+
+
+def test_prb_kappa0_and_figure(tmp_path, capsys):
+    png = tmp_path / "prb.png"
+    assert main(["prb", "--kappa0", "0", "--json", "--figure", str(png)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert abs(out["gamma"] - 0.85) < 0.02 and abs(out["K_theta"] - 2.65) < 0.1
+    assert png.stat().st_size > 0
+    assert main(["prb", "--kappa0", "2.5"]) == 2
+    assert "[0.0, 2.0]" in capsys.readouterr().err
