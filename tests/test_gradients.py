@@ -17,7 +17,15 @@ TS = jnp.linspace(0.0, 0.6, 7)
 
 
 @pytest.fixture(scope="module")
-def fns(params):
+def pexp(params, dv):
+    """Explicit PRB parameters (the default takes them from the fitted table) so that gamma and
+    K_theta are leaves to differentiate."""
+    return params.replace(gamma=float(dv.gamma), K_theta=float(dv.K_theta))
+
+
+@pytest.fixture(scope="module")
+def fns(pexp):
+    params = pexp
     traj = pj.Circle()
     # Torques computed once for the nominal robot: the data an identification holds fixed.
     tt = jnp.linspace(0, 0.6, 61)
@@ -41,7 +49,8 @@ def fns(params):
 
 
 @pytest.mark.parametrize("name", ["t", "gamma", "K_theta"])
-def test_gradient_reverse_and_forward_vs_finite_differences(params, fns, name):
+def test_gradient_reverse_and_forward_vs_finite_differences(pexp, fns, name):
+    params = pexp
     value, rev, fwd = fns
     x0 = float(getattr(params, name))
     h = 1e-5 * x0
