@@ -359,15 +359,18 @@ def solve_strip(
     def resid(q, lam):
         return grad(q, lam) / k_in  # nondimensional (rad)
 
-    q = jnp.concatenate([dth * (jnp.arange(N) + 0.5), kappa0[None]])
-    result = optx.RESULTS.successful
-    for k in range(1, n_continuation + 1):
-        lam = jnp.asarray(k / n_continuation, jnp.float64)
+    def step(q, lam):
         sol = optx.root_find(
             resid, optx.Newton(rtol=1e-13, atol=1e-13), q, args=lam, max_steps=50, throw=False
         )
-        q = sol.value
-        result = sol.result
+        return sol.value, sol.result._value
+
+    q0 = jnp.concatenate([dth * (jnp.arange(N) + 0.5), kappa0[None]])  # the unloaded arc
+    lams = jnp.arange(1, n_continuation + 1, dtype=jnp.float64) / n_continuation
+    q, codes = jax.lax.scan(step, q0, lams)
+    result = optx.RESULTS.where(
+        jnp.all(codes == 0), optx.RESULTS.successful, optx.RESULTS.nonlinear_divergence
+    )
     theta, tip_angle = q[:N], q[N]
     steps = h * e(theta)
     nodes = jnp.concatenate([jnp.zeros((1, 2)), jnp.cumsum(steps, axis=0)], axis=0)

@@ -376,27 +376,8 @@ def build_parser():
     return p
 
 
-def _enable_compilation_cache():
-    """Persist compiled programs between CLI runs (JAX compilation dominates a first run).
-    Directory: $PPR_JAX_CACHE_DIR or ~/.cache/ppr_jax; PPR_JAX_CACHE_DIR=off disables it; a cache
-    the user configured for JAX already is left alone."""
-    import jax
-
-    where = os.environ.get("PPR_JAX_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache",
-                                                                  "ppr_jax"))
-    if where.lower() in ("off", "0", "none", "") or jax.config.jax_compilation_cache_dir:
-        return
-    try:
-        os.makedirs(where, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", where)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-    except OSError:
-        pass  # a read-only home only costs compile time
-
-
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    _enable_compilation_cache()
     from ._checks import PPRError
     from ._simulate import SimulationError
 

@@ -69,6 +69,19 @@ def eom_terms(
     return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=jac.X, kin=k)
 
 
+def passive_force(
+    model: AbstractModel, params: RobotParams, dv: Derived, z, zdot, tau_a, wrench
+) -> Array:
+    """Q of springs, damping, friction, actuators and wrench only (first derivatives of the
+    kinematics; no mass matrix): the stiffness part of the static and quasi-static balances."""
+    k, jac = model.kinematics(params, dv, z), jax.jacfwd(lambda z: model.kinematics(params, dv, z))(z)
+    Jd, Jth = jac.defl, jac.th_a
+    kk = model.stiffness(params, dv)
+    Q = -(Jd.T @ (kk * k.defl)) - params.c_spring * (Jd.T @ (Jd @ zdot))
+    Q = Q - params.c_act * (Jth.T @ (Jth @ zdot))
+    return Q + Jth.T @ tau_a + jac.X.T @ wrench
+
+
 def generalized_force(eom: EOM, tau_a, wrench) -> Array:
     """Total generalized force Q for actuator torques tau_a (3,) and platform wrench (3,)."""
     return eom.Q_passive + eom.Jth.T @ tau_a + eom.JX.T @ wrench

@@ -139,3 +139,31 @@ def test_explicit_and_implicit_solvers_agree(params):
                     atol=1e-12)
     np.testing.assert_allclose(a.z, b.z, atol=1e-8)
     assert isinstance(a.result, diffrax.RESULTS)
+
+
+@pytest.mark.parametrize("motion_driven", [False, True])
+def test_quasi_static_state_balances_and_its_velocity_is_its_time_derivative(params,
+                                                                             motion_driven):
+    model, traj = pj.Double1R(), pj.Circle()
+    tau = None if motion_driven else pj.InverseDynamicsTorque(pj.Reduced(), params, traj)
+
+    @jax.jit
+    def qs(t):
+        return pj.quasi_static_state(model, params, traj, t, motion_driven=motion_driven,
+                                     torque=tau)
+
+    z, zd = qs(1.0)
+    h = 1e-5
+    fd = (qs(1.0 + h)[0] - qs(1.0 - h)[0]) / (2 * h)
+    np.testing.assert_allclose(zd, fd, rtol=1e-6, atol=1e-9)
+    # the balanced rows: L1's accelerations with the applied (or no) torque
+    dv = pj.derived(params)
+    ref = lambda t: model.coords_from_pose(params, dv, traj(t))  # noqa: E731
+    _, zd_r, zdd_r = pj.derivatives(ref, 1.0)
+    eom = pj.eom_terms(model, params, dv, z, zd_r)
+    t_a = jnp.zeros(3) if motion_driven else tau(1.0)
+    r = eom.M @ zdd_r + eom.h - (eom.Q_passive + eom.Jth.T @ t_a)
+    rows = jnp.array([0, 1, 2]) if motion_driven else jnp.array([3, 4, 5])
+    assert float(jnp.abs(r[rows]).max()) < 1e-12
+    # it differs from the L1 state: the L2 model is not bound by eq 29
+    assert float(jnp.abs(z - ref(1.0)).max()) > 1e-6
