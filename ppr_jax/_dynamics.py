@@ -61,12 +61,17 @@ def eom_terms(
     Jp, Ja = jac.body_p, jac.body_ang  # (nb, 2, n), (nb, n)
     M = jnp.einsum("b,bki,bkj->ij", m, Jp, Jp) + jnp.einsum("b,bi,bj->ij", I, Ja, Ja)
     h = jnp.einsum("b,bki,bk->i", m, Jp, acc.body_p) + jnp.einsum("b,bi,b->i", I, Ja, acc.body_ang)
+    Q = _passive(model, params, dv, k, jac, zdot)
+    return EOM(M=M, h=h, Q_passive=Q, Jth=jac.th_a, JX=jac.X, kin=k)
+
+
+def _passive(model, params, dv, k: Kin, jac: Kin, zdot):
+    """Spring, damping and friction forces from the kinematics and its Jacobian."""
     Jd, Jth = jac.defl, jac.th_a
     kk = model.stiffness(params, dv)
     # kk is a scalar or one stiffness per spring (the beam's clamp half-springs differ).
     Q = -(Jd.T @ (kk * k.defl)) - params.c_spring * (Jd.T @ (Jd @ zdot))
-    Q = Q - params.c_act * (Jth.T @ (Jth @ zdot))
-    return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=jac.X, kin=k)
+    return Q - params.c_act * (Jth.T @ (Jth @ zdot))
 
 
 def passive_force(
@@ -74,12 +79,11 @@ def passive_force(
 ) -> Array:
     """Q of springs, damping, friction, actuators and wrench only (first derivatives of the
     kinematics; no mass matrix): the stiffness part of the static and quasi-static balances."""
-    k, jac = model.kinematics(params, dv, z), jax.jacfwd(lambda z: model.kinematics(params, dv, z))(z)
-    Jd, Jth = jac.defl, jac.th_a
-    kk = model.stiffness(params, dv)
-    Q = -(Jd.T @ (kk * k.defl)) - params.c_spring * (Jd.T @ (Jd @ zdot))
-    Q = Q - params.c_act * (Jth.T @ (Jth @ zdot))
-    return Q + Jth.T @ tau_a + jac.X.T @ wrench
+    def kin(z):
+        return model.kinematics(params, dv, z)
+
+    k, jac = kin(z), jax.jacfwd(kin)(z)
+    return _passive(model, params, dv, k, jac, zdot) + jac.th_a.T @ tau_a + jac.X.T @ wrench
 
 
 def generalized_force(eom: EOM, tau_a, wrench) -> Array:

@@ -140,6 +140,13 @@ def _servo_circle_core(model, params, traj, ts, solver, controller, max_steps, t
 
 _paper_circle_jit = eqx.filter_jit(_paper_circle_core)
 _servo_circle_jit = eqx.filter_jit(_servo_circle_core)
+# Batched cores: vmapped over the parameters (argument 2 / 1), compiled once per shape.
+_paper_circle_batch = eqx.filter_jit(
+    eqx.filter_vmap(_paper_circle_core, in_axes=(None, None, 0) + (None,) * 6)
+)
+_servo_circle_batch = eqx.filter_jit(
+    eqx.filter_vmap(_servo_circle_core, in_axes=(None, 0) + (None,) * 6)
+)
 
 
 def _batched(params: RobotParams) -> bool:
@@ -155,6 +162,18 @@ def _run_timed(fn, *args):
     jax.block_until_ready(out)
     t2 = time.perf_counter()
     return out, t1 - t0, t2 - t1
+
+
+def _run_scene(scene, core, core_batch, model, params, traj, pre, post, sname, rtol, atol):
+    """Run a scene core on one robot (timed, -> SceneResult) or on a batch (-> (Solution,
+    Outputs) with a leading axis, every member checked)."""
+    if _batched(params):
+        sol, out = core_batch(*pre, params, *post)
+        check_result(sol.result, scene)
+        return sol, out
+    (sol, out), tc, tr = _run_timed(core, *pre, params, *post)
+    check_result(sol.result, f"{scene} ({model.name})")
+    return _scene_result(scene, model, params, traj, sol, out, tc, tr, sname, rtol, atol)
 
 
 def _scene_result(scene, model, params, traj, sol, out, t_compile, t_run, solver_name, rtol, atol):
@@ -208,18 +227,10 @@ def paper_circle(
     )
     traj = Circle() if trajectory is None else trajectory
     tm = get_model(torque_model)
-    if _batched(params):
-        f = eqx.filter_vmap(
-            lambda p: _paper_circle_core(model, tm, p, traj, ts, solver_, ctrl, max_steps, False)
-        )
-        sol, out = eqx.filter_jit(f)(params)
-        check_result(sol.result, "paper-circle")
-        return sol, out
-    (sol, out), tc, tr = _run_timed(
-        _paper_circle_jit, model, tm, params, traj, ts, solver_, ctrl, max_steps, False
+    return _run_scene(
+        "paper-circle", _paper_circle_jit, _paper_circle_batch, model, params, traj,
+        (model, tm), (traj, ts, solver_, ctrl, max_steps, False), sname, rtol, atol,
     )
-    check_result(sol.result, f"paper-circle ({model.name})")
-    return _scene_result("paper-circle", model, params, traj, sol, out, tc, tr, sname, rtol, atol)
 
 
 def servo_circle(
@@ -241,20 +252,12 @@ def servo_circle(
         model, params, "servo-circle", t_end, n_out, solver, rtol, atol
     )
     traj = Circle() if trajectory is None else trajectory
-    if _batched(params):
-        f = eqx.filter_vmap(
-            lambda p: _servo_circle_core(model, p, traj, ts, solver_, ctrl, max_steps, False)
-        )
-        sol, out = eqx.filter_jit(f)(params)
-        check_result(sol.result, "servo-circle")
-        return sol, out
-    (sol, out), tc, tr = _run_timed(
-        _servo_circle_jit, model, params, traj, ts, solver_, ctrl, max_steps, False
-    )
-    check_result(sol.result, f"servo-circle ({model.name})")
     if model.actuated_index is None:
         sname = "none (kinematics + inverse dynamics)"
-    return _scene_result("servo-circle", model, params, traj, sol, out, tc, tr, sname, rtol, atol)
+    return _run_scene(
+        "servo-circle", _servo_circle_jit, _servo_circle_batch, model, params, traj, (model,),
+        (traj, ts, solver_, ctrl, max_steps, False), sname, rtol, atol,
+    )
 
 
 def modes_scene(
