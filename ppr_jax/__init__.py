@@ -18,6 +18,11 @@ from ._model import AbstractModel as AbstractModel, Kin as Kin  # noqa: E402
 from ._rigid import Rigid as Rigid  # noqa: E402
 from ._reduced import Reduced as Reduced  # noqa: E402
 from ._double1r import Double1R as Double1R  # noqa: E402
+from ._beam import (  # noqa: E402
+    Beam as Beam,
+    solve_strip as solve_strip,
+    strip_constants as strip_constants,
+)
 from ._checks import PPRError as PPRError  # noqa: E402
 from ._kinematics import home_pose as home_pose  # noqa: E402
 from ._ik import (  # noqa: E402

@@ -84,7 +84,7 @@ def _models(text, default):
 
 def cmd_simulate(args):
     from ._plots import scene_figures
-    from ._scenes import modes_scene, paper_circle, servo_circle
+    from ._scenes import get_model, modes_scene, paper_circle, servo_circle
     from ._trajectory import Circle
 
     scene = args.scene
@@ -96,7 +96,8 @@ def cmd_simulate(args):
         for m in models:
             for act in ("locked", "free"):
                 _log(f"modes: {m}, actuators {act} ...")
-                res.append(modes_scene(params, model=m, actuators=act))
+                res.append(modes_scene(params, model=get_model(m, args.elements),
+                                       actuators=act))
         summary = {"scene": scene, "params": _params_dict(params), "modes": res}
         _write_json(os.path.join(args.out, "summary.json"), summary)
         for r in res:
@@ -112,9 +113,10 @@ def cmd_simulate(args):
         _log(f"[{i + 1}/{len(models)}] {scene}: model {m} (compiling, then running) ...")
         t0 = time.perf_counter()
         if scene == "paper-circle":
-            r = paper_circle(params, model=m, torque_model=args.torque_model, **kw)
+            r = paper_circle(params, model=get_model(m, args.elements),
+                             torque_model=args.torque_model, **kw)
         else:
-            r = servo_circle(params, model=m, **kw)
+            r = servo_circle(params, model=get_model(m, args.elements), **kw)
         _log(f"      done in {time.perf_counter() - t0:.1f} s (compile {r.timing['compile_s']:.1f} s, "
              f"run {r.timing['run_s'] * 1e3:.1f} ms, {r.metrics['num_steps']} steps)")
         results.append(r)
@@ -231,7 +233,10 @@ def cmd_modes(args):
 
     params = _parse_sets(args.set, "modes")
     X = None if args.pose is None else [float(v) for v in args.pose.split(",")]
-    r = modes_scene(params, model=args.model, actuators=args.actuators, X=X)
+    from ._scenes import get_model
+
+    r = modes_scene(params, model=get_model(args.model, args.elements), actuators=args.actuators,
+                    X=X)
     if args.json:
         print(json.dumps(r, indent=2))
     else:
@@ -334,7 +339,10 @@ def build_parser():
     s = sub.add_parser("simulate", help="run a scene and write summary.json, trajectory.csv, figures")
     s.add_argument("--scene", default="paper-circle", choices=["paper-circle", "servo-circle", "modes"])
     s.add_argument("--model", default=None,
-                   help="rigid, reduced, double1r or a comma list (default: all three)")
+                   help="rigid, reduced, double1r, beam or a comma list (default: rigid, reduced, "
+                        "double1r). beam (L3) is stiff: it compiles for 1-2 min per N and a "
+                        "7.54 s paper-circle at N >= 8 takes hundreds of thousands of steps")
+    s.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
     s.add_argument("--torque-model", default="reduced", choices=["rigid", "reduced"],
                    help="paper-circle: the model whose inverse dynamics gives the torques")
     s.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
@@ -356,7 +364,9 @@ def build_parser():
     t.set_defaults(func=cmd_torques)
 
     m = sub.add_parser("modes", help="natural frequencies about a static equilibrium (Hz)")
-    m.add_argument("--model", default="double1r", choices=["rigid", "reduced", "double1r"])
+    m.add_argument("--model", default="double1r",
+                   choices=["rigid", "reduced", "double1r", "beam"])
+    m.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
     m.add_argument("--actuators", default="locked", choices=["locked", "free"])
     m.add_argument("--pose", default=None, help="x,y,phi (default: home)")
     m.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._beam import Beam
 from ._actuation import InverseDynamicsTorque, InverseKinematicsAngles, MotionDriven, TorqueDriven
 from ._checks import raise_if
 from ._double1r import Double1R
@@ -34,18 +35,24 @@ from ._simulate import Solution, _simulate_core, check_result, get_solver
 from ._statics import quasi_static_state
 from ._trajectory import Circle, derivatives
 
-MODELS = {"rigid": Rigid, "reduced": Reduced, "double1r": Double1R}
+MODELS = {"rigid": Rigid, "reduced": Reduced, "double1r": Double1R, "beam": Beam}
 SCENES = ("paper-circle", "servo-circle", "modes")
 #: strip thickness of each scene (m): the paper's simulation uses 0.3 mm, its experiment 0.5 mm
 SCENE_THICKNESS = {"paper-circle": 0.3e-3, "servo-circle": 0.5e-3, "modes": 0.3e-3}
 #: default solver per model level (see README, "Solvers")
-DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5"}
+DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "tsit5"}
 
 
-def get_model(model) -> AbstractModel:
-    """A model from its name (rigid, reduced, double1r) or an instance."""
+def get_model(model, n_elements: Optional[int] = None) -> AbstractModel:
+    """A model from its name (rigid, reduced, double1r, beam) or an instance; `n_elements` is
+    the number of beam elements per strip of `beam` (default 8)."""
     if isinstance(model, AbstractModel):
         return model
+    if str(model) == "beam":
+        n = 8 if n_elements is None else int(n_elements)
+        if n < 1:
+            raise ValueError(f"--elements (beam elements per strip) must be >= 1, got {n}")
+        return Beam(n)
     try:
         return MODELS[str(model)]()
     except KeyError:
