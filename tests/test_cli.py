@@ -74,3 +74,11 @@ def test_prb_kappa0_and_figure(tmp_path, capsys):
     assert png.stat().st_size > 0
     assert main(["prb", "--kappa0", "2.5"]) == 2
     assert "[0.0, 2.0]" in capsys.readouterr().err
+
+
+def test_modes_of_the_beam_model_from_the_cli(capsys):
+    assert main(["modes", "--model", "beam", "--elements", "2", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["model"] == "beam" and out["n_free_coordinates"] == 3 + 3 * 2 - 3
+    assert all(np.isfinite(out["frequencies_hz"]))
+    assert main(["modes", "--model", "beam", "--elements", "0"]) == 2
