@@ -78,10 +78,11 @@ def main(quick: bool):
                 }
                 results["cases"].append(case)
                 print(json.dumps(case))
+    save(results)
     # Batched throughput: vmap over thickness, L1 and L2 at rtol 1e-8.
-    for mname in ["reduced", "double1r"]:
+    for mname, sizes in (("reduced", [8, 64]), ("double1r", [8])):
         model = pj.get_model(mname)
-        for B in ([8, 64] if not quick else [8]):
+        for B in (sizes if not quick else [8]):
             batch = pj.stack_params([params.replace(t=float(t)) for t in np.linspace(0.28e-3, 0.4e-3, B)])
             f = eqx.filter_jit(eqx.filter_vmap(
                 lambda p: _paper_circle_core(model, pj.Reduced(), p, pj.Circle(), ts,
@@ -99,9 +100,13 @@ def main(quick: bool):
                    "per_robot_ms": min(times) / B * 1e3}
             results["batched"].append(row)
             print(json.dumps(row))
+            save(results)
+    plot(results)
+
+
+def save(results):
     with open(os.path.join(OUT, "paper_circle.json"), "w") as f:
         json.dump(results, f, indent=2)
-    plot(results)
 
 
 def plot(results):
