@@ -70,10 +70,6 @@ class InverseKinematicsAngles(eqx.Module):
     trajectory: Callable
 
     def __call__(self, t):
-        X = self.trajectory(t)
-        kin = self.model.kinematics(self.params, derived(self.params), _pose_coords(self, X))
-        return kin.th_a
-
-
-def _pose_coords(f: InverseKinematicsAngles, X):
-    return f.model.coords_from_pose(f.params, derived(f.params), X)
+        dv = derived(self.params)
+        z = self.model.coords_from_pose(self.params, dv, self.trajectory(t))
+        return self.model.kinematics(self.params, dv, z).th_a

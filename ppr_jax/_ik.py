@@ -145,6 +145,14 @@ def _fk(model, params, th_a, X_guess, rtol, atol, max_steps):
 _fk_jit = eqx.filter_jit(_fk)
 
 
+def _fk_inputs(params, th_a, X_guess, model):
+    """Defaults shared by the forward-kinematics wrappers: L1 model, home pose as the guess."""
+    model = Reduced() if model is None else model
+    th_a = jnp.asarray(th_a, dtype=jnp.float64)
+    X_guess = home_pose(params) if X_guess is None else jnp.asarray(X_guess, dtype=jnp.float64)
+    return model, th_a, X_guess
+
+
 def forward_kinematics(
     params: RobotParams,
     th_a: Float[Array, "3"],
@@ -161,9 +169,7 @@ def forward_kinematics(
     started at `X_guess` (default home): pass the previous solution to warm-start along a path.
     The assembly mode found is the one nearest the guess. Raises `PPRError` if Newton does not
     converge or lands on an unreachable / singular configuration."""
-    model = Reduced() if model is None else model
-    th_a = jnp.asarray(th_a, dtype=jnp.float64)
-    X_guess = home_pose(params) if X_guess is None else jnp.asarray(X_guess, dtype=jnp.float64)
+    model, th_a, X_guess = _fk_inputs(params, th_a, X_guess, model)
     X, result = _fk_jit(model, params, th_a, X_guess, rtol, atol, max_steps)
     X = raise_if(
         X, result != optx.RESULTS.successful,
@@ -198,9 +204,7 @@ def forward_kinematics_path(
 ) -> Float[Array, "m 3"]:
     """Forward kinematics along a sampled path of actuated angles, each Newton solve warm-started
     from the previous pose (one `lax.scan`, compiled once per shape)."""
-    model = Reduced() if model is None else model
-    th_a_path = jnp.asarray(th_a_path, dtype=jnp.float64)
-    X0 = home_pose(params) if X0 is None else jnp.asarray(X0, dtype=jnp.float64)
+    model, th_a_path, X0 = _fk_inputs(params, th_a_path, X0, model)
     Xs, codes = _fk_path_jit(model, params, th_a_path, X0, rtol, atol, max_steps)
     Xs = raise_if(
         Xs, jnp.any(codes != 0),
