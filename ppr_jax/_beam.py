@@ -74,6 +74,7 @@ import optimistix as optx
 
 from ._custom_types import Array, Float
 from ._kinematics import base_points, e, ik_reduced, platform_points, two_link, wrap
+from ._linalg import SmallLU, solve
 from ._model import AbstractModel, Kin, rotor_inertia
 from ._params import RobotParams
 from ._prb import Derived
@@ -289,7 +290,7 @@ class Beam(AbstractModel):
         d1, d3 = e(th[:, 0]), e(th[:, -1])
         # A + s d1 = Q2 + u d3  ->  [d1, -d3] (s, u) = Q2 - A
         Mtx = jnp.stack([d1, -d3], axis=-1)  # (3, 2, 2)
-        su = jnp.linalg.solve(Mtx, (Q2 - A)[..., None])[..., 0]
+        su = jax.vmap(solve)(Mtx, Q2 - A)
         return A + su[:, :1] * d1
 
     def rest_angles(self, params, th_a):
@@ -361,7 +362,7 @@ def solve_strip(
 
     def step(q, lam):
         sol = optx.root_find(
-            resid, optx.Newton(rtol=1e-13, atol=1e-13), q, args=lam, max_steps=50, throw=False
+            resid, optx.Newton(rtol=1e-13, atol=1e-13, linear_solver=SmallLU()), q, args=lam, max_steps=50, throw=False
         )
         return sol.value, sol.result._value
 

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from ._custom_types import Array, Float
+from ._linalg import solve
 from ._model import AbstractModel, Kin
 from ._params import RobotParams
 from ._prb import Derived
@@ -93,7 +94,7 @@ def generalized_force(eom: EOM, tau_a, wrench) -> Array:
 
 def accelerations(eom: EOM, tau_a, wrench) -> Array:
     """Torque-driven forward dynamics: z'' = M^-1 (Q - h)."""
-    return jnp.linalg.solve(eom.M, generalized_force(eom, tau_a, wrench) - eom.h)
+    return solve(eom.M, generalized_force(eom, tau_a, wrench) - eom.h)
 
 
 def energy(model: AbstractModel, params: RobotParams, dv: Derived, z, zdot):
@@ -144,4 +145,4 @@ def inverse_dynamics(
     w = jnp.zeros(3) if wrench is None else wrench
     eom = eom_terms(model, params, dv, X, Xdot)
     rhs = eom.M @ Xddot + eom.h - eom.Q_passive - w
-    return jnp.linalg.solve(eom.Jth.T, rhs), eom
+    return solve(eom.Jth.T, rhs), eom

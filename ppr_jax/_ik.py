@@ -12,6 +12,7 @@ import optimistix as optx
 
 from ._checks import raise_if
 from ._custom_types import Array, Float
+from ._linalg import SmallLU
 from ._kinematics import deflections, home_pose, singularity_measure
 from ._model import AbstractModel
 from ._params import RobotParams
@@ -136,7 +137,7 @@ def _fk(model, params, th_a, X_guess, rtol, atol, max_steps):
         return k.th_a - th_a
 
     sol = optx.root_find(
-        resid, optx.Newton(rtol=rtol, atol=atol), X_guess, args=th_a, max_steps=max_steps,
+        resid, optx.Newton(rtol=rtol, atol=atol, linear_solver=SmallLU()), X_guess, args=th_a, max_steps=max_steps,
         throw=False,
     )
     return sol.value, sol.result

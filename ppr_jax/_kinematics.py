@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from ._custom_types import Array, Float
+from ._linalg import solve
 from ._params import RobotParams
 from ._prb import Derived
 
@@ -109,7 +110,7 @@ def ik_reduced(params: RobotParams, dv: Derived, X: Float[Array, "3"]):
     def newton(th13, di):
         for _ in range(N_NEWTON_IK):
             Jc = jax.jacfwd(resid)(th13, di)
-            th13 = th13 - jnp.linalg.solve(Jc, resid(th13, di))
+            th13 = th13 - solve(Jc, resid(th13, di))
         return th13
 
     th13 = jnp.stack([th1, th3], axis=-1)

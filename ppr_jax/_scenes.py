@@ -24,6 +24,7 @@ from ._checks import raise_if
 from ._double1r import Double1R
 from ._dynamics import inverse_dynamics
 from ._ik import _fk
+from ._linalg import solve
 from ._metrics import metrics, outputs
 from ._model import AbstractModel
 from ._modes import modes as _modes
@@ -113,9 +114,9 @@ def _kinematic_motion(model, params, angles, X0, ts):
         th, thd, thdd = derivatives(angles, t)
         X, res = _fk(model, params, th, X, 1e-13, 1e-13, 50)
         S = jax.jacfwd(tha_of_X)(X)
-        Xd = jnp.linalg.solve(S, thd)
+        Xd = solve(S, thd)
         conv = jax.jvp(lambda X: jax.jvp(tha_of_X, (X,), (Xd,))[1], (X,), (Xd,))[1]
-        Xdd = jnp.linalg.solve(S, thdd - conv)
+        Xdd = solve(S, thdd - conv)
         tau, _ = inverse_dynamics(model, params, dv, X, Xd, Xdd)
         return X, (X, Xd, tau, res._value)
 

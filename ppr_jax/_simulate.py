@@ -20,6 +20,7 @@ import numpy as np
 from ._actuation import MotionDriven, PDServo, TorqueDriven
 from ._custom_types import Array, Float
 from ._dynamics import EOM, eom_terms, generalized_force
+from ._linalg import solve
 from ._model import AbstractModel
 from ._params import RobotParams, validate_traced
 from ._prb import derived
@@ -104,12 +105,12 @@ def _accel(model, params, dv, actuation, wrench, t, zf, zfd):
     eom = eom_terms(model, params, dv, z, zd)
     if not pres:
         tau = _torque(actuation, t, eom, zd)
-        zdd = jnp.linalg.solve(eom.M, generalized_force(eom, tau, wrench) - eom.h)
+        zdd = solve(eom.M, generalized_force(eom, tau, wrench) - eom.h)
         return z, zd, zdd, tau
     f, p = jnp.array(free), jnp.array(pres)
     rhs = generalized_force(eom, jnp.zeros(3), wrench) - eom.h
     Mff = eom.M[f][:, f]
-    zdd_f = jnp.linalg.solve(Mff, rhs[f] - eom.M[f][:, p] @ thadd)
+    zdd_f = solve(Mff, rhs[f] - eom.M[f][:, p] @ thadd)
     zdd = jnp.zeros(model.n_dof).at[f].set(zdd_f).at[p].set(thadd)
     # The actuated coordinates are th_a themselves, so their rows give the reaction torques.
     tau = (eom.M @ zdd - rhs)[p]

@@ -14,6 +14,7 @@ import optimistix as optx
 
 from ._checks import raise_if
 from ._dynamics import eom_terms, generalized_force, passive_force
+from ._linalg import SmallLU, lu_factor, lu_solve
 from ._model import AbstractModel
 from ._params import RobotParams
 from ._prb import derived
@@ -31,7 +32,7 @@ def _assemble(n, idx_u, zu, idx_k, zk):
 
 def _newton(resid, y0, args, rtol=1e-12, atol=1e-12, max_steps=100):
     sol = optx.root_find(
-        resid, optx.Newton(rtol=rtol, atol=atol), y0, args=args, max_steps=max_steps, throw=False
+        resid, optx.Newton(rtol=rtol, atol=atol, linear_solver=SmallLU()), y0, args=args, max_steps=max_steps, throw=False
     )
     return sol.value, sol.result
 
@@ -94,10 +95,8 @@ def _chord_solve(resid, resid_stiff, y0, n_iter: int = 40):
     contracts by that factor per step while converging to the root of the full residual.
     Returns (y, relative residual)."""
     J0 = jax.jacfwd(resid_stiff)(y0)
-    lu = jax.scipy.linalg.lu_factor(J0)
-    y = jax.lax.fori_loop(
-        0, n_iter, lambda _, y: y - jax.scipy.linalg.lu_solve(lu, resid(y)), y0
-    )
+    lu = lu_factor(J0)
+    y = jax.lax.fori_loop(0, n_iter, lambda _, y: y - lu_solve(lu, resid(y)), y0)
     scale = jnp.maximum(jnp.max(jnp.abs(J0)) * jnp.max(jnp.abs(y)), 1e-300)
     return y, jnp.max(jnp.abs(resid(y))) / scale
 

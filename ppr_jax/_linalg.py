@@ -1,0 +1,150 @@
+"""Small dense linear algebra in plain XLA operations (no LAPACK custom calls).
+
+Why not `jnp.linalg.solve`
+--------------------------
+On CPU, `jnp.linalg.solve` and `jax.scipy.linalg.lu_factor` lower to LAPACK custom calls
+(`lapack_dgetrf_ffi`). Under `vmap` a batched getrf splits its batch over XLA's intra-op thread
+pool (`jax::ParallelBatchMap`) and *blocks* its calling thread until the pieces are done. XLA's
+thunk executor runs independent operations of one program concurrently on the same pool, so when
+two such batched factorizations are ready at once (the mass-matrix solve and the inverse-dynamics
+solve of one right-hand side evaluation, say) each pool thread sits in `BlockingCounter::Wait`
+for work queued behind the other: with two cores the whole process deadlocks at 0 % CPU (a native
+stack of the parked threads is in the README, "Batches"). Our systems are tiny (3 x 3 to
+(3 + 3N) x (3 + 3N)), so Gaussian elimination written in `jnp` operations is also faster than a
+custom call per solve, fuses with its neighbours, vectorizes under `vmap` and differentiates by
+plain autodiff.
+
+`SmallLU` is the same factorization as a lineax solver, for optimistix's Newton.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import equinox.internal as eqxi
+import jax
+import jax.numpy as jnp
+import lineax as lx
+from lineax._solver.misc import (
+    pack_structures,
+    ravel_vector,
+    transpose_packed_structures,
+    unravel_solution,
+)
+
+from ._custom_types import Array, Float
+
+#: up to this size the elimination is unrolled in Python (static indices, best code); above it a
+#: `lax.fori_loop` keeps the program size independent of n
+UNROLL_MAX = 12
+
+
+def _lu_step(k, A, perm):
+    """One column of Doolittle elimination with partial pivoting (k may be traced)."""
+    n = A.shape[-1]
+    rows = jnp.arange(n)
+    col = jnp.where(rows >= k, jnp.abs(A[:, k]), -1.0)
+    p = jnp.argmax(col)
+    rk, rp = A[k], A[p]
+    A = A.at[k].set(rp).at[p].set(rk)
+    pk, pp = perm[k], perm[p]
+    perm = perm.at[k].set(pp).at[p].set(pk)
+    below = rows > k
+    l = jnp.where(below, A[:, k] / A[k, k], 0.0)
+    A = A - l[:, None] * jnp.where(rows > k, A[k], 0.0)[None, :]
+    A = jnp.where((rows[:, None] > k) & (rows[None, :] == k), l[:, None], A)
+    return A, perm
+
+
+def lu_factor(A: Float[Array, "n n"]) -> tuple[Array, Array]:
+    """(LU, perm) with A[perm] = L U, L unit lower triangular (below the diagonal of LU) and U
+    upper triangular. A singular A gives inf/NaN, as LAPACK's getrf would."""
+    n = A.shape[-1]
+    perm = jnp.arange(n)
+    if n <= UNROLL_MAX:
+        for k in range(n):
+            A, perm = _lu_step(k, A, perm)
+        return A, perm
+    return jax.lax.fori_loop(0, n, lambda k, c: _lu_step(k, *c), (A, perm))
+
+
+def _forward(L, b, unit: bool):
+    """Solve L y = b for lower-triangular L."""
+    n = b.shape[0]
+    rows = jnp.arange(n)
+
+    def step(i, y):
+        s = jnp.sum(jnp.where(rows < i, L[i] * y, 0.0))
+        yi = b[i] - s if unit else (b[i] - s) / L[i, i]
+        return y.at[i].set(yi)
+
+    y = jnp.zeros_like(b)
+    if n <= UNROLL_MAX:
+        for i in range(n):
+            y = step(i, y)
+        return y
+    return jax.lax.fori_loop(0, n, step, y)
+
+
+def _backward(U, b, unit: bool):
+    """Solve U x = b for upper-triangular U."""
+    n = b.shape[0]
+    rows = jnp.arange(n)
+
+    def step(j, x):
+        i = n - 1 - j
+        s = jnp.sum(jnp.where(rows > i, U[i] * x, 0.0))
+        xi = b[i] - s if unit else (b[i] - s) / U[i, i]
+        return x.at[i].set(xi)
+
+    x = jnp.zeros_like(b)
+    if n <= UNROLL_MAX:
+        for j in range(n):
+            x = step(j, x)
+        return x
+    return jax.lax.fori_loop(0, n, step, x)
+
+
+def lu_solve(lu_perm: tuple[Array, Array], b: Float[Array, " n"], trans: bool = False):
+    """Solve A x = b (or A^T x = b with `trans`) from `lu_factor(A)`."""
+    LU, perm = lu_perm
+    if not trans:
+        y = _forward(LU, b[perm], unit=True)
+        return _backward(LU, y, unit=False)
+    # A^T = U^T L^T P: solve U^T z = b, L^T w = z, then P x = w.
+    z = _forward(LU.T, b, unit=False)
+    w = _backward(LU.T, z, unit=True)
+    return jnp.zeros_like(w).at[perm].set(w)
+
+
+def solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, " n"]:
+    """x with A x = b (Gaussian elimination with partial pivoting, module docstring)."""
+    return lu_solve(lu_factor(A), b)
+
+
+class SmallLU(lx.AbstractLinearSolver):
+    """`lineax.LU` with the factorization above instead of LAPACK (module docstring): for
+    square nonsingular operators, e.g. `optimistix.Newton(..., linear_solver=SmallLU())`."""
+
+    def init(self, operator, options: dict[str, Any]):
+        del options
+        if operator.in_size() != operator.out_size():
+            raise ValueError("SmallLU may only be used for square linear systems")
+        return lu_factor(operator.as_matrix()), pack_structures(operator), eqxi.Static(False)
+
+    def compute(self, state, vector, options: dict[str, Any]):
+        del options
+        lu_perm, packed, transpose = state
+        x = lu_solve(lu_perm, ravel_vector(vector, packed), trans=transpose.value)
+        return unravel_solution(x, packed), lx.RESULTS.successful, {}
+
+    def transpose(self, state, options: dict[str, Any]):
+        lu_perm, packed, transpose = state
+        return (lu_perm, transpose_packed_structures(packed), eqxi.Static(not transpose.value)), {}
+
+    def conj(self, state, options: dict[str, Any]):
+        (lu, perm), packed, transpose = state
+        return ((lu.conj(), perm), packed, transpose), {}
+
+    def assume_full_rank(self):
+        return True
