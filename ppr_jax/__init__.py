@@ -73,11 +73,13 @@ from ._scenes import (  # noqa: E402
 )
 
 from . import elastica as elastica  # noqa: E402
+from ._prb_table import (  # noqa: E402
+    prb_parameters as prb_parameters,
+    prb_table as prb_table,
+)
 from ._prb_fit import (  # noqa: E402
     fit_prb as fit_prb,
     prb_error as prb_error,
-    prb_parameters as prb_parameters,
-    prb_table as prb_table,
 )
 
 __version__ = "0.1.0"

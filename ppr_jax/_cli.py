@@ -246,7 +246,8 @@ def cmd_modes(args):
 
 
 def _prb_at_kappa0(args):
-    from ._prb_fit import fit_prb, prb_parameters, prb_table
+    from ._prb_fit import fit_prb
+    from ._prb_table import prb_parameters, prb_table
 
     k = float(args.kappa0)
     g, rho, K = prb_parameters(k)
@@ -282,7 +283,7 @@ def _prb_figure(path, tab):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ._prb_fit import prb_parameters
+    from ._prb_table import prb_parameters
 
     k = np.linspace(0.0, 2.0, 201)
     g, rho, K = (np.asarray(v) for v in prb_parameters(k))
@@ -307,7 +308,7 @@ def cmd_prb(args):
         return _prb_at_kappa0(args)
     if args.fit or args.figure:
         if args.figure:
-            from ._prb_fit import prb_table
+            from ._prb_table import prb_table
 
             _prb_figure(args.figure, prb_table())
         if not args.fit:

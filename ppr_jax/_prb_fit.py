@@ -65,8 +65,8 @@ For ``kappa0 = 0`` this gives ``gamma ~ 0.85``, ``K_theta ~ 2.65`` (Howell's ave
 2.65; for a pure transverse force, ``n = 0`` alone, 0.8517 and 2.676).
 
 The shipped table ``ppr_jax/data/prb_table.json`` (``kappa0 = 0, 0.1, ..., 2``) is produced by
-``scripts/make_prb_table.py`` with the defaults above; :func:`prb_parameters` interpolates it
-with a C2 cubic spline in JAX.
+``scripts/make_prb_table.py`` with the defaults above; :func:`ppr_jax._prb_table.prb_parameters`
+interpolates it with a C2 cubic spline in JAX.
 """
 
 from __future__ import annotations
@@ -76,16 +76,13 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import functools  # noqa: E402
-import importlib.resources  # noqa: E402
-import json  # noqa: E402
 from typing import NamedTuple  # noqa: E402
 
-import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-import scipy.interpolate  # noqa: E402
 import scipy.optimize  # noqa: E402
 
+from ._prb_table import _geometry  # noqa: E402
 from .elastica import solve_cantilever  # noqa: E402
 
 __all__ = [
@@ -94,8 +91,6 @@ __all__ = [
     "PRBFit",
     "fit_prb",
     "prb_error",
-    "prb_parameters",
-    "prb_table",
 ]
 
 #: Default load range of the fit (see the module docstring, steps 1-2).
@@ -106,8 +101,6 @@ DEFAULT_LOAD_RANGE = dict(
     load_cap=10.0,
     n_loads=16,
 )
-#: Table domain of kappa0.
-KAPPA0_RANGE = (0.0, 2.0)
 
 
 class PRBError(NamedTuple):
@@ -134,27 +127,6 @@ class PRBFit(NamedTuple):
     load_error_max: float
     load_error_rms: float
     dtheta_max: float
-
-
-# ------------------------------------------------------------------------------------------------
-# Geometry
-# ------------------------------------------------------------------------------------------------
-
-
-def _arc_tip(kappa0):
-    """Unloaded tip (a_i, b_i)/l of the arc; stable (and smooth) at kappa0 = 0. Works on jnp/np."""
-    xp = jnp if isinstance(kappa0, jax.Array) else np
-    a = xp.sinc(kappa0 / np.pi)  # sin(k)/k
-    b = 0.5 * kappa0 * xp.sinc(kappa0 / (2 * np.pi)) ** 2  # (1 - cos k)/k
-    return a, b
-
-
-def _geometry(kappa0, gamma):
-    """(rho_default, Theta_i) for given kappa0, gamma (numpy or jax)."""
-    xp = jnp if isinstance(kappa0, jax.Array) or isinstance(gamma, jax.Array) else np
-    a, b = _arc_tip(kappa0)
-    dx = a - (1.0 - gamma)
-    return xp.sqrt(dx**2 + b**2), xp.arctan2(b, dx)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -355,74 +327,3 @@ def prb_error(
     rho = float(_geometry(kappa0, gamma)[0]) if rho is None else float(rho)
     K_theta = _best_K_theta(kappa0, gamma, samples) if K_theta is None else float(K_theta)
     return _errors(kappa0, gamma, rho, K_theta, samples)
-
-
-# ------------------------------------------------------------------------------------------------
-# Shipped table and its interpolant
-# ------------------------------------------------------------------------------------------------
-
-
-@functools.lru_cache(maxsize=1)
-def prb_table() -> dict:
-    """The shipped PRB table (``ppr_jax/data/prb_table.json``), cached.
-
-    Returns a dict with ``meta`` (procedure, load range, error measures) and one numpy array per
-    column: ``kappa0, gamma, rho, K_theta, theta_i, tip_error_max, tip_error_rms,
-    load_error_max, load_error_rms, dtheta_max``. Treat it as read-only.
-    """
-    text = (importlib.resources.files("ppr_jax") / "data" / "prb_table.json").read_text()
-    raw = json.loads(text)
-    out = {"meta": raw["meta"]}
-    for k in raw["columns"]:
-        out[k] = np.asarray(raw[k], dtype=np.float64)
-    return out
-
-
-@functools.lru_cache(maxsize=1)
-def _splines():
-    t = prb_table()
-    k = t["kappa0"]
-    # Not-a-knot cubic splines (C2); coefficients c[m, i] of (kappa0 - k_i)^(3-m) on interval i.
-    # numpy (not jnp) so that the cache never holds arrays created under a trace.
-    coef = {name: np.asarray(scipy.interpolate.CubicSpline(k, t[name]).c) for name in ("gamma", "K_theta")}
-    return np.asarray(k), coef
-
-
-def _spline_eval(knots, c, x):
-    knots, c = jnp.asarray(knots), jnp.asarray(c)
-    i = jnp.clip(jnp.searchsorted(knots, x, side="right") - 1, 0, knots.shape[0] - 2)
-    t = x - knots[i]
-    return ((c[0, i] * t + c[1, i]) * t + c[2, i]) * t + c[3, i]
-
-
-def prb_parameters(kappa0):
-    """PRB parameters ``(gamma, rho, K_theta)`` at ``kappa0``, interpolated from the shipped table.
-
-    ``gamma`` and ``K_theta`` are not-a-knot cubic splines (C2) through the table nodes; ``rho`` is
-    Howell's geometric value for the interpolated ``gamma`` (so it equals the table's ``rho`` at
-    the nodes and stays consistent with ``Theta_i``). JAX-traceable and differentiable in
-    ``kappa0`` (scalar or any shape; outputs have its shape).
-
-    Raises:
-        ValueError: ``kappa0`` concrete and outside ``[0, 2]`` (the table's range).
-        equinox runtime error (``eqx.error_if``): the same when traced.
-    """
-    lo, hi = KAPPA0_RANGE
-    tol = 1e-12
-    try:
-        k_np = np.asarray(kappa0, dtype=np.float64)
-    except (jax.errors.JAXTypeError, TypeError):
-        k_np = None
-    if k_np is not None and not np.all((k_np >= lo - tol) & (k_np <= hi + tol)):
-        raise ValueError(f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range); got {kappa0}.")
-    k = jnp.asarray(kappa0, jnp.float64)
-    k = eqx.error_if(
-        k,
-        ~((k >= lo - tol) & (k <= hi + tol)),
-        f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range).",
-    )
-    knots, coef = _splines()
-    gamma = _spline_eval(knots, coef["gamma"], k)
-    K_theta = _spline_eval(knots, coef["K_theta"], k)
-    rho, _ = _geometry(k, gamma)
-    return gamma, rho, K_theta

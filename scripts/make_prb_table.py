@@ -23,7 +23,7 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ppr_jax import _prb_fit  # noqa: E402
+from ppr_jax import _prb_fit, _prb_table  # noqa: E402
 
 COLUMNS = (
     "kappa0",
@@ -70,7 +70,7 @@ def _meta() -> dict:
         "load_error": "|K_theta (Theta - Theta_i) - F_t| / max|F_t| of the same direction; max and RMS over samples",
         "dtheta_max": "largest |Theta - Theta_i| [rad] reached in the load range",
         "elastica": "ppr_jax.elastica.solve_cantilever (shooting + RK4, 101 nodes x 4 substeps, ~1e-11)",
-        "interpolation": "ppr_jax._prb_fit.prb_parameters: not-a-knot cubic splines of gamma and K_theta; "
+        "interpolation": "ppr_jax._prb_table.prb_parameters: not-a-knot cubic splines of gamma and K_theta; "
         "rho recomputed from the interpolated gamma",
     }
 
@@ -93,13 +93,13 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(table, indent=1) + "\n")
     print("wrote", out)
-    _prb_fit.prb_table.cache_clear()
-    _prb_fit._splines.cache_clear()
+    _prb_table.prb_table.cache_clear()
+    _prb_table._splines.cache_clear()
 
     report = {"note": "nondimensional (l = 1, EI = 1); K = rho K_theta EI/l", "fits": [], "interpolated": []}
     for k in REPORT_KAPPA0:
         report["fits"].append({key: float(v) for key, v in _prb_fit.fit_prb(k)._asdict().items()})
-        g, r, K = (float(v) for v in _prb_fit.prb_parameters(k))
+        g, r, K = (float(v) for v in _prb_table.prb_parameters(k))
         err = _prb_fit.prb_error(k, g, r, K)
         report["interpolated"].append(
             {"kappa0": k, "gamma": g, "rho": r, "K_theta": K, **{key: float(v) for key, v in err._asdict().items()}}
@@ -115,7 +115,7 @@ def main() -> None:
     import matplotlib.pyplot as plt
 
     kk = np.linspace(0.0, 2.0, 201)
-    g, r, K = (np.asarray(v) for v in _prb_fit.prb_parameters(kk))
+    g, r, K = (np.asarray(v) for v in _prb_table.prb_parameters(kk))
     fig, ax = plt.subplots(2, 2, figsize=(9, 7), sharex=True)
     for a, name, curve in ((ax[0, 0], "gamma", g), (ax[0, 1], "rho", r), (ax[1, 0], "K_theta", K)):
         a.plot(kk, curve, "-", label="spline")
