@@ -3,6 +3,8 @@
 float64 is enabled on import. See README.md for the model levels, scenes and CLI.
 """
 
+from typing import TYPE_CHECKING as _TYPE_CHECKING
+
 import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
@@ -72,12 +74,36 @@ from ._scenes import (  # noqa: E402
     get_model as get_model,
 )
 
-from . import elastica as elastica  # noqa: E402
-from ._prb_fit import (  # noqa: E402
-    fit_prb as fit_prb,
-    prb_error as prb_error,
+from ._prb_table import (  # noqa: E402
     prb_parameters as prb_parameters,
     prb_table as prb_table,
 )
 
 __version__ = "0.1.0"
+
+# The offline PRB fit and the elastica solver it uses (and scipy.optimize) are loaded on first
+# access (PEP 562), so that `import ppr_jax` stays light: the robot needs only the shipped table.
+_LAZY = {
+    "fit_prb": "._prb_fit",
+    "prb_error": "._prb_fit",
+    "elastica": ".elastica",
+}
+
+if _TYPE_CHECKING:
+    from . import elastica as elastica  # noqa: F401
+    from ._prb_fit import fit_prb as fit_prb, prb_error as prb_error  # noqa: F401
+
+
+def __getattr__(name):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    module = importlib.import_module(_LAZY[name], __name__)
+    value = module if name == "elastica" else getattr(module, name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

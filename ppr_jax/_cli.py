@@ -245,12 +245,11 @@ def cmd_modes(args):
     return 0
 
 
-def _prb_at_kappa0(args):
-    from ._prb_fit import fit_prb, prb_parameters, prb_table
+def _prb_at_kappa0(args, tab):
+    from ._prb_table import prb_parameters
 
     k = float(args.kappa0)
     g, rho, K = prb_parameters(k)
-    tab = prb_table()
     kk = np.asarray(tab["kappa0"])
     out = {
         "kappa0": k,
@@ -264,6 +263,8 @@ def _prb_at_kappa0(args):
                       "torque of the load direction; linear interpolation between table rows",
     }
     if args.fit:
+        from ._prb_fit import fit_prb
+
         f = fit_prb(k)
         out["fit"] = {name: float(getattr(f, name)) for name in f._fields}
     if args.json:
@@ -276,13 +277,31 @@ def _prb_at_kappa0(args):
     return 0
 
 
+_TABLE_SUMMARY = ("gamma", "rho", "K_theta", "theta_i", "tip_error_max", "load_error_max")
+
+
+def _print_prb_table(tab, as_json):
+    if as_json:
+        out = {"source": "ppr_jax/data/prb_table.json", "meta": tab["meta"],
+               "columns": [k for k in tab if k != "meta"]}
+        out.update({k: [float(v) for v in tab[k]] for k in out["columns"]})
+        print(json.dumps(out, indent=2))
+        return
+    print("PRB parameters of an initially curved cantilever, fitted to the elastica "
+          "(ppr_jax/data/prb_table.json); nondimensional, K = rho K_theta EI/l; "
+          "prb-table --kappa0 K interpolates")
+    print(f"{'kappa0':>7s} " + " ".join(f"{name:>15s}" for name in _TABLE_SUMMARY))
+    for i, k in enumerate(tab["kappa0"]):
+        print(f"{k:7.3f} " + " ".join(f"{tab[name][i]:15.6g}" for name in _TABLE_SUMMARY))
+
+
 def _prb_figure(path, tab):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ._prb_fit import prb_parameters
+    from ._prb_table import prb_parameters
 
     k = np.linspace(0.0, 2.0, 201)
     g, rho, K = (np.asarray(v) for v in prb_parameters(k))
@@ -300,18 +319,33 @@ def _prb_figure(path, tab):
     print(f"wrote {path}", file=sys.stderr)
 
 
+def cmd_prb_table(args):
+    from ._prb_table import prb_table
+
+    tab = prb_table()
+    if args.kappa0 is not None:
+        return _prb_at_kappa0(args, tab)
+    if args.fit:
+        raise ValueError("--fit needs --kappa0 (it fits that one curvature afresh from the elastica)")
+    if args.figure:
+        _prb_figure(args.figure, tab)
+    if not args.figure or args.json:
+        _print_prb_table(tab, args.json)
+    return 0
+
+
 def cmd_prb(args):
     from ._ik import predeflection
 
-    if args.kappa0 is not None:
-        return _prb_at_kappa0(args)
-    if args.fit or args.figure:
-        if args.figure:
-            from ._prb_fit import prb_table
-
-            _prb_figure(args.figure, prb_table())
-        if not args.fit:
-            return 0
+    if args.kappa0 is not None or args.figure:
+        _log("ppr-jax: note: 'prb --kappa0/--fit/--figure' is deprecated; use 'ppr-jax prb-table' "
+             "with the same options")
+        if args.kappa0 is None:  # as before the split: without --kappa0, only the figure
+            args.fit = args.json = False
+        return cmd_prb_table(args)
+    if args.fit:
+        _log("ppr-jax: note: 'prb --fit' without --kappa0 is ignored (deprecated; see 'ppr-jax "
+             "prb-table')")
     params = _parse_sets(args.set, "paper-circle")
     out = {"params": _params_dict(params), "derived": _derived_dict(params)}
     pd = predeflection(params)
@@ -373,16 +407,37 @@ def build_parser():
     m.add_argument("--json", action="store_true")
     m.set_defaults(func=cmd_modes)
 
-    r = sub.add_parser("prb", help="every derived quantity of the PRB joint (MODEL.md section 3)")
+    r = sub.add_parser(
+        "prb", help="every derived quantity of the PRB joint (MODEL.md section 3)",
+        description="Every derived quantity of the robot's PRB joint (MODEL.md section 3) and the "
+                    "pre-deflection at home. The PRB parameters of a curved cantilever from the "
+                    "elastica-fitted table are 'ppr-jax prb-table' ('prb --kappa0/--fit/--figure' "
+                    "still works as a deprecated alias of it).")
     r.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
     r.add_argument("--json", action="store_true")
-    r.add_argument("--kappa0", type=float, default=None,
-                   help="PRB parameters of an initially curved cantilever of curvature kappa0 "
-                        "in [0, 2] (from the elastica-fitted table)")
-    r.add_argument("--fit", action="store_true",
-                   help="with --kappa0: also fit gamma, rho, K_theta afresh from the elastica")
-    r.add_argument("--figure", default=None, help="write gamma, rho, K_theta vs kappa0 (PNG)")
+    # Deprecated alias of prb-table (hidden from the help; forwarded with a notice on stderr).
+    r.add_argument("--kappa0", type=float, default=None, help=argparse.SUPPRESS)
+    r.add_argument("--fit", action="store_true", help=argparse.SUPPRESS)
+    r.add_argument("--figure", default=None, help=argparse.SUPPRESS)
     r.set_defaults(func=cmd_prb)
+
+    pt = sub.add_parser(
+        "prb-table", help="PRB parameters of an initially curved cantilever (elastica-fitted table)",
+        description="PRB parameters gamma, rho, K_theta of an initially curved cantilever of "
+                    "nondimensional curvature kappa0 = l/R, from the shipped elastica-fitted table "
+                    "(docs/prb_fit.md). With --kappa0: the interpolated values there (and a fresh "
+                    "fit with --fit). Without --kappa0: the whole table (text, or JSON with "
+                    "--json); with --figure and no --kappa0 only the figure is written, unless "
+                    "--json asks for the table too.")
+    pt.add_argument("--kappa0", type=float, default=None,
+                    help="curvature in [0, 2]: interpolate gamma, rho, K_theta there")
+    pt.add_argument("--fit", action="store_true",
+                    help="with --kappa0: also fit gamma, rho, K_theta afresh from the elastica "
+                         "(a few seconds)")
+    pt.add_argument("--json", action="store_true", help="print JSON instead of text")
+    pt.add_argument("--figure", default=None, metavar="PNG",
+                    help="write gamma, rho, K_theta vs kappa0 (spline and table rows) to PNG")
+    pt.set_defaults(func=cmd_prb_table)
     return p
 
 

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 
 from ._custom_types import Array
 from ._params import RobotParams
-from ._prb_fit import prb_parameters
+from ._prb_table import prb_parameters
 
 
 class Derived(eqx.Module):

@@ -1,72 +1,15 @@
-"""Pseudo-rigid-body (PRB) parameters of an initially curved cantilever, fitted to the elastica.
+"""Offline pseudo-rigid-body (PRB) fit of an initially curved cantilever to the elastica.
 
-Everything here is nondimensional: beam length ``l = 1`` (in the robot ``l`` is the half-joint
-length ``l_h``), bending stiffness ``EI = 1``; forces are ``F l^2/EI``, torques ``T l/EI``,
-lengths ``/l``. ``kappa0 = l/R`` is the beam's initial (nondimensional) curvature.
+:func:`fit_prb` fits Howell's PRB parameters ``gamma, rho, K_theta`` of a cantilever of
+nondimensional initial curvature ``kappa0 = l/R`` (beam length ``l = 1``, ``EI = 1``; spring
+``K = rho K_theta EI/l``) to elastica solutions (:mod:`ppr_jax.elastica`) over a range of end
+loads; :func:`prb_error` measures the errors of given parameters over the same load range.
+``scripts/make_prb_table.py`` runs the fit to produce the shipped table, which
+:mod:`ppr_jax._prb_table` loads and interpolates at runtime without this module.
 
-PRB model (Howell & Midha 1995, ASME J. Mech. Des. 117:156; Howell, "Compliant Mechanisms",
-2001, sec. 5.x on initially curved beams), in the clamp tangent frame of
-:mod:`ppr_jax.elastica` (x along the clamp tangent, the arc bends towards +y):
-
-* a rigid segment of length ``(1 - gamma) l`` along x, ending at the pivot ``p = ((1-gamma) l, 0)``;
-* a rigid PRB link of length ``rho l`` from the pivot to the tip, at angle ``Theta``;
-* unloaded tip ``(a_i, b_i) = (R sin kappa0, R (1 - cos kappa0))``; rest PRB angle
-  ``Theta_i = atan2(b_i, a_i - (1-gamma) l)``; default ``rho = |(a_i - (1-gamma) l, b_i)|/l``
-  (Howell's definition: the PRB link ends exactly at the unloaded tip);
-* a torsion spring at the pivot, ``T = K (Theta - Theta_i)`` with ``K = rho K_theta EI/l``.
-  This is Howell's curved-beam convention (the stiffness coefficient is multiplied by ``rho``;
-  for the straight beam ``rho = gamma`` and it reduces to Howell's ``K = gamma K_Theta EI/l``)
-  and it is the convention of MODEL.md eq 6 (``K = 2 E I rho K_theta/L`` with ``L = 2 l_h``).
-
-Fitting procedure (``fit_prb``), step by step
---------------------------------------------
-1. **Load directions.** Relative to the unloaded *chord* (clamp -> tip, angle ``kappa0/2``; for
-   the straight beam this is the beam axis, so the parametrization reduces to Howell's force
-   parameter ``n``), with unit vectors ``e_c`` (along the chord) and ``e_t`` (``e_c`` turned by
-   +90 deg), the end force is ``F = P (sigma e_t - n e_c)/sqrt(1 + n^2)``: ``P >= 0`` its
-   magnitude, ``n`` Howell's ratio of axial to transverse component (``n > 0`` compressive, i.e.
-   pushing the tip towards the clamp, ``n < 0`` tensile), ``sigma = +1`` deflects the beam in the
-   sense of its curvature (closing the arc), ``sigma = -1`` opens it. The chord (not the PRB
-   link) is the reference so that the sampled loads do not depend on the unknown ``gamma``.
-   Defaults: ``n in {-1, -0.5, 0, 0.5, 1, 1.5, 2}`` and both senses: 14 directions. Dead loads
-   (constant direction), no end moment. Howell's straight-beam tables span about -5..10; strongly
-   compressive directions (``n > 2``) are left out because for a curved beam a load nearly along
-   the chord towards the clamp is a buckling (bifurcation) problem: e.g. for ``n = 5`` the
-   buckling direction flips near ``kappa0 = 1.4`` (the tip rotation changes sign), which is no
-   PRB-like deflection and made the fitted ``gamma(kappa0)`` jump.
-2. **Load range.** Along each direction the magnitude goes up to ``P_max = min(P_cap, P*)``
-   where ``P*`` rotates the beam tip by ``|theta_tip - kappa0| = dtheta_tip_max`` (default
-   1.0 rad, which is a PRB deflection ``|Theta - Theta_i|`` of about 0.8 rad since
-   ``Theta ~ theta_tip/1.24``), and ``P_cap`` (default 10, Mattiasson's largest load index) limits
-   tensile directions whose tip rotation saturates at the force angle (a load the elastica
-   solver cannot follow, e.g. past a snap-through, also ends the range). The ``n_loads``
-   (default 16) samples are ``P = P_max j/n_loads``, ``j = 1..n_loads``; each is solved with the
-   elastica of :mod:`ppr_jax.elastica` (shooting + RK4, ~1e-11 accurate), vmapped.
-   The range is defined on the beam (tip rotation), not on ``Theta``, so it does not depend on
-   ``gamma`` either.
-3. **gamma** minimizes the *maximum* tip-position error over all samples: for a candidate
-   ``gamma`` the PRB angle of a sample is the angle of the beam tip seen from the pivot,
-   ``Theta = atan2(y_tip, x_tip - (1-gamma))``; the PRB tip lies on that ray at distance
-   ``rho``, so the tip-position error is ``| |tip - p| - rho | / l``. Minimized over
-   ``gamma in [0.5, 1]`` by a grid scan (step 0.002) and a bounded Brent refinement.
-4. **rho** = Howell's geometric value for that ``gamma`` (step above).
-5. **K_theta** is the least-squares slope (through the origin) of the nondimensional torque
-   about the pivot divided by ``rho`` against ``Theta - Theta_i``: the torque is
-   ``T = rho l F_t`` with ``F_t = F . (-sin Theta, cos Theta)`` the force component
-   perpendicular to the PRB link (Howell's ``F_t``), so
-   ``K_theta = sum(F_t (Theta-Theta_i)) / sum((Theta-Theta_i)^2)`` (``F_t`` in units EI/l^2).
-6. **Errors reported**: ``tip_error_max``/``tip_error_rms`` (step 3, units of ``l``), and the load
-   error ``|rho K_theta (Theta - Theta_i) - rho F_t| / max|rho F_t|``, the maximum over the
-   direction's own samples in the denominator (a per-sample relative error is ill-posed near
-   zero load for directions whose first-order PRB rotation nearly vanishes);
-   ``load_error_max``/``load_error_rms`` are over all samples.
-
-For ``kappa0 = 0`` this gives ``gamma ~ 0.85``, ``K_theta ~ 2.65`` (Howell's averages 0.85 and
-2.65; for a pure transverse force, ``n = 0`` alone, 0.8517 and 2.676).
-
-The shipped table ``ppr_jax/data/prb_table.json`` (``kappa0 = 0, 0.1, ..., 2``) is produced by
-``scripts/make_prb_table.py`` with the defaults above; :func:`prb_parameters` interpolates it
-with a C2 cubic spline in JAX.
+The PRB model, the fitting procedure step by step (load directions, load range, gamma, rho,
+K_theta, error measures; cited below as "steps 1-6") and the resulting table are described in
+``docs/prb_fit.md``.
 """
 
 from __future__ import annotations
@@ -76,16 +19,13 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import functools  # noqa: E402
-import importlib.resources  # noqa: E402
-import json  # noqa: E402
 from typing import NamedTuple  # noqa: E402
 
-import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-import scipy.interpolate  # noqa: E402
 import scipy.optimize  # noqa: E402
 
+from ._prb_table import _geometry  # noqa: E402
 from .elastica import solve_cantilever  # noqa: E402
 
 __all__ = [
@@ -94,11 +34,9 @@ __all__ = [
     "PRBFit",
     "fit_prb",
     "prb_error",
-    "prb_parameters",
-    "prb_table",
 ]
 
-#: Default load range of the fit (see the module docstring, steps 1-2).
+#: Default load range of the fit (docs/prb_fit.md, steps 1-2).
 DEFAULT_LOAD_RANGE = dict(
     n_values=(-1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0),
     senses=(1.0, -1.0),
@@ -106,8 +44,6 @@ DEFAULT_LOAD_RANGE = dict(
     load_cap=10.0,
     n_loads=16,
 )
-#: Table domain of kappa0.
-KAPPA0_RANGE = (0.0, 2.0)
 
 
 class PRBError(NamedTuple):
@@ -134,27 +70,6 @@ class PRBFit(NamedTuple):
     load_error_max: float
     load_error_rms: float
     dtheta_max: float
-
-
-# ------------------------------------------------------------------------------------------------
-# Geometry
-# ------------------------------------------------------------------------------------------------
-
-
-def _arc_tip(kappa0):
-    """Unloaded tip (a_i, b_i)/l of the arc; stable (and smooth) at kappa0 = 0. Works on jnp/np."""
-    xp = jnp if isinstance(kappa0, jax.Array) else np
-    a = xp.sinc(kappa0 / np.pi)  # sin(k)/k
-    b = 0.5 * kappa0 * xp.sinc(kappa0 / (2 * np.pi)) ** 2  # (1 - cos k)/k
-    return a, b
-
-
-def _geometry(kappa0, gamma):
-    """(rho_default, Theta_i) for given kappa0, gamma (numpy or jax)."""
-    xp = jnp if isinstance(kappa0, jax.Array) or isinstance(gamma, jax.Array) else np
-    a, b = _arc_tip(kappa0)
-    dx = a - (1.0 - gamma)
-    return xp.sqrt(dx**2 + b**2), xp.arctan2(b, dx)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -192,7 +107,7 @@ def _tips(kappa0, forces, *, allow_failure=False):
 
 @functools.lru_cache(maxsize=64)
 def _samples(kappa0, n_values, senses, dtheta_tip_max, load_cap, n_loads):
-    """Elastica samples of the load range (module docstring, steps 1-2).
+    """Elastica samples of the load range (docs/prb_fit.md, steps 1-2).
 
     Returns a dict of numpy arrays: ``forces (n_dir, n_loads, 2)``, ``tip (n_dir, n_loads, 2)``,
     ``P_max (n_dir,)`` and the direction ``labels`` ``(n, sigma)``.
@@ -308,7 +223,7 @@ def fit_prb(kappa0: float, **load_range) -> PRBFit:
 
     Returns:
         :class:`PRBFit` with ``gamma, rho, K_theta`` (``K = rho K_theta EI/l``), ``theta_i`` [rad]
-        and the errors of the fitted model over the load range (module docstring, step 6).
+        and the errors of the fitted model over the load range (docs/prb_fit.md, step 6).
 
     Takes about two seconds per ``kappa0`` after compilation (14 x 16 elastica solves, vmapped,
     plus the root searches of step 2).
@@ -347,7 +262,7 @@ def prb_error(
         **load_range: as in :func:`fit_prb`.
 
     Returns:
-        :class:`PRBError` (tip errors in units of ``l``; load errors relative, see module doc).
+        :class:`PRBError` (tip errors in units of ``l``; load errors relative, docs/prb_fit.md step 6).
     """
     kappa0 = _check_kappa0(kappa0)
     samples = _samples(kappa0, *_load_range(load_range))
@@ -355,74 +270,3 @@ def prb_error(
     rho = float(_geometry(kappa0, gamma)[0]) if rho is None else float(rho)
     K_theta = _best_K_theta(kappa0, gamma, samples) if K_theta is None else float(K_theta)
     return _errors(kappa0, gamma, rho, K_theta, samples)
-
-
-# ------------------------------------------------------------------------------------------------
-# Shipped table and its interpolant
-# ------------------------------------------------------------------------------------------------
-
-
-@functools.lru_cache(maxsize=1)
-def prb_table() -> dict:
-    """The shipped PRB table (``ppr_jax/data/prb_table.json``), cached.
-
-    Returns a dict with ``meta`` (procedure, load range, error measures) and one numpy array per
-    column: ``kappa0, gamma, rho, K_theta, theta_i, tip_error_max, tip_error_rms,
-    load_error_max, load_error_rms, dtheta_max``. Treat it as read-only.
-    """
-    text = (importlib.resources.files("ppr_jax") / "data" / "prb_table.json").read_text()
-    raw = json.loads(text)
-    out = {"meta": raw["meta"]}
-    for k in raw["columns"]:
-        out[k] = np.asarray(raw[k], dtype=np.float64)
-    return out
-
-
-@functools.lru_cache(maxsize=1)
-def _splines():
-    t = prb_table()
-    k = t["kappa0"]
-    # Not-a-knot cubic splines (C2); coefficients c[m, i] of (kappa0 - k_i)^(3-m) on interval i.
-    # numpy (not jnp) so that the cache never holds arrays created under a trace.
-    coef = {name: np.asarray(scipy.interpolate.CubicSpline(k, t[name]).c) for name in ("gamma", "K_theta")}
-    return np.asarray(k), coef
-
-
-def _spline_eval(knots, c, x):
-    knots, c = jnp.asarray(knots), jnp.asarray(c)
-    i = jnp.clip(jnp.searchsorted(knots, x, side="right") - 1, 0, knots.shape[0] - 2)
-    t = x - knots[i]
-    return ((c[0, i] * t + c[1, i]) * t + c[2, i]) * t + c[3, i]
-
-
-def prb_parameters(kappa0):
-    """PRB parameters ``(gamma, rho, K_theta)`` at ``kappa0``, interpolated from the shipped table.
-
-    ``gamma`` and ``K_theta`` are not-a-knot cubic splines (C2) through the table nodes; ``rho`` is
-    Howell's geometric value for the interpolated ``gamma`` (so it equals the table's ``rho`` at
-    the nodes and stays consistent with ``Theta_i``). JAX-traceable and differentiable in
-    ``kappa0`` (scalar or any shape; outputs have its shape).
-
-    Raises:
-        ValueError: ``kappa0`` concrete and outside ``[0, 2]`` (the table's range).
-        equinox runtime error (``eqx.error_if``): the same when traced.
-    """
-    lo, hi = KAPPA0_RANGE
-    tol = 1e-12
-    try:
-        k_np = np.asarray(kappa0, dtype=np.float64)
-    except (jax.errors.JAXTypeError, TypeError):
-        k_np = None
-    if k_np is not None and not np.all((k_np >= lo - tol) & (k_np <= hi + tol)):
-        raise ValueError(f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range); got {kappa0}.")
-    k = jnp.asarray(kappa0, jnp.float64)
-    k = eqx.error_if(
-        k,
-        ~((k >= lo - tol) & (k <= hi + tol)),
-        f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range).",
-    )
-    knots, coef = _splines()
-    gamma = _spline_eval(knots, coef["gamma"], k)
-    K_theta = _spline_eval(knots, coef["K_theta"], k)
-    rho, _ = _geometry(k, gamma)
-    return gamma, rho, K_theta

@@ -66,14 +66,68 @@ def test_simulate_writes_summary_csv_and_figures(tmp_path, capsys, paper_circle_
     assert "Scene paper-circle" in capsys.readouterr().out
 
 
-def test_prb_kappa0_and_figure(tmp_path, capsys):
+def test_prb_table_kappa0_and_figure(tmp_path, capsys):
     png = tmp_path / "prb.png"
-    assert main(["prb", "--kappa0", "0", "--json", "--figure", str(png)]) == 0
-    out = json.loads(capsys.readouterr().out)
+    assert main(["prb-table", "--kappa0", "0", "--json", "--figure", str(png)]) == 0
+    cap = capsys.readouterr()
+    out = json.loads(cap.out)
     assert abs(out["gamma"] - 0.85) < 0.02 and abs(out["K_theta"] - 2.65) < 0.1
     assert png.stat().st_size > 0
+    assert "deprecated" not in cap.err
+    assert main(["prb-table", "--kappa0", "2.5"]) == 2
+    assert "[0.0, 2.0]" in capsys.readouterr().err
+
+
+def test_prb_kappa0_and_figure(tmp_path, capsys):
+    """The old spelling `prb --kappa0/--figure` still works: a notice, then prb-table's output."""
+    png = tmp_path / "prb.png"
+    assert main(["prb", "--kappa0", "0", "--json", "--figure", str(png)]) == 0
+    cap = capsys.readouterr()
+    out = json.loads(cap.out)
+    assert abs(out["gamma"] - 0.85) < 0.02 and abs(out["K_theta"] - 2.65) < 0.1
+    assert png.stat().st_size > 0
+    notice = [line for line in cap.err.splitlines() if "deprecated" in line]
+    assert len(notice) == 1 and "prb-table" in notice[0]
+    assert main(["prb-table", "--kappa0", "0", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == out
     assert main(["prb", "--kappa0", "2.5"]) == 2
     assert "[0.0, 2.0]" in capsys.readouterr().err
+    # Without --kappa0, --figure alone wrote only the figure, as before the split.
+    png.unlink()
+    assert main(["prb", "--figure", str(png), "--json"]) == 0
+    assert png.stat().st_size > 0 and capsys.readouterr().out == ""
+
+
+def test_prb_table_without_kappa0_prints_the_table(tmp_path, capsys):
+    from ppr_jax._prb_table import prb_table
+
+    tab = prb_table()
+    assert main(["prb-table"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].split()[:4] == ["kappa0", "gamma", "rho", "K_theta"]
+    rows = np.array([line.split() for line in lines[2:]], dtype=float)
+    assert rows.shape == (len(tab["kappa0"]), 7)
+    np.testing.assert_allclose(rows[:, 0], tab["kappa0"], atol=1e-3)
+    np.testing.assert_allclose(rows[:, 3], tab["K_theta"], rtol=1e-5)
+
+    assert main(["prb-table", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert "load_range" in out["meta"]
+    for name in ("kappa0", "gamma", "rho", "K_theta", "tip_error_max", "load_error_max"):
+        np.testing.assert_array_equal(out[name], tab[name])
+
+    png = tmp_path / "table.png"
+    assert main(["prb-table", "--figure", str(png)]) == 0  # only the figure
+    assert png.stat().st_size > 0 and capsys.readouterr().out == ""
+
+    assert main(["prb-table", "--fit"]) == 2
+    assert "--fit needs --kappa0" in capsys.readouterr().err
+
+
+def test_prb_derived_quantities_do_not_print_the_deprecation_notice(capsys):
+    assert main(["prb", "--json"]) == 0
+    cap = capsys.readouterr()
+    assert "derived" in json.loads(cap.out) and "deprecated" not in cap.err
 
 
 def test_modes_of_the_beam_model_from_the_cli(capsys):
@@ -82,3 +136,12 @@ def test_modes_of_the_beam_model_from_the_cli(capsys):
     assert out["model"] == "beam" and out["n_free_coordinates"] == 3 + 3 * 2 - 3
     assert all(np.isfinite(out["frequencies_hz"]))
     assert main(["modes", "--model", "beam", "--elements", "0"]) == 2
+
+
+def test_prb_table_fit(capsys):
+    """--fit refits the one curvature from the elastica; it reproduces the shipped table row."""
+    assert main(["prb-table", "--kappa0", "0", "--fit", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["fit"]["kappa0"] == 0.0
+    for name in ("gamma", "rho", "K_theta"):
+        assert abs(out["fit"][name] - out[name]) < 1e-6, name

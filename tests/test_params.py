@@ -38,7 +38,7 @@ def test_derived_by_hand(params):
 
 
 def test_default_prb_parameters_come_from_the_elastica_table(params, dv):
-    from ppr_jax._prb_fit import prb_parameters
+    from ppr_jax._prb_table import prb_parameters
 
     g, rho, K = prb_parameters(0.94)
     assert float(dv.gamma) == float(g) and float(dv.K_theta) == float(K)

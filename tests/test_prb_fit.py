@@ -1,8 +1,8 @@
-"""Tests of the PRB fit (ppr_jax._prb_fit) and its shipped table.
+"""Tests of the PRB fit (ppr_jax._prb_fit) and its shipped table (ppr_jax._prb_table).
 
 References: Howell & Midha's straight-beam values (gamma ~ 0.85, K_Theta ~ 2.65); the fit
 recomputed from scratch vs the shipped table; the closed-form PRB geometry (rho, Theta_i);
-central finite differences for the interpolant's derivative.
+scipy's not-a-knot CubicSpline for the interpolant; central finite differences for its derivative.
 """
 
 import jax
@@ -12,8 +12,10 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+import scipy.interpolate  # noqa: E402
 
 from ppr_jax import _prb_fit as prb  # noqa: E402
+from ppr_jax import _prb_table as tab  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -38,19 +40,19 @@ def test_per_direction_straight_beam_trend():
 
 
 def test_table_loads_and_is_complete():
-    t = prb.prb_table()
+    t = tab.prb_table()
     assert "meta" in t and "load_range" in t["meta"]
     np.testing.assert_allclose(t["kappa0"], np.arange(21) * 0.1, atol=1e-12)
     for name in ("gamma", "rho", "K_theta", "tip_error_max", "load_error_max"):
         assert t[name].shape == (21,) and np.all(np.isfinite(t[name]))
     # rho and Theta_i are Howell's geometry for the tabulated gamma.
-    rho, theta_i = prb._geometry(t["kappa0"], t["gamma"])
+    rho, theta_i = tab._geometry(t["kappa0"], t["gamma"])
     np.testing.assert_allclose(t["rho"], rho, atol=1e-12)
     np.testing.assert_allclose(t["theta_i"], theta_i, atol=1e-12)
 
 
 def _assert_row_matches(fit, kappa0):
-    t = prb.prb_table()
+    t = tab.prb_table()
     i = int(round(kappa0 * 10))
     for name in ("gamma", "rho", "K_theta", "tip_error_max", "load_error_max"):
         assert getattr(fit, name) == pytest.approx(t[name][i], rel=1e-6, abs=1e-8), name
@@ -77,17 +79,49 @@ def test_prb_error_reproduces_fit(fit0):
 
 
 def test_interpolant_reproduces_nodes():
-    t = prb.prb_table()
-    g, r, K = jax.jit(prb.prb_parameters)(jnp.asarray(t["kappa0"]))
+    t = tab.prb_table()
+    g, r, K = jax.jit(tab.prb_parameters)(jnp.asarray(t["kappa0"]))
     np.testing.assert_allclose(g, t["gamma"], atol=1e-12)
     np.testing.assert_allclose(r, t["rho"], atol=1e-12)
     np.testing.assert_allclose(K, t["K_theta"], atol=1e-12)
 
 
+@pytest.mark.parametrize("name", ["gamma", "K_theta"])
+def test_spline_matches_scipy_not_a_knot(name):
+    """The numpy not-a-knot spline (no scipy at runtime) equals scipy's CubicSpline (default bc)."""
+    t = tab.prb_table()
+    ref = scipy.interpolate.CubicSpline(t["kappa0"], t[name])
+    knots, coef = tab._splines()
+    np.testing.assert_allclose(knots, ref.x, rtol=0, atol=0)
+    np.testing.assert_allclose(coef[name], ref.c, rtol=0, atol=1e-12 * np.abs(ref.c).max())
+    k = np.concatenate([np.linspace(0.0, 2.0, 2001), np.random.default_rng(0).uniform(0.0, 2.0, 500)])
+    g, _, K = tab.prb_parameters(k)
+    value = {"gamma": g, "K_theta": K}[name]
+    np.testing.assert_allclose(value, ref(k), rtol=0, atol=1e-12)
+    # Its derivative (autodiff through the JAX evaluation) is the spline's derivative.
+    i = {"gamma": 0, "K_theta": 2}[name]
+    dk = jax.vmap(jax.grad(lambda x: tab.prb_parameters(x)[i]))(jnp.asarray(k))
+    np.testing.assert_allclose(dk, ref(k, 1), rtol=0, atol=1e-11)
+
+
+@pytest.mark.parametrize("n", [4, 5, 9, 40])
+def test_not_a_knot_spline_on_uneven_nodes(n):
+    """The spline solver itself, on uneven nodes and rough data, against scipy."""
+    rng = np.random.default_rng(n)
+    x = np.cumsum(rng.uniform(0.05, 1.0, n))
+    y = rng.normal(size=n)
+    ref = scipy.interpolate.CubicSpline(x, y)
+    c = tab._not_a_knot_coefficients(x, y)
+    np.testing.assert_allclose(c, ref.c, rtol=0, atol=1e-12 * np.abs(ref.c).max())
+    xs = np.linspace(x[0], x[-1], 1000)
+    ys = tab._spline_eval(x, c, jnp.asarray(xs))
+    np.testing.assert_allclose(ys, ref(xs), rtol=0, atol=1e-12 * np.abs(y).max())
+
+
 @pytest.mark.parametrize("kappa0", [0.05, 0.37, 0.94, 1.55, 1.98])
 def test_interpolant_gradient_matches_finite_differences(kappa0):
     def f(k):
-        return jnp.stack(prb.prb_parameters(k))
+        return jnp.stack(tab.prb_parameters(k))
 
     d_rev = jax.jit(jax.jacrev(f))(kappa0)
     d_fwd = jax.jit(jax.jacfwd(f))(kappa0)
@@ -99,15 +133,15 @@ def test_interpolant_gradient_matches_finite_differences(kappa0):
 
 def test_interpolant_is_smooth_between_nodes():
     """C1 across a node: left and right derivatives agree."""
-    f = jax.grad(lambda k: prb.prb_parameters(k)[0])
+    f = jax.grad(lambda k: tab.prb_parameters(k)[0])
     for node in (0.5, 1.0, 1.5):
         assert float(f(node - 1e-9)) == pytest.approx(float(f(node + 1e-9)), abs=1e-6)
 
 
 def test_interpolant_out_of_range():
     with pytest.raises(ValueError, match=r"kappa0 must lie in \[0.0, 2.0\]"):
-        prb.prb_parameters(2.5)
+        tab.prb_parameters(2.5)
     with pytest.raises(ValueError, match=r"kappa0 must lie in"):
-        prb.prb_parameters(-0.1)
+        tab.prb_parameters(-0.1)
     with pytest.raises(Exception, match=r"kappa0 must lie in"):
-        jax.block_until_ready(jax.jit(prb.prb_parameters)(2.5))
+        jax.block_until_ready(jax.jit(tab.prb_parameters)(2.5))
