@@ -21,14 +21,13 @@ import json
 import pathlib
 import time
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import ppr_jax as pj
-from ppr_jax._beam import Beam, solve_strip, strip_constants
+from ppr_jax._models.beam import Beam, solve_strip, strip_constants
 from ppr_jax.elastica import solve_cantilever
 
 OUT = pathlib.Path(__file__).parent / "results"
@@ -70,7 +69,7 @@ def richardson(vals):
 
 
 def robot(params, Ns=(4, 8, 16, 32)):
-    dv = pj.derived(params)
+    robot = pj.Robot(params)
     X = pj.home_pose(params)
     stat = eqx.filter_jit(
         lambda m, p, z, w: pj.static_equilibrium(m, p, z, locked=True, wrench=w)[0]
@@ -78,7 +77,7 @@ def robot(params, Ns=(4, 8, 16, 32)):
     res = {}
     for name, m in [("double1r", pj.Double1R())] + [(f"beam{N}", Beam(N)) for N in Ns]:
         t0 = time.perf_counter()
-        z = m.coords_from_pose(params, dv, X)
+        z = m.coords_from_pose(robot, X)
         z0 = stat(m, params, z, jnp.zeros(3))
         zw = stat(m, params, z0, WRENCH)
         ml = pj.modes(m, params, actuators="locked")
@@ -104,23 +103,13 @@ def robot(params, Ns=(4, 8, 16, 32)):
 
 
 def paper_circle_metrics(params, t_end, Ns=(4, 8)):
-    from ppr_jax._metrics import metrics
-    from ppr_jax._scenes import _paper_circle_jit
-    from ppr_jax._simulate import get_solver
-
-    traj = pj.Circle()
-    ts = jnp.linspace(0.0, t_end, int(round(t_end * 100)) + 1)
-    ctrl = diffrax.PIDController(rtol=jnp.asarray(1e-8), atol=jnp.asarray(1e-10))
     out_all = {}
     for N in Ns:
         t0 = time.perf_counter()
-        sol, out = _paper_circle_jit(
-            Beam(N), pj.Reduced(), params, traj, ts, get_solver("kvaerno5"), ctrl, 200_000, False
-        )
-        jax.block_until_ready(sol.z)
-        wall = time.perf_counter() - t0
-        mt = metrics(out, np.asarray(jax.vmap(traj)(ts)), traj.center, traj.radius)
-        mt.update(num_steps=int(sol.num_steps), result=str(sol.result), wall_incl_compile_s=wall)
+        r = pj.run_scene("paper-circle", params, model=Beam(N), solver="kvaerno5", rtol=1e-8,
+                         atol=1e-10, t_end=t_end, n_out=int(round(t_end * 100)) + 1)
+        mt = dict(r.metrics, result=str(r.result.result),
+                  wall_incl_compile_s=time.perf_counter() - t0)
         out_all[f"beam{N}"] = mt
         print(N, mt, flush=True)
     return dict(t_end_s=t_end, solver="kvaerno5 rtol 1e-8 atol 1e-10", metrics=out_all)

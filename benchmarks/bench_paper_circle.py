@@ -14,63 +14,39 @@ import argparse
 import json
 import os
 import platform
-import time
 
-import diffrax
-import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import ppr_jax as pj
-from ppr_jax._scenes import _paper_circle_core, get_solver
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 OUT = os.path.join(HERE, "results")
 REPEATS = 5
 
 
-def ctrl(rtol):
-    return diffrax.PIDController(rtol=jnp.asarray(rtol), atol=jnp.asarray(rtol * 1e-2))
-
-
-def run_case(fn, model, params, ts, solver, rtol):
-    args = (model, pj.Reduced(), params, pj.Circle(), ts, get_solver(solver), ctrl(rtol), 400_000,
-            False)
-    t0 = time.perf_counter()
-    compiled = fn.lower(*args).compile()
-    t_compile = time.perf_counter() - t0
-    out = compiled(*args)
-    jax.block_until_ready(out)
-    times = []
-    for _ in range(REPEATS):
-        t0 = time.perf_counter()
-        out = compiled(*args)
-        jax.block_until_ready(out)
-        times.append(time.perf_counter() - t0)
-    sol, o = out
-    return sol, o, t_compile, min(times)
+def run_case(model, params, solver, rtol):
+    r = pj.run_scene("paper-circle", params, model=model, solver=solver, rtol=rtol,
+                     atol=rtol * 1e-2, max_steps=400_000, repeats=REPEATS)
+    return r.result, r.timing["compile_s"], r.timing["run_s"]
 
 
 def main(quick: bool):
     os.makedirs(OUT, exist_ok=True)
-    fn = eqx.filter_jit(_paper_circle_core)
     params = pj.scene_params("paper-circle")
-    ts = jnp.linspace(0.0, 7.54, 755)
     tols = [1e-4, 1e-6, 1e-8, 1e-10] if not quick else [1e-6, 1e-8]
     solvers = ["tsit5", "dopri8"]
     models = ["reduced", "double1r", "rigid"]
     results = {"machine": platform.processor() or platform.machine(), "jax": jax.__version__,
                "devices": [str(d) for d in jax.devices()], "cases": [], "batched": []}
     for mname in models:
-        model = pj.get_model(mname)
-        ref_sol, ref_o, _, _ = run_case(fn, model, params, ts, "dopri8", 1e-13)
+        ref, _, _ = run_case(mname, params, "dopri8", 1e-13)
         compiled_once = {}
         for solver in solvers:
             for rtol in tols:
-                sol, o, tc, tr = run_case(fn, model, params, ts, solver, rtol)
+                sol, tc, tr = run_case(mname, params, solver, rtol)
                 compiled_once.setdefault(solver, tc)
-                err = float(jnp.linalg.norm(o.X[:, :2] - ref_o.X[:, :2], axis=-1).max())
+                err = float(np.linalg.norm(sol.X[:, :2] - ref.X[:, :2], axis=-1).max())
                 case = {
                     "model": mname, "solver": solver, "rtol": rtol, "atol": rtol * 1e-2,
                     "compile_s": tc, "run_s": tr, "steps": int(sol.num_steps),
@@ -81,23 +57,13 @@ def main(quick: bool):
     save(results)
     # Batched throughput: vmap over thickness, L1 and L2 at rtol 1e-8.
     for mname, sizes in (("reduced", [8, 64]), ("double1r", [8])):
-        model = pj.get_model(mname)
         for B in (sizes if not quick else [8]):
             batch = pj.stack_params([params.replace(t=float(t)) for t in np.linspace(0.28e-3, 0.4e-3, B)])
-            f = eqx.filter_jit(eqx.filter_vmap(
-                lambda p: _paper_circle_core(model, pj.Reduced(), p, pj.Circle(), ts,
-                                             get_solver("tsit5"), ctrl(1e-8), 400_000, False)))
-            t0 = time.perf_counter()
-            compiled = f.lower(batch).compile()
-            tc = time.perf_counter() - t0
-            jax.block_until_ready(compiled(batch))
-            times = []
-            for _ in range(3):
-                t0 = time.perf_counter()
-                jax.block_until_ready(compiled(batch))
-                times.append(time.perf_counter() - t0)
-            row = {"model": mname, "batch": B, "compile_s": tc, "run_s": min(times),
-                   "per_robot_ms": min(times) / B * 1e3}
+            r = pj.run_scene("paper-circle", batch, model=mname, solver="tsit5", rtol=1e-8,
+                             atol=1e-10, max_steps=400_000, repeats=3)
+            tc, tr = r.timing["compile_s"], r.timing["run_s"]
+            row = {"model": mname, "batch": B, "compile_s": tc, "run_s": tr,
+                   "per_robot_ms": tr / B * 1e3}
             results["batched"].append(row)
             print(json.dumps(row))
             save(results)

@@ -16,11 +16,18 @@ from ._params import (  # noqa: E402
     unstack_params as unstack_params,
 )
 from ._prb import Derived as Derived, derived as derived  # noqa: E402
-from ._model import AbstractModel as AbstractModel, Kin as Kin  # noqa: E402
-from ._rigid import Rigid as Rigid  # noqa: E402
-from ._reduced import Reduced as Reduced  # noqa: E402
-from ._double1r import Double1R as Double1R  # noqa: E402
-from ._beam import (  # noqa: E402
+from ._robot import Robot as Robot, RobotLike as RobotLike  # noqa: E402
+from ._models import (  # noqa: E402
+    MODELS as MODELS,
+    AbstractModel as AbstractModel,
+    AbstractDouble1R as AbstractDouble1R,
+    Kin as Kin,
+    Rigid as Rigid,
+    Reduced as Reduced,
+    Double1R as Double1R,
+    get_model as get_model,
+)
+from ._models.beam import (  # noqa: E402
     Beam as Beam,
     solve_strip as solve_strip,
     strip_constants as strip_constants,
@@ -48,6 +55,7 @@ from ._trajectory import (  # noqa: E402
     derivatives as derivatives,
 )
 from ._actuation import (  # noqa: E402
+    AbstractActuation as AbstractActuation,
     TorqueDriven as TorqueDriven,
     MotionDriven as MotionDriven,
     PDServo as PDServo,
@@ -71,7 +79,11 @@ from ._scenes import (  # noqa: E402
     servo_circle as servo_circle,
     modes_scene as modes_scene,
     scene_params as scene_params,
-    get_model as get_model,
+)
+from ._report import (  # noqa: E402
+    SceneReport as SceneReport,
+    run_scene as run_scene,
+    scene_metrics as scene_metrics,
 )
 
 from ._prb_table import (  # noqa: E402

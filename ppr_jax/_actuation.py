@@ -5,33 +5,67 @@ inverse-kinematics angles of a model along a platform trajectory are time functi
 exactly at every solver stage instead of being tabulated.
 """
 
-from __future__ import annotations
-
+import abc
 from typing import Callable, Optional
 
 import equinox as eqx
+import jax.numpy as jnp
 
-from ._custom_types import Array
+from ._custom_types import Array, Float
 from ._dynamics import inverse_dynamics
-from ._model import AbstractModel
-from ._params import RobotParams
-from ._prb import derived
+from ._models import AbstractModel
+from ._robot import Robot, RobotLike, as_robot
 from ._trajectory import derivatives
 
 
-class TorqueDriven(eqx.Module):
+class AbstractActuation(eqx.Module):
+    """What the actuators do, as an interface the simulator asks (the way diffrax asks a
+    step-size controller): whether they prescribe the actuated angles, which angles at time t,
+    and which torque they apply. A new actuation is one final subclass implementing the two
+    abstract methods and the class variable."""
+
+    #: True when the actuated angles are prescribed functions of time (motion-driven): they then
+    #: leave the model's free coordinates and the torques become reaction outputs
+    prescribes_angles: eqx.AbstractClassVar[bool]
+
+    @abc.abstractmethod
+    def angles_at(self, t) -> Optional[tuple[Array, Array, Array]]:
+        """(th_a, th_a', th_a'') (3,) each (rad, rad/s, rad/s^2) prescribed at time t, or None
+        when the angles are free."""
+
+    @abc.abstractmethod
+    def torque_at(self, t, th_a: Float[Array, "3"], thdot_a: Float[Array, "3"]) -> Array:
+        """Applied actuator torques (3,) (N m) at time t for actuated angles th_a and rates
+        thdot_a (zero for a prescribed motion: its torques are reactions)."""
+
+
+class TorqueDriven(AbstractActuation):
     """Actuator torques tau_a(t) (3,) in N m on th_i1."""
 
     torque: Callable
+    prescribes_angles = False
+
+    def angles_at(self, t):
+        return None
+
+    def torque_at(self, t, th_a, thdot_a):
+        return self.torque(t)
 
 
-class MotionDriven(eqx.Module):
+class MotionDriven(AbstractActuation):
     """Actuated angles th_i1(t) (3,) prescribed (rad); the torques are reaction outputs."""
 
     angles: Callable
+    prescribes_angles = True
+
+    def angles_at(self, t):
+        return derivatives(self.angles, t)
+
+    def torque_at(self, t, th_a, thdot_a):
+        return jnp.zeros(3)
 
 
-class PDServo(eqx.Module):
+class PDServo(AbstractActuation):
     """tau = feedforward(t) + Kp (th_d - th) + Kd (th_d' - th'); gains (3,) or scalar,
     Kp in N m/rad, Kd in N m s/rad."""
 
@@ -39,10 +73,14 @@ class PDServo(eqx.Module):
     Kp: Array
     Kd: Array
     feedforward: Optional[Callable] = None
+    prescribes_angles = False
 
-    def __call__(self, t, th, thdot):
+    def angles_at(self, t):
+        return None
+
+    def torque_at(self, t, th_a, thdot_a):
         thd, thd_dot, _ = derivatives(self.angles, t)
-        tau = self.Kp * (thd - th) + self.Kd * (thd_dot - thdot)
+        tau = self.Kp * (thd - th_a) + self.Kd * (thd_dot - thdot_a)
         if self.feedforward is not None:
             tau = tau + self.feedforward(t)
         return tau
@@ -53,12 +91,15 @@ class InverseDynamicsTorque(eqx.Module):
     the torques); evaluated exactly at any t."""
 
     model: AbstractModel
-    params: RobotParams
+    robot: Robot
     trajectory: Callable
+
+    def __init__(self, model: AbstractModel, robot: RobotLike, trajectory: Callable):
+        self.model, self.robot, self.trajectory = model, as_robot(robot), trajectory
 
     def __call__(self, t):
         X, Xd, Xdd = derivatives(self.trajectory, t)
-        tau, _ = inverse_dynamics(self.model, self.params, derived(self.params), X, Xd, Xdd)
+        tau, _ = inverse_dynamics(self.model, self.robot, X, Xd, Xdd)
         return tau
 
 
@@ -66,10 +107,12 @@ class InverseKinematicsAngles(eqx.Module):
     """Actuated angles th_i1(t) of `model`'s inverse kinematics along `trajectory`."""
 
     model: AbstractModel
-    params: RobotParams
+    robot: Robot
     trajectory: Callable
 
+    def __init__(self, model: AbstractModel, robot: RobotLike, trajectory: Callable):
+        self.model, self.robot, self.trajectory = model, as_robot(robot), trajectory
+
     def __call__(self, t):
-        dv = derived(self.params)
-        z = self.model.coords_from_pose(self.params, dv, self.trajectory(t))
-        return self.model.kinematics(self.params, dv, z).th_a
+        z = self.model.coords_from_pose(self.robot, self.trajectory(t))
+        return self.model.kinematics(self.robot, z).th_a

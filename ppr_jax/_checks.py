@@ -10,7 +10,9 @@ import numpy as np
 
 
 class PPRError(ValueError):
-    """Bad input or an infeasible request (unreachable pose, singular configuration...)."""
+    """The base of this library's errors: bad input or an infeasible request (unreachable pose,
+    singular configuration, a solver that failed: `SimulationError`). A `ValueError`, so code
+    that catches bad input keeps working."""
 
 
 def is_traced(tree) -> bool:

@@ -74,7 +74,7 @@ def _log(msg):
 
 def _models(text, default):
     names = [m.strip() for m in (text or default).split(",") if m.strip()]
-    from ._scenes import MODELS
+    from ._models import MODELS
 
     for m in names:
         if m not in MODELS:
@@ -84,7 +84,9 @@ def _models(text, default):
 
 def cmd_simulate(args):
     from ._plots import scene_figures
-    from ._scenes import get_model, modes_scene, paper_circle, servo_circle
+    from ._models import get_model
+    from ._report import run_scene
+    from ._scenes import modes_scene
     from ._trajectory import Circle
 
     scene = args.scene
@@ -112,11 +114,8 @@ def cmd_simulate(args):
     for i, m in enumerate(models):
         _log(f"[{i + 1}/{len(models)}] {scene}: model {m} (compiling, then running) ...")
         t0 = time.perf_counter()
-        if scene == "paper-circle":
-            r = paper_circle(params, model=get_model(m, args.elements),
-                             torque_model=args.torque_model, **kw)
-        else:
-            r = servo_circle(params, model=get_model(m, args.elements), **kw)
+        r = run_scene(scene, params, model=get_model(m, args.elements),
+                      torque_model=args.torque_model, **kw)
         _log(f"      done in {time.perf_counter() - t0:.1f} s (compile {r.timing['compile_s']:.1f} s, "
              f"run {r.timing['run_s'] * 1e3:.1f} ms, {r.metrics['num_steps']} steps)")
         results.append(r)
@@ -200,7 +199,7 @@ def cmd_torques(args):
     import jax.numpy as jnp
 
     from ._actuation import InverseDynamicsTorque
-    from ._scenes import get_model
+    from ._models import get_model
     from ._trajectory import Circle
 
     params = _parse_sets(args.set, "paper-circle")
@@ -233,7 +232,7 @@ def cmd_modes(args):
 
     params = _parse_sets(args.set, "modes")
     X = None if args.pose is None else [float(v) for v in args.pose.split(",")]
-    from ._scenes import get_model
+    from ._models import get_model
 
     r = modes_scene(params, model=get_model(args.model, args.elements), actuators=args.actuators,
                     X=X)
@@ -365,41 +364,52 @@ def cmd_prb(args):
 def build_parser():
     from ._params import settable_names
 
-    p = argparse.ArgumentParser(prog="ppr-jax", description=__doc__)
+    from ._models import MODELS
+    from ._scenes import SCENES
+    from ._simulate import SOLVERS
+
+    # Choices come from the registries, so a new model, scene or solver shows up here by itself.
+    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]  # pose = coordinates
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    p = argparse.ArgumentParser(prog="ppr-jax", description=__doc__, formatter_class=fmt)
     sub = p.add_subparsers(dest="cmd", required=True)
     set_help = ("override a parameter, NAME=VALUE (SI units); repeatable; names: "
                 + ", ".join(settable_names()))
 
-    s = sub.add_parser("simulate", help="run a scene and write summary.json, trajectory.csv, figures")
-    s.add_argument("--scene", default="paper-circle", choices=["paper-circle", "servo-circle", "modes"])
+    s = sub.add_parser("simulate", formatter_class=fmt,
+        help="run a scene and write summary.json, trajectory.csv, figures")
+    s.add_argument("--scene", default="paper-circle", choices=list(SCENES), help="scene to run")
     s.add_argument("--model", default=None,
                    help="rigid, reduced, double1r, beam or a comma list (default: rigid, reduced, "
                         "double1r). beam (L3) is stiff: it compiles for 1-2 min per N and a "
                         "7.54 s paper-circle at N >= 8 takes hundreds of thousands of steps")
     s.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
-    s.add_argument("--torque-model", default="reduced", choices=["rigid", "reduced"],
+    s.add_argument("--torque-model", default="reduced", choices=kinematic,
                    help="paper-circle: the model whose inverse dynamics gives the torques")
     s.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
-    s.add_argument("--out", default="out")
-    s.add_argument("--solver", default=None, help="tsit5, dopri5, dopri8, kvaerno3, kvaerno5")
-    s.add_argument("--rtol", type=float, default=1e-8)
-    s.add_argument("--atol", type=float, default=1e-10)
-    s.add_argument("--max-steps", type=int, default=200_000)
-    s.add_argument("--t-end", type=float, default=7.54)
-    s.add_argument("--n-out", type=int, default=755)
+    s.add_argument("--out", default="out", help="output directory")
+    s.add_argument("--solver", default=None, choices=list(SOLVERS),
+                   help="ODE solver (default: per model, see README 'Solvers')")
+    s.add_argument("--rtol", type=float, default=1e-8, help="relative tolerance of the solver")
+    s.add_argument("--atol", type=float, default=1e-10, help="absolute tolerance of the solver")
+    s.add_argument("--max-steps", type=int, default=200_000, help="solver step limit")
+    s.add_argument("--t-end", type=float, default=7.54, help="end time (s)")
+    s.add_argument("--n-out", type=int, default=755, help="number of output times")
     s.set_defaults(func=cmd_simulate)
 
-    t = sub.add_parser("torques", help="inverse-dynamics torques along eq 55 as CSV")
-    t.add_argument("--model", default="reduced", choices=["rigid", "reduced"])
+    t = sub.add_parser("torques", formatter_class=fmt,
+        help="inverse-dynamics torques along eq 55 as CSV")
+    t.add_argument("--model", default="reduced", choices=kinematic)
     t.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
     t.add_argument("--out", required=True)
-    t.add_argument("--t-end", type=float, default=7.54)
-    t.add_argument("--n-out", type=int, default=755)
+    t.add_argument("--t-end", type=float, default=7.54, help="end time (s)")
+    t.add_argument("--n-out", type=int, default=755, help="number of output times")
     t.set_defaults(func=cmd_torques)
 
-    m = sub.add_parser("modes", help="natural frequencies about a static equilibrium (Hz)")
+    m = sub.add_parser("modes", formatter_class=fmt,
+        help="natural frequencies about a static equilibrium (Hz)")
     m.add_argument("--model", default="double1r",
-                   choices=["rigid", "reduced", "double1r", "beam"])
+                   choices=list(MODELS))
     m.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
     m.add_argument("--actuators", default="locked", choices=["locked", "free"])
     m.add_argument("--pose", default=None, help="x,y,phi (default: home)")
@@ -407,8 +417,8 @@ def build_parser():
     m.add_argument("--json", action="store_true")
     m.set_defaults(func=cmd_modes)
 
-    r = sub.add_parser(
-        "prb", help="every derived quantity of the PRB joint (MODEL.md section 3)",
+    r = sub.add_parser("prb", formatter_class=fmt,
+        help="every derived quantity of the PRB joint (MODEL.md section 3)",
         description="Every derived quantity of the robot's PRB joint (MODEL.md section 3) and the "
                     "pre-deflection at home. The PRB parameters of a curved cantilever from the "
                     "elastica-fitted table are 'ppr-jax prb-table' ('prb --kappa0/--fit/--figure' "
@@ -421,8 +431,8 @@ def build_parser():
     r.add_argument("--figure", default=None, help=argparse.SUPPRESS)
     r.set_defaults(func=cmd_prb)
 
-    pt = sub.add_parser(
-        "prb-table", help="PRB parameters of an initially curved cantilever (elastica-fitted table)",
+    pt = sub.add_parser("prb-table", formatter_class=fmt,
+        help="PRB parameters of an initially curved cantilever (elastica-fitted table)",
         description="PRB parameters gamma, rho, K_theta of an initially curved cantilever of "
                     "nondimensional curvature kappa0 = l/R, from the shipped elastica-fitted table "
                     "(docs/prb_fit.md). With --kappa0: the interpolated values there (and a fresh "

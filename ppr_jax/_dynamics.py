@@ -25,9 +25,8 @@ import jax.numpy as jnp
 
 from ._custom_types import Array, Float
 from ._linalg import solve
-from ._model import AbstractModel, Kin
-from ._params import RobotParams
-from ._prb import Derived
+from ._models import AbstractModel, Kin
+from ._robot import Robot
 
 
 class EOM(eqx.Module):
@@ -43,48 +42,47 @@ class EOM(eqx.Module):
 
 def eom_terms(
     model: AbstractModel,
-    params: RobotParams,
-    dv: Derived,
+    robot: Robot,
     z: Float[Array, " n"],
     zdot: Float[Array, " n"],
 ) -> EOM:
     """Mass matrix, velocity terms and passive generalized forces at (z, z')."""
 
     def kin(z):
-        return model.kinematics(params, dv, z)
+        return model.kinematics(robot, z)
 
     def vel(z):
         return jax.jvp(kin, (z,), (zdot,))[1]
 
     k, jac = kin(z), jax.jacfwd(kin)(z)
     acc = jax.jvp(vel, (z,), (zdot,))[1]
-    m, I = model.masses(params, dv)
+    m, I = model.masses(robot)
     Jp, Ja = jac.body_p, jac.body_ang  # (nb, 2, n), (nb, n)
     M = jnp.einsum("b,bki,bkj->ij", m, Jp, Jp) + jnp.einsum("b,bi,bj->ij", I, Ja, Ja)
     h = jnp.einsum("b,bki,bk->i", m, Jp, acc.body_p) + jnp.einsum("b,bi,b->i", I, Ja, acc.body_ang)
-    Q = _passive(model, params, dv, k, jac, zdot)
+    Q = _passive(model, robot, k, jac, zdot)
     return EOM(M=M, h=h, Q_passive=Q, Jth=jac.th_a, JX=jac.X, kin=k)
 
 
-def _passive(model, params, dv, k: Kin, jac: Kin, zdot):
+def _passive(model, robot, k: Kin, jac: Kin, zdot):
     """Spring, damping and friction forces from the kinematics and its Jacobian."""
     Jd, Jth = jac.defl, jac.th_a
-    kk = model.stiffness(params, dv)
+    kk = model.stiffness(robot)
     # kk is a scalar or one stiffness per spring (the beam's clamp half-springs differ).
-    Q = -(Jd.T @ (kk * k.defl)) - params.c_spring * (Jd.T @ (Jd @ zdot))
-    return Q - params.c_act * (Jth.T @ (Jth @ zdot))
+    Q = -(Jd.T @ (kk * k.defl)) - robot.c_spring * (Jd.T @ (Jd @ zdot))
+    return Q - robot.c_act * (Jth.T @ (Jth @ zdot))
 
 
 def passive_force(
-    model: AbstractModel, params: RobotParams, dv: Derived, z, zdot, tau_a, wrench
+    model: AbstractModel, robot: Robot, z, zdot, tau_a, wrench
 ) -> Array:
     """Q of springs, damping, friction, actuators and wrench only (first derivatives of the
     kinematics; no mass matrix): the stiffness part of the static and quasi-static balances."""
     def kin(z):
-        return model.kinematics(params, dv, z)
+        return model.kinematics(robot, z)
 
     k, jac = kin(z), jax.jacfwd(kin)(z)
-    return _passive(model, params, dv, k, jac, zdot) + jac.th_a.T @ tau_a + jac.X.T @ wrench
+    return _passive(model, robot, k, jac, zdot) + jac.th_a.T @ tau_a + jac.X.T @ wrench
 
 
 def generalized_force(eom: EOM, tau_a, wrench) -> Array:
@@ -97,24 +95,24 @@ def accelerations(eom: EOM, tau_a, wrench) -> Array:
     return solve(eom.M, generalized_force(eom, tau_a, wrench) - eom.h)
 
 
-def energy(model: AbstractModel, params: RobotParams, dv: Derived, z, zdot):
+def energy(model: AbstractModel, robot: Robot, z, zdot):
     """(kinetic, potential) energy (J)."""
-    k, kd = jax.jvp(lambda z: model.kinematics(params, dv, z), (z,), (zdot,))
-    m, I = model.masses(params, dv)
+    k, kd = jax.jvp(lambda z: model.kinematics(robot, z), (z,), (zdot,))
+    m, I = model.masses(robot)
     T = 0.5 * (jnp.sum(m * jnp.sum(kd.body_p**2, axis=-1)) + jnp.sum(I * kd.body_ang**2))
-    U = 0.5 * jnp.sum(model.stiffness(params, dv) * k.defl**2)
+    U = 0.5 * jnp.sum(model.stiffness(robot) * k.defl**2)
     return T, U
 
 
-def lagrangian_eom(model: AbstractModel, params: RobotParams, dv: Derived, z, zdot):
+def lagrangian_eom(model: AbstractModel, robot: Robot, z, zdot):
     """Reference equations of motion from automatic differentiation of L = T - U (slow; for tests):
     returns (M, h + dU/dz) with M = d2T/dz'2 and h = d2T/dz'dz z' - dT/dz."""
 
     def T(z, zdot):
-        return energy(model, params, dv, z, zdot)[0]
+        return energy(model, robot, z, zdot)[0]
 
     def U(z):
-        return energy(model, params, dv, z, jnp.zeros_like(z))[1]
+        return energy(model, robot, z, jnp.zeros_like(z))[1]
 
     M = jax.hessian(T, argnums=1)(z, zdot)
     dTdzd_dz = jax.jacfwd(jax.grad(T, argnums=1), argnums=0)(z, zdot)
@@ -124,8 +122,7 @@ def lagrangian_eom(model: AbstractModel, params: RobotParams, dv: Derived, z, zd
 
 def inverse_dynamics(
     model: AbstractModel,
-    params: RobotParams,
-    dv: Derived,
+    robot: Robot,
     X: Float[Array, "3"],
     Xdot: Float[Array, "3"],
     Xddot: Float[Array, "3"],
@@ -143,6 +140,6 @@ def inverse_dynamics(
             f"motion-driven instead"
         )
     w = jnp.zeros(3) if wrench is None else wrench
-    eom = eom_terms(model, params, dv, X, Xdot)
+    eom = eom_terms(model, robot, X, Xdot)
     rhs = eom.M @ Xddot + eom.h - eom.Q_passive - w
     return solve(eom.Jth.T, rhs), eom

@@ -13,11 +13,9 @@ import optimistix as optx
 from ._checks import raise_if
 from ._custom_types import Array, Float
 from ._linalg import SmallLU
-from ._kinematics import deflections, home_pose, singularity_measure
-from ._model import AbstractModel
-from ._params import RobotParams
-from ._prb import derived
-from ._reduced import Reduced
+from ._kinematics import home_pose, singularity_measure
+from ._models import AbstractModel, Reduced
+from ._robot import Robot, RobotLike, as_robot
 
 #: below this inverse condition number of S (dimensionless) a configuration counts as singular
 SINGULAR_TOL = 1e-6
@@ -44,20 +42,20 @@ class IKResult(eqx.Module):
     deflection: Array
 
 
-def _ik(model: AbstractModel, params: RobotParams, X) -> IKResult:
-    dv = derived(params)
+def _ik(model: AbstractModel, robot: Robot, X) -> IKResult:
+    robot = as_robot(robot)
 
     def q_of_X(X):
-        k = model.kinematics(params, dv, model.coords_from_pose(params, dv, X))
+        k = model.kinematics(robot, model.coords_from_pose(robot, X))
         return k.th.reshape(-1), k.th_a
 
     (thf, th_a) = q_of_X(X)
     Jth, S = jax.jacfwd(q_of_X)(X)
-    k = model.kinematics(params, dv, model.coords_from_pose(params, dv, X))
+    k = model.kinematics(robot, model.coords_from_pose(robot, X))
     J = jnp.concatenate([Jth, jnp.eye(3)], axis=0)
     defl = k.defl.reshape(3, -1).squeeze(-1) if k.defl.size == 3 else k.defl.reshape(3, 2)
     return IKResult(
-        th=k.th, th_a=th_a, J=J, S=S, singularity=singularity_measure(S, dv.r1), margin=k.margin,
+        th=k.th, th_a=th_a, J=J, S=S, singularity=singularity_measure(S, robot.r1), margin=k.margin,
         deflection=defl,
     )
 
@@ -81,7 +79,7 @@ def check_pose(res: IKResult, X):
 
 
 def inverse_kinematics(
-    params: RobotParams, X: Float[Array, "3"], model: Optional[AbstractModel] = None
+    robot: RobotLike, X: Float[Array, "3"], model: Optional[AbstractModel] = None
 ) -> IKResult:
     """Inverse kinematics of the L1 (default) or L0 model at pose X = (x, y, phi) (m, m, rad),
     or at a batch of poses X (m, 3) (the result then has a leading axis).
@@ -90,6 +88,7 @@ def inverse_kinematics(
     when r1 = r3 (Newton otherwise); L0 is the rigid two-link closure. Raises `PPRError` for an
     unreachable pose or a singular configuration (under jit: an equinox runtime error).
     """
+    robot = as_robot(robot)
     model = Reduced() if model is None else model
     if model.actuated_index is not None:
         raise ValueError(
@@ -98,29 +97,30 @@ def inverse_kinematics(
         )
     X = jnp.asarray(X, dtype=jnp.float64)
     if X.ndim == 2:  # a batch of poses: one vmapped call; errors name the failing members
-        res = eqx.filter_jit(eqx.filter_vmap(_ik, in_axes=(None, None, 0)))(model, params, X)
+        res = eqx.filter_jit(eqx.filter_vmap(_ik, in_axes=(None, None, 0)))(model, robot, X)
         return check_pose(res, X)
     if X.shape != (3,):
         raise ValueError(f"X must be a pose (x, y, phi) of shape (3,) or (m, 3), got {X.shape}")
-    return check_pose(_ik_jit(model, params, X), X)
+    return check_pose(_ik_jit(model, robot, X), X)
 
 
-def jacobians(params: RobotParams, X, model: Optional[AbstractModel] = None):
+def jacobians(robot: RobotLike, X, model: Optional[AbstractModel] = None):
     """(J, S) at pose X: J = dq/dX (12, 3) (eq 47, the last 3 rows the identity), S = d th_a/dX."""
-    r = inverse_kinematics(params, X, model)
+    r = inverse_kinematics(robot, X, model)
     return r.J, r.S
 
 
-def predeflection(params: RobotParams, X=None) -> dict:
+def predeflection(robot: RobotLike, X=None) -> dict:
     """Spring deflections at pose X (default home) for L1 (per pivot) and L0 (per pin) (rad).
 
     Table 1's lengths do not put the home pose exactly on the joint's natural (spring-free) arc:
     the default robot carries about -0.0152 rad per L1 pivot at home (MODEL.md section 4)."""
-    from ._rigid import Rigid
+    from ._models import Rigid
 
-    X = home_pose(params) if X is None else jnp.asarray(X, dtype=jnp.float64)
-    r1 = inverse_kinematics(params, X, Reduced())
-    r0 = inverse_kinematics(params, X, Rigid())
+    robot = as_robot(robot)
+    X = home_pose(robot) if X is None else jnp.asarray(X, dtype=jnp.float64)
+    r1 = inverse_kinematics(robot, X, Reduced())
+    r0 = inverse_kinematics(robot, X, Rigid())
     return {"reduced": r1.deflection, "rigid": r0.deflection}
 
 
@@ -129,11 +129,11 @@ def predeflection(params: RobotParams, X=None) -> dict:
 # ---------------------------------------------------------------------------------------------
 
 
-def _fk(model, params, th_a, X_guess, rtol, atol, max_steps):
-    dv = derived(params)
+def _fk(model, robot, th_a, X_guess, rtol, atol, max_steps):
+    robot = as_robot(robot)
 
     def resid(X, th_a):
-        k = model.kinematics(params, dv, model.coords_from_pose(params, dv, X))
+        k = model.kinematics(robot, model.coords_from_pose(robot, X))
         return k.th_a - th_a
 
     sol = optx.root_find(
@@ -146,16 +146,17 @@ def _fk(model, params, th_a, X_guess, rtol, atol, max_steps):
 _fk_jit = eqx.filter_jit(_fk)
 
 
-def _fk_inputs(params, th_a, X_guess, model):
+def _fk_inputs(robot, th_a, X_guess, model):
     """Defaults shared by the forward-kinematics wrappers: L1 model, home pose as the guess."""
+    robot = as_robot(robot)
     model = Reduced() if model is None else model
     th_a = jnp.asarray(th_a, dtype=jnp.float64)
-    X_guess = home_pose(params) if X_guess is None else jnp.asarray(X_guess, dtype=jnp.float64)
-    return model, th_a, X_guess
+    X_guess = home_pose(robot) if X_guess is None else jnp.asarray(X_guess, dtype=jnp.float64)
+    return robot, model, th_a, X_guess
 
 
 def forward_kinematics(
-    params: RobotParams,
+    robot: RobotLike,
     th_a: Float[Array, "3"],
     X_guess: Optional[Float[Array, "3"]] = None,
     model: Optional[AbstractModel] = None,
@@ -170,20 +171,20 @@ def forward_kinematics(
     started at `X_guess` (default home): pass the previous solution to warm-start along a path.
     The assembly mode found is the one nearest the guess. Raises `PPRError` if Newton does not
     converge or lands on an unreachable / singular configuration."""
-    model, th_a, X_guess = _fk_inputs(params, th_a, X_guess, model)
-    X, result = _fk_jit(model, params, th_a, X_guess, rtol, atol, max_steps)
+    robot, model, th_a, X_guess = _fk_inputs(robot, th_a, X_guess, model)
+    X, result = _fk_jit(model, robot, th_a, X_guess, rtol, atol, max_steps)
     X = raise_if(
         X, result != optx.RESULTS.successful,
         "forward kinematics did not converge: the actuated angles are out of reach or near a "
         "singular configuration; try a closer X_guess",
     )
-    check_pose(_ik_jit(model, params, X), X)
+    check_pose(_ik_jit(model, robot, X), X)
     return X
 
 
-def _fk_path(model, params, th_a_path, X0, rtol, atol, max_steps):
+def _fk_path(model, robot, th_a_path, X0, rtol, atol, max_steps):
     def step(X, th_a):
-        Xn, res = _fk(model, params, th_a, X, rtol, atol, max_steps)
+        Xn, res = _fk(model, robot, th_a, X, rtol, atol, max_steps)
         return Xn, (Xn, res._value)
 
     _, (Xs, codes) = jax.lax.scan(step, X0, th_a_path)
@@ -194,7 +195,7 @@ _fk_path_jit = eqx.filter_jit(_fk_path)
 
 
 def forward_kinematics_path(
-    params: RobotParams,
+    robot: RobotLike,
     th_a_path: Float[Array, "m 3"],
     X0: Optional[Float[Array, "3"]] = None,
     model: Optional[AbstractModel] = None,
@@ -205,8 +206,8 @@ def forward_kinematics_path(
 ) -> Float[Array, "m 3"]:
     """Forward kinematics along a sampled path of actuated angles, each Newton solve warm-started
     from the previous pose (one `lax.scan`, compiled once per shape)."""
-    model, th_a_path, X0 = _fk_inputs(params, th_a_path, X0, model)
-    Xs, codes = _fk_path_jit(model, params, th_a_path, X0, rtol, atol, max_steps)
+    robot, model, th_a_path, X0 = _fk_inputs(robot, th_a_path, X0, model)
+    Xs, codes = _fk_path_jit(model, robot, th_a_path, X0, rtol, atol, max_steps)
     Xs = raise_if(
         Xs, jnp.any(codes != 0),
         "forward kinematics along the path did not converge at some sample (out of reach, "

@@ -11,14 +11,12 @@ error instead of returning NaN.
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ._custom_types import Array, Float
 from ._linalg import solve
-from ._params import RobotParams
-from ._prb import Derived
+from ._robot import Robot
 
 BETA = jnp.array([7 * jnp.pi / 6, -jnp.pi / 6, jnp.pi / 2])  # platform joint directions
 
@@ -28,24 +26,24 @@ def e(alpha):
     return jnp.stack([jnp.cos(alpha), jnp.sin(alpha)], axis=-1)
 
 
-def home_pose(params: RobotParams) -> Float[Array, "3"]:
+def home_pose(robot: Robot) -> Float[Array, "3"]:
     """Home pose X_h = (a/2, sqrt(3) a/6, 0), the base centroid."""
-    a = params.a
+    a = robot.a
     return jnp.stack([a / 2, jnp.sqrt(3.0) * a / 6, jnp.zeros_like(a)])
 
 
-def base_points(params: RobotParams) -> Float[Array, "3 2"]:
+def base_points(robot: Robot) -> Float[Array, "3 2"]:
     """Actuated joints A_1, A_2, A_3 (m)."""
-    a = params.a
+    a = robot.a
     z = jnp.zeros_like(a)
     return jnp.stack(
         [jnp.stack([z, z]), jnp.stack([a, z]), jnp.stack([a / 2, jnp.sqrt(3.0) * a / 2])]
     )
 
 
-def platform_points(dv: Derived, X: Float[Array, "3"]) -> Float[Array, "3 2"]:
+def platform_points(robot: Robot, X: Float[Array, "3"]) -> Float[Array, "3 2"]:
     """Platform joints E_i = (x, y) + rho_E e(beta_i + phi) (m)."""
-    return X[:2] + dv.rho_E * e(BETA + X[2])
+    return X[:2] + robot.rho_E * e(BETA + X[2])
 
 
 def wrap(x):
@@ -73,8 +71,8 @@ def two_link(d, la, lb, elbow):
     return th_a, th_a + delta, margin
 
 
-def _chain_vectors(params: RobotParams, dv: Derived, X):
-    return platform_points(dv, X) - base_points(params)
+def _chain_vectors(robot: Robot, X):
+    return platform_points(robot, X) - base_points(robot)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -84,7 +82,7 @@ def _chain_vectors(params: RobotParams, dv: Derived, X):
 N_NEWTON_IK = 3
 
 
-def ik_reduced(params: RobotParams, dv: Derived, X: Float[Array, "3"]):
+def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     """L1 inverse kinematics under the quasi-static assumption th_i1 - 2 th_i2 + th_i3 = 0 (eq 29).
 
     Returns (th (3, 3) chain angles [i, (th_i1, th_i2, th_i3)], margin (3,)).
@@ -93,52 +91,52 @@ def ik_reduced(params: RobotParams, dv: Derived, X: Float[Array, "3"]):
     of `N_NEWTON_IK` Newton steps on the 2x2 chain closure (exact to machine precision for
     |r1 - r3| of a few mm; a Newton step costs nothing when r1 = r3 because its update is zero).
     """
-    d = _chain_vectors(params, dv, X)
-    rbar = (dv.r1 + dv.r3) / 2
+    d = _chain_vectors(robot, X)
+    rbar = (robot.r1 + robot.r3) / 2
     dist = jnp.linalg.norm(d, axis=-1)
-    c = (dist - dv.r2) / (2 * rbar)
+    c = (dist - robot.r2) / (2 * rbar)
     margin = 1 - jnp.abs(c)
-    v = params.sigma * jnp.arccos(jnp.clip(c, -1 + 1e-15, 1 - 1e-15))
+    v = robot.sigma * jnp.arccos(jnp.clip(c, -1 + 1e-15, 1 - 1e-15))
     u = jnp.arctan2(d[:, 1], d[:, 0])
     th1, th3 = u - v, u + v
 
     def resid(th13, di):
         t1, t3 = th13
         t2 = (t1 + t3) / 2
-        return dv.r1 * e(t1) + dv.r2 * e(t2) + dv.r3 * e(t3) - di
+        return robot.r1 * e(t1) + robot.r2 * e(t2) + robot.r3 * e(t3) - di
 
-    def newton(th13, di):
-        for _ in range(N_NEWTON_IK):
+    def newton(th13, di, n_steps):
+        for _ in range(n_steps):
             Jc = jax.jacfwd(resid)(th13, di)
             th13 = th13 - solve(Jc, resid(th13, di))
         return th13
 
     th13 = jnp.stack([th1, th3], axis=-1)
-    # Only one branch runs outside vmap: the default robot (l1 = l3) pays nothing for Newton.
-    th13 = jax.lax.cond(
-        dv.r1 != dv.r3, lambda x: jax.vmap(newton)(x, d), lambda x: x, th13
-    )
+    # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
+    # running Newton for every member. With equal links one step: its update is zero, but its
+    # derivative is the implicit-function derivative, exact also in l1 or l3 alone.
+    th13 = jax.vmap(lambda x, di: newton(x, di, 1 if robot.equal_links else N_NEWTON_IK))(th13, d)
     th1, th3 = th13[:, 0], th13[:, 1]
     th = jnp.stack([th1, (th1 + th3) / 2, th3], axis=-1)
     return th, margin
 
 
-def ik_rigid(params: RobotParams, dv: Derived, X: Float[Array, "3"]):
+def ik_rigid(robot: Robot, X: Float[Array, "3"]):
     """L0 inverse kinematics of the rigid 3-RRR (links R1, R3 meeting at the virtual corner C_i).
 
     Returns (th (3, 2) [i, (th_i1, th_i3)], margin (3,)).
     """
-    d = _chain_vectors(params, dv, X)
-    t1, t3, margin = two_link(d, dv.R1, dv.R3, params.sigma)
+    d = _chain_vectors(robot, X)
+    t1, t3, margin = two_link(d, robot.R1, robot.R3, robot.sigma)
     return jnp.stack([t1, t3], axis=-1), margin
 
 
-def chain_closure_double1r(params: RobotParams, dv: Derived, X, th_a):
+def chain_closure_double1r(robot: Robot, X, th_a):
     """L2: given the platform pose X and the actuated angles th_a (3,), close each chain with the
     two-link (r2, r3) solution on the elbow branch sigma. Returns (th (3, 3), margin (3,))."""
-    B = base_points(params) + dv.r1 * e(th_a)
-    d = platform_points(dv, X) - B
-    t2, t3, margin = two_link(d, dv.r2, dv.r3, params.sigma)
+    B = base_points(robot) + robot.r1 * e(th_a)
+    d = platform_points(robot, X) - B
+    t2, t3, margin = two_link(d, robot.r2, robot.r3, robot.sigma)
     # th_a is an unbounded coordinate while atan2 wraps: keep the chain's angles continuous with
     # it so that joint angles, plots and deflections never jump by 2 pi.
     t2 = th_a + wrap(t2 - th_a)
@@ -146,21 +144,21 @@ def chain_closure_double1r(params: RobotParams, dv: Derived, X, th_a):
     return jnp.stack([th_a, t2, t3], axis=-1), margin
 
 
-def loop_residual(params: RobotParams, dv: Derived, th, X) -> Float[Array, "3 2"]:
+def loop_residual(robot: Robot, th, X) -> Float[Array, "3 2"]:
     """Loop closure (eq 12): A_i + r1 e(th_i1) + r2 e(th_i2) + r3 e(th_i3) - E_i (m), th (3, 3)."""
     chain = (
-        base_points(params)
-        + dv.r1 * e(th[:, 0])
-        + dv.r2 * e(th[:, 1])
-        + dv.r3 * e(th[:, 2])
+        base_points(robot)
+        + robot.r1 * e(th[:, 0])
+        + robot.r2 * e(th[:, 1])
+        + robot.r3 * e(th[:, 2])
     )
-    return chain - platform_points(dv, X)
+    return chain - platform_points(robot, X)
 
 
-def loop_residual_rigid(params: RobotParams, dv: Derived, th, X) -> Float[Array, "3 2"]:
+def loop_residual_rigid(robot: Robot, th, X) -> Float[Array, "3 2"]:
     """L0 loop closure A_i + R1 e(th_i1) + R3 e(th_i3) - E_i (m), th (3, 2)."""
-    chain = base_points(params) + dv.R1 * e(th[:, 0]) + dv.R3 * e(th[:, 1])
-    return chain - platform_points(dv, X)
+    chain = base_points(robot) + robot.R1 * e(th[:, 0]) + robot.R3 * e(th[:, 1])
+    return chain - platform_points(robot, X)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -168,21 +166,21 @@ def loop_residual_rigid(params: RobotParams, dv: Derived, th, X) -> Float[Array,
 # ---------------------------------------------------------------------------------------------
 
 
-def deflections(params: RobotParams, dv: Derived, th) -> Float[Array, "3 2"]:
+def deflections(robot: Robot, th) -> Float[Array, "3 2"]:
     """Spring deflections of the double-1R model (MODEL.md section 4), th (3, 3):
     d_i1 = (th_i2 - th_i1) - sigma psi0, d_i2 = (th_i3 - th_i2) - sigma psi0 (rad)."""
     return jnp.stack(
         [
-            wrap(th[:, 1] - th[:, 0] - params.sigma * dv.psi0),
-            wrap(th[:, 2] - th[:, 1] - params.sigma * dv.psi0),
+            wrap(th[:, 1] - th[:, 0] - robot.sigma * robot.psi0),
+            wrap(th[:, 2] - th[:, 1] - robot.sigma * robot.psi0),
         ],
         axis=-1,
     )
 
 
-def deflection_rigid(params: RobotParams, dv: Derived, th) -> Float[Array, "3"]:
+def deflection_rigid(robot: Robot, th) -> Float[Array, "3"]:
     """L0 pin deflection (th_i3 - th_i1) - sigma theta_c (rad), th (3, 2)."""
-    return wrap(th[:, 1] - th[:, 0] - params.sigma * params.theta_c)
+    return wrap(th[:, 1] - th[:, 0] - robot.sigma * robot.theta_c)
 
 
 def singularity_measure(S: Float[Array, "3 3"], r1) -> Array:

@@ -19,6 +19,7 @@ plain autodiff.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import equinox.internal as eqxi
@@ -56,6 +57,9 @@ def _lu_step(k, A, perm):
     return A, perm
 
 
+# jitted: inlined inside an outer jit; called eagerly they compile once per shape instead of once
+# per primitive (thousands of tiny executables exhaust the process's memory mappings).
+@jax.jit
 def lu_factor(A: Float[Array, "n n"]) -> tuple[Array, Array]:
     """(LU, perm) with A[perm] = L U, L unit lower triangular (below the diagonal of LU) and U
     upper triangular. A singular A gives inf/NaN, as LAPACK's getrf would."""
@@ -68,34 +72,16 @@ def lu_factor(A: Float[Array, "n n"]) -> tuple[Array, Array]:
     return jax.lax.fori_loop(0, n, lambda k, c: _lu_step(k, *c), (A, perm))
 
 
-def _forward(L, b, unit: bool):
-    """Solve L y = b for lower-triangular L."""
-    n = b.shape[0]
-    rows = jnp.arange(n)
-
-    def step(i, y):
-        s = jnp.sum(jnp.where(rows < i, L[i] * y, 0.0))
-        yi = b[i] - s if unit else (b[i] - s) / L[i, i]
-        return y.at[i].set(yi)
-
-    y = jnp.zeros_like(b)
-    if n <= UNROLL_MAX:
-        for i in range(n):
-            y = step(i, y)
-        return y
-    return jax.lax.fori_loop(0, n, step, y)
-
-
-def _backward(U, b, unit: bool):
-    """Solve U x = b for upper-triangular U."""
+def _triangular(T, b, lower: bool, unit: bool):
+    """Solve T x = b for triangular T (lower or upper; `unit`: ones on the diagonal)."""
     n = b.shape[0]
     rows = jnp.arange(n)
 
     def step(j, x):
-        i = n - 1 - j
-        s = jnp.sum(jnp.where(rows > i, U[i] * x, 0.0))
-        xi = b[i] - s if unit else (b[i] - s) / U[i, i]
-        return x.at[i].set(xi)
+        i = j if lower else n - 1 - j
+        done = rows < i if lower else rows > i
+        s = jnp.sum(jnp.where(done, T[i] * x, 0.0))
+        return x.at[i].set(b[i] - s if unit else (b[i] - s) / T[i, i])
 
     x = jnp.zeros_like(b)
     if n <= UNROLL_MAX:
@@ -105,18 +91,20 @@ def _backward(U, b, unit: bool):
     return jax.lax.fori_loop(0, n, step, x)
 
 
+@functools.partial(jax.jit, static_argnames="trans")
 def lu_solve(lu_perm: tuple[Array, Array], b: Float[Array, " n"], trans: bool = False):
     """Solve A x = b (or A^T x = b with `trans`) from `lu_factor(A)`."""
     LU, perm = lu_perm
     if not trans:
-        y = _forward(LU, b[perm], unit=True)
-        return _backward(LU, y, unit=False)
+        y = _triangular(LU, b[perm], lower=True, unit=True)
+        return _triangular(LU, y, lower=False, unit=False)
     # A^T = U^T L^T P: solve U^T z = b, L^T w = z, then P x = w.
-    z = _forward(LU.T, b, unit=False)
-    w = _backward(LU.T, z, unit=True)
+    z = _triangular(LU.T, b, lower=True, unit=False)
+    w = _triangular(LU.T, z, lower=False, unit=True)
     return jnp.zeros_like(w).at[perm].set(w)
 
 
+@jax.jit
 def solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, " n"]:
     """x with A x = b (Gaussian elimination with partial pivoting, module docstring)."""
     return lu_solve(lu_factor(A), b)

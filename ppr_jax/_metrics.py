@@ -14,9 +14,8 @@ import numpy as np
 
 from ._custom_types import Array
 from ._dynamics import energy
-from ._model import AbstractModel
-from ._params import RobotParams
-from ._prb import derived
+from ._models import AbstractModel
+from ._robot import Robot, as_robot
 
 
 class Outputs(eqx.Module):
@@ -31,14 +30,14 @@ class Outputs(eqx.Module):
     potential: Array
 
 
-def outputs(model: AbstractModel, params: RobotParams, z, zdot) -> Outputs:
-    dv = derived(params)
+def outputs(model: AbstractModel, robot: Robot, z, zdot) -> Outputs:
+    robot = as_robot(robot)
 
     def one(z, zd):
-        k = model.kinematics(params, dv, z)
-        res = jnp.max(jnp.linalg.norm(model.loop_residual(params, dv, k), axis=-1))
-        T, U = energy(model, params, dv, z, zd)
-        return k.X, model.joint_end_rotations(params, dv, k)[0], res, T, U
+        k = model.kinematics(robot, z)
+        res = jnp.max(jnp.linalg.norm(model.loop_residual(robot, k), axis=-1))
+        T, U = energy(model, robot, z, zd)
+        return k.X, model.joint_end_rotations(robot, k)[0], res, T, U
 
     X, er, res, T, U = jax.vmap(one)(z, zdot)
     return Outputs(X=X, end_rot=er, residual=res, kinetic=T, potential=U)

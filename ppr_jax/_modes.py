@@ -7,7 +7,7 @@ negative eigenvalue; it is reported as a negative signed frequency and a growth 
 
 from __future__ import annotations
 
-from typing import Optional
+
 
 import equinox as eqx
 import jax
@@ -16,9 +16,8 @@ import jax.numpy as jnp
 from ._custom_types import Array
 from ._dynamics import eom_terms, generalized_force
 from ._kinematics import home_pose
-from ._model import AbstractModel
-from ._params import RobotParams
-from ._prb import derived
+from ._models import AbstractModel
+from ._robot import RobotLike, as_robot
 from ._statics import _assemble, static_equilibrium
 
 
@@ -40,7 +39,7 @@ class Modes(eqx.Module):
 
 def modes(
     model: AbstractModel,
-    params: RobotParams,
+    robot: RobotLike,
     X=None,
     *,
     actuators: str = "locked",
@@ -54,16 +53,16 @@ def modes(
     """
     if actuators not in ("locked", "free"):
         raise ValueError(f"actuators must be 'locked' or 'free', got {actuators!r}")
-    X = home_pose(params) if X is None else jnp.asarray(X, dtype=jnp.float64)
+    X = home_pose(robot) if X is None else jnp.asarray(X, dtype=jnp.float64)
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
-    return _modes_jit(model, params, X, actuators, w)
+    return _modes_jit(model, as_robot(robot), X, actuators, w)
 
 
-def _modes_core(model, params, X, actuators, w) -> Modes:
-    dv = derived(params)
+def _modes_core(model, robot, X, actuators, w) -> Modes:
+    robot = as_robot(robot)
     locked = actuators == "locked"
     z_eq, free = static_equilibrium(
-        model, params, model.coords_from_pose(params, dv, X), locked=locked, wrench=w
+        model, robot, model.coords_from_pose(robot, X), locked=locked, wrench=w
     )
     n = model.n_dof
     if not free:
@@ -75,11 +74,11 @@ def _modes_core(model, params, X, actuators, w) -> Modes:
 
     def Q(zf):
         z = _assemble(n, free, zf, known, zk)
-        return generalized_force(eom_terms(model, params, dv, z, jnp.zeros(n)), jnp.zeros(3), w)[f]
+        return generalized_force(eom_terms(model, robot, z, jnp.zeros(n)), jnp.zeros(3), w)[f]
 
     K = -jax.jacfwd(Q)(z_eq[f])
     K = (K + K.T) / 2  # symmetric at an equilibrium of conservative forces; remove rounding
-    M = eom_terms(model, params, dv, z_eq, jnp.zeros(n)).M[f][:, f]
+    M = eom_terms(model, robot, z_eq, jnp.zeros(n)).M[f][:, f]
     Lc = jnp.linalg.cholesky(M)
     Li = jnp.linalg.inv(Lc)
     lam, V = jnp.linalg.eigh(Li @ K @ Li.T)

@@ -15,6 +15,7 @@ from jax.scipy.linalg import block_diag
 from ._kinematics import BETA, deflections, ik_reduced
 from ._params import RobotParams
 from ._prb import derived
+from ._robot import Robot
 
 
 def paper_constants(params: RobotParams) -> dict:
@@ -63,7 +64,7 @@ def paper_jacobian(params: RobotParams, X):
     """J = [P^-1 Q; I3] (eq 47) of the L1 model at pose X: P_i, Q_i of eq 13 with the row of the
     quasi-static constraint th_i1 - 2 th_i2 + th_i3 = 0 (eq 29) appended, so that P_i is square."""
     dv = derived(params)
-    th, _ = ik_reduced(params, dv, X)
+    th, _ = ik_reduced(Robot(params), X)
     P, Q = [], []
     for i in range(3):
         t = th[i]
@@ -89,7 +90,7 @@ def paper_workspace_eom(params: RobotParams, X, Xdot):
     M, C = paper_joint_matrices(params, th, qdot[:9].reshape(3, 3))
     Me = J.T @ M @ J
     CeXd = J.T @ (M @ Jdot_Xdot + C @ qdot)
-    d = deflections(params, dv, th)
+    d = deflections(Robot(params), th)
     # K_i (q - q0) of eq 41 written with the deflections: (-d_i1, d_i1 - d_i2, d_i2) K.
     Kq = jnp.concatenate(
         [jnp.stack([-d[i, 0], d[i, 0] - d[i, 1], d[i, 1]]) for i in range(3)] + [jnp.zeros(3)]

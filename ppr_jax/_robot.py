@@ -25,6 +25,7 @@ function (`jax.grad(lambda p: f(Robot(p)))`), as the public functions that take 
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Optional, Union
 
 import equinox as eqx
@@ -83,7 +84,31 @@ class Robot(eqx.Module):
         return Robot(self.params.replace(**changes))
 
 
-def as_robot(robot: Union[Robot, RobotParams]) -> Robot:
+def _forward(container: str, name: str):
+    def get(self):
+        return getattr(getattr(self, container), name)
+
+    get.__name__ = name
+    get.__doc__ = f"`{container}.{name}` (see `{'Derived' if container == 'dv' else 'RobotParams'}`)."
+    return property(get)
+
+
+# Flat, read-only access to every quantity, `robot.r1`, `robot.l1`, `robot.K`, as MJX's `Model`
+# holds its arrays: the derived value first, so that `robot.gamma`, `robot.rho` and
+# `robot.K_theta` are the PRB parameters in use (the table's where `RobotParams` leaves them None).
+for _name in (f.name for f in dataclasses.fields(Derived)):
+    setattr(Robot, _name, _forward("dv", _name))
+for _name in (f.name for f in dataclasses.fields(RobotParams)):
+    if not hasattr(Robot, _name):
+        setattr(Robot, _name, _forward("params", _name))
+del _name
+
+
+#: what the public functions accept: a built `Robot`, or `RobotParams` to build one from
+RobotLike = Union[Robot, RobotParams]
+
+
+def as_robot(robot: RobotLike) -> Robot:
     """`robot` itself, or a `Robot` built from `RobotParams`."""
     if isinstance(robot, Robot):
         return robot

@@ -8,9 +8,8 @@ eigenproblem. Scene cores are jit-compiled once per (model, shapes) and vmap ove
 
 from __future__ import annotations
 
-import dataclasses
 import time
-from typing import Optional
+from typing import Callable, Optional
 
 import diffrax
 import equinox as eqx
@@ -18,46 +17,26 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._beam import Beam
 from ._actuation import InverseDynamicsTorque, InverseKinematicsAngles, MotionDriven, TorqueDriven
-from ._checks import raise_if
-from ._double1r import Double1R
+from ._checks import is_traced
+from ._custom_types import Array
 from ._dynamics import inverse_dynamics
 from ._ik import _fk
 from ._linalg import solve
-from ._metrics import metrics, outputs
-from ._model import AbstractModel
+from ._metrics import outputs
+from ._models import Reduced, get_model
 from ._modes import modes as _modes
 from ._params import RobotParams
-from ._prb import derived
-from ._reduced import Reduced
-from ._rigid import Rigid
+from ._robot import Robot
 from ._simulate import Solution, _simulate_core, check_result, get_solver
 from ._statics import quasi_static_state
 from ._trajectory import Circle, derivatives
 
-MODELS = {"rigid": Rigid, "reduced": Reduced, "double1r": Double1R, "beam": Beam}
 SCENES = ("paper-circle", "servo-circle", "modes")
 #: strip thickness of each scene (m): the paper's simulation uses 0.3 mm, its experiment 0.5 mm
 SCENE_THICKNESS = {"paper-circle": 0.3e-3, "servo-circle": 0.5e-3, "modes": 0.3e-3}
 #: default solver per model level (see README, "Solvers")
 DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "tsit5"}
-
-
-def get_model(model, n_elements: Optional[int] = None) -> AbstractModel:
-    """A model from its name (rigid, reduced, double1r, beam) or an instance; `n_elements` is
-    the number of beam elements per strip of `beam` (default 8)."""
-    if isinstance(model, AbstractModel):
-        return model
-    if str(model) == "beam":
-        n = 8 if n_elements is None else int(n_elements)
-        if n < 1:
-            raise ValueError(f"--elements (beam elements per strip) must be >= 1, got {n}")
-        return Beam(n)
-    try:
-        return MODELS[str(model)]()
-    except KeyError:
-        raise ValueError(f"unknown model {model!r}; allowed: {', '.join(MODELS)}") from None
 
 
 def scene_params(scene: str, **overrides) -> RobotParams:
@@ -69,145 +48,162 @@ def scene_params(scene: str, **overrides) -> RobotParams:
     return RobotParams().replace(**kw)
 
 
-@dataclasses.dataclass
-class SceneResult:
-    """A scene run: arrays are numpy; `metrics` holds the MODEL.md section 6 numbers (SI units
-    unless the key says otherwise) and `timing` the compile and run wall times (s)."""
+class SceneResult(eqx.Module):
+    """The result of a scene: the same pytree for one robot or a batch (then every array has a
+    leading batch axis), as `diffrax.diffeqsolve` always returns a `Solution`.
 
-    scene: str
-    model: str
-    ts: np.ndarray
-    X: np.ndarray
-    X_nominal: np.ndarray
-    tau: np.ndarray
-    end_rot: np.ndarray
-    metrics: dict
-    timing: dict
-    solver: dict
-    params: RobotParams
+    ts (m,) output times (s); z, zdot (m, n) the model's coordinates and their rates; X (m, 3)
+    platform pose (m, m, rad); X_nominal (m, 3) the nominal pose of eq 55; tau (m, 3) actuator
+    torques (applied, or the reactions when motion-driven) (N m); end_rot (m, 2) rotations of
+    chain 1's compliant-joint ends (rad); residual (m,) max loop-closure residual (m);
+    kinetic, potential (m,) energy (J); result the diffrax result code (a failure is raised by
+    the scene functions when they are called outside a transformation); num_steps,
+    num_accepted, num_rejected solver statistics (0 for a scene that needs no ODE). `scene` and
+    `model` (static) name what ran. Metrics, timings and printing: `ppr_jax.run_scene`."""
+
+    ts: Array
+    z: Array
+    zdot: Array
+    X: Array
+    X_nominal: Array
+    tau: Array
+    end_rot: Array
+    residual: Array
+    kinetic: Array
+    potential: Array
+    result: diffrax.RESULTS
+    num_steps: Array
+    num_accepted: Array
+    num_rejected: Array
+    scene: str = eqx.field(static=True)
+    model: str = eqx.field(static=True)
 
 
 # ---------------------------------------------------------------------------------------------
-# Cores (jit-able, vmappable over params)
+# Cores: traceable, one robot; jitted once per (model, shapes) and vmapped for batches
 # ---------------------------------------------------------------------------------------------
 
 
-def _paper_circle_core(model, torque_model, params, traj, ts, solver, controller, max_steps, throw):
-    torque = InverseDynamicsTorque(torque_model, params, traj)
-    z0, zd0 = quasi_static_state(model, params, traj, ts[0], motion_driven=False, torque=torque)
-    sol = _simulate_core(
-        model, params, TorqueDriven(torque), z0, zd0, ts, solver, controller, None, max_steps,
-        jnp.zeros(3), throw, diffrax.NoProgressMeter(),
+def _result(scene, model, robot, traj, sol: Solution) -> SceneResult:
+    out = outputs(model, robot, sol.z, sol.zdot)
+    return SceneResult(
+        ts=sol.ts, z=sol.z, zdot=sol.zdot, X=out.X, X_nominal=jax.vmap(traj)(sol.ts),
+        tau=sol.tau, end_rot=out.end_rot, residual=out.residual, kinetic=out.kinetic,
+        potential=out.potential, result=sol.result, num_steps=sol.num_steps,
+        num_accepted=sol.num_accepted, num_rejected=sol.num_rejected, scene=scene,
+        model=model.name,
     )
-    return sol, outputs(model, params, sol.z, sol.zdot)
 
 
-def _kinematic_motion(model, params, angles, X0, ts):
+def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller, max_steps):
+    act = TorqueDriven(InverseDynamicsTorque(torque_model, robot, traj))
+    z0, zd0 = quasi_static_state(model, robot, traj, ts[0], act)
+    sol = _simulate_core(
+        model, robot, act, z0, zd0, ts, solver, controller, None, max_steps,
+        jnp.zeros(3), False, diffrax.NoProgressMeter(),
+    )
+    return _result("paper-circle", model, robot, traj, sol)
+
+
+def _kinematic_motion(model, robot, angles, X0, ts):
     """L0/L1 motion-driven: X(t) by warm-started forward kinematics, X' and X'' from
     th_a(X) = th_a(t) differentiated once and twice, torques by inverse dynamics. No ODE."""
-    dv = derived(params)
 
     def tha_of_X(X):
-        return model.kinematics(params, dv, model.coords_from_pose(params, dv, X)).th_a
+        return model.kinematics(robot, model.coords_from_pose(robot, X)).th_a
 
     def step(X, t):
         th, thd, thdd = derivatives(angles, t)
-        X, res = _fk(model, params, th, X, 1e-13, 1e-13, 50)
+        X, res = _fk(model, robot, th, X, 1e-13, 1e-13, 50)
         S = jax.jacfwd(tha_of_X)(X)
         Xd = solve(S, thd)
         conv = jax.jvp(lambda X: jax.jvp(tha_of_X, (X,), (Xd,))[1], (X,), (Xd,))[1]
         Xdd = solve(S, thdd - conv)
-        tau, _ = inverse_dynamics(model, params, dv, X, Xd, Xdd)
+        tau, _ = inverse_dynamics(model, robot, X, Xd, Xdd)
         return X, (X, Xd, tau, res._value)
 
     _, (X, Xd, tau, codes) = jax.lax.scan(step, X0, ts)
     return X, Xd, tau, codes
 
 
-def _servo_circle_core(model, params, traj, ts, solver, controller, max_steps, throw):
-    angles = InverseKinematicsAngles(Reduced(), params, traj)
+def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps):
+    angles = InverseKinematicsAngles(Reduced(), robot, traj)
     if model.actuated_index is None:
-        X, Xd, tau, codes = _kinematic_motion(model, params, angles, traj(ts[0]), ts)
-        X = raise_if(X, jnp.any(codes != 0), "forward kinematics failed along the servo path")
+        X, Xd, tau, codes = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
+        # A status code, not a callback: forward kinematics failing along the path is reported
+        # like a solver failure (and the compiled program stays free of host callbacks).
         result = diffrax.RESULTS.where(
-            jnp.any(codes != 0), diffrax.RESULTS.max_steps_reached, diffrax.RESULTS.successful
+            jnp.any(codes != 0), diffrax.RESULTS.nonlinear_divergence, diffrax.RESULTS.successful
         )
+        zero = jnp.asarray(0)
         sol = Solution(
-            ts=ts, z=X, zdot=Xd, tau=tau, result=result, num_steps=jnp.asarray(0),
-            num_accepted=jnp.asarray(0), num_rejected=jnp.asarray(0),
+            ts=ts, z=X, zdot=Xd, tau=tau, result=result, num_steps=zero, num_accepted=zero,
+            num_rejected=zero,
         )
     else:
         act = MotionDriven(angles)
-        z0, zd0 = quasi_static_state(model, params, traj, ts[0], motion_driven=True)
+        z0, zd0 = quasi_static_state(model, robot, traj, ts[0], act)
         sol = _simulate_core(
-            model, params, act, z0, zd0, ts, solver, controller, None, max_steps, jnp.zeros(3),
-            throw, diffrax.NoProgressMeter(),
+            model, robot, act, z0, zd0, ts, solver, controller, None, max_steps, jnp.zeros(3),
+            False, diffrax.NoProgressMeter(),
         )
-    return sol, outputs(model, params, sol.z, sol.zdot)
+    return _result("servo-circle", model, robot, traj, sol)
 
 
-_paper_circle_jit = eqx.filter_jit(_paper_circle_core)
-_servo_circle_jit = eqx.filter_jit(_servo_circle_core)
-# Batched cores: vmapped over the parameters (argument 2 / 1), compiled once per shape.
-_paper_circle_batch = eqx.filter_jit(
-    eqx.filter_vmap(_paper_circle_core, in_axes=(None, None, 0) + (None,) * 6)
-)
-_servo_circle_batch = eqx.filter_jit(
-    eqx.filter_vmap(_servo_circle_core, in_axes=(None, 0) + (None,) * 6)
-)
+#: scene name -> (core, index of the robot among the core's arguments)
+_CORES = {"paper-circle": (_paper_circle_core, 2), "servo-circle": (_servo_circle_core, 1)}
+_JIT = {name: eqx.filter_jit(core) for name, (core, _) in _CORES.items()}
+# Batched cores: vmapped over the robot only, compiled once per (model, batch size).
+_BATCH = {
+    name: eqx.filter_jit(
+        eqx.filter_vmap(core, in_axes=tuple(0 if i == k else None for i in range(k + 6)))
+    )
+    for name, (core, k) in _CORES.items()
+}
 
 
 def _batched(params: RobotParams) -> bool:
     return jnp.ndim(params.a) == 1
 
 
-def _run_timed(fn, *args):
-    """(result, compile_s, run_s): ahead-of-time compile, then one timed run."""
-    t0 = time.perf_counter()
-    compiled = fn.lower(*args).compile()
-    t1 = time.perf_counter()
-    out = compiled(*args)
-    jax.block_until_ready(out)
-    t2 = time.perf_counter()
-    return out, t1 - t0, t2 - t1
+class SceneCall(eqx.Module):
+    """A scene ready to run: `fn(*args)` is the compiled (and, for a batch, vmapped) core."""
+
+    fn: Callable
+    args: tuple
+    scene: str = eqx.field(static=True)
+    batched: bool = eqx.field(static=True)
+    solver_name: str = eqx.field(static=True)
 
 
-def _run_scene(scene, core, core_batch, model, params, traj, pre, post, sname, rtol, atol):
-    """Run a scene core on one robot (timed, -> SceneResult) or on a batch (-> (Solution,
-    Outputs) with a leading axis, every member checked)."""
-    if _batched(params):
-        sol, out = core_batch(*pre, params, *post)
-        check_result(sol.result, scene)
-        return sol, out
-    (sol, out), tc, tr = _run_timed(core, *pre, params, *post)
-    check_result(sol.result, f"{scene} ({model.name})")
-    return _scene_result(scene, model, params, traj, sol, out, tc, tr, sname, rtol, atol)
-
-
-def _scene_result(scene, model, params, traj, sol, out, t_compile, t_run, solver_name, rtol, atol):
-    X_nom = np.asarray(jax.vmap(traj)(sol.ts))
-    m = metrics(out, X_nom, traj.center, traj.radius)
-    m.update(
-        num_steps=int(sol.num_steps), num_accepted=int(sol.num_accepted),
-        num_rejected=int(sol.num_rejected), wall_time_s=t_run, compile_time_s=t_compile,
-    )
-    return SceneResult(
-        scene=scene, model=model.name, ts=np.asarray(sol.ts), X=np.asarray(out.X),
-        X_nominal=X_nom, tau=np.asarray(sol.tau), end_rot=np.asarray(out.end_rot), metrics=m,
-        timing={"compile_s": t_compile, "run_s": t_run},
-        solver={"name": solver_name, "rtol": rtol, "atol": atol}, params=params,
-    )
-
-
-def _common(model, params, scene, t_end, n_out, solver, rtol, atol):
+def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solver, rtol, atol,
+             max_steps) -> SceneCall:
     model = get_model(model)
     params = scene_params(scene) if params is None else params
+    traj = Circle() if trajectory is None else trajectory
     ts = jnp.linspace(0.0, t_end, n_out)
-    solver_name = DEFAULT_SOLVER[model.name] if solver is None else solver
+    solver = DEFAULT_SOLVER[model.name] if solver is None else solver
+    solver_name = str(solver) if isinstance(solver, str) else type(solver).__name__
+    if scene == "servo-circle" and model.actuated_index is None:
+        solver_name = "none (kinematics + inverse dynamics)"
     controller = diffrax.PIDController(
         rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64)
     )
-    return model, params, ts, solver_name, get_solver(solver_name), controller
+    # Built here, outside any trace when params are concrete: the derived quantities once and
+    # the structural choices (equal links, elbow) static, so a batch is branch-free.
+    robot = Robot(params)
+    pre = (model, get_model(torque_model)) if scene == "paper-circle" else (model,)
+    post = (traj, ts, get_solver(solver), controller, max_steps)
+    batched = _batched(params)
+    fn = (_BATCH if batched else _JIT)[scene]
+    return SceneCall(fn=fn, args=(*pre, robot, *post), scene=scene, batched=batched,
+                     solver_name=solver_name)
+
+
+def _finish(res: SceneResult, throw: bool = True) -> SceneResult:
+    if throw and not is_traced(res.result._value):
+        check_result(res.result, f"{res.scene} ({res.model})")
+    return res
 
 
 def paper_circle(
@@ -222,23 +218,20 @@ def paper_circle(
     rtol: float = 1e-8,
     atol: float = 1e-10,
     max_steps: int = 200_000,
-):
+    throw: bool = True,
+) -> SceneResult:
     """Scene `paper-circle` (paper Fig 8-12): torques from `torque_model`'s inverse dynamics along
     eq 55 (default L1; `rigid` gives the paper's "simplified model" torques), `model` simulated
     torque-driven from the nominal pose and velocity at t = 0 (L2's internal coordinates at the
     quasi-static state). Default params: Table 1 with t = 0.3 mm.
 
-    With batched `params` (leading axis) returns (Solution, Outputs) batched, after checking every
-    member; otherwise a `SceneResult` with metrics and timings."""
-    model, params, ts, sname, solver_, ctrl = _common(
-        model, params, "paper-circle", t_end, n_out, solver, rtol, atol
-    )
-    traj = Circle() if trajectory is None else trajectory
-    tm = get_model(torque_model)
-    return _run_scene(
-        "paper-circle", _paper_circle_jit, _paper_circle_batch, model, params, traj,
-        (model, tm), (traj, ts, solver_, ctrl, max_steps, False), sname, rtol, atol,
-    )
+    Returns a `SceneResult`, with a leading axis for batched `params` (`stack_params`): one
+    compiled vmapped call. A failed member raises `SimulationError` naming it; with
+    `throw=False`, or under a JAX transformation, check `result` instead (as diffrax's `throw`).
+    Metrics and timings: `run_scene`."""
+    c = _prepare("paper-circle", params, model, torque_model, trajectory, t_end, n_out, solver,
+                 rtol, atol, max_steps)
+    return _finish(c.fn(*c.args), throw)
 
 
 def servo_circle(
@@ -252,20 +245,15 @@ def servo_circle(
     rtol: float = 1e-8,
     atol: float = 1e-10,
     max_steps: int = 200_000,
-):
+    throw: bool = True,
+) -> SceneResult:
     """Scene `servo-circle` (paper Fig 17-18): the actuated angles follow L1's inverse kinematics
     of eq 55 exactly (motion-driven); the platform's response of `model`. L0/L1 need no ODE
-    (forward kinematics + inverse dynamics). Default params: Table 1 with t = 0.5 mm."""
-    model, params, ts, sname, solver_, ctrl = _common(
-        model, params, "servo-circle", t_end, n_out, solver, rtol, atol
-    )
-    traj = Circle() if trajectory is None else trajectory
-    if model.actuated_index is None:
-        sname = "none (kinematics + inverse dynamics)"
-    return _run_scene(
-        "servo-circle", _servo_circle_jit, _servo_circle_batch, model, params, traj, (model,),
-        (traj, ts, solver_, ctrl, max_steps, False), sname, rtol, atol,
-    )
+    (forward kinematics + inverse dynamics). Default params: Table 1 with t = 0.5 mm.
+    Returns a `SceneResult` (batched like `paper_circle`)."""
+    c = _prepare("servo-circle", params, model, "reduced", trajectory, t_end, n_out, solver,
+                 rtol, atol, max_steps)
+    return _finish(c.fn(*c.args), throw)
 
 
 def modes_scene(

@@ -17,14 +17,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._actuation import MotionDriven, PDServo, TorqueDriven
+from ._actuation import AbstractActuation
+from ._checks import PPRError
 from ._custom_types import Array, Float
-from ._dynamics import EOM, eom_terms, generalized_force
+from ._dynamics import eom_terms, generalized_force
 from ._linalg import solve
-from ._model import AbstractModel
-from ._params import RobotParams, validate_traced
-from ._prb import derived
-from ._trajectory import derivatives
+from ._models import AbstractModel
+from ._params import validate_traced
+from ._robot import RobotLike, as_robot
 
 SOLVERS = {
     "tsit5": diffrax.Tsit5,
@@ -45,7 +45,7 @@ def get_solver(solver) -> diffrax.AbstractSolver:
         raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}") from None
 
 
-class SimulationError(RuntimeError):
+class SimulationError(PPRError, RuntimeError):
     """A simulation failed (the message says which batch members, why, and what to try)."""
 
 
@@ -64,47 +64,44 @@ class Solution(eqx.Module):
     num_rejected: Array
 
 
-def _split(model: AbstractModel, actuation):
-    """(free, prescribed) coordinate indices."""
+def _split(model: AbstractModel, actuation: AbstractActuation):
+    """(free, prescribed) coordinate indices under `actuation` (static)."""
+    if not isinstance(actuation, AbstractActuation):
+        raise TypeError(
+            f"actuation must be a ppr_jax actuation (TorqueDriven, MotionDriven, PDServo or a "
+            f"subclass of AbstractActuation), got {type(actuation).__name__}"
+        )
     n = model.n_dof
-    if isinstance(actuation, MotionDriven):
-        if model.actuated_index is None:
-            raise ValueError(
-                f"model {model.name!r} has no free degree of freedom when motion-driven: its pose "
-                f"follows from the actuated angles by forward kinematics (use "
-                f"ppr_jax.forward_kinematics_path); no ODE is needed"
-            )
-        p = tuple(model.actuated_index)
-        return tuple(i for i in range(n) if i not in p), p
-    if not isinstance(actuation, (TorqueDriven, PDServo)):
-        raise TypeError(f"unknown actuation {type(actuation).__name__}")
-    return tuple(range(n)), ()
+    if not actuation.prescribes_angles:
+        return tuple(range(n)), ()
+    if model.actuated_index is None:
+        raise ValueError(
+            f"model {model.name!r} has no free degree of freedom when motion-driven: its pose "
+            f"follows from the actuated angles by forward kinematics (use "
+            f"ppr_jax.forward_kinematics_path); no ODE is needed"
+        )
+    p = tuple(model.actuated_index)
+    return tuple(i for i in range(n) if i not in p), p
 
 
 def _full_state(model, actuation, t, zf, zfd):
     free, pres = _split(model, actuation)
     if not pres:
         return zf, zfd, None
-    tha, thad, thadd = derivatives(actuation.angles, t)
+    tha, thad, thadd = actuation.angles_at(t)
     n = model.n_dof
     z = jnp.zeros(n).at[jnp.array(free)].set(zf).at[jnp.array(pres)].set(tha)
     zd = jnp.zeros(n).at[jnp.array(free)].set(zfd).at[jnp.array(pres)].set(thad)
     return z, zd, thadd
 
 
-def _torque(actuation, t, eom: EOM, zd):
-    if isinstance(actuation, TorqueDriven):
-        return actuation.torque(t)
-    return actuation(t, eom.kin.th_a, eom.Jth @ zd)
-
-
-def _accel(model, params, dv, actuation, wrench, t, zf, zfd):
+def _accel(model, robot, actuation, wrench, t, zf, zfd):
     """(z, z', z'', tau) at time t from the free state."""
     free, pres = _split(model, actuation)
     z, zd, thadd = _full_state(model, actuation, t, zf, zfd)
-    eom = eom_terms(model, params, dv, z, zd)
+    eom = eom_terms(model, robot, z, zd)
     if not pres:
-        tau = _torque(actuation, t, eom, zd)
+        tau = actuation.torque_at(t, eom.kin.th_a, eom.Jth @ zd)
         zdd = solve(eom.M, generalized_force(eom, tau, wrench) - eom.h)
         return z, zd, zdd, tau
     f, p = jnp.array(free), jnp.array(pres)
@@ -119,17 +116,17 @@ def _accel(model, params, dv, actuation, wrench, t, zf, zfd):
 
 @eqx.filter_jit
 def _simulate_core(
-    model, params, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0, max_steps, wrench,
+    model, robot, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0, max_steps, wrench,
     throw, progress_meter, adjoint=None,
 ):
-    dv = derived(params)
+    robot = as_robot(robot)
     free, _ = _split(model, actuation)
     f = jnp.array(free)
     y0 = (z0[f], zdot0[f])
-    y0 = validate_traced(params, y0)
+    y0 = validate_traced(robot.params, y0)
 
     def vf(t, y, args):
-        _, _, zdd, _ = _accel(model, params, dv, actuation, wrench, t, *y)
+        _, _, zdd, _ = _accel(model, robot, actuation, wrench, t, *y)
         return (y[1], zdd[f])
 
     sol = diffrax.diffeqsolve(
@@ -139,7 +136,7 @@ def _simulate_core(
         adjoint=diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
     )
     z, zd, _, tau = jax.vmap(
-        lambda t, a, b: _accel(model, params, dv, actuation, wrench, t, a, b)
+        lambda t, a, b: _accel(model, robot, actuation, wrench, t, a, b)
     )(sol.ts, *sol.ys)
     return Solution(
         ts=sol.ts, z=z, zdot=zd, tau=tau, result=sol.result,
@@ -153,20 +150,22 @@ def _is_traced(tree) -> bool:
 
 
 def check_result(result: diffrax.RESULTS, what: str = "simulation") -> None:
-    """Raise `SimulationError` if any (batch member's) result is not successful."""
-    codes = np.asarray(result._value)
-    ok = codes == int(diffrax.RESULTS.successful._value)
+    """Raise `SimulationError` if any (batch member's) result is not successful, naming the
+    failed members and diffrax's reason for each (its public `RESULTS` API)."""
+    ok = np.atleast_1d(np.asarray(result == diffrax.RESULTS.successful))
     if np.all(ok):
         return
-    flat = np.atleast_1d(codes)
-    bad = np.flatnonzero(~np.atleast_1d(ok))
-    messages = diffrax.RESULTS._index_to_message
-    if codes.ndim == 0:
-        detail = messages[int(codes)]
+    bad = np.flatnonzero(~ok)
+    batched = np.ndim(np.asarray(result == diffrax.RESULTS.successful)) > 0
+    if not batched:
+        detail = diffrax.RESULTS[result]
     else:
-        detail = "; ".join(f"member {i}: {messages[int(flat[i])]}" for i in bad[:10])
+        detail = "; ".join(
+            f"member {i}: {diffrax.RESULTS[jax.tree_util.tree_map(lambda x: x[i], result)]}"
+            for i in bad[:10]
+        )
     raise SimulationError(
-        f"{what} failed ({len(bad)} of {max(codes.size, 1)} batch members): {detail}. A chain that "
+        f"{what} failed ({len(bad)} of {ok.size} batch members): {detail}. A chain that "
         f"leaves its reach or a singular configuration makes the step size collapse; a stiff model "
         f"(thin strip, L2) may need more steps (max_steps) or an implicit solver (kvaerno5)."
     )
@@ -174,7 +173,7 @@ def check_result(result: diffrax.RESULTS, what: str = "simulation") -> None:
 
 def simulate(
     model: AbstractModel,
-    params: RobotParams,
+    robot: RobotLike,
     actuation,
     z0: Float[Array, " n"],
     zdot0: Float[Array, " n"],
@@ -200,6 +199,7 @@ def simulate(
     `adjoint`: how to differentiate: diffrax's default (reverse mode, recursive checkpointing) or
     `diffrax.ForwardMode()` for `jax.jvp` / `jax.jacfwd`.
     """
+    robot = as_robot(robot)
     ts = jnp.asarray(ts, dtype=jnp.float64)
     z0 = jnp.asarray(z0, dtype=jnp.float64)
     zdot0 = jnp.asarray(zdot0, dtype=jnp.float64)
@@ -218,10 +218,10 @@ def simulate(
             rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64)
         )
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
-    traced = _is_traced((params, actuation, z0, zdot0, ts, w))
+    traced = _is_traced((robot, actuation, z0, zdot0, ts, w))
     meter = diffrax.TextProgressMeter() if progress else diffrax.NoProgressMeter()
     sol = _simulate_core(
-        model, params, actuation, z0, zdot0, ts, get_solver(solver), stepsize_controller, dt0,
+        model, robot, actuation, z0, zdot0, ts, get_solver(solver), stepsize_controller, dt0,
         max_steps, w, traced, meter, adjoint,
     )
     if not traced:

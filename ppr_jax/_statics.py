@@ -13,11 +13,11 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from ._checks import raise_if
+from ._actuation import AbstractActuation, TorqueDriven
 from ._dynamics import eom_terms, generalized_force, passive_force
 from ._linalg import SmallLU, lu_factor, lu_solve
-from ._model import AbstractModel
-from ._params import RobotParams
-from ._prb import derived
+from ._models import AbstractModel
+from ._robot import RobotLike, as_robot
 from ._trajectory import derivatives
 
 
@@ -39,7 +39,7 @@ def _newton(resid, y0, args, rtol=1e-12, atol=1e-12, max_steps=100):
 
 def static_equilibrium(
     model: AbstractModel,
-    params: RobotParams,
+    robot: RobotLike,
     z_guess,
     *,
     locked: bool,
@@ -54,7 +54,7 @@ def static_equilibrium(
     locked=False: every coordinate is free and the actuators apply constant torques `tau`
     (default 0, "free actuators"). `wrench` (3,) is a constant platform load.
     Returns (z*, free_index) with free_index the coordinates that were free."""
-    dv = derived(params)
+    robot = as_robot(robot)
     n = model.n_dof
     tau = jnp.zeros(3) if tau is None else jnp.asarray(tau, dtype=jnp.float64)
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
@@ -70,7 +70,7 @@ def static_equilibrium(
 
     def resid(zf, _):
         z = _assemble(n, free, zf, known, zk)
-        eom = eom_terms(model, params, dv, z, jnp.zeros(n))
+        eom = eom_terms(model, robot, z, jnp.zeros(n))
         return generalized_force(eom, tau, w)[jnp.array(free)]
 
     zf, result = _newton(resid, z_guess[jnp.array(free)], None)
@@ -103,15 +103,18 @@ def _chord_solve(resid, resid_stiff, y0, n_iter: int = 40):
 
 def quasi_static_state(
     model: AbstractModel,
-    params: RobotParams,
+    robot: RobotLike,
     trajectory: Callable,
     t,
+    actuation: Optional[AbstractActuation] = None,
     *,
-    motion_driven: bool,
+    motion_driven: Optional[bool] = None,
     torque: Optional[Callable] = None,
     wrench=None,
 ):
-    """Initial state (z, z') of `model` consistent with the L1 motion along `trajectory` at t.
+    """Initial state (z, z') of `model` consistent with the L1 motion along `trajectory` at t
+    under `actuation` (an `AbstractActuation`; the older flags `motion_driven` and `torque`
+    (a time function) say the same: one or the other).
 
     The reference is the model's coordinates on the L1 manifold, z_ref(t) =
     coords_from_pose(X(t)), with its velocity and acceleration. Models without internal degrees of
@@ -125,12 +128,23 @@ def quasi_static_state(
     difference of step `QS_DT`, error ~1e-13), so no fast internal vibration is excited at t = 0
     beyond what the model mismatch implies.
     """
-    dv = derived(params)
+    robot = as_robot(robot)
+    if actuation is None:
+        if motion_driven is None:
+            raise ValueError("quasi_static_state needs an actuation (or motion_driven=True/False)")
+        actuation = None if motion_driven else TorqueDriven(
+            (lambda t: jnp.zeros(3)) if torque is None else torque
+        )
+        prescribed = bool(motion_driven)
+    else:
+        if motion_driven is not None or torque is not None:
+            raise ValueError("give either an actuation or motion_driven/torque, not both")
+        prescribed = actuation.prescribes_angles
     n = model.n_dof
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
 
     def ref(t):
-        return model.coords_from_pose(params, dv, trajectory(t))
+        return model.coords_from_pose(robot, trajectory(t))
 
     t = jnp.asarray(t, dtype=jnp.float64)
     if model.actuated_index is None:
@@ -139,22 +153,28 @@ def quasi_static_state(
     act = tuple(model.actuated_index)
     # torque-driven: the pose is nominal and every internal coordinate balances;
     # motion-driven: the actuated angles are prescribed and everything else balances.
-    unknown = tuple(i for i in range(n) if i not in act) if motion_driven else tuple(range(3, n))
+    unknown = tuple(i for i in range(n) if i not in act) if prescribed else tuple(range(3, n))
     known = tuple(i for i in range(n) if i not in unknown)
     iu, ik = jnp.array(unknown), jnp.array(known)
 
     def solve_at(t):
         z_r, zd_r, zdd_r = derivatives(ref, t)
-        tau = jnp.zeros(3) if (motion_driven or torque is None) else torque(t)
+        if prescribed:
+            tau = jnp.zeros(3)
+        else:
+            # The torque at the reference motion (a servo's feedforward; a PD term is zero there);
+            # the actuated angles are coordinates of the models that reach this line.
+            ia = jnp.array(act)
+            tau = actuation.torque_at(t, z_r[ia], zd_r[ia])
 
         def full(zu):
             z = _assemble(n, unknown, zu, known, z_r[ik])
-            eom = eom_terms(model, params, dv, z, zd_r)
+            eom = eom_terms(model, robot, z, zd_r)
             return (eom.M @ zdd_r + eom.h - generalized_force(eom, tau, w))[iu]
 
         def stiff(zu):
             z = _assemble(n, unknown, zu, known, z_r[ik])
-            return -passive_force(model, params, dv, z, zd_r, tau, w)[iu]
+            return -passive_force(model, robot, z, zd_r, tau, w)[iu]
 
         return _chord_solve(full, stiff, z_r[iu])
 

@@ -18,6 +18,12 @@ def dv(params):
 
 
 @pytest.fixture(scope="session")
+def robot(params):
+    """The default robot, built once."""
+    return pj.Robot(params)
+
+
+@pytest.fixture(scope="session")
 def paper_circle_L1():
-    """The L1 paper-circle scene (compiled once for the session)."""
-    return pj.paper_circle(model="reduced")
+    """The L1 paper-circle scene, as a timed report with metrics (compiled once per session)."""
+    return pj.run_scene("paper-circle", model="reduced")

@@ -1,6 +1,7 @@
 """vmap over a batch of robots equals a Python loop; batch failures name the failing members."""
 
 import diffrax
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -15,14 +16,28 @@ def test_vmapped_scene_equals_python_loop(params, paper_circle_L1):
     batch = pj.stack_params([params.replace(t=t) for t in ts])
     # A model mismatch makes the runs differ: simulate L2 would be costly here, so drive L1 with
     # the torques of each robot and compare against single runs of the same compiled scene.
-    sol, out = pj.paper_circle(batch, model="reduced", t_end=2.0)
-    assert out.X.shape == (3, 755, 3)
+    res = pj.paper_circle(batch, model="reduced", t_end=2.0)
+    assert res.X.shape == (3, 755, 3)
     for i, t in enumerate(ts):
         single = pj.paper_circle(params.replace(t=t), model="reduced", t_end=2.0)
-        np.testing.assert_allclose(out.X[i], single.X, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(sol.tau[i], single.tau, rtol=1e-12, atol=1e-14)
+        # the same pytree, one member of it
+        assert jax.tree_util.tree_structure(single) == jax.tree_util.tree_structure(res)
+        np.testing.assert_allclose(res.X[i], single.X, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(res.tau[i], single.tau, rtol=1e-12, atol=1e-14)
     # different thicknesses really give different torques
-    assert float(jnp.abs(sol.tau[0] - sol.tau[2]).max()) > 1e-3
+    assert float(jnp.abs(res.tau[0] - res.tau[2]).max()) > 1e-3
+
+
+def test_scene_under_user_vmap_equals_batched_call(params):
+    """The public scene entry is traceable: jax.vmap over it gives the batched call's result."""
+    ts = jnp.array([0.3e-3, 0.4e-3])
+    batch = pj.stack_params([params.replace(t=float(t)) for t in ts])
+    ref = pj.paper_circle(batch, model="reduced", t_end=0.5, n_out=6)
+    got = jax.vmap(lambda t: pj.paper_circle(params.replace(t=t), model="reduced", t_end=0.5,
+                                             n_out=6))(ts)
+    np.testing.assert_allclose(got.X, ref.X, rtol=0, atol=1e-12)
+    m = pj.scene_metrics(ref)
+    assert isinstance(m, list) and len(m) == 2 and m[0]["num_steps"] > 0
 
 
 def test_batched_inverse_kinematics_names_failing_members(params):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from ppr_jax._beam import Beam, solve_strip, strip_constants
+from ppr_jax._models.beam import Beam, solve_strip, strip_constants
 from ppr_jax._kinematics import BETA, base_points, e, platform_points
 from ppr_jax.elastica import solve_cantilever
 
@@ -29,15 +29,15 @@ def test_rest_geometry_virtual_corner(sigma):
     """Natural arc (every spring at rest): the link centre lines meet at the virtual corner,
     R1 = l1 + r_i tan(theta_c/2) from A_i and R3 from E_i, exactly for any N (chord segments)."""
     p = pj.RobotParams(sigma=sigma)
-    dv = pj.derived(p)
+    robot = pj.Robot(p)
     m = Beam(5)
     th_a = jnp.array([0.3, 2.1, -1.9])
     th = m.rest_angles(p, th_a)
-    C = m.corners(p, dv, th)
-    E = m.chain_E(p, dv, th)
+    C = m.corners(robot, th)
+    E = m.chain_E(robot, th)
     A = base_points(p)
-    np.testing.assert_allclose(np.linalg.norm(C - A, axis=-1), float(dv.R1), rtol=0, atol=1e-14)
-    np.testing.assert_allclose(np.linalg.norm(C - E, axis=-1), float(dv.R3), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(C - A, axis=-1), float(robot.R1), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(C - E, axis=-1), float(robot.R3), rtol=0, atol=1e-14)
     # the turn is sigma theta_c: the chain is L0's rigid chain with its pin at rest
     np.testing.assert_allclose(th[:, -1] - th[:, 0], sigma * float(p.theta_c), atol=1e-14)
     # the bend is on the sigma side: (A -> C) x (C -> E) has the sign of sigma
@@ -47,50 +47,50 @@ def test_rest_geometry_virtual_corner(sigma):
     # closing the loop through `kinematics` recovers the rest shape: put the platform where
     # chain 1's unloaded end is, then chain 1 has zero deflection everywhere
     N = m.n_elements
-    X = jnp.concatenate([E[0] - dv.rho_E * e(BETA[0]), jnp.zeros(1)])
+    X = jnp.concatenate([E[0] - robot.rho_E * e(BETA[0]), jnp.zeros(1)])
     z = jnp.concatenate([X, th_a, jnp.full(3 * (N - 1), sigma * p.theta_c / N)])
-    k = m.kinematics(p, dv, z)
+    k = m.kinematics(robot, z)
     np.testing.assert_allclose(k.defl[: N + 1], 0.0, atol=1e-12)
     np.testing.assert_allclose(k.th[0], th[0], atol=1e-12)
-    assert k.margin[0] > 0 and np.abs(m.loop_residual(p, dv, k)[0]).max() < 1e-14
-    np.testing.assert_allclose(m.joint_end_rotations(p, dv, k)[0], 0.0, atol=1e-12)
+    assert k.margin[0] > 0 and np.abs(m.loop_residual(robot, k)[0]).max() < 1e-14
+    np.testing.assert_allclose(m.joint_end_rotations(robot, k)[0], 0.0, atol=1e-12)
 
 
-def test_layout_and_closure(params, dv):
+def test_layout_and_closure(params, robot):
     m = Beam(4)
     assert (m.n_dof, m.name, m.level, m.actuated_index) == (15, "beam", 3, (3, 4, 5))
     assert Beam().n_elements == 8 and Beam().n_dof == 27
     with pytest.raises(ValueError):
         Beam(1)
     X = jnp.array([0.47, 0.24, 0.02])
-    z = m.coords_from_pose(params, dv, X) + 0.01 * jnp.sin(jnp.arange(15.0))
-    k = m.kinematics(params, dv, z)
+    z = m.coords_from_pose(robot, X) + 0.01 * jnp.sin(jnp.arange(15.0))
+    k = m.kinematics(robot, z)
     assert k.th.shape == (3, 6) and k.defl.shape == (15,) and k.body_p.shape == (3 + 12 + 3 + 1, 2)
     assert np.all(k.margin > 0.1)
-    assert np.abs(m.loop_residual(params, dv, k)).max() < 1e-14
+    assert np.abs(m.loop_residual(robot, k)).max() < 1e-14
     np.testing.assert_allclose(k.th_a, z[3:6])
     np.testing.assert_allclose(jnp.diff(k.th[:, 1:-1], axis=1).reshape(-1), z[6:], atol=1e-14)
     # the end rotations add up to the total turn of the joint minus its rest turn
-    r = m.joint_end_rotations(params, dv, k)
+    r = m.joint_end_rotations(robot, k)
     np.testing.assert_allclose(
         r.sum(-1), k.th[:, -1] - k.th[:, 0] - params.sigma * params.theta_c, atol=1e-13
     )
-    m_, I_ = m.masses(params, dv)
+    m_, I_ = m.masses(robot)
     sc = strip_constants(params, 4)
-    np.testing.assert_allclose(jnp.sum(m_[3:15]) / 3, dv.m2, rtol=1e-13)  # strip mass exact
-    assert m.stiffness(params, dv).shape == (15,)
-    np.testing.assert_allclose(m.stiffness(params, dv)[:5] * sc.ds / sc.EI, [2, 1, 1, 1, 2])
+    np.testing.assert_allclose(jnp.sum(m_[3:15]) / 3, robot.m2, rtol=1e-13)  # strip mass exact
+    assert m.stiffness(robot).shape == (15,)
+    np.testing.assert_allclose(m.stiffness(robot)[:5] * sc.ds / sc.EI, [2, 1, 1, 1, 2])
 
 
-def test_kane_matches_lagrangian(params, dv):
+def test_kane_matches_lagrangian(robot):
     """The generic Kane projection (M, h, spring force) equals the Lagrangian of T - U."""
     m = Beam(2)
-    z = m.coords_from_pose(params, dv, jnp.array([0.46, 0.25, 0.01])) + 0.02 * jnp.cos(
+    z = m.coords_from_pose(robot, jnp.array([0.46, 0.25, 0.01])) + 0.02 * jnp.cos(
         jnp.arange(9.0)
     )
     zd = 0.3 * jnp.sin(1.0 + jnp.arange(9.0))
-    eom = eqx.filter_jit(pj.eom_terms)(m, params, dv, z, zd)
-    M, rhs = eqx.filter_jit(pj._dynamics.lagrangian_eom)(m, params, dv, z, zd)
+    eom = eqx.filter_jit(pj.eom_terms)(m, robot, z, zd)
+    M, rhs = eqx.filter_jit(pj._dynamics.lagrangian_eom)(m, robot, z, zd)
     np.testing.assert_allclose(eom.M, M, rtol=1e-10, atol=1e-14 * np.abs(M).max())
     np.testing.assert_allclose(eom.h - eom.Q_passive, rhs, rtol=1e-8, atol=1e-9 * np.abs(rhs).max())
 
@@ -132,19 +132,19 @@ def test_strip_converges_to_elastica_second_order(params):
 # ---------------------------------------------------------------------------------------------
 
 
-def test_energy_conservation_undamped_unforced(params, dv):
+def test_energy_conservation_undamped_unforced(params, robot):
     """N = 4, dopri8 at rtol 1e-10, 0.02 s: relative energy drift |E - E0|/max T < 1e-9.
     (Tighter tolerances do not pay: the rounding noise of the accelerations, with segment
     inertias of 1e-9 kg m^2 beside a 0.2 kg platform, then keeps the step controller busy.)"""
     m = Beam(4)
-    z0 = m.coords_from_pose(params, dv, jnp.array([0.46, 0.25, 0.01]))
+    z0 = m.coords_from_pose(robot, jnp.array([0.46, 0.25, 0.01]))
     zd0 = jnp.zeros(m.n_dof).at[:6].set(jnp.array([0.05, -0.04, 0.2, 0.1, -0.05, 0.02]))
     ts = jnp.linspace(0.0, 0.02, 21)
     sol = pj.simulate(
         m, params, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), z0, zd0, ts,
         solver="dopri8", rtol=1e-10, atol=1e-12,
     )
-    T, U = jax.vmap(lambda z, zd: pj.energy(m, params, dv, z, zd))(sol.z, sol.zdot)
+    T, U = jax.vmap(lambda z, zd: pj.energy(m, robot, z, zd))(sol.z, sol.zdot)
     E = np.asarray(T + U)
     drift = np.abs(E - E[0]).max() / float(np.max(T))
     assert drift < 1e-9, drift
@@ -172,11 +172,11 @@ def static_locked():
 def equilibria(params, static_locked):
     """Locked equilibria at home (L1 inverse-kinematics angles), unloaded and under WRENCH, for
     L2 and L3 with N = 4, 8, 16: {name: (z0, zw)}."""
-    dv = pj.derived(params)
+    robot = pj.Robot(params)
     X = pj.home_pose(params)
     res = {}
     for name, m in [("L2", pj.Double1R()), (4, Beam(4)), (8, Beam(8)), (16, Beam(16))]:
-        z = m.coords_from_pose(params, dv, X)
+        z = m.coords_from_pose(robot, X)
         z0 = static_locked(m, params, z, jnp.zeros(3))
         zw = static_locked(m, params, z0, WRENCH)
         res[name] = (m, np.asarray(z0), np.asarray(zw))
@@ -184,15 +184,15 @@ def equilibria(params, static_locked):
 
 
 def test_statics_converge_in_N_and_compare_with_L2(params, equilibria):
-    dv = pj.derived(params)
+    robot = pj.Robot(params)
     Xh = np.asarray(pj.home_pose(params))
     phi, dX = {}, {}
     for name, (m, z0, zw) in equilibria.items():
-        k = m.kinematics(params, dv, jnp.asarray(z0))
-        assert np.abs(m.loop_residual(params, dv, k)).max() < 1e-13
+        k = m.kinematics(robot, jnp.asarray(z0))
+        assert np.abs(m.loop_residual(robot, k)).max() < 1e-13
         # three-fold symmetry: the platform centre stays at home, only phi can move
         np.testing.assert_allclose(z0[:2], Xh[:2], atol=1e-12)
-        np.testing.assert_allclose(z0[3:6], m.coords_from_pose(params, dv, Xh)[3:6])  # locked
+        np.testing.assert_allclose(z0[3:6], m.coords_from_pose(robot, Xh)[3:6])  # locked
         phi[name] = z0[2]
         dX[name] = zw[:3] - z0[:3]
     # second-order convergence of the equilibrium in N (Richardson ratio ~ 4)
@@ -213,8 +213,8 @@ def test_gradient_of_static_pose_vs_finite_differences(params, static_locked):
     """d X_eq / d (log t, log E) under a platform wrench, N = 4, locked actuators: implicit
     differentiation through the Newton solve against central differences."""
     m = Beam(4)
-    dv = pj.derived(params)
-    z = m.coords_from_pose(params, dv, pj.home_pose(params))
+    robot = pj.Robot(params)
+    z = m.coords_from_pose(robot, pj.home_pose(params))
 
     def pose(s):
         p = eqx.tree_at(
@@ -265,17 +265,9 @@ def test_modes_locked_second_order(params, beam_modes):
 def test_paper_circle_quasi_static_start(params):
     """Torque-driven L3 (N = 4) with L1's torques from the quasi-static state: stays near the
     nominal circle over 0.05 s (Tsit5) and keeps its loop closed."""
-    import diffrax
-
-    from ppr_jax._scenes import _paper_circle_jit
-    from ppr_jax._simulate import get_solver
-
-    ts = jnp.linspace(0.0, 0.05, 11)
-    ctrl = diffrax.PIDController(rtol=jnp.asarray(1e-8), atol=jnp.asarray(1e-10))
-    sol, out = _paper_circle_jit(
-        Beam(4), pj.Reduced(), params, pj.Circle(), ts, get_solver("tsit5"), ctrl, 100_000,
-        False,
-    )
+    res = pj.paper_circle(params, model=Beam(4), solver="tsit5", t_end=0.05, n_out=11,
+                          max_steps=100_000)
+    ts, sol, out = res.ts, res, res
     assert int(sol.result._value) == 0
     Xn = jax.vmap(pj.Circle())(ts)
     assert np.abs(np.asarray(out.X[:, :2] - Xn[:, :2])).max() < 5e-3

@@ -12,15 +12,15 @@ TS = jnp.linspace(0.0, 1.5, 151)
 
 
 def _energy(model, params, sol):
-    dv = pj.derived(params)
-    T, U = jax.vmap(lambda z, zd: pj.energy(model, params, dv, z, zd))(sol.z, sol.zdot)
+    robot = pj.Robot(params)
+    T, U = jax.vmap(lambda z, zd: pj.energy(model, robot, z, zd))(sol.z, sol.zdot)
     return np.asarray(T), np.asarray(U)
 
 
 @pytest.mark.parametrize("model", [pj.Reduced(), pj.Double1R()])
 def test_energy_conservation_undamped_unforced(params, model):
-    dv = pj.derived(params)
-    z0 = model.coords_from_pose(params, dv, jnp.array([0.46, 0.25, 0.01]))
+    robot = pj.Robot(params)
+    z0 = model.coords_from_pose(robot, jnp.array([0.46, 0.25, 0.01]))
     zd0 = jnp.concatenate([jnp.array([0.05, -0.04, 0.2]), jnp.zeros(model.n_dof - 3)])
     if model.n_dof == 6:
         zd0 = zd0.at[3:].set(jnp.array([0.1, -0.05, 0.02]))
@@ -38,8 +38,8 @@ def test_energy_conservation_undamped_unforced(params, model):
 def test_damping_dissipates(params):
     p = params.replace(c_spring=2e-3, c_act=1e-3)
     model = pj.Double1R()
-    dv = pj.derived(p)
-    z0 = model.coords_from_pose(p, dv, jnp.array([0.46, 0.25, 0.01]))
+    robot = pj.Robot(p)
+    z0 = model.coords_from_pose(robot, jnp.array([0.46, 0.25, 0.01]))
     zd0 = jnp.array([0.05, -0.04, 0.2, 0.1, -0.05, 0.02])
     sol = pj.simulate(model, p, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), z0, zd0, TS,
                       solver="dopri8", rtol=1e-13, atol=1e-14)
@@ -58,31 +58,31 @@ def test_inverse_then_forward_dynamics_reproduces_circle(paper_circle_L1):
 
 
 @pytest.mark.parametrize("model", [pj.Rigid(), pj.Reduced()])
-def test_inverse_dynamics_rotational_symmetry(params, dv, model):
+def test_inverse_dynamics_rotational_symmetry(robot, model):
     c = jnp.array([0.45, 0.45 / jnp.sqrt(3.0)])
     X, Xd, Xdd = jnp.array([0.5, 0.27, 0.03]), jnp.array([0.1, -0.2, 0.3]), jnp.array([1., .5, -2.])
-    tau, e1 = pj.inverse_dynamics(model, params, dv, X, Xd, Xdd)
+    tau, e1 = pj.inverse_dynamics(model, robot, X, Xd, Xdd)
     Xr, Xdr, Xddr = rotate_pose(X, c), rotate_vel(Xd), rotate_vel(Xdd)
-    tau_r, e2 = pj.inverse_dynamics(model, params, dv, Xr, Xdr, Xddr)
+    tau_r, e2 = pj.inverse_dynamics(model, robot, Xr, Xdr, Xddr)
     np.testing.assert_allclose(tau_r, jnp.roll(tau, 1), rtol=1e-9, atol=1e-13)
-    E1 = pj.energy(model, params, dv, X, Xd)
-    E2 = pj.energy(model, params, dv, Xr, Xdr)
+    E1 = pj.energy(model, robot, X, Xd)
+    E2 = pj.energy(model, robot, Xr, Xdr)
     np.testing.assert_allclose(E1, E2, rtol=1e-11)
 
 
-def test_double1r_accelerations_rotational_symmetry(params, dv):
+def test_double1r_accelerations_rotational_symmetry(robot):
     m = pj.Double1R()
     c = jnp.array([0.45, 0.45 / jnp.sqrt(3.0)])
     X, Xd = jnp.array([0.5, 0.27, 0.03]), jnp.array([0.1, -0.2, 0.3])
-    z = m.coords_from_pose(params, dv, X) + jnp.array([0, 0, 0, 0.01, -0.02, 0.005])
+    z = m.coords_from_pose(robot, X) + jnp.array([0, 0, 0, 0.01, -0.02, 0.005])
     zd = jnp.concatenate([Xd, jnp.array([0.2, -0.1, 0.3])])
     tau = jnp.array([0.1, -0.2, 0.05])
     from ppr_jax._dynamics import accelerations
 
-    a = accelerations(pj.eom_terms(m, params, dv, z, zd), tau, jnp.zeros(3))
+    a = accelerations(pj.eom_terms(m, robot, z, zd), tau, jnp.zeros(3))
     zr = jnp.concatenate([rotate_pose(z[:3], c), jnp.roll(z[3:], 1) + 2 * jnp.pi / 3])
     zdr = jnp.concatenate([rotate_vel(zd[:3]), jnp.roll(zd[3:], 1)])
-    ar = accelerations(pj.eom_terms(m, params, dv, zr, zdr), jnp.roll(tau, 1), jnp.zeros(3))
+    ar = accelerations(pj.eom_terms(m, robot, zr, zdr), jnp.roll(tau, 1), jnp.zeros(3))
     np.testing.assert_allclose(ar[:3], rotate_vel(a[:3]), rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(ar[3:], jnp.roll(a[3:], 1), rtol=1e-9, atol=1e-12)
 
@@ -157,10 +157,10 @@ def test_quasi_static_state_balances_and_its_velocity_is_its_time_derivative(par
     fd = (qs(1.0 + h)[0] - qs(1.0 - h)[0]) / (2 * h)
     np.testing.assert_allclose(zd, fd, rtol=1e-6, atol=1e-9)
     # the balanced rows: L1's accelerations with the applied (or no) torque
-    dv = pj.derived(params)
-    ref = lambda t: model.coords_from_pose(params, dv, traj(t))  # noqa: E731
+    robot = pj.Robot(params)
+    ref = lambda t: model.coords_from_pose(robot, traj(t))  # noqa: E731
     _, zd_r, zdd_r = pj.derivatives(ref, 1.0)
-    eom = pj.eom_terms(model, params, dv, z, zd_r)
+    eom = pj.eom_terms(model, robot, z, zd_r)
     t_a = jnp.zeros(3) if motion_driven else tau(1.0)
     r = eom.M @ zdd_r + eom.h - (eom.Q_passive + eom.Jth.T @ t_a)
     rows = jnp.array([0, 1, 2]) if motion_driven else jnp.array([3, 4, 5])

@@ -18,21 +18,21 @@ POSES = [
 
 
 @pytest.mark.parametrize("X", POSES)
-def test_ik_closes_loops_and_keeps_quasi_static_constraint(params, dv, X):
+def test_ik_closes_loops_and_keeps_quasi_static_constraint(params, robot, X):
     r = pj.inverse_kinematics(params, X)
-    res = K.loop_residual(params, dv, r.th, jnp.asarray(X))
+    res = K.loop_residual(robot, r.th, jnp.asarray(X))
     assert float(jnp.abs(res).max()) < 1e-10
     np.testing.assert_allclose(r.th[:, 0] - 2 * r.th[:, 1] + r.th[:, 2], 0, atol=1e-13)
     r0 = pj.inverse_kinematics(params, X, pj.Rigid())
-    assert float(jnp.abs(K.loop_residual_rigid(params, dv, r0.th, jnp.asarray(X))).max()) < 1e-10
+    assert float(jnp.abs(K.loop_residual_rigid(robot, r0.th, jnp.asarray(X))).max()) < 1e-10
 
 
 def test_newton_path_for_unequal_links(params):
     p = params.replace(l3=0.33)
-    dv = pj.derived(p)
+    robot = pj.Robot(p)
     X = jnp.array(POSES[2])
     r = pj.inverse_kinematics(p, X)
-    assert float(jnp.abs(K.loop_residual(p, dv, r.th, X)).max()) < 1e-12
+    assert float(jnp.abs(K.loop_residual(robot, r.th, X)).max()) < 1e-12
     np.testing.assert_allclose(r.th[:, 0] - 2 * r.th[:, 1] + r.th[:, 2], 0, atol=1e-13)
 
 
@@ -59,7 +59,7 @@ def test_forward_kinematics_round_trip(params):
     np.testing.assert_allclose(Xs, jnp.array(POSES), atol=1e-12)
 
 
-def test_rotational_symmetry_of_kinematics(params, dv):
+def test_rotational_symmetry_of_kinematics(params, robot):
     c = jnp.array([0.45, 0.45 / jnp.sqrt(3.0)])
     X = jnp.array(POSES[2])
     th = pj.inverse_kinematics(params, X).th
@@ -73,9 +73,9 @@ def test_predeflection_at_home(params):
     pd = pj.predeflection(params)
     np.testing.assert_allclose(pd["reduced"], -0.0152, atol=2e-4)
     # closed form: d = ((th3 - th1) - sigma theta_c)/2 with cos v = (|E-A| - r2)/(2 r1)
-    dv = pj.derived(params)
-    dist = float(jnp.linalg.norm(K.platform_points(dv, pj.home_pose(params))[0]))
-    v = np.arccos((dist - float(dv.r2)) / (2 * float(dv.r1)))
+    robot = pj.Robot(params)
+    dist = float(jnp.linalg.norm(K.platform_points(robot, pj.home_pose(params))[0]))
+    v = np.arccos((dist - float(robot.r2)) / (2 * float(robot.r1)))
     np.testing.assert_allclose(pd["reduced"][0, 0], (-2 * v + 1.88) / 2, rtol=1e-12)
 
 

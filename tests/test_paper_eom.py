@@ -20,19 +20,19 @@ STATES = [
 @pytest.mark.parametrize("J_rotor", [0.0, 2e-3])
 def test_L1_matches_paper_closed_form(params, X, Xd, J_rotor):
     p = params.replace(J_rotor=J_rotor)
-    dv = pj.derived(p)
+    robot = pj.Robot(p)
     X, Xd = jnp.asarray(X), jnp.asarray(Xd)
-    eom = pj.eom_terms(pj.Reduced(), p, dv, X, Xd)
+    eom = pj.eom_terms(pj.Reduced(), robot, X, Xd)
     Me, CeXd, spring = paper_workspace_eom(p, X, Xd)
     np.testing.assert_allclose(eom.M, Me, rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(eom.h, CeXd, rtol=1e-9, atol=1e-13)
     np.testing.assert_allclose(-eom.Q_passive, spring, rtol=1e-9, atol=1e-13)
 
 
-def test_paper_constants_by_hand(params, dv):
+def test_paper_constants_by_hand(params, robot):
     k = paper_constants(params)
-    m1, m2, m3 = float(dv.m1), float(dv.m2), float(dv.m3)
-    r1, r2, s = float(dv.r1), float(dv.r2), float(dv.s)
+    m1, m2, m3 = float(robot.m1), float(robot.m2), float(robot.m3)
+    r1, r2, s = float(robot.r1), float(robot.r2), float(robot.s)
     I1 = m1 * (0.366**2 + 0.023**2) / 12
     np.testing.assert_allclose(k["alpha1"], I1 + m1 * 0.183**2 + (m2 + m3) * r1**2, rtol=1e-14)
     np.testing.assert_allclose(k["beta13"], m3 * r1 * (s + 0.183), rtol=1e-14)
@@ -40,11 +40,11 @@ def test_paper_constants_by_hand(params, dv):
 
 
 @pytest.mark.parametrize("model", [pj.Rigid(), pj.Reduced(), pj.Double1R()])
-def test_kane_equals_autodiff_lagrangian(params, dv, model):
+def test_kane_equals_autodiff_lagrangian(robot, model):
     X = jnp.array([0.47, 0.24, 0.03])
-    z = model.coords_from_pose(params, dv, X)
+    z = model.coords_from_pose(robot, X)
     zd = jnp.linspace(-0.4, 0.5, model.n_dof)
-    eom = pj.eom_terms(model, params, dv, z, zd)
-    M, f = lagrangian_eom(model, params, dv, z, zd)
+    eom = pj.eom_terms(model, robot, z, zd)
+    M, f = lagrangian_eom(model, robot, z, zd)
     np.testing.assert_allclose(eom.M, M, rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(eom.h - eom.Q_passive, f, rtol=1e-9, atol=1e-13)

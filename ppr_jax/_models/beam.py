@@ -72,12 +72,11 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from ._custom_types import Array, Float
-from ._kinematics import base_points, e, ik_reduced, platform_points, two_link, wrap
-from ._linalg import SmallLU, solve
-from ._model import AbstractModel, Kin, rotor_inertia
-from ._params import RobotParams
-from ._prb import Derived
+from .._custom_types import Array, Float
+from .._kinematics import base_points, e, ik_reduced, platform_points, two_link, wrap
+from .._linalg import SmallLU, solve
+from .._robot import Robot
+from .base import AbstractModel, Kin, rotor_inertia
 
 
 # ---------------------------------------------------------------------------------------------
@@ -103,9 +102,9 @@ class StripConstants(eqx.Module):
     I_seg: Array
 
 
-def strip_constants(params: RobotParams, n_elements: int) -> StripConstants:
+def strip_constants(robot: Robot, n_elements: int) -> StripConstants:
     """`StripConstants` of the robot's strips discretized into `n_elements` segments."""
-    p = params
+    p = robot
     N = n_elements
     EI = p.E * p.w * p.t**3 / 12
     L = p.r * p.theta_c
@@ -118,12 +117,12 @@ def strip_constants(params: RobotParams, n_elements: int) -> StripConstants:
     )
 
 
-def _elbow(params: RobotParams):
+def _elbow(robot: Robot):
     # Branch of the unloaded shape: the chord of the arc turns sigma theta_c/2 from th_a, the
     # offset vector g turns sigma (theta_c - atan(b_r/(2 l3))): their difference has the sign of
     # sigma (theta_c/2 - atan(b_r/(2 l3))).
-    s = params.sigma
-    return jnp.where(params.theta_c / 2 >= jnp.arctan2(params.b_r / 2, params.l3), s, -s)
+    s = robot.sigma
+    return jnp.where(robot.theta_c / 2 >= jnp.arctan2(robot.b_r / 2, robot.l3), s, -s)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -159,21 +158,21 @@ class Beam(AbstractModel):
         N = self.n_elements
         return z[:3], z[3:6], z[6:].reshape(3, N - 1)
 
-    def _chains(self, params: RobotParams, dv: Derived, z):
+    def _chains(self, robot: Robot, z):
         """Close the three chains. Returns a dict of (3, ...) arrays: th (3, N+2), P1, nodes
         (3, N+1, 2), Q2, E (chain's E_i), margin."""
-        sc = strip_constants(params, self.n_elements)
-        sig = params.sigma
+        sc = strip_constants(robot, self.n_elements)
+        sig = robot.sigma
         X, th_a, phi = self.split(z)
         alpha = jnp.concatenate([jnp.zeros((3, 1)), jnp.cumsum(phi, axis=1)], axis=1)  # (3, N)
         c = sc.h * jnp.sum(e(alpha), axis=1)  # chord in the frame of segment 1 (3, 2)
-        A = base_points(params)
-        P1 = A + params.l1 * e(th_a) + (params.b_r / 2) * sig * e(th_a + jnp.pi / 2)
-        g = jnp.stack([params.l3, -sig * params.b_r / 2])
+        A = base_points(robot)
+        P1 = A + robot.l1 * e(th_a) + (robot.b_r / 2) * sig * e(th_a + jnp.pi / 2)
+        g = jnp.stack([robot.l3, -sig * robot.b_r / 2])
         arg_g = jnp.arctan2(g[1], g[0])
-        E = platform_points(dv, X)
+        E = platform_points(robot, X)
         la = jnp.linalg.norm(c, axis=-1)
-        ta, tb, margin = two_link(E - P1, la, jnp.linalg.norm(g), _elbow(params))
+        ta, tb, margin = two_link(E - P1, la, jnp.linalg.norm(g), _elbow(robot))
         theta1 = ta - jnp.arctan2(c[:, 1], c[:, 0])
         # keep the angles continuous with the unbounded coordinate th_a (atan2 wraps)
         theta1 = th_a + wrap(theta1 - th_a)
@@ -185,85 +184,85 @@ class Beam(AbstractModel):
             [P1[:, None, :], P1[:, None, :] + jnp.cumsum(steps, axis=1)], axis=1
         )
         P2 = nodes[:, -1]
-        Q2 = P2 - sig * (params.b_r / 2) * e(th3 + jnp.pi / 2)
-        E_chain = Q2 + params.l3 * e(th3)
+        Q2 = P2 - sig * (robot.b_r / 2) * e(th3 + jnp.pi / 2)
+        E_chain = Q2 + robot.l3 * e(th3)
         th = jnp.concatenate([th_a[:, None], thetas, th3[:, None]], axis=1)
         return dict(th=th, P1=P1, nodes=nodes, Q2=Q2, E=E_chain, margin=margin, sc=sc)
 
-    def kinematics(self, params, dv, z):
+    def kinematics(self, robot, z):
         N = self.n_elements
         X, th_a, phi = self.split(z)
-        ch = self._chains(params, dv, z)
+        ch = self._chains(robot, z)
         sc, th, nodes = ch["sc"], ch["th"], ch["nodes"]
         thetas, th3 = th[:, 1:-1], th[:, -1]
-        A = base_points(params)
-        p1 = A + (params.l1 / 2) * e(th_a)
+        A = base_points(robot)
+        p1 = A + (robot.l1 / 2) * e(th_a)
         pseg = (nodes[:, :-1] + nodes[:, 1:]) / 2  # (3, N, 2)
-        p3 = ch["Q2"] + (params.l3 / 2) * e(th3)
+        p3 = ch["Q2"] + (robot.l3 / 2) * e(th3)
         p = jnp.concatenate([p1, pseg.reshape(3 * N, 2), p3, X[None, :2]], axis=0)
         ang = jnp.concatenate([th_a, thetas.reshape(-1), th3, X[2:3]])
-        sig = params.sigma
+        sig = robot.sigma
         d_first = wrap(thetas[:, 0] - th_a - sig * sc.dtheta / 2)
         d_mid = phi - sig * sc.dtheta
         d_last = wrap(th3 - thetas[:, -1] - sig * sc.dtheta / 2)
         defl = jnp.concatenate([d_first[:, None], d_mid, d_last[:, None]], axis=1).reshape(-1)
         return Kin(X=X, th=th, body_p=p, body_ang=ang, defl=defl, th_a=th_a, margin=ch["margin"])
 
-    def masses(self, params, dv):
+    def masses(self, robot):
         N = self.n_elements
-        sc = strip_constants(params, N)
+        sc = strip_constants(robot, N)
         one = jnp.ones(3, dtype=jnp.float64)
         ones = jnp.ones(3 * N, dtype=jnp.float64)
-        m = jnp.concatenate([dv.m1 * one, sc.m_seg * ones, dv.m3 * one, dv.m4[None]])
+        m = jnp.concatenate([robot.m1 * one, sc.m_seg * ones, robot.m3 * one, robot.m4[None]])
         I = jnp.concatenate(
-            [rotor_inertia(params, dv) * one, sc.I_seg * ones, dv.I3 * one, dv.I4[None]]
+            [rotor_inertia(robot) * one, sc.I_seg * ones, robot.I3 * one, robot.I4[None]]
         )
         return m, I
 
-    def stiffness(self, params, dv):
+    def stiffness(self, robot):
         N = self.n_elements
-        sc = strip_constants(params, N)
+        sc = strip_constants(robot, N)
         one_chain = jnp.concatenate(
             [sc.k_end[None], sc.k_in * jnp.ones(N - 1, dtype=jnp.float64), sc.k_end[None]]
         )
         return jnp.tile(one_chain, 3)
 
-    def coords_from_pose(self, params, dv, X):
+    def coords_from_pose(self, robot, X):
         """A smooth guess on the L1 manifold: th_a from L1's inverse kinematics (eq 29) and every
         interior joint at its rest turn plus an equal share of the L1 joint's total deflection
         (th_i3 - th_i1 - sigma theta_c; a pure-moment distribution: an end half-spring, twice as
         stiff, takes half a share, so N shares in all). A Newton starting point for
         `static_equilibrium` / `quasi_static_state`, not an equilibrium of L3."""
         N = self.n_elements
-        th, _ = ik_reduced(params, dv, X)
-        D = wrap(th[:, 2] - th[:, 0] - params.sigma * params.theta_c)
-        phi = jnp.broadcast_to(((params.sigma * params.theta_c + D) / N)[:, None], (3, N - 1))
+        th, _ = ik_reduced(robot, X)
+        D = wrap(th[:, 2] - th[:, 0] - robot.sigma * robot.theta_c)
+        phi = jnp.broadcast_to(((robot.sigma * robot.theta_c + D) / N)[:, None], (3, N - 1))
         return jnp.concatenate([X, th[:, 0], phi.reshape(-1)])
 
     # -- outputs --------------------------------------------------------------------------------
 
-    def chain_points(self, params, dv, th):
+    def chain_points(self, robot, th):
         """(P1, P2, Q2, E) each (3, 2) (m) from the chain angles th (3, N + 2) of `Kin.th`:
         strip start and end, start of the connecting link's centre line, the chain's E_i."""
-        sc = strip_constants(params, self.n_elements)
-        sig = params.sigma
+        sc = strip_constants(robot, self.n_elements)
+        sig = robot.sigma
         th_a, thetas, th3 = th[:, 0], th[:, 1:-1], th[:, -1]
-        P1 = base_points(params) + params.l1 * e(th_a) + (params.b_r / 2) * sig * e(
+        P1 = base_points(robot) + robot.l1 * e(th_a) + (robot.b_r / 2) * sig * e(
             th_a + jnp.pi / 2
         )
         P2 = P1 + sc.h * jnp.sum(e(thetas), axis=1)
-        Q2 = P2 - sig * (params.b_r / 2) * e(th3 + jnp.pi / 2)
-        return P1, P2, Q2, Q2 + params.l3 * e(th3)
+        Q2 = P2 - sig * (robot.b_r / 2) * e(th3 + jnp.pi / 2)
+        return P1, P2, Q2, Q2 + robot.l3 * e(th3)
 
-    def chain_E(self, params, dv, th):
+    def chain_E(self, robot, th):
         """Chain end E_i (3, 2) (m) from the chain angles th (3, N + 2) of `Kin.th`."""
-        return self.chain_points(params, dv, th)[3]
+        return self.chain_points(robot, th)[3]
 
-    def loop_residual(self, params, dv, kin):
+    def loop_residual(self, robot, kin):
         """The chain's E_i minus the platform's E_i (3, 2) (m): zero to rounding."""
-        return self.chain_E(params, dv, kin.th) - platform_points(dv, kin.X)
+        return self.chain_E(robot, kin.th) - platform_points(robot, kin.X)
 
-    def joint_end_rotations(self, params, dv, kin):
+    def joint_end_rotations(self, robot, kin):
         """Rotations (3, 2) (rad) of the strip's two end tangents relative to its chord P1 -> P2,
         minus their rest values: (chord - th_a) - sigma theta_c/2 and (th3 - chord) -
         sigma theta_c/2. The unloaded chord is parallel to L2's pseudo-link, so these compare
@@ -272,35 +271,35 @@ class Beam(AbstractModel):
         th = kin.th
         ch = jnp.sum(e(th[:, 1:-1]), axis=1)
         chord = jnp.arctan2(ch[:, 1], ch[:, 0])
-        half = params.sigma * params.theta_c / 2
+        half = robot.sigma * robot.theta_c / 2
         r1 = wrap(chord - th[:, 0] - half)
         r2 = wrap(th[:, -1] - chord - half)
         return jnp.stack([r1, r2], axis=-1)
 
-    def strip_nodes(self, params, dv, z) -> Float[Array, "3 n 2"]:
+    def strip_nodes(self, robot, z) -> Float[Array, "3 n 2"]:
         """Strip node positions (3, N + 1, 2) (m) (P1 first, P2 last) at coordinates z."""
-        return self._chains(params, dv, z)["nodes"]
+        return self._chains(robot, z)["nodes"]
 
-    def corners(self, params, dv, th):
+    def corners(self, robot, th):
         """Where each chain's drive-link and connecting-link centre lines meet (3, 2) (m), from
         the chain angles th (3, N + 2) of `Kin.th`: the virtual corner C_i of L0 (at
         R1 = l1 + r_i tan(theta_c/2) from A_i) when the strip is at rest."""
-        _, _, Q2, _ = self.chain_points(params, dv, th)
-        A = base_points(params)
+        _, _, Q2, _ = self.chain_points(robot, th)
+        A = base_points(robot)
         d1, d3 = e(th[:, 0]), e(th[:, -1])
         # A + s d1 = Q2 + u d3  ->  [d1, -d3] (s, u) = Q2 - A
         Mtx = jnp.stack([d1, -d3], axis=-1)  # (3, 2, 2)
         su = jax.vmap(solve)(Mtx, Q2 - A)
         return A + su[:, :1] * d1
 
-    def rest_angles(self, params, th_a):
+    def rest_angles(self, robot, th_a):
         """Chain angles th (3, N + 2) of the unloaded (natural-arc) strips for drive angles
         th_a (3,): every spring at its rest turn."""
         N = self.n_elements
-        sc = strip_constants(params, N)
-        sig = params.sigma
+        sc = strip_constants(robot, N)
+        sig = robot.sigma
         thetas = th_a[:, None] + sig * sc.dtheta * (jnp.arange(N) + 0.5)
-        th3 = th_a + sig * params.theta_c
+        th3 = th_a + sig * robot.theta_c
         return jnp.concatenate([th_a[:, None], thetas, th3[:, None]], axis=1)
 
 

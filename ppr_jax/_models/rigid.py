@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._kinematics import (
+from .._kinematics import (
     base_points,
     deflection_rigid,
     e,
@@ -19,43 +19,47 @@ from ._kinematics import (
     loop_residual_rigid,
     platform_points,
 )
-from ._model import AbstractModel, Kin, rotor_inertia
+from .base import AbstractModel, Kin, rotor_inertia
 
 
 class Rigid(AbstractModel):
+    """L0 `rigid`, the paper's "simplified model" (module docstring): z = X = (x, y, phi)
+    (m, m, rad), 3 DOF; one pin per compliant joint at the virtual corner."""
+
     name = "rigid"
     level = 0
     n_dof = 3
+    actuated_index = None
 
-    def kinematics(self, params, dv, z):
+    def kinematics(self, robot, z):
         X = z
-        th, margin = ik_rigid(params, dv, X)
-        A = base_points(params)
-        E = platform_points(dv, X)
-        p1 = A + (params.l1 / 2) * e(th[:, 0])
-        p3 = E - (params.l3 / 2) * e(th[:, 1])
+        th, margin = ik_rigid(robot, X)
+        A = base_points(robot)
+        E = platform_points(robot, X)
+        p1 = A + (robot.l1 / 2) * e(th[:, 0])
+        p3 = E - (robot.l3 / 2) * e(th[:, 1])
         p = jnp.concatenate([p1, p3, X[None, :2]], axis=0)
         ang = jnp.concatenate([th[:, 0], th[:, 1], X[2:3]])
         return Kin(
-            X=X, th=th, body_p=p, body_ang=ang, defl=deflection_rigid(params, dv, th),
+            X=X, th=th, body_p=p, body_ang=ang, defl=deflection_rigid(robot, th),
             th_a=th[:, 0], margin=margin,
         )
 
-    def masses(self, params, dv):
+    def masses(self, robot):
         one = jnp.ones(3, dtype=jnp.float64)
-        m = jnp.concatenate([dv.m1 * one, dv.m3 * one, dv.m4[None]])
-        I = jnp.concatenate([rotor_inertia(params, dv) * one, dv.I3 * one, dv.I4[None]])
+        m = jnp.concatenate([robot.m1 * one, robot.m3 * one, robot.m4[None]])
+        I = jnp.concatenate([rotor_inertia(robot) * one, robot.I3 * one, robot.I4[None]])
         return m, I
 
-    def stiffness(self, params, dv):
-        return dv.K0
+    def stiffness(self, robot):
+        return robot.K0
 
-    def coords_from_pose(self, params, dv, X):
+    def coords_from_pose(self, robot, X):
         return X
 
-    def loop_residual(self, params, dv, kin):
-        return loop_residual_rigid(params, dv, kin.th, kin.X)
+    def loop_residual(self, robot, kin):
+        return loop_residual_rigid(robot, kin.th, kin.X)
 
-    def joint_end_rotations(self, params, dv, kin):
+    def joint_end_rotations(self, robot, kin):
         # One pin: each end of the joint carries half of the pin's rotation.
         return jnp.stack([kin.defl / 2, kin.defl / 2], axis=-1)

@@ -1,0 +1,93 @@
+"""L2 `double1r`, and what L1 and L2 share: the double-1R pseudo-rigid-body chains.
+
+`AbstractDouble1R` holds the chain of MODEL.md sections 3-4 that both levels use: for each chain
+the drive link (COM at l1/2 from A_i), the pseudo-link r2 (COM at its middle, r_bc = r2/2, mass of
+the strip) and the connecting link (COM at l3/2 from E_i, i.e. r_dc = s + l3/2 from D_i), two
+springs K per joint, and the loop closure of eq 12.
+
+L2 (`Double1R`) drops the quasi-static assumption: both pivots of every compliant joint are free
+and the pseudo-link keeps its inertia: 12 joint coordinates with 6 loop closures, 6 DOF. We
+integrate in the independent coordinates z = (x, y, phi, th_11, th_21, th_31): given the pose and
+the actuated angles, each chain closes in closed form (the two-link (r2, r3) problem from B_i to
+E_i, elbow branch sigma), so the loop closures hold to rounding at every step instead of drifting,
+and the actuated angles are coordinates, which makes motion-driven actuation a plain partition of
+z.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .._kinematics import (
+    base_points,
+    chain_closure_double1r,
+    deflections,
+    e,
+    ik_reduced,
+    loop_residual,
+)
+from .._robot import Robot
+from .base import AbstractModel, Kin, rotor_inertia
+
+
+class AbstractDouble1R(AbstractModel):
+    """The double-1R chains of L1 and L2 (module docstring): bodies, masses, springs, closure.
+    Subclasses say how the chain angles follow from their coordinates (`chain_angles`)."""
+
+    def chain_bodies(self, robot: Robot, th, X):
+        """Bodies of the chains and the platform: (p (10, 2), ang (10,)), chain-major by body
+        type (3 drive links, 3 pseudo-links, 3 connecting links, platform)."""
+        A = base_points(robot)
+        B = A + robot.r1 * e(th[:, 0])
+        p1 = A + (robot.l1 / 2) * e(th[:, 0])
+        p2 = B + (robot.r2 / 2) * e(th[:, 1])
+        D = B + robot.r2 * e(th[:, 1])
+        p3 = D + (robot.s + robot.l3 / 2) * e(th[:, 2])
+        p = jnp.concatenate([p1, p2, p3, X[None, :2]], axis=0)
+        ang = jnp.concatenate([th[:, 0], th[:, 1], th[:, 2], X[2:3]])
+        return p, ang
+
+    def kin_from_angles(self, robot: Robot, X, th, margin) -> Kin:
+        """`Kin` from the pose X and the chain angles th (3, 3)."""
+        p, ang = self.chain_bodies(robot, th, X)
+        return Kin(
+            X=X, th=th, body_p=p, body_ang=ang, defl=deflections(robot, th).reshape(-1),
+            th_a=th[:, 0], margin=margin,
+        )
+
+    def masses(self, robot):
+        one = jnp.ones(3, dtype=jnp.float64)
+        m = jnp.concatenate([robot.m1 * one, robot.m2 * one, robot.m3 * one, robot.m4[None]])
+        I = jnp.concatenate(
+            [rotor_inertia(robot) * one, robot.I2 * one, robot.I3 * one, robot.I4[None]]
+        )
+        return m, I
+
+    def stiffness(self, robot):
+        return robot.K
+
+    def loop_residual(self, robot, kin):
+        return loop_residual(robot, kin.th, kin.X)
+
+    def joint_end_rotations(self, robot, kin):
+        """The two pivot deflections (d_i1, d_i2) of each chain (rad)."""
+        return kin.defl.reshape(3, 2)
+
+
+class Double1R(AbstractDouble1R):
+    """L2 `double1r`: the double-1R PRB model without the quasi-static assumption (module
+    docstring). z = (x, y, phi, th_11, th_21, th_31) (m, m, rad, rad, rad, rad); 6 DOF."""
+
+    name = "double1r"
+    level = 2
+    n_dof = 6
+    actuated_index = (3, 4, 5)
+
+    def kinematics(self, robot, z):
+        X, th_a = z[:3], z[3:]
+        th, margin = chain_closure_double1r(robot, X, th_a)
+        return self.kin_from_angles(robot, X, th, margin)
+
+    def coords_from_pose(self, robot, X):
+        th, _ = ik_reduced(robot, X)
+        return jnp.concatenate([X, th[:, 0]])

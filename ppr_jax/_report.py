@@ -1,0 +1,134 @@
+"""The reporting layer on top of the scenes: timing, numpy conversion and the paper's metrics.
+
+`paper_circle` / `servo_circle` are the computation (traceable, jitted, vmappable, one pytree
+out); `run_scene` runs one of them with its compilation and run timed apart and reduces the
+result to the numbers of MODEL.md section 6, for the CLI, the benchmarks and notebooks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Optional, Union
+
+import jax
+import numpy as np
+
+from ._metrics import metrics
+from ._params import RobotParams
+from ._scenes import SceneResult, _finish, _prepare, scene_params
+from ._trajectory import Circle
+
+#: the scenes `run_scene` runs (`modes` has its own report: `ppr_jax.modes_scene`)
+RUN_SCENES = ("paper-circle", "servo-circle")
+
+
+@dataclasses.dataclass
+class SceneReport:
+    """A timed scene run. `result` is the `SceneResult` with numpy leaves (leading batch axis for
+    a batch); `metrics` the MODEL.md section 6 numbers (SI units unless the key says otherwise),
+    a dict, or a list of dicts for a batch; `timing` {compile_s, run_s} (s, wall clock, the run
+    after compilation); `solver` {name, rtol, atol}; `params` what ran."""
+
+    result: SceneResult
+    metrics: Union[dict, list]
+    timing: dict
+    solver: dict
+    params: RobotParams
+
+    @property
+    def scene(self) -> str:
+        return self.result.scene
+
+    @property
+    def model(self) -> str:
+        return self.result.model
+
+    # numpy views of the signals most reports need
+    @property
+    def ts(self) -> np.ndarray:
+        return self.result.ts
+
+    @property
+    def X(self) -> np.ndarray:
+        return self.result.X
+
+    @property
+    def X_nominal(self) -> np.ndarray:
+        return self.result.X_nominal
+
+    @property
+    def tau(self) -> np.ndarray:
+        return self.result.tau
+
+    @property
+    def end_rot(self) -> np.ndarray:
+        return self.result.end_rot
+
+
+def scene_metrics(res: SceneResult, trajectory: Optional[Circle] = None) -> Union[dict, list]:
+    """The metrics of MODEL.md section 6 and the solver statistics of a `SceneResult`: a dict,
+    or a list of dicts (one per member) for a batched result."""
+    traj = Circle() if trajectory is None else trajectory
+    center, radius = np.asarray(traj.center), float(traj.radius)
+    res = jax.tree_util.tree_map(np.asarray, res)
+    if res.X.ndim == 3:
+        return [
+            scene_metrics(jax.tree_util.tree_map(lambda x: x[i], res), traj)
+            for i in range(res.X.shape[0])
+        ]
+    m = metrics(res, res.X_nominal, center, radius)
+    m.update(
+        num_steps=int(res.num_steps), num_accepted=int(res.num_accepted),
+        num_rejected=int(res.num_rejected),
+    )
+    return m
+
+
+def run_scene(
+    scene: str,
+    params: Optional[RobotParams] = None,
+    *,
+    model="reduced",
+    torque_model="reduced",
+    trajectory: Optional[Circle] = None,
+    t_end: float = 7.54,
+    n_out: int = 755,
+    solver=None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_steps: int = 200_000,
+    repeats: int = 1,
+) -> SceneReport:
+    """Run scene `paper-circle` or `servo-circle` (arguments as `paper_circle`; `torque_model`
+    is used by `paper-circle` only) and time it: a first call (compilation, once per model and
+    shapes, plus one run), then `repeats` runs, each after `block_until_ready`;
+    `timing = {compile_s: first call - fastest run, run_s: fastest run}`. A failure raises
+    `SimulationError` naming the failed members. Returns a `SceneReport`."""
+    if scene not in RUN_SCENES:
+        raise ValueError(f"unknown scene {scene!r}; allowed: {', '.join(RUN_SCENES)}")
+    params = scene_params(scene) if params is None else params
+    c = _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solver, rtol,
+                 atol, max_steps)
+    # The first call compiles (unless this shape ran before: the jit cache is kept) and runs;
+    # the repeats only run. Tolerances are arrays, so changing them does not recompile.
+    t0 = time.perf_counter()
+    res = c.fn(*c.args)
+    jax.block_until_ready(res)
+    first = time.perf_counter() - t0
+    runs = []
+    for _ in range(max(int(repeats), 1)):
+        t1 = time.perf_counter()
+        res = c.fn(*c.args)
+        jax.block_until_ready(res)
+        runs.append(time.perf_counter() - t1)
+    compile_s = max(first - min(runs), 0.0)
+    res = _finish(res)
+    m = scene_metrics(res, trajectory)
+    timing = {"compile_s": compile_s, "run_s": min(runs)}
+    for mm in m if isinstance(m, list) else [m]:
+        mm.update(wall_time_s=timing["run_s"], compile_time_s=timing["compile_s"])
+    return SceneReport(
+        result=jax.tree_util.tree_map(np.asarray, res), metrics=m, timing=timing,
+        solver={"name": c.solver_name, "rtol": rtol, "atol": atol}, params=params,
+    )

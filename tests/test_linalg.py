@@ -1,0 +1,66 @@
+"""The plain-XLA Gaussian elimination against numpy's LAPACK solve, in every mode it is used."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pytest
+
+from ppr_jax._linalg import UNROLL_MAX, SmallLU, lu_factor, lu_solve, solve
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 6, UNROLL_MAX, UNROLL_MAX + 1, 27])
+def test_solve_and_transpose_match_numpy(n):
+    rng = np.random.default_rng(n)
+    for _ in range(5):
+        A = rng.normal(size=(n, n)) * 10.0 ** rng.uniform(-3, 3, size=(n, 1))  # badly scaled
+        b = rng.normal(size=n)
+        ref = np.linalg.solve(A, b)
+        x = np.asarray(solve(jnp.asarray(A), jnp.asarray(b)))
+        np.testing.assert_allclose(x, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+        xt = np.asarray(lu_solve(lu_factor(jnp.asarray(A)), jnp.asarray(b), trans=True))
+        np.testing.assert_allclose(xt, np.linalg.solve(A.T, b), rtol=1e-9,
+                                   atol=1e-12 * np.abs(ref).max())
+
+
+def test_pivoting_zero_leading_entry():
+    A = jnp.array([[0.0, 2.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 3.0]])
+    b = jnp.array([1.0, 2.0, 3.0])
+    np.testing.assert_allclose(solve(A, b), np.linalg.solve(np.asarray(A), np.asarray(b)),
+                               rtol=1e-14)
+
+
+def test_vmap_and_gradients_match_lapack():
+    rng = np.random.default_rng(0)
+    A = jnp.asarray(rng.normal(size=(16, 3, 3)) + 3 * np.eye(3))
+    b = jnp.asarray(rng.normal(size=(16, 3)))
+    np.testing.assert_allclose(jax.vmap(solve)(A, b), np.linalg.solve(A, b[..., None])[..., 0],
+                               rtol=1e-12)
+
+    def loss(s, A, b):
+        return jnp.sum(jnp.sin(jax.vmap(s)(A, b)))
+
+    g = jax.grad(loss, argnums=(1, 2))(solve, A, b)
+    g_ref = jax.grad(loss, argnums=(1, 2))(jnp.linalg.solve, A, b)
+    for x, y in zip(g, g_ref):
+        np.testing.assert_allclose(x, y, rtol=1e-10, atol=1e-12)
+    t = jax.jvp(lambda A: jax.vmap(solve)(A, b), (A,), (jnp.ones_like(A),))[1]
+    t_ref = jax.jvp(lambda A: jax.vmap(jnp.linalg.solve)(A, b), (A,), (jnp.ones_like(A),))[1]
+    np.testing.assert_allclose(t, t_ref, rtol=1e-10, atol=1e-12)
+
+
+def test_small_lu_in_optimistix_newton_and_implicit_gradient():
+    """Newton with SmallLU finds the root, and its implicit derivative (lineax transposes the
+    solver) matches the closed form: x^3 = p  ->  dx/dp = 1 / (3 x^2)."""
+
+    def root(p):
+        sol = optx.root_find(lambda x, p: x**3 - p, optx.Newton(1e-13, 1e-13, linear_solver=SmallLU()),
+                             jnp.ones(2), args=p, max_steps=50)
+        return sol.value
+
+    p = jnp.array([8.0, 27.0])
+    np.testing.assert_allclose(root(p), [2.0, 3.0], rtol=1e-12)
+    J = jax.jacrev(root)(p)
+    np.testing.assert_allclose(np.diag(J), [1 / 12, 1 / 27], rtol=1e-10)
+    Jf = jax.jacfwd(root)(p)
+    np.testing.assert_allclose(Jf, J, rtol=1e-10, atol=1e-14)
