@@ -6,6 +6,17 @@ jax.config.update("jax_enable_x64", True)
 import ppr_jax as pj  # noqa: E402
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_code():
+    """Drop JAX's compiled executables after each test module. Every executable keeps about three
+    memory mappings of JIT code; a suite that compiles tens of thousands of them (eager op-by-op
+    tests compile every primitive) passes the kernel's limit of 65,530 mappings per process
+    (vm.max_map_count), and LLVM then segfaults while compiling. Session fixtures hold results,
+    not executables, so nothing shared is lost."""
+    yield
+    jax.clear_caches()
+
+
 @pytest.fixture(scope="session")
 def params():
     """Table 1 defaults, t = 0.3 mm."""

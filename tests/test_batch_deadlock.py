@@ -27,7 +27,7 @@ SCRIPT = textwrap.dedent(
         batch = pj.stack_params(ps)
         fn = pj.paper_circle if scene == "paper-circle" else pj.servo_circle
         t0 = time.perf_counter()
-        sol, out = fn(batch, model="reduced", t_end=t_end, n_out=755, rtol=1e-8, atol=1e-10)
+        out = fn(batch, model="reduced", t_end=t_end, n_out=755, rtol=1e-8, atol=1e-10)
         jax.block_until_ready(out)
         assert out.X.shape == (n, 755, 3), out.X.shape
         assert np.all(np.isfinite(np.asarray(out.X)))
