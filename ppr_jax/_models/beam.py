@@ -1,66 +1,18 @@
 """L3 `beam`: each compliant strip as a discretized geometrically exact beam (MODEL.md section 5).
 
-The strip
----------
-A planar, inextensible, unshearable Euler-Bernoulli strip of the *actual* radius r, length
-L = r theta_c, bending stiffness EI = E w t^3/12 (N m^2) and mass rho_m w t per length (kg/m),
-clamped to the *inner* sides of the two links: the inner side of a link is offset b_r/2 from its
-centre line towards the centre of the bend, and the unloaded strip is the circular arc tangent to
-both inner sides. Gravity acts normal to the plane and does no work.
+A planar, inextensible Euler-Bernoulli strip of the actual radius r, length L = r theta_c and
+EI = E w t^3/12, clamped to the inner sides of the links, as a Hencky bar chain of N rigid
+segments (chords of the unloaded arc cells, so the rest shape is exact for every N; O(1/N^2) to
+the elastica): interior springs EI/ds, clamp half-springs 2 EI/ds. Coordinates
+z = (x, y, phi, th_a1..3, interior relative angles), n = 3 + 3N, independent: each chain closes
+in closed form (a two-link problem), so the loops close to rounding and the generic equations of
+motion, statics and modes apply unchanged. The derivation, geometry and body layout:
+docs/beam_model.md.
 
-Discretization (a Hencky bar chain, why and how)
------------------------------------------------
-The strip is N rigid segments (N = `Beam.n_elements`); segment k has absolute angle theta_k,
-which stands for the tangent angle at the middle of the k-th arclength cell [(k-1) ds, k ds],
-ds = L/N. Bending energy (EI/2) int (theta' - kappa)^2 ds, kappa = sigma/r the signed rest
-curvature, is lumped into rotational springs:
-
-* between consecutive segments: stiffness EI/ds, rest turn kappa ds (a central difference of
-  theta' over one cell: second-order accurate);
-* at each clamp a half-cell spring: stiffness 2 EI/ds, rest turn kappa ds/2, between the drive
-  link's tangent (= th_a) and segment 1, and between segment N and the connecting link (th3).
-
-The total rest turn is sigma theta_c. Segment k carries mass m = rho_m w t ds (the total strip
-mass is exact), central inertia m ds^2/12, at its midpoint.
-
-Segment *length*. Each segment is the chord of its unloaded arc cell,
-h = 2 r sin(ds/(2r)) = ds (1 - O(ds^2)), rather than ds. Both are consistent second-order
-quadratures of x' = e(theta) (midpoint rule with h = ds; for h = chord the rule is exact for
-any arc of the rest curvature), but the chord makes the *unloaded* chain lie exactly on the
-arc: the rest geometry of the robot (link centre lines meeting at the virtual corner, no
-discretization pre-deflection) is then exact for every N, and the convergence to the elastica
-under load is still O(1/N^2) (tests/test_beam.py, benchmarks/beam_convergence.py).
-
-Coordinates: independent, loop closures exact to rounding
---------------------------------------------------------
-z = (x, y, phi, th_a1, th_a2, th_a3, [phi_i2 .. phi_iN for i = 1, 2, 3]), n = 3 + 3N, with
-phi_ik = theta_ik - theta_i,k-1 the relative angles of the strip's interior joints. For chain i
-the first segment's angle theta_i1 and the connecting link's angle th_i3 are dependent: with the
-relative angles fixed the strip is a rigid shape whose chord is c (in the frame of segment 1),
-and the connecting link is the rigid offset vector g = (l3, -sigma b_r/2) in its own frame
-(from the strip end P2 to E_i: the link's centre line starts b_r/2 off the strip end). The loop
-E_i - P1 = R(theta_1) c + R(th3) g is the two-link problem of `_kinematics.two_link` (law of
-cosines), on the branch of the unloaded shape (elbow sigma when theta_c/2 > atan(b_r/(2 l3)),
-the default geometry). So z is a set of independent coordinates, the loop closes to rounding for
-every z, and the generic Kane equations of `_dynamics.py` (no Lagrange multipliers), `simulate`,
-`static_equilibrium`, `quasi_static_state` and `modes` work unchanged. `Kin.margin` is the
-two-link reach margin (<= 0: the platform joint is out of the strip's reach).
-
-Geometry of chain i (sigma = -1 turns clockwise; n_in = sigma e(th_a + pi/2) points from the
-drive link towards the centre of the bend):
-P1 = A_i + l1 e(th_a) + (b_r/2) n_in (strip start, tangent th_a); nodes
-P1 + h sum_{j<=k} e(theta_j); P2 the last node; connecting-link centre line through
-Q2 = P2 - sigma (b_r/2) e(th3 + pi/2), E_i = Q2 + l3 e(th3).
-
-Bodies (in `Kin.body_p` order): 3 drive links (COM l1/2 from A_i, inertia I1 + J_rotor),
-3N strip segments (chain-major), 3 connecting links (COM l3/2 from E_i), the platform.
 `Kin.th` (3, N + 2) = (th_a, theta_1 .. theta_N, th3) per chain; `Kin.defl` (3 (N + 1),) the
 spring deflections chain-major (clamp half-spring, N - 1 interior springs, clamp half-spring),
-with `Beam.stiffness` the matching vector (2 EI/ds, EI/ds, ..., EI/ds, 2 EI/ds).
-
-Also here: `solve_strip`, the same discrete strip as an end-loaded cantilever (Newton on the
-potential energy), the discrete counterpart of `ppr_jax.elastica.solve_cantilever` used to
-check the O(1/N^2) convergence of the discretization.
+with `Beam.stiffness` the matching vector. Also here: `solve_strip`, the same discrete strip as an
+end-loaded cantilever, the counterpart of `ppr_jax.elastica.solve_cantilever`.
 """
 
 from __future__ import annotations
@@ -360,9 +312,8 @@ def solve_strip(
         return grad(q, lam) / k_in  # nondimensional (rad)
 
     def step(q, lam):
-        sol = optx.root_find(
-            resid, optx.Newton(rtol=1e-13, atol=1e-13, linear_solver=SmallLU()), q, args=lam, max_steps=50, throw=False
-        )
+        newton = optx.Newton(rtol=1e-13, atol=1e-13, linear_solver=SmallLU())
+        sol = optx.root_find(resid, newton, q, args=lam, max_steps=50, throw=False)
         return sol.value, sol.result._value
 
     q0 = jnp.concatenate([dth * (jnp.arange(N) + 0.5), kappa0[None]])  # the unloaded arc
