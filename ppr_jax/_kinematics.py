@@ -89,7 +89,7 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     The closed form (MODEL.md section 4) with u = (th1 + th3)/2, v = (th3 - th1)/2:
     (2 r cos v + r2) e(u) = E_i - A_i, is exact when r1 = r3; for r1 != r3 it is the initial guess
     of `N_NEWTON_IK` Newton steps on the 2x2 chain closure (exact to machine precision for
-    |r1 - r3| of a few mm; a Newton step costs nothing when r1 = r3 because its update is zero).
+    |r1 - r3| of a few mm). `robot.equal_links` (static) picks the branch.
     """
     d = _chain_vectors(robot, X)
     rbar = (robot.r1 + robot.r3) / 2
@@ -105,17 +105,23 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
         t2 = (t1 + t3) / 2
         return robot.r1 * e(t1) + robot.r2 * e(t2) + robot.r3 * e(t3) - di
 
-    def newton(th13, di, n_steps):
-        for _ in range(n_steps):
+    def newton(th13, di):
+        for _ in range(N_NEWTON_IK):
             Jc = jax.jacfwd(resid)(th13, di)
             th13 = th13 - solve(Jc, resid(th13, di))
         return th13
 
+    def implicit_correction(th13, di):
+        # At the closed-form root the Newton update is zero, but its derivative is the
+        # implicit-function derivative -J^-1 dr: exact also in l1 or l3 alone. With J held
+        # constant (it multiplies r = 0) that costs one residual, not a differentiated solve.
+        Jc = jax.lax.stop_gradient(jax.jacfwd(resid)(th13, di))
+        return th13 - solve(Jc, resid(th13, di))
+
     th13 = jnp.stack([th1, th3], axis=-1)
     # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
-    # running Newton for every member. With equal links one step: its update is zero, but its
-    # derivative is the implicit-function derivative, exact also in l1 or l3 alone.
-    th13 = jax.vmap(lambda x, di: newton(x, di, 1 if robot.equal_links else N_NEWTON_IK))(th13, d)
+    # running Newton for every member.
+    th13 = jax.vmap(implicit_correction if robot.equal_links else newton)(th13, d)
     th1, th3 = th13[:, 0], th13[:, 1]
     th = jnp.stack([th1, (th1 + th3) / 2, th3], axis=-1)
     return th, margin

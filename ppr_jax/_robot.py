@@ -52,7 +52,9 @@ class Robot(eqx.Module):
     `equal_links` (bool) and `sigma` (+1 or -1, from `params.sigma`).
 
     `Robot(params)` decides `equal_links` from the values; pass `equal_links=False` to force the
-    general (Newton) inverse kinematics. A batch of robots (`stack_params`) gives one `Robot`
+    general (Newton) inverse kinematics, or `equal_links=True` inside a trace (`jax.grad` over
+    the parameters) when you know l1 == l3 there: the fast path, with derivatives in l1 and l3
+    that stay exact (tests/test_kinematics.py). Concrete unequal lengths with `True` raise. A batch of robots (`stack_params`) gives one `Robot`
     with a leading axis on every leaf."""
 
     params: RobotParams
@@ -67,10 +69,10 @@ class Robot(eqx.Module):
         auto = _equal_links(params)
         if equal_links is None:
             equal_links = auto
-        elif equal_links and not auto:
+        elif equal_links and not auto and _concrete(params.l1) and _concrete(params.l3):
             raise ValueError(
                 "equal_links=True needs l1 == l3 (drive and connecting links of equal length) "
-                "for every robot, known before tracing"
+                "for every robot of the batch"
             )
         self.equal_links = bool(equal_links)
 

@@ -105,3 +105,29 @@ def test_singular_configuration_is_a_clear_error(params):
             hi = mid
     with pytest.raises(pj.PPRError, match="singular configuration"):
         pj.inverse_kinematics(params, [c[0], c[1], lo])
+
+
+def test_equal_links_fast_path_keeps_exact_derivatives_in_l1_alone(params):
+    """With equal links the L1 inverse kinematics is closed form plus an implicit correction
+    (a static choice, no lax.cond); its derivative in l1 alone (which breaks the symmetry the
+    closed form assumes) equals the general Newton path's and central differences."""
+    from ppr_jax._kinematics import ik_reduced
+
+    X = jnp.array([0.46, 0.25, 0.02])
+
+    def th(l1, equal):
+        return ik_reduced(pj.Robot(params.replace(l1=l1), equal_links=equal), X)[0]
+
+    l1 = float(params.l1)
+    assert pj.Robot(params).equal_links and not pj.Robot(params.replace(l1=0.3)).equal_links
+    g_fast = jax.jacfwd(lambda l: th(l, True))(l1)
+    g_newton = jax.jacfwd(lambda l: th(l, False))(l1)
+    h = 1e-6
+    fd = (th(l1 + h, False) - th(l1 - h, False)) / (2 * h)
+    np.testing.assert_allclose(g_fast, g_newton, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(g_fast, fd, rtol=0, atol=1e-8)
+    assert float(jnp.abs(g_fast).max()) > 0.1
+    g_rev = jax.grad(lambda l: jnp.sum(jnp.sin(th(l, True))))(l1)
+    np.testing.assert_allclose(g_rev, jnp.sum(jnp.cos(th(l1, True)) * g_fast), rtol=1e-12)
+    with pytest.raises(ValueError, match="equal_links=True needs l1 == l3"):
+        pj.Robot(params.replace(l1=0.3), equal_links=True)
