@@ -113,10 +113,18 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
 
     def implicit_correction(th13, di):
         # At the closed-form root the Newton update is zero, but its derivative is the
-        # implicit-function derivative -J^-1 dr: exact also in l1 or l3 alone. With J held
-        # constant (it multiplies r = 0) that costs one residual, not a differentiated solve.
-        Jc = jax.lax.stop_gradient(jax.jacfwd(resid)(th13, di))
-        return th13 - solve(Jc, resid(th13, di))
+        # implicit-function derivative -J^-1 dr: exact also in l1 or l3 alone. J multiplies
+        # r = 0, so it is held constant (its derivatives would multiply zero): the correction
+        # costs one residual and a 2 x 2 inverse in closed form, which matters because it runs
+        # inside every right-hand side under two nested derivatives.
+        t1, t3 = th13
+        de = lambda a: jnp.stack([-jnp.sin(a), jnp.cos(a)])  # noqa: E731
+        h2 = (robot.r2 / 2) * de((t1 + t3) / 2)
+        J = jax.lax.stop_gradient(
+            jnp.stack([robot.r1 * de(t1) + h2, h2 + robot.r3 * de(t3)], axis=-1)
+        )
+        Jinv = jnp.stack([jnp.stack([J[1, 1], -J[0, 1]]), jnp.stack([-J[1, 0], J[0, 0]])])
+        return th13 - (Jinv @ resid(th13, di)) / (J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
 
     th13 = jnp.stack([th1, th3], axis=-1)
     # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
