@@ -154,3 +154,44 @@ class SmallLU(lx.AbstractLinearSolver):
 
     def assume_full_rank(self):
         return True
+
+
+def _cholesky_solve(A, b):
+    """x with A x = b for symmetric positive definite A (n <= UNROLL_MAX): Cholesky without
+    pivoting, every index static, so XLA fuses it (no data-dependent row swaps)."""
+    n = A.shape[-1]
+    L = [[None] * n for _ in range(n)]
+    for j in range(n):
+        s = A[j, j] - sum((L[j][k] ** 2 for k in range(j)), 0.0)
+        L[j][j] = jnp.sqrt(s)
+        for i in range(j + 1, n):
+            L[i][j] = (A[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), 0.0)) / L[j][j]
+    y = [None] * n
+    for i in range(n):
+        y[i] = (b[i] - sum((L[i][k] * y[k] for k in range(i)), 0.0)) / L[i][i]
+    x = [None] * n
+    for i in reversed(range(n)):
+        x[i] = (y[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), 0.0)) / L[i][i]
+    return jnp.stack(x)
+
+
+@jax.custom_jvp
+def _solve_spd(A, b):
+    return _cholesky_solve(A, b)
+
+
+@_solve_spd.defjvp
+def _solve_spd_jvp(primals, tangents):
+    A, b = primals
+    dA, db = tangents
+    x = _cholesky_solve(A, b)
+    return x, _cholesky_solve(A, db - dA @ x)
+
+
+@jax.jit
+def solve_spd(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, " n"]:
+    """x with A x = b for a symmetric positive definite A (a mass matrix): Cholesky in plain XLA
+    up to `UNROLL_MAX`, `solve` above that. A matrix that is not positive definite gives NaN."""
+    if A.shape[-1] > UNROLL_MAX:
+        return solve(A, b)
+    return _solve_spd(A, b)

@@ -21,7 +21,7 @@ from ._actuation import AbstractActuation
 from ._checks import PPRError
 from ._custom_types import Array, Float
 from ._dynamics import eom_terms, generalized_force
-from ._linalg import solve
+from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import validate_traced
 from ._robot import RobotLike, as_robot
@@ -102,12 +102,12 @@ def _accel(model, robot, actuation, wrench, t, zf, zfd):
     eom = eom_terms(model, robot, z, zd)
     if not pres:
         tau = actuation.torque_at(t, eom.kin.th_a, eom.Jth @ zd)
-        zdd = solve(eom.M, generalized_force(eom, tau, wrench) - eom.h)
+        zdd = solve_spd(eom.M, generalized_force(eom, tau, wrench) - eom.h)
         return z, zd, zdd, tau
     f, p = jnp.array(free), jnp.array(pres)
     rhs = generalized_force(eom, jnp.zeros(3), wrench) - eom.h
     Mff = eom.M[f][:, f]
-    zdd_f = solve(Mff, rhs[f] - eom.M[f][:, p] @ thadd)
+    zdd_f = solve_spd(Mff, rhs[f] - eom.M[f][:, p] @ thadd)
     zdd = jnp.zeros(model.n_dof).at[f].set(zdd_f).at[p].set(thadd)
     # The actuated coordinates are th_a themselves, so their rows give the reaction torques.
     tau = (eom.M @ zdd - rhs)[p]

@@ -64,3 +64,24 @@ def test_small_lu_in_optimistix_newton_and_implicit_gradient():
     np.testing.assert_allclose(np.diag(J), [1 / 12, 1 / 27], rtol=1e-10)
     Jf = jax.jacfwd(root)(p)
     np.testing.assert_allclose(Jf, J, rtol=1e-10, atol=1e-14)
+
+
+@pytest.mark.parametrize("n", [1, 3, 6, UNROLL_MAX + 3])
+def test_spd_solve_matches_numpy_with_derivatives(n):
+    """The Cholesky solve of the mass matrices against numpy, and its derivatives against the
+    same expression through LAPACK's solve."""
+    from ppr_jax._linalg import solve_spd
+
+    rng = np.random.default_rng(n)
+    B = rng.normal(size=(n, n))
+    A = jnp.asarray(B @ B.T + n * np.eye(n) * 10.0 ** rng.uniform(-2, 2))
+    b = jnp.asarray(rng.normal(size=n))
+    np.testing.assert_allclose(solve_spd(A, b), np.linalg.solve(A, b), rtol=1e-11, atol=1e-13)
+
+    def loss(s, A, b):
+        return jnp.sum(jnp.sin(s((A + A.T) / 2, b)))
+
+    g = jax.grad(loss, argnums=(1, 2))(solve_spd, A, b)
+    g_ref = jax.grad(loss, argnums=(1, 2))(jnp.linalg.solve, A, b)
+    for x, y in zip(g, g_ref):
+        np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-12)
