@@ -361,69 +361,82 @@ def cmd_prb(args):
     return 0
 
 
-def build_parser():
+def parent_parsers() -> dict:
+    """Options shared by several commands, as argparse parent parsers (one definition each):
+    `params` (--set), `model` (--model, --elements), `solve` (solver, tolerances, step limit,
+    times), `out` (--out). A command takes the ones it needs with `parents=[...]`."""
     from ._params import settable_names
-
-    from ._models import MODELS
-    from ._scenes import SCENES
     from ._simulate import SOLVERS
 
-    # Choices come from the registries, so a new model, scene or solver shows up here by itself.
-    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]  # pose = coordinates
-    fmt = argparse.ArgumentDefaultsHelpFormatter
-    p = argparse.ArgumentParser(prog="ppr-jax", description=__doc__, formatter_class=fmt)
-    sub = p.add_subparsers(dest="cmd", required=True)
-    set_help = ("override a parameter, NAME=VALUE (SI units); repeatable; names: "
-                + ", ".join(settable_names()))
+    params = argparse.ArgumentParser(add_help=False)
+    params.add_argument("--set", action="append", metavar="NAME=VALUE",
+                        help="override a parameter, NAME=VALUE (SI units); repeatable; names: "
+                             + ", ".join(settable_names()))
+    model = argparse.ArgumentParser(add_help=False)
+    model.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
+    solve = argparse.ArgumentParser(add_help=False)
+    solve.add_argument("--solver", default=None, choices=list(SOLVERS),
+                       help="ODE solver (default: per model, see README 'Solvers')")
+    solve.add_argument("--rtol", type=float, default=1e-8, help="relative tolerance of the solver")
+    solve.add_argument("--atol", type=float, default=1e-10, help="absolute tolerance of the solver")
+    solve.add_argument("--max-steps", type=int, default=200_000, help="solver step limit")
+    times = argparse.ArgumentParser(add_help=False)
+    times.add_argument("--t-end", type=float, default=7.54, help="end time (s)")
+    times.add_argument("--n-out", type=int, default=755, help="number of output times")
+    return {"params": params, "model": model, "solve": solve, "times": times}
 
+
+def _add_simulate(sub, parents, fmt):
+    from ._models import MODELS
+    from ._scenes import SCENES
+
+    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]  # pose = coordinates
     s = sub.add_parser("simulate", formatter_class=fmt,
+        parents=[parents[k] for k in ("params", "model", "solve", "times")],
         help="run a scene and write summary.json, trajectory.csv, figures")
     s.add_argument("--scene", default="paper-circle", choices=list(SCENES), help="scene to run")
     s.add_argument("--model", default=None,
-                   help="rigid, reduced, double1r, beam or a comma list (default: rigid, reduced, "
-                        "double1r). beam (L3) is stiff: it compiles for 1-2 min per N and a "
-                        "7.54 s paper-circle at N >= 8 takes hundreds of thousands of steps")
-    s.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
+                   help="a model (" + ", ".join(MODELS) + ") or a comma list (default: rigid, "
+                        "reduced, double1r). beam (L3) is stiff: it compiles for 1-2 min per N "
+                        "and a 7.54 s paper-circle at N >= 8 takes hundreds of thousands of steps")
     s.add_argument("--torque-model", default="reduced", choices=kinematic,
                    help="paper-circle: the model whose inverse dynamics gives the torques")
-    s.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
     s.add_argument("--out", default="out", help="output directory")
-    s.add_argument("--solver", default=None, choices=list(SOLVERS),
-                   help="ODE solver (default: per model, see README 'Solvers')")
-    s.add_argument("--rtol", type=float, default=1e-8, help="relative tolerance of the solver")
-    s.add_argument("--atol", type=float, default=1e-10, help="absolute tolerance of the solver")
-    s.add_argument("--max-steps", type=int, default=200_000, help="solver step limit")
-    s.add_argument("--t-end", type=float, default=7.54, help="end time (s)")
-    s.add_argument("--n-out", type=int, default=755, help="number of output times")
     s.set_defaults(func=cmd_simulate)
 
+
+def _add_torques(sub, parents, fmt):
+    from ._models import MODELS
+
+    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
     t = sub.add_parser("torques", formatter_class=fmt,
+        parents=[parents["params"], parents["times"]],
         help="inverse-dynamics torques along eq 55 as CSV")
     t.add_argument("--model", default="reduced", choices=kinematic)
-    t.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
     t.add_argument("--out", required=True)
-    t.add_argument("--t-end", type=float, default=7.54, help="end time (s)")
-    t.add_argument("--n-out", type=int, default=755, help="number of output times")
     t.set_defaults(func=cmd_torques)
 
+
+def _add_modes(sub, parents, fmt):
+    from ._models import MODELS
+
     m = sub.add_parser("modes", formatter_class=fmt,
+        parents=[parents["params"], parents["model"]],
         help="natural frequencies about a static equilibrium (Hz)")
-    m.add_argument("--model", default="double1r",
-                   choices=list(MODELS))
-    m.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
+    m.add_argument("--model", default="double1r", choices=list(MODELS))
     m.add_argument("--actuators", default="locked", choices=["locked", "free"])
     m.add_argument("--pose", default=None, help="x,y,phi (default: home)")
-    m.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
     m.add_argument("--json", action="store_true")
     m.set_defaults(func=cmd_modes)
 
-    r = sub.add_parser("prb", formatter_class=fmt,
+
+def _add_prb(sub, parents, fmt):
+    r = sub.add_parser("prb", formatter_class=fmt, parents=[parents["params"]],
         help="every derived quantity of the PRB joint (MODEL.md section 3)",
         description="Every derived quantity of the robot's PRB joint (MODEL.md section 3) and the "
                     "pre-deflection at home. The PRB parameters of a curved cantilever from the "
                     "elastica-fitted table are 'ppr-jax prb-table' ('prb --kappa0/--fit/--figure' "
                     "still works as a deprecated alias of it).")
-    r.add_argument("--set", action="append", metavar="NAME=VALUE", help=set_help)
     r.add_argument("--json", action="store_true")
     # Deprecated alias of prb-table (hidden from the help; forwarded with a notice on stderr).
     r.add_argument("--kappa0", type=float, default=None, help=argparse.SUPPRESS)
@@ -431,6 +444,8 @@ def build_parser():
     r.add_argument("--figure", default=None, help=argparse.SUPPRESS)
     r.set_defaults(func=cmd_prb)
 
+
+def _add_prb_table(sub, parents, fmt):
     pt = sub.add_parser("prb-table", formatter_class=fmt,
         help="PRB parameters of an initially curved cantilever (elastica-fitted table)",
         description="PRB parameters gamma, rho, K_theta of an initially curved cantilever of "
@@ -448,6 +463,20 @@ def build_parser():
     pt.add_argument("--figure", default=None, metavar="PNG",
                     help="write gamma, rho, K_theta vs kappa0 (spline and table rows) to PNG")
     pt.set_defaults(func=cmd_prb_table)
+
+
+#: The commands, in the order `--help` lists them: each entry adds one subparser. A new command
+#: is a function `add(sub, parents, fmt)` (in this file or its own module) and one line here.
+COMMANDS = [_add_simulate, _add_torques, _add_modes, _add_prb, _add_prb_table]
+
+
+def build_parser():
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    p = argparse.ArgumentParser(prog="ppr-jax", description=__doc__, formatter_class=fmt)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    parents = parent_parsers()
+    for add in COMMANDS:
+        add(sub, parents, fmt)
     return p
 
 
