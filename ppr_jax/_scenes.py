@@ -95,12 +95,13 @@ def _result(scene, model, robot, traj, sol: Solution) -> SceneResult:
     )
 
 
-def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller, max_steps):
+def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller, max_steps,
+                       adjoint):
     act = TorqueDriven(InverseDynamicsTorque(torque_model, robot, traj))
     z0, zd0 = quasi_static_state(model, robot, traj, ts[0], act)
     sol = _simulate_core(
         model, robot, act, z0, zd0, ts, solver, controller, None, max_steps,
-        jnp.zeros(3), False, diffrax.NoProgressMeter(),
+        jnp.zeros(3), False, diffrax.NoProgressMeter(), adjoint,
     )
     return _result("paper-circle", model, robot, traj, sol)
 
@@ -126,7 +127,7 @@ def _kinematic_motion(model, robot, angles, X0, ts):
     return X, Xd, tau, codes
 
 
-def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps):
+def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, adjoint):
     angles = InverseKinematicsAngles(Reduced(), robot, traj)
     if model.actuated_index is None:
         X, Xd, tau, codes = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
@@ -145,7 +146,7 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps):
         z0, zd0 = quasi_static_state(model, robot, traj, ts[0], act)
         sol = _simulate_core(
             model, robot, act, z0, zd0, ts, solver, controller, None, max_steps, jnp.zeros(3),
-            False, diffrax.NoProgressMeter(),
+            False, diffrax.NoProgressMeter(), adjoint,
         )
     return _result("servo-circle", model, robot, traj, sol)
 
@@ -156,7 +157,7 @@ _JIT = {name: eqx.filter_jit(core) for name, (core, _) in _CORES.items()}
 # Batched cores: vmapped over the robot only, compiled once per (model, batch size).
 _BATCH = {
     name: eqx.filter_jit(
-        eqx.filter_vmap(core, in_axes=tuple(0 if i == k else None for i in range(k + 6)))
+        eqx.filter_vmap(core, in_axes=tuple(0 if i == k else None for i in range(k + 7)))
     )
     for name, (core, k) in _CORES.items()
 }
@@ -177,7 +178,7 @@ class SceneCall(eqx.Module):
 
 
 def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solver, rtol, atol,
-             max_steps) -> SceneCall:
+             max_steps, adjoint=None) -> SceneCall:
     model = get_model(model)
     params = scene_params(scene) if params is None else params
     traj = Circle() if trajectory is None else trajectory
@@ -193,7 +194,8 @@ def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solve
     # the structural choices (equal links, elbow) static, so a batch is branch-free.
     robot = Robot(params)
     pre = (model, get_model(torque_model)) if scene == "paper-circle" else (model,)
-    post = (traj, ts, get_solver(solver), controller, max_steps)
+    adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
+    post = (traj, ts, get_solver(solver), controller, max_steps, adjoint)
     batched = _batched(params)
     fn = (_BATCH if batched else _JIT)[scene]
     return SceneCall(fn=fn, args=(*pre, robot, *post), scene=scene, batched=batched,
@@ -219,6 +221,7 @@ def paper_circle(
     atol: float = 1e-10,
     max_steps: int = 200_000,
     throw: bool = True,
+    adjoint: Optional[diffrax.AbstractAdjoint] = None,
 ) -> SceneResult:
     """Scene `paper-circle` (paper Fig 8-12): torques from `torque_model`'s inverse dynamics along
     eq 55 (default L1; `rigid` gives the paper's "simplified model" torques), `model` simulated
@@ -228,9 +231,10 @@ def paper_circle(
     Returns a `SceneResult`, with a leading axis for batched `params` (`stack_params`): one
     compiled vmapped call. A failed member raises `SimulationError` naming it; with
     `throw=False`, or under a JAX transformation, check `result` instead (as diffrax's `throw`).
-    Metrics and timings: `run_scene`."""
+    `adjoint`: diffrax's default (reverse mode, `jax.grad`) or `diffrax.ForwardMode()` for
+    `jax.jvp` / `jax.jacfwd` through the scene. Metrics and timings: `run_scene`."""
     c = _prepare("paper-circle", params, model, torque_model, trajectory, t_end, n_out, solver,
-                 rtol, atol, max_steps)
+                 rtol, atol, max_steps, adjoint)
     return _finish(c.fn(*c.args), throw)
 
 
@@ -246,13 +250,14 @@ def servo_circle(
     atol: float = 1e-10,
     max_steps: int = 200_000,
     throw: bool = True,
+    adjoint: Optional[diffrax.AbstractAdjoint] = None,
 ) -> SceneResult:
     """Scene `servo-circle` (paper Fig 17-18): the actuated angles follow L1's inverse kinematics
     of eq 55 exactly (motion-driven); the platform's response of `model`. L0/L1 need no ODE
     (forward kinematics + inverse dynamics). Default params: Table 1 with t = 0.5 mm.
-    Returns a `SceneResult` (batched like `paper_circle`)."""
+    Returns a `SceneResult` (batched like `paper_circle`); `throw` and `adjoint` as there."""
     c = _prepare("servo-circle", params, model, "reduced", trajectory, t_end, n_out, solver,
-                 rtol, atol, max_steps)
+                 rtol, atol, max_steps, adjoint)
     return _finish(c.fn(*c.args), throw)
 
 
