@@ -33,8 +33,8 @@ from ._models.beam import (  # noqa: E402
     strip_constants as strip_constants,
 )
 from ._checks import PPRError as PPRError  # noqa: E402
-from ._kinematics import home_pose as home_pose  # noqa: E402
-from ._ik import (  # noqa: E402
+from ._geometry import home_pose as home_pose  # noqa: E402
+from ._kinematics import (  # noqa: E402
     IKResult as IKResult,
     inverse_kinematics as inverse_kinematics,
     forward_kinematics as forward_kinematics,

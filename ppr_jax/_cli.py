@@ -208,7 +208,7 @@ def cmd_torques(args):
         raise ValueError(f"torques: inverse dynamics along eq 55 needs model rigid or reduced, "
                          f"not {model.name!r}")
     ts = jnp.linspace(0.0, args.t_end, args.n_out)
-    from ._ik import inverse_kinematics
+    from ._kinematics import inverse_kinematics
 
     # Reachability and singularity along the whole path first: a clear error, never NaN torques.
     inverse_kinematics(params, jax.vmap(Circle())(ts), model)
@@ -334,7 +334,7 @@ def cmd_prb_table(args):
 
 
 def cmd_prb(args):
-    from ._ik import predeflection
+    from ._kinematics import predeflection
 
     if args.kappa0 is not None or args.figure:
         _log("ppr-jax: note: 'prb --kappa0/--fit/--figure' is deprecated; use 'ppr-jax prb-table' "

@@ -66,10 +66,10 @@ def eom_terms(
 
 def _passive(model, robot, k: Kin, jac: Kin, zdot):
     """Spring, damping and friction forces from the kinematics and its Jacobian."""
-    Jd, Jth = jac.defl, jac.th_a
+    Jd, Jth = jac.deflection, jac.th_a
     kk = model.stiffness(robot)
     # kk is a scalar or one stiffness per spring (the beam's clamp half-springs differ).
-    Q = -(Jd.T @ (kk * k.defl)) - robot.c_spring * (Jd.T @ (Jd @ zdot))
+    Q = -(Jd.T @ (kk * k.deflection)) - robot.c_spring * (Jd.T @ (Jd @ zdot))
     return Q - robot.c_act * (Jth.T @ (Jth @ zdot))
 
 
@@ -100,7 +100,7 @@ def energy(model: AbstractModel, robot: Robot, z, zdot):
     k, kd = jax.jvp(lambda z: model.kinematics(robot, z), (z,), (zdot,))
     m, I = model.masses(robot)
     T = 0.5 * (jnp.sum(m * jnp.sum(kd.body_p**2, axis=-1)) + jnp.sum(I * kd.body_ang**2))
-    U = 0.5 * jnp.sum(model.stiffness(robot) * k.defl**2)
+    U = 0.5 * jnp.sum(model.stiffness(robot) * k.deflection**2)
     return T, U
 
 

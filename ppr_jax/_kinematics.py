@@ -1,205 +1,217 @@
-"""Kinematics of the planar 3-RRR robot (MODEL.md sections 2 and 4, paper 1.2).
-
-Conventions: e(alpha) = (cos alpha, sin alpha); chain i (i = 0, 1, 2 in code, 1..3 in the paper)
-runs A_i -> B_i -> D_i -> E_i with absolute link angles th_i1, th_i2, th_i3. The elbow orientation
-sigma makes the joint turn by sigma*theta_c at rest (sigma = -1: clockwise).
-
-Every solver here is closed form or a fixed number of Newton steps, so it is jit-able with static
-shapes and differentiable; the public wrappers check reachability and residuals and raise a clear
-error instead of returning NaN.
-"""
+"""Public kinematics: inverse and forward kinematics, Jacobians J and S, singularity measure and
+the pre-deflection of the home pose (MODEL.md section 4; paper eqs 12-15, 46-47, 52)."""
 
 from __future__ import annotations
 
+from typing import Optional
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
+import optimistix as optx
 
+from ._checks import raise_if
 from ._custom_types import Array, Float
-from ._linalg import solve
-from ._robot import Robot
+from ._linalg import SmallLU
+from ._geometry import home_pose, singularity_measure
+from ._models import AbstractModel, Reduced
+from ._robot import Robot, RobotLike, as_robot
 
-BETA = jnp.array([7 * jnp.pi / 6, -jnp.pi / 6, jnp.pi / 2])  # platform joint directions
-
-
-def e(alpha):
-    """Unit vector(s) e(alpha) = (cos alpha, sin alpha), shape alpha.shape + (2,)."""
-    return jnp.stack([jnp.cos(alpha), jnp.sin(alpha)], axis=-1)
-
-
-def home_pose(robot: Robot) -> Float[Array, "3"]:
-    """Home pose X_h = (a/2, sqrt(3) a/6, 0), the base centroid."""
-    a = robot.a
-    return jnp.stack([a / 2, jnp.sqrt(3.0) * a / 6, jnp.zeros_like(a)])
+#: below this inverse condition number of S (dimensionless) a configuration counts as singular
+SINGULAR_TOL = 1e-6
+#: below this reach margin (1 - |cos| of a chain's closure angle) a chain counts as stretched out
+REACH_TOL = 1e-12
 
 
-def base_points(robot: Robot) -> Float[Array, "3 2"]:
-    """Actuated joints A_1, A_2, A_3 (m)."""
-    a = robot.a
-    z = jnp.zeros_like(a)
-    return jnp.stack(
-        [jnp.stack([z, z]), jnp.stack([a, z]), jnp.stack([a / 2, jnp.sqrt(3.0) * a / 2])]
+class IKResult(eqx.Module):
+    """Inverse kinematics at a pose X.
+
+    th: (3, k) chain angles (k = 3: th_i1, th_i2, th_i3 for L1; k = 2: th_i1, th_i3 for L0) (rad);
+    th_a: (3,) actuated angles; J: (3k + 3, 3) dq/dX with q = (th_11, th_12, ..., x, y, phi)
+    (eq 47); S: (3, 3) d th_a / dX (eq 52); singularity: inverse condition number of the
+    dimensionless S (0 singular, 1 isotropic); margin: (3,) reach margin of each chain;
+    deflection: spring deflections (rad) ((3, 2) for L1, (3,) for L0).
+    """
+
+    th: Array
+    th_a: Array
+    J: Array
+    S: Array
+    singularity: Array
+    margin: Array
+    deflection: Array
+
+
+def _ik(model: AbstractModel, robot: Robot, X) -> IKResult:
+    robot = as_robot(robot)
+
+    def q_of_X(X):
+        k = model.kinematics(robot, model.coords_from_pose(robot, X))
+        return k.th.reshape(-1), k.th_a
+
+    (thf, th_a) = q_of_X(X)
+    Jth, S = jax.jacfwd(q_of_X)(X)
+    k = model.kinematics(robot, model.coords_from_pose(robot, X))
+    J = jnp.concatenate([Jth, jnp.eye(3)], axis=0)
+    d = k.deflection
+    d = d.reshape(3, -1).squeeze(-1) if d.size == 3 else d.reshape(3, 2)
+    return IKResult(
+        th=k.th, th_a=th_a, J=J, S=S, singularity=singularity_measure(S, robot.r1), margin=k.margin,
+        deflection=d,
     )
 
 
-def platform_points(robot: Robot, X: Float[Array, "3"]) -> Float[Array, "3 2"]:
-    """Platform joints E_i = (x, y) + rho_E e(beta_i + phi) (m)."""
-    return X[:2] + robot.rho_E * e(BETA + X[2])
+_ik_jit = eqx.filter_jit(_ik)
 
 
-def wrap(x):
-    """Angle wrapped to (-pi, pi] (smooth away from +-pi: derivative 1)."""
-    return jnp.arctan2(jnp.sin(x), jnp.cos(x))
-
-
-def two_link(d, la, lb, elbow):
-    """Solve la e(th_a) + lb e(th_b) = d for (th_a, th_b) on the branch sign(th_b - th_a) = elbow.
-
-    Returns (th_a, th_b, margin) where margin = 1 - |cos(th_b - th_a)| is 0 at the reach limit
-    (a singular, stretched or folded, configuration) and negative when d is out of reach; the angles
-    are then computed from the clipped cosine and must not be used (callers check `margin`).
-    """
-    dd = jnp.sum(d**2, axis=-1)
-    c = (dd - la**2 - lb**2) / (2 * la * lb)
-    margin = 1 - jnp.abs(c)
-    # Clip away from +-1 so that neither the value nor the gradient is NaN at the reach limit;
-    # the margin reports the problem.
-    cc = jnp.clip(c, -1 + 1e-15, 1 - 1e-15)
-    delta = elbow * jnp.arccos(cc)
-    th_a = jnp.arctan2(d[..., 1], d[..., 0]) - jnp.arctan2(
-        lb * jnp.sin(delta), la + lb * jnp.cos(delta)
+def check_pose(res: IKResult, X):
+    """Raise on an unreachable pose or a singular configuration (works under jit and vmap)."""
+    th = raise_if(
+        res.th, jnp.any(res.margin <= REACH_TOL, axis=-1),
+        "unreachable pose: a chain cannot close (|E_i - A_i| outside the chain's reach); "
+        "allowed poses keep every chain's closure angle inside (0, pi)",
     )
-    return th_a, th_a + delta, margin
+    th = raise_if(
+        th, res.singularity < SINGULAR_TOL,
+        f"singular configuration: the actuation Jacobian S = d th_a/dX is (nearly) singular "
+        f"(inverse condition number < {SINGULAR_TOL:g})",
+    )
+    return eqx.tree_at(lambda r: r.th, res, th)
 
 
-def _chain_vectors(robot: Robot, X):
-    return platform_points(robot, X) - base_points(robot)
+def inverse_kinematics(
+    robot: RobotLike, X: Float[Array, "3"], model: Optional[AbstractModel] = None
+) -> IKResult:
+    """Inverse kinematics of the L1 (default) or L0 model at pose X = (x, y, phi) (m, m, rad),
+    or at a batch of poses X (m, 3) (the result then has a leading axis).
 
-
-# ---------------------------------------------------------------------------------------------
-# Inverse kinematics
-# ---------------------------------------------------------------------------------------------
-
-N_NEWTON_IK = 3
-
-
-def ik_reduced(robot: Robot, X: Float[Array, "3"]):
-    """L1 inverse kinematics under the quasi-static assumption th_i1 - 2 th_i2 + th_i3 = 0 (eq 29).
-
-    Returns (th (3, 3) chain angles [i, (th_i1, th_i2, th_i3)], margin (3,)).
-    The closed form (MODEL.md section 4) with u = (th1 + th3)/2, v = (th3 - th1)/2:
-    (2 r cos v + r2) e(u) = E_i - A_i, is exact when r1 = r3; for r1 != r3 it is the initial guess
-    of `N_NEWTON_IK` Newton steps on the 2x2 chain closure (exact to machine precision for
-    |r1 - r3| of a few mm). `robot.equal_links` (static) picks the branch.
+    L1 imposes the quasi-static assumption th_i1 - 2 th_i2 + th_i3 = 0 (eq 29) and is closed form
+    when r1 = r3 (Newton otherwise); L0 is the rigid two-link closure. Raises `PPRError` for an
+    unreachable pose or a singular configuration (under jit: an equinox runtime error).
     """
-    d = _chain_vectors(robot, X)
-    rbar = (robot.r1 + robot.r3) / 2
-    dist = jnp.linalg.norm(d, axis=-1)
-    c = (dist - robot.r2) / (2 * rbar)
-    margin = 1 - jnp.abs(c)
-    v = robot.sigma * jnp.arccos(jnp.clip(c, -1 + 1e-15, 1 - 1e-15))
-    u = jnp.arctan2(d[:, 1], d[:, 0])
-    th1, th3 = u - v, u + v
-
-    def resid(th13, di):
-        t1, t3 = th13
-        t2 = (t1 + t3) / 2
-        return robot.r1 * e(t1) + robot.r2 * e(t2) + robot.r3 * e(t3) - di
-
-    def newton(th13, di):
-        for _ in range(N_NEWTON_IK):
-            Jc = jax.jacfwd(resid)(th13, di)
-            th13 = th13 - solve(Jc, resid(th13, di))
-        return th13
-
-    def implicit_correction(th13, di):
-        # At the closed-form root the Newton update is zero, but its derivative is the
-        # implicit-function derivative -J^-1 dr: exact also in l1 or l3 alone. J multiplies
-        # r = 0, so it is held constant (its derivatives would multiply zero): the correction
-        # costs one residual and a 2 x 2 inverse in closed form, which matters because it runs
-        # inside every right-hand side under two nested derivatives.
-        t1, t3 = th13
-        de = lambda a: jnp.stack([-jnp.sin(a), jnp.cos(a)])  # noqa: E731
-        h2 = (robot.r2 / 2) * de((t1 + t3) / 2)
-        J = jax.lax.stop_gradient(
-            jnp.stack([robot.r1 * de(t1) + h2, h2 + robot.r3 * de(t3)], axis=-1)
+    robot = as_robot(robot)
+    model = Reduced() if model is None else model
+    if model.actuated_index is not None:
+        raise ValueError(
+            f"inverse_kinematics is defined for models whose pose fixes every joint (rigid, "
+            f"reduced), not {model.name!r}"
         )
-        Jinv = jnp.stack([jnp.stack([J[1, 1], -J[0, 1]]), jnp.stack([-J[1, 0], J[0, 0]])])
-        return th13 - (Jinv @ resid(th13, di)) / (J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
-
-    th13 = jnp.stack([th1, th3], axis=-1)
-    # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
-    # running Newton for every member.
-    th13 = jax.vmap(implicit_correction if robot.equal_links else newton)(th13, d)
-    th1, th3 = th13[:, 0], th13[:, 1]
-    th = jnp.stack([th1, (th1 + th3) / 2, th3], axis=-1)
-    return th, margin
+    X = jnp.asarray(X, dtype=jnp.float64)
+    if X.ndim == 2:  # a batch of poses: one vmapped call; errors name the failing members
+        res = eqx.filter_jit(eqx.filter_vmap(_ik, in_axes=(None, None, 0)))(model, robot, X)
+        return check_pose(res, X)
+    if X.shape != (3,):
+        raise ValueError(f"X must be a pose (x, y, phi) of shape (3,) or (m, 3), got {X.shape}")
+    return check_pose(_ik_jit(model, robot, X), X)
 
 
-def ik_rigid(robot: Robot, X: Float[Array, "3"]):
-    """L0 inverse kinematics of the rigid 3-RRR (links R1, R3 meeting at the virtual corner C_i).
-
-    Returns (th (3, 2) [i, (th_i1, th_i3)], margin (3,)).
-    """
-    d = _chain_vectors(robot, X)
-    t1, t3, margin = two_link(d, robot.R1, robot.R3, robot.sigma)
-    return jnp.stack([t1, t3], axis=-1), margin
+def jacobians(robot: RobotLike, X, model: Optional[AbstractModel] = None):
+    """(J, S) at pose X: J = dq/dX (12, 3) (eq 47, the last 3 rows the identity), S = d th_a/dX."""
+    r = inverse_kinematics(robot, X, model)
+    return r.J, r.S
 
 
-def chain_closure_double1r(robot: Robot, X, th_a):
-    """L2: given the platform pose X and the actuated angles th_a (3,), close each chain with the
-    two-link (r2, r3) solution on the elbow branch sigma. Returns (th (3, 3), margin (3,))."""
-    B = base_points(robot) + robot.r1 * e(th_a)
-    d = platform_points(robot, X) - B
-    t2, t3, margin = two_link(d, robot.r2, robot.r3, robot.sigma)
-    # th_a is an unbounded coordinate while atan2 wraps: keep the chain's angles continuous with
-    # it so that joint angles, plots and deflections never jump by 2 pi.
-    t2 = th_a + wrap(t2 - th_a)
-    t3 = t2 + wrap(t3 - t2)
-    return jnp.stack([th_a, t2, t3], axis=-1), margin
+def predeflection(robot: RobotLike, X=None) -> dict:
+    """Spring deflections at pose X (default home) for L1 (per pivot) and L0 (per pin) (rad).
 
+    Table 1's lengths do not put the home pose exactly on the joint's natural (spring-free) arc:
+    the default robot carries about -0.0152 rad per L1 pivot at home (MODEL.md section 4)."""
+    from ._models import Rigid
 
-def loop_residual(robot: Robot, th, X) -> Float[Array, "3 2"]:
-    """Loop closure (eq 12): A_i + r1 e(th_i1) + r2 e(th_i2) + r3 e(th_i3) - E_i (m), th (3, 3)."""
-    chain = (
-        base_points(robot)
-        + robot.r1 * e(th[:, 0])
-        + robot.r2 * e(th[:, 1])
-        + robot.r3 * e(th[:, 2])
-    )
-    return chain - platform_points(robot, X)
-
-
-def loop_residual_rigid(robot: Robot, th, X) -> Float[Array, "3 2"]:
-    """L0 loop closure A_i + R1 e(th_i1) + R3 e(th_i3) - E_i (m), th (3, 2)."""
-    chain = base_points(robot) + robot.R1 * e(th[:, 0]) + robot.R3 * e(th[:, 1])
-    return chain - platform_points(robot, X)
+    robot = as_robot(robot)
+    X = home_pose(robot) if X is None else jnp.asarray(X, dtype=jnp.float64)
+    r1 = inverse_kinematics(robot, X, Reduced())
+    r0 = inverse_kinematics(robot, X, Rigid())
+    return {"reduced": r1.deflection, "rigid": r0.deflection}
 
 
 # ---------------------------------------------------------------------------------------------
-# Deflections
+# Forward kinematics (Newton, warm-startable)
 # ---------------------------------------------------------------------------------------------
 
 
-def deflections(robot: Robot, th) -> Float[Array, "3 2"]:
-    """Spring deflections of the double-1R model (MODEL.md section 4), th (3, 3):
-    d_i1 = (th_i2 - th_i1) - sigma psi0, d_i2 = (th_i3 - th_i2) - sigma psi0 (rad)."""
-    return jnp.stack(
-        [
-            wrap(th[:, 1] - th[:, 0] - robot.sigma * robot.psi0),
-            wrap(th[:, 2] - th[:, 1] - robot.sigma * robot.psi0),
-        ],
-        axis=-1,
+def _fk(model, robot, th_a, X_guess, rtol, atol, max_steps):
+    robot = as_robot(robot)
+
+    def resid(X, th_a):
+        k = model.kinematics(robot, model.coords_from_pose(robot, X))
+        return k.th_a - th_a
+
+    sol = optx.root_find(
+        resid, optx.Newton(rtol=rtol, atol=atol, linear_solver=SmallLU()), X_guess, args=th_a, max_steps=max_steps,
+        throw=False,
     )
+    return sol.value, sol.result
 
 
-def deflection_rigid(robot: Robot, th) -> Float[Array, "3"]:
-    """L0 pin deflection (th_i3 - th_i1) - sigma theta_c (rad), th (3, 2)."""
-    return wrap(th[:, 1] - th[:, 0] - robot.sigma * robot.theta_c)
+_fk_jit = eqx.filter_jit(_fk)
 
 
-def singularity_measure(S: Float[Array, "3 3"], r1) -> Array:
-    """Inverse condition number of the actuation Jacobian S = d th_a / d X, with the translation
-    columns scaled by the link length r1 so that S is dimensionless: 1 is isotropic, 0 singular."""
-    Sn = S * jnp.stack([r1, r1, jnp.ones_like(r1)])[None, :]
-    sv = jnp.linalg.svd(Sn, compute_uv=False)
-    return sv[-1] / sv[0]
+def _fk_inputs(robot, th_a, X_guess, model):
+    """Defaults shared by the forward-kinematics wrappers: L1 model, home pose as the guess."""
+    robot = as_robot(robot)
+    model = Reduced() if model is None else model
+    th_a = jnp.asarray(th_a, dtype=jnp.float64)
+    X_guess = home_pose(robot) if X_guess is None else jnp.asarray(X_guess, dtype=jnp.float64)
+    return robot, model, th_a, X_guess
+
+
+def forward_kinematics(
+    robot: RobotLike,
+    th_a: Float[Array, "3"],
+    X_guess: Optional[Float[Array, "3"]] = None,
+    model: Optional[AbstractModel] = None,
+    *,
+    rtol: float = 1e-13,
+    atol: float = 1e-13,
+    max_steps: int = 50,
+) -> Float[Array, "3"]:
+    """Platform pose X (m, m, rad) of the L1 (default) or L0 model from the actuated angles th_a.
+
+    Newton on th_a(X) = th_a (optimistix, differentiable by the implicit function theorem),
+    started at `X_guess` (default home): pass the previous solution to warm-start along a path.
+    The assembly mode found is the one nearest the guess. Raises `PPRError` if Newton does not
+    converge or lands on an unreachable / singular configuration."""
+    robot, model, th_a, X_guess = _fk_inputs(robot, th_a, X_guess, model)
+    X, result = _fk_jit(model, robot, th_a, X_guess, rtol, atol, max_steps)
+    X = raise_if(
+        X, result != optx.RESULTS.successful,
+        "forward kinematics did not converge: the actuated angles are out of reach or near a "
+        "singular configuration; try a closer X_guess",
+    )
+    check_pose(_ik_jit(model, robot, X), X)
+    return X
+
+
+def _fk_path(model, robot, th_a_path, X0, rtol, atol, max_steps):
+    def step(X, th_a):
+        Xn, res = _fk(model, robot, th_a, X, rtol, atol, max_steps)
+        return Xn, (Xn, res._value)
+
+    _, (Xs, codes) = jax.lax.scan(step, X0, th_a_path)
+    return Xs, codes
+
+
+_fk_path_jit = eqx.filter_jit(_fk_path)
+
+
+def forward_kinematics_path(
+    robot: RobotLike,
+    th_a_path: Float[Array, "m 3"],
+    X0: Optional[Float[Array, "3"]] = None,
+    model: Optional[AbstractModel] = None,
+    *,
+    rtol: float = 1e-13,
+    atol: float = 1e-13,
+    max_steps: int = 50,
+) -> Float[Array, "m 3"]:
+    """Forward kinematics along a sampled path of actuated angles, each Newton solve warm-started
+    from the previous pose (one `lax.scan`, compiled once per shape)."""
+    robot, model, th_a_path, X0 = _fk_inputs(robot, th_a_path, X0, model)
+    Xs, codes = _fk_path_jit(model, robot, th_a_path, X0, rtol, atol, max_steps)
+    Xs = raise_if(
+        Xs, jnp.any(codes != 0),
+        "forward kinematics along the path did not converge at some sample (out of reach, "
+        "singular, or a jump between samples too large for the warm start)",
+    )
+    return Xs

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 
 from ._custom_types import Array
 from ._dynamics import eom_terms, generalized_force
-from ._kinematics import home_pose
+from ._geometry import home_pose
 from ._models import AbstractModel
 from ._robot import RobotLike, as_robot
 from ._statics import _assemble, static_equilibrium

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import block_diag
 
-from ._kinematics import BETA, deflections, ik_reduced
+from ._geometry import BETA, deflections, ik_reduced
 from ._params import RobotParams
 from ._prb import derived
 from ._robot import Robot

@@ -21,7 +21,7 @@ from ._actuation import InverseDynamicsTorque, InverseKinematicsAngles, MotionDr
 from ._checks import is_traced
 from ._custom_types import Array
 from ._dynamics import inverse_dynamics
-from ._ik import _fk
+from ._kinematics import _fk
 from ._linalg import solve
 from ._metrics import outputs
 from ._models import Reduced, get_model
@@ -203,7 +203,7 @@ def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solve
 
 
 def _finish(res: SceneResult, throw: bool = True) -> SceneResult:
-    if throw and not is_traced(res.result._value):
+    if throw and not is_traced(res.result):
         check_result(res.result, f"{res.scene} ({res.model})")
     return res
 

@@ -88,17 +88,25 @@ def static_equilibrium(
 QS_DT = 1e-3
 
 
-def _chord_solve(resid, resid_stiff, y0, n_iter: int = 40):
-    """Solve resid(y) = 0 near y0 by chord iterations with the Jacobian of `resid_stiff` (the
-    residual's spring/actuator part) at y0, factorised once. The inertial part of the residual
-    changes the Jacobian by about (motion frequency / internal frequency)^2, so the iteration
-    contracts by that factor per step while converging to the root of the full residual.
-    Returns (y, relative residual)."""
+def _chord_solve(resid, resid_stiff, y0, rtol: float = 1e-13, atol: float = 1e-13,
+                 max_steps: int = 100):
+    """Solve resid(y) = 0 near y0 by chord iterations with the Jacobian J0 of `resid_stiff` (the
+    residual's spring/actuator part) at y0, factorised once: the fixed point of
+    y -> y - J0^-1 resid(y), found by optimistix (`FixedPointIteration`, stopping when a step is
+    below atol + rtol |y|, with a result code) and differentiated implicitly (a small solve at
+    the root, not through the iterations). The inertial part of the residual changes the
+    Jacobian by about (motion frequency / internal frequency)^2, so the iteration contracts by
+    that factor per step while converging to the root of the full residual.
+    Returns (y, relative residual, optimistix result)."""
     J0 = jax.jacfwd(resid_stiff)(y0)
     lu = lu_factor(J0)
-    y = jax.lax.fori_loop(0, n_iter, lambda _, y: y - lu_solve(lu, resid(y)), y0)
+    sol = optx.fixed_point(
+        lambda y, _: y - lu_solve(lu, resid(y)), optx.FixedPointIteration(rtol=rtol, atol=atol),
+        y0, max_steps=max_steps, throw=False, adjoint=optx.ImplicitAdjoint(SmallLU()),
+    )
+    y = sol.value
     scale = jnp.maximum(jnp.max(jnp.abs(J0)) * jnp.max(jnp.abs(y)), 1e-300)
-    return y, jnp.max(jnp.abs(resid(y))) / scale
+    return y, jnp.max(jnp.abs(resid(y))) / scale, sol.result
 
 
 def quasi_static_state(
@@ -182,12 +190,12 @@ def quasi_static_state(
     # 5-point central difference (exact derivatives would need third derivatives of the
     # kinematics, whose compilation cost more than the whole simulation).
     offsets = jnp.array([0.0, -2.0, -1.0, 1.0, 2.0]) * QS_DT
-    zus, errs = jax.vmap(solve_at)(t + offsets)
+    zus, errs, results = jax.vmap(solve_at)(t + offsets)
     zu = zus[0]
     zu_dot = (zus[1] - 8 * zus[2] + 8 * zus[3] - zus[4]) / (12 * QS_DT)
     z_r, zd_r, _ = derivatives(ref, t)
     zu = raise_if(
-        zu, ~(jnp.max(errs) < 1e-10),
+        zu, ~(jnp.max(errs) < 1e-10) | jnp.any(results != optx.RESULTS.successful),
         "quasi-static initial state not found (Newton did not converge): the scene's initial "
         "loads are beyond what the joints hold near the nominal pose",
     )

@@ -13,7 +13,7 @@ import pytest
 
 import ppr_jax as pj
 from ppr_jax._models.beam import Beam, solve_strip, strip_constants
-from ppr_jax._kinematics import BETA, base_points, e, platform_points
+from ppr_jax._geometry import BETA, base_points, e, platform_points
 from ppr_jax.elastica import solve_cantilever
 
 from helpers import fd_jvp  # noqa: F401
@@ -50,7 +50,7 @@ def test_rest_geometry_virtual_corner(sigma):
     X = jnp.concatenate([E[0] - robot.rho_E * e(BETA[0]), jnp.zeros(1)])
     z = jnp.concatenate([X, th_a, jnp.full(3 * (N - 1), sigma * p.theta_c / N)])
     k = m.kinematics(robot, z)
-    np.testing.assert_allclose(k.defl[: N + 1], 0.0, atol=1e-12)
+    np.testing.assert_allclose(k.deflection[: N + 1], 0.0, atol=1e-12)
     np.testing.assert_allclose(k.th[0], th[0], atol=1e-12)
     assert k.margin[0] > 0 and np.abs(m.loop_residual(robot, k)[0]).max() < 1e-14
     np.testing.assert_allclose(m.joint_end_rotations(robot, k)[0], 0.0, atol=1e-12)
@@ -65,7 +65,7 @@ def test_layout_and_closure(params, robot):
     X = jnp.array([0.47, 0.24, 0.02])
     z = m.coords_from_pose(robot, X) + 0.01 * jnp.sin(jnp.arange(15.0))
     k = m.kinematics(robot, z)
-    assert k.th.shape == (3, 6) and k.defl.shape == (15,) and k.body_p.shape == (3 + 12 + 3 + 1, 2)
+    assert k.th.shape == (3, 6) and k.deflection.shape == (15,) and k.body_p.shape == (3 + 12 + 3 + 1, 2)
     assert np.all(k.margin > 0.1)
     assert np.abs(m.loop_residual(robot, k)).max() < 1e-14
     np.testing.assert_allclose(k.th_a, z[3:6])

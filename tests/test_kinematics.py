@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from ppr_jax import _kinematics as K
+from ppr_jax import _geometry as K
 from ppr_jax._paper_eom import paper_jacobian
 
 from helpers import fd_jvp, rotate_pose
@@ -87,7 +87,7 @@ def test_unreachable_pose_is_a_clear_error(params):
 def test_singular_configuration_is_a_clear_error(params):
     # det(S) changes sign along phi at the centre: bisect onto the (type II) singularity.
     c = jnp.array([0.45, 0.45 / np.sqrt(3.0)])
-    from ppr_jax._ik import _ik_jit
+    from ppr_jax._kinematics import _ik_jit
 
     def det(phi):
         return float(jnp.linalg.det(_ik_jit(pj.Reduced(), params, jnp.array([c[0], c[1], phi])).S))
@@ -111,7 +111,7 @@ def test_equal_links_fast_path_keeps_exact_derivatives_in_l1_alone(params):
     """With equal links the L1 inverse kinematics is closed form plus an implicit correction
     (a static choice, no lax.cond); its derivative in l1 alone (which breaks the symmetry the
     closed form assumes) equals the general Newton path's and central differences."""
-    from ppr_jax._kinematics import ik_reduced
+    from ppr_jax._geometry import ik_reduced
 
     X = jnp.array([0.46, 0.25, 0.02])
 

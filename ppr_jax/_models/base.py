@@ -29,7 +29,7 @@ class Kin(eqx.Module):
 
     X (3,) platform pose; th (3, k) chain link angles (k = 3 for L1/L2: th_i1, th_i2, th_i3;
     k = 2 for L0: th_i1, th_i3; N + 2 for L3); body_p (nb, 2) body centres of mass; body_ang
-    (nb,) body angles; defl (ns,) spring deflections (rad); th_a (3,) actuated angles; margin (3,)
+    (nb,) body angles; deflection (ns,) spring deflections (rad); th_a (3,) actuated angles; margin (3,)
     reach margin of each chain's closed-form closure (<= 0: out of reach / singular).
     """
 
@@ -37,7 +37,7 @@ class Kin(eqx.Module):
     th: Array
     body_p: Array
     body_ang: Array
-    defl: Array
+    deflection: Array
     th_a: Array
     margin: Array
 
@@ -66,10 +66,10 @@ class AbstractModel(eqx.Module):
 
     @abc.abstractmethod
     def stiffness(self, robot: Robot) -> Array:
-        """Torsion stiffness of the springs (N m/rad): a scalar, or one per entry of `Kin.defl`."""
+        """Torsion stiffness of the springs (N m/rad): a scalar, or one per entry of `Kin.deflection`."""
 
     def damping(self, robot: Robot) -> Array:
-        """Viscous damping of the springs (N m s/rad): a scalar, or one per entry of `Kin.defl`.
+        """Viscous damping of the springs (N m s/rad): a scalar, or one per entry of `Kin.deflection`.
         `params.c_spring` on every spring (MODEL.md section 1)."""
         return robot.c_spring
 

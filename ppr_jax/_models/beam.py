@@ -9,7 +9,7 @@ in closed form (a two-link problem), so the loops close to rounding and the gene
 motion, statics and modes apply unchanged. The derivation, geometry and body layout:
 docs/beam_model.md.
 
-`Kin.th` (3, N + 2) = (th_a, theta_1 .. theta_N, th3) per chain; `Kin.defl` (3 (N + 1),) the
+`Kin.th` (3, N + 2) = (th_a, theta_1 .. theta_N, th3) per chain; `Kin.deflection` (3 (N + 1),) the
 spring deflections chain-major (clamp half-spring, N - 1 interior springs, clamp half-spring),
 with `Beam.stiffness` the matching vector. Also here: `solve_strip`, the same discrete strip as an
 end-loaded cantilever, the counterpart of `ppr_jax.elastica.solve_cantilever`.
@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from .._custom_types import Array, Float
-from .._kinematics import base_points, e, ik_reduced, platform_points, two_link, wrap
+from .._geometry import base_points, e, ik_reduced, platform_points, two_link, wrap
 from .._linalg import SmallLU, solve
 from .._robot import Robot
 from .base import AbstractModel, Kin, rotor_inertia
@@ -157,8 +157,9 @@ class Beam(AbstractModel):
         d_first = wrap(thetas[:, 0] - th_a - sig * sc.dtheta / 2)
         d_mid = phi - sig * sc.dtheta
         d_last = wrap(th3 - thetas[:, -1] - sig * sc.dtheta / 2)
-        defl = jnp.concatenate([d_first[:, None], d_mid, d_last[:, None]], axis=1).reshape(-1)
-        return Kin(X=X, th=th, body_p=p, body_ang=ang, defl=defl, th_a=th_a, margin=ch["margin"])
+        deflection = jnp.concatenate([d_first[:, None], d_mid, d_last[:, None]], axis=1).reshape(-1)
+        return Kin(X=X, th=th, body_p=p, body_ang=ang, deflection=deflection, th_a=th_a,
+                   margin=ch["margin"])
 
     def masses(self, robot):
         N = self.n_elements

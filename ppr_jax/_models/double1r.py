@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._kinematics import (
+from .._geometry import (
     base_points,
     chain_closure_double1r,
     deflections,
@@ -51,7 +51,7 @@ class AbstractDouble1R(AbstractModel):
         """`Kin` from the pose X and the chain angles th (3, 3)."""
         p, ang = self.chain_bodies(robot, th, X)
         return Kin(
-            X=X, th=th, body_p=p, body_ang=ang, defl=deflections(robot, th).reshape(-1),
+            X=X, th=th, body_p=p, body_ang=ang, deflection=deflections(robot, th).reshape(-1),
             th_a=th[:, 0], margin=margin,
         )
 
@@ -71,7 +71,7 @@ class AbstractDouble1R(AbstractModel):
 
     def joint_end_rotations(self, robot, kin):
         """The two pivot deflections (d_i1, d_i2) of each chain (rad)."""
-        return kin.defl.reshape(3, 2)
+        return kin.deflection.reshape(3, 2)
 
 
 class Double1R(AbstractDouble1R):

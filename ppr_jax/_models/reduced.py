@@ -9,7 +9,7 @@ X determines every joint angle (inverse kinematics, closed form when r1 = r3). C
 
 from __future__ import annotations
 
-from .._kinematics import ik_reduced
+from .._geometry import ik_reduced
 from .double1r import AbstractDouble1R
 
 

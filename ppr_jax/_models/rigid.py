@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._kinematics import (
+from .._geometry import (
     base_points,
     deflection_rigid,
     e,
@@ -41,7 +41,7 @@ class Rigid(AbstractModel):
         p = jnp.concatenate([p1, p3, X[None, :2]], axis=0)
         ang = jnp.concatenate([th[:, 0], th[:, 1], X[2:3]])
         return Kin(
-            X=X, th=th, body_p=p, body_ang=ang, defl=deflection_rigid(robot, th),
+            X=X, th=th, body_p=p, body_ang=ang, deflection=deflection_rigid(robot, th),
             th_a=th[:, 0], margin=margin,
         )
 
@@ -62,4 +62,4 @@ class Rigid(AbstractModel):
 
     def joint_end_rotations(self, robot, kin):
         # One pin: each end of the joint carries half of the pin's rotation.
-        return jnp.stack([kin.defl / 2, kin.defl / 2], axis=-1)
+        return jnp.stack([kin.deflection / 2, kin.deflection / 2], axis=-1)

@@ -1,0 +1,207 @@
+"""Chain geometry of the planar 3-RRR robot (MODEL.md sections 2 and 4, paper 1.2): points, the
+two-link closure, the L1 closed form and the spring deflections (the public kinematics built on
+the models is `_kinematics.py`).
+
+Conventions: e(alpha) = (cos alpha, sin alpha); chain i (i = 0, 1, 2 in code, 1..3 in the paper)
+runs A_i -> B_i -> D_i -> E_i with absolute link angles th_i1, th_i2, th_i3. The elbow orientation
+sigma makes the joint turn by sigma*theta_c at rest (sigma = -1: clockwise).
+
+Every solver here is closed form or a fixed number of Newton steps, so it is jit-able with static
+shapes and differentiable; the public wrappers check reachability and residuals and raise a clear
+error instead of returning NaN.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array, Float
+from ._linalg import solve
+from ._robot import Robot
+
+BETA = jnp.array([7 * jnp.pi / 6, -jnp.pi / 6, jnp.pi / 2])  # platform joint directions
+
+
+def e(alpha):
+    """Unit vector(s) e(alpha) = (cos alpha, sin alpha), shape alpha.shape + (2,)."""
+    return jnp.stack([jnp.cos(alpha), jnp.sin(alpha)], axis=-1)
+
+
+def home_pose(robot: Robot) -> Float[Array, "3"]:
+    """Home pose X_h = (a/2, sqrt(3) a/6, 0), the base centroid."""
+    a = robot.a
+    return jnp.stack([a / 2, jnp.sqrt(3.0) * a / 6, jnp.zeros_like(a)])
+
+
+def base_points(robot: Robot) -> Float[Array, "3 2"]:
+    """Actuated joints A_1, A_2, A_3 (m)."""
+    a = robot.a
+    z = jnp.zeros_like(a)
+    return jnp.stack(
+        [jnp.stack([z, z]), jnp.stack([a, z]), jnp.stack([a / 2, jnp.sqrt(3.0) * a / 2])]
+    )
+
+
+def platform_points(robot: Robot, X: Float[Array, "3"]) -> Float[Array, "3 2"]:
+    """Platform joints E_i = (x, y) + rho_E e(beta_i + phi) (m)."""
+    return X[:2] + robot.rho_E * e(BETA + X[2])
+
+
+def wrap(x):
+    """Angle wrapped to (-pi, pi] (smooth away from +-pi: derivative 1)."""
+    return jnp.arctan2(jnp.sin(x), jnp.cos(x))
+
+
+def two_link(d, la, lb, elbow):
+    """Solve la e(th_a) + lb e(th_b) = d for (th_a, th_b) on the branch sign(th_b - th_a) = elbow.
+
+    Returns (th_a, th_b, margin) where margin = 1 - |cos(th_b - th_a)| is 0 at the reach limit
+    (a singular, stretched or folded, configuration) and negative when d is out of reach; the angles
+    are then computed from the clipped cosine and must not be used (callers check `margin`).
+    """
+    dd = jnp.sum(d**2, axis=-1)
+    c = (dd - la**2 - lb**2) / (2 * la * lb)
+    margin = 1 - jnp.abs(c)
+    # Clip away from +-1 so that neither the value nor the gradient is NaN at the reach limit;
+    # the margin reports the problem.
+    cc = jnp.clip(c, -1 + 1e-15, 1 - 1e-15)
+    delta = elbow * jnp.arccos(cc)
+    th_a = jnp.arctan2(d[..., 1], d[..., 0]) - jnp.arctan2(
+        lb * jnp.sin(delta), la + lb * jnp.cos(delta)
+    )
+    return th_a, th_a + delta, margin
+
+
+def _chain_vectors(robot: Robot, X):
+    return platform_points(robot, X) - base_points(robot)
+
+
+# ---------------------------------------------------------------------------------------------
+# Inverse kinematics
+# ---------------------------------------------------------------------------------------------
+
+N_NEWTON_IK = 3
+
+
+def ik_reduced(robot: Robot, X: Float[Array, "3"]):
+    """L1 inverse kinematics under the quasi-static assumption th_i1 - 2 th_i2 + th_i3 = 0 (eq 29).
+
+    Returns (th (3, 3) chain angles [i, (th_i1, th_i2, th_i3)], margin (3,)).
+    The closed form (MODEL.md section 4) with u = (th1 + th3)/2, v = (th3 - th1)/2:
+    (2 r cos v + r2) e(u) = E_i - A_i, is exact when r1 = r3; for r1 != r3 it is the initial guess
+    of `N_NEWTON_IK` Newton steps on the 2x2 chain closure (exact to machine precision for
+    |r1 - r3| of a few mm). `robot.equal_links` (static) picks the branch.
+    """
+    d = _chain_vectors(robot, X)
+    rbar = (robot.r1 + robot.r3) / 2
+    dist = jnp.linalg.norm(d, axis=-1)
+    c = (dist - robot.r2) / (2 * rbar)
+    margin = 1 - jnp.abs(c)
+    v = robot.sigma * jnp.arccos(jnp.clip(c, -1 + 1e-15, 1 - 1e-15))
+    u = jnp.arctan2(d[:, 1], d[:, 0])
+    th1, th3 = u - v, u + v
+
+    def resid(th13, di):
+        t1, t3 = th13
+        t2 = (t1 + t3) / 2
+        return robot.r1 * e(t1) + robot.r2 * e(t2) + robot.r3 * e(t3) - di
+
+    def newton(th13, di):
+        for _ in range(N_NEWTON_IK):
+            Jc = jax.jacfwd(resid)(th13, di)
+            th13 = th13 - solve(Jc, resid(th13, di))
+        return th13
+
+    def implicit_correction(th13, di):
+        # At the closed-form root the Newton update is zero, but its derivative is the
+        # implicit-function derivative -J^-1 dr: exact also in l1 or l3 alone. J multiplies
+        # r = 0, so it is held constant (its derivatives would multiply zero): the correction
+        # costs one residual and a 2 x 2 inverse in closed form, which matters because it runs
+        # inside every right-hand side under two nested derivatives.
+        t1, t3 = th13
+        de = lambda a: jnp.stack([-jnp.sin(a), jnp.cos(a)])  # noqa: E731
+        h2 = (robot.r2 / 2) * de((t1 + t3) / 2)
+        J = jax.lax.stop_gradient(
+            jnp.stack([robot.r1 * de(t1) + h2, h2 + robot.r3 * de(t3)], axis=-1)
+        )
+        Jinv = jnp.stack([jnp.stack([J[1, 1], -J[0, 1]]), jnp.stack([-J[1, 0], J[0, 0]])])
+        return th13 - (Jinv @ resid(th13, di)) / (J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
+
+    th13 = jnp.stack([th1, th3], axis=-1)
+    # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
+    # running Newton for every member.
+    th13 = jax.vmap(implicit_correction if robot.equal_links else newton)(th13, d)
+    th1, th3 = th13[:, 0], th13[:, 1]
+    th = jnp.stack([th1, (th1 + th3) / 2, th3], axis=-1)
+    return th, margin
+
+
+def ik_rigid(robot: Robot, X: Float[Array, "3"]):
+    """L0 inverse kinematics of the rigid 3-RRR (links R1, R3 meeting at the virtual corner C_i).
+
+    Returns (th (3, 2) [i, (th_i1, th_i3)], margin (3,)).
+    """
+    d = _chain_vectors(robot, X)
+    t1, t3, margin = two_link(d, robot.R1, robot.R3, robot.sigma)
+    return jnp.stack([t1, t3], axis=-1), margin
+
+
+def chain_closure_double1r(robot: Robot, X, th_a):
+    """L2: given the platform pose X and the actuated angles th_a (3,), close each chain with the
+    two-link (r2, r3) solution on the elbow branch sigma. Returns (th (3, 3), margin (3,))."""
+    B = base_points(robot) + robot.r1 * e(th_a)
+    d = platform_points(robot, X) - B
+    t2, t3, margin = two_link(d, robot.r2, robot.r3, robot.sigma)
+    # th_a is an unbounded coordinate while atan2 wraps: keep the chain's angles continuous with
+    # it so that joint angles, plots and deflections never jump by 2 pi.
+    t2 = th_a + wrap(t2 - th_a)
+    t3 = t2 + wrap(t3 - t2)
+    return jnp.stack([th_a, t2, t3], axis=-1), margin
+
+
+def loop_residual(robot: Robot, th, X) -> Float[Array, "3 2"]:
+    """Loop closure (eq 12): A_i + r1 e(th_i1) + r2 e(th_i2) + r3 e(th_i3) - E_i (m), th (3, 3)."""
+    chain = (
+        base_points(robot)
+        + robot.r1 * e(th[:, 0])
+        + robot.r2 * e(th[:, 1])
+        + robot.r3 * e(th[:, 2])
+    )
+    return chain - platform_points(robot, X)
+
+
+def loop_residual_rigid(robot: Robot, th, X) -> Float[Array, "3 2"]:
+    """L0 loop closure A_i + R1 e(th_i1) + R3 e(th_i3) - E_i (m), th (3, 2)."""
+    chain = base_points(robot) + robot.R1 * e(th[:, 0]) + robot.R3 * e(th[:, 1])
+    return chain - platform_points(robot, X)
+
+
+# ---------------------------------------------------------------------------------------------
+# Deflections
+# ---------------------------------------------------------------------------------------------
+
+
+def deflections(robot: Robot, th) -> Float[Array, "3 2"]:
+    """Spring deflections of the double-1R model (MODEL.md section 4), th (3, 3):
+    d_i1 = (th_i2 - th_i1) - sigma psi0, d_i2 = (th_i3 - th_i2) - sigma psi0 (rad)."""
+    return jnp.stack(
+        [
+            wrap(th[:, 1] - th[:, 0] - robot.sigma * robot.psi0),
+            wrap(th[:, 2] - th[:, 1] - robot.sigma * robot.psi0),
+        ],
+        axis=-1,
+    )
+
+
+def deflection_rigid(robot: Robot, th) -> Float[Array, "3"]:
+    """L0 pin deflection (th_i3 - th_i1) - sigma theta_c (rad), th (3, 2)."""
+    return wrap(th[:, 1] - th[:, 0] - robot.sigma * robot.theta_c)
+
+
+def singularity_measure(S: Float[Array, "3 3"], r1) -> Array:
+    """Inverse condition number of the actuation Jacobian S = d th_a / d X, with the translation
+    columns scaled by the link length r1 so that S is dimensionless: 1 is isotropic, 0 singular."""
+    Sn = S * jnp.stack([r1, r1, jnp.ones_like(r1)])[None, :]
+    sv = jnp.linalg.svd(Sn, compute_uv=False)
+    return sv[-1] / sv[0]
