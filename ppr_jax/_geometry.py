@@ -81,7 +81,12 @@ def _chain_vectors(robot: Robot, X):
 # Inverse kinematics
 # ---------------------------------------------------------------------------------------------
 
-N_NEWTON_IK = 3
+#: Newton iterations at most for the unequal-links L1 inverse kinematics (quadratic convergence
+#: from the closed-form guess needs 3-5; an unreachable pose exhausts them and shows up as a
+#: loop-closure residual, which the scenes turn into an error)
+N_NEWTON_IK = 30
+#: step (rad) below which that Newton iteration has converged
+NEWTON_IK_TOL = 1e-15
 
 
 def ik_reduced(robot: Robot, X: Float[Array, "3"]):
@@ -90,8 +95,9 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     Returns (th (3, 3) chain angles [i, (th_i1, th_i2, th_i3)], margin (3,)).
     The closed form (MODEL.md section 4) with u = (th1 + th3)/2, v = (th3 - th1)/2:
     (2 r cos v + r2) e(u) = E_i - A_i, is exact when r1 = r3; for r1 != r3 it is the initial guess
-    of `N_NEWTON_IK` Newton steps on the 2x2 chain closure (exact to machine precision for
-    |r1 - r3| of a few mm). `robot.equal_links` (static) picks the branch.
+    of Newton's method on the 2x2 chain closure, iterated to a step below `NEWTON_IK_TOL` (at most
+    `N_NEWTON_IK` iterations). `robot.equal_links` (static) picks the branch. Either way the
+    derivatives come from one implicit-function step at the root, never through the iterations.
     """
     d = _chain_vectors(robot, X)
     rbar = (robot.r1 + robot.r3) / 2
@@ -108,9 +114,24 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
         return robot.r1 * e(t1) + robot.r2 * e(t2) + robot.r3 * e(t3) - di
 
     def newton(th13, di):
-        for _ in range(N_NEWTON_IK):
-            Jc = jax.jacfwd(resid)(th13, di)
-            th13 = th13 - solve(Jc, resid(th13, di))
+        # Derivative-free (inputs stopped): the derivatives come from `implicit_correction` at
+        # the root, so the loop needs no reverse-mode rule and costs nothing under jvp.
+        rob, th13, di = jax.lax.stop_gradient((robot, th13, di))
+
+        def res(th13):
+            t1, t3 = th13
+            return rob.r1 * e(t1) + rob.r2 * e((t1 + t3) / 2) + rob.r3 * e(t3) - di
+
+        def body(c):
+            th, k, _ = c
+            step = solve(jax.jacfwd(res)(th), res(th))
+            return th - step, k + 1, jnp.max(jnp.abs(step))
+
+        def cond(c):
+            _, k, err = c
+            return (k < N_NEWTON_IK) & (err > NEWTON_IK_TOL)
+
+        th13, _, _ = jax.lax.while_loop(cond, body, (th13, 0, jnp.asarray(jnp.inf)))
         return th13
 
     def implicit_correction(th13, di):
@@ -131,7 +152,9 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     th13 = jnp.stack([th1, th3], axis=-1)
     # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
     # running Newton for every member.
-    th13 = jax.vmap(implicit_correction if robot.equal_links else newton)(th13, d)
+    if not robot.equal_links:
+        th13 = jax.vmap(newton)(th13, d)
+    th13 = jax.vmap(implicit_correction)(th13, d)
     th1, th3 = th13[:, 0], th13[:, 1]
     th = jnp.stack([th1, (th1 + th3) / 2, th3], axis=-1)
     return th, margin

@@ -27,13 +27,29 @@ def test_ik_closes_loops_and_keeps_quasi_static_constraint(params, robot, X):
     assert float(jnp.abs(K.loop_residual_rigid(robot, r0.th, jnp.asarray(X))).max()) < 1e-10
 
 
-def test_newton_path_for_unequal_links(params):
-    p = params.replace(l3=0.33)
+@pytest.mark.parametrize("l1,l3", [(0.3, 0.33), (0.2, 0.5)])
+def test_newton_path_for_unequal_links(params, l1, l3):
+    """Unequal links: Newton to convergence (three fixed steps left 0.8 mm for 0.2 / 0.5 m), with
+    derivatives (forward and reverse) equal to central differences of the converged solve."""
+    from ppr_jax._geometry import ik_reduced
+
+    p = params.replace(l1=l1, l3=l3)
     robot = pj.Robot(p)
+    assert not robot.equal_links
     X = jnp.array(POSES[2])
     r = pj.inverse_kinematics(p, X)
     assert float(jnp.abs(K.loop_residual(robot, r.th, X)).max()) < 1e-12
     np.testing.assert_allclose(r.th[:, 0] - 2 * r.th[:, 1] + r.th[:, 2], 0, atol=1e-13)
+
+    def th(l3):
+        return ik_reduced(pj.Robot(p.replace(l3=l3)), X)[0]
+
+    h = 1e-6
+    fd = (th(l3 + h) - th(l3 - h)) / (2 * h)
+    g = jax.jacfwd(th)(l3)
+    np.testing.assert_allclose(g, fd, rtol=0, atol=1e-8)
+    g_rev = jax.grad(lambda l: jnp.sum(jnp.sin(th(l))))(l3)
+    np.testing.assert_allclose(g_rev, jnp.sum(jnp.cos(th(l3)) * g), rtol=1e-12)
 
 
 @pytest.mark.parametrize("X", POSES[1:])
