@@ -32,7 +32,11 @@ from ._models.beam import (  # noqa: E402
     solve_strip as solve_strip,
     strip_constants as strip_constants,
 )
-from ._checks import PPRError as PPRError  # noqa: E402
+from ._checks import (  # noqa: E402
+    PPRError as PPRError,
+    RESULTS as RESULTS,
+    SimulationError as SimulationError,
+)
 from ._geometry import home_pose as home_pose  # noqa: E402
 from ._kinematics import (  # noqa: E402
     IKResult as IKResult,
@@ -65,7 +69,6 @@ from ._actuation import (  # noqa: E402
 from ._simulate import (  # noqa: E402
     simulate as simulate,
     Solution as Solution,
-    SimulationError as SimulationError,
 )
 from ._statics import (  # noqa: E402
     static_equilibrium as static_equilibrium,

@@ -1,8 +1,16 @@
-"""Clear errors instead of NaN: one helper that checks eagerly when values are concrete (and names
-the failing batch members) and falls back to `eqx.error_if` inside a trace."""
+"""The library's error vocabulary: one base exception (`PPRError`), the result codes of compiled
+programs (`RESULTS`, diffrax's plus this library's own), and the host-side checks that turn them
+into errors naming the failed batch members.
+
+Compiled scene programs never raise: they return a `RESULTS` code per member (so batches keep
+what succeeded, and the programs hold no host callbacks, which JAX's persistent compilation
+cache cannot store). `raise_if` is for the eager, per-call checks of the public functions; under
+a trace it falls back to `eqx.error_if`.
+"""
 
 from __future__ import annotations
 
+import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -13,6 +21,92 @@ class PPRError(ValueError):
     """The base of this library's errors: bad input or an infeasible request (unreachable pose,
     singular configuration, a solver that failed: `SimulationError`). A `ValueError`, so code
     that catches bad input keeps working."""
+
+
+class SimulationError(PPRError, RuntimeError):
+    """A simulation or scene failed (the message says which batch members, why, and what to
+    try). `result`, when set, is what was computed: a scene's `SceneResult` with every member,
+    the failed ones included (their `result` codes say why), so a batch loses nothing."""
+
+    result = None
+
+
+#: loop-closure residual (m) above which a chain counts as open at an output time
+RESIDUAL_TOL = 1e-9
+
+
+class RESULTS(diffrax.RESULTS):
+    """Result codes of the compiled programs: diffrax's (and optimistix's) plus this library's.
+    `RESULTS[code]` is the message; `RESULTS.promote(diffrax_result)` converts."""
+
+    invalid_parameter = (
+        "a parameter is not finite or out of its physical range (see ppr_jax.PARAM_RANGES)"
+    )
+    initial_state_failed = (
+        "the quasi-static initial state was not found: the scene's initial loads are beyond "
+        "what the joints hold near the nominal pose, or the pose is out of reach"
+    )
+    loop_not_closed = (
+        f"a kinematic chain does not close (loop-closure residual above {RESIDUAL_TOL:g} m at an "
+        f"output time): the pose is out of the chains' reach (check a, h, l1, l3, r and the "
+        f"trajectory) or the motion crosses a singularity"
+    )
+    kinematics_failed = (
+        "forward kinematics did not converge along the prescribed path: the actuated angles "
+        "leave the workspace or cross a singularity"
+    )
+
+
+def first_failure(*checks):
+    """The result code of the first failed check: `checks` are (failed: bool array, code) pairs,
+    most fundamental cause first; a code may be a `RESULTS` array (then `failed` is ignored and
+    its own non-success counts). Traceable and vmappable."""
+    out = RESULTS.successful
+    for failed, code in reversed(checks):
+        if failed is None:
+            code = RESULTS.promote(code) if not isinstance(code, RESULTS) else code
+            failed = code != RESULTS.successful
+        out = RESULTS.where(failed, code, out)
+    return out
+
+
+def failure_reasons(result, detail=None) -> dict:
+    """{member index (None when not batched): reason} for every failed member of `result` (host
+    side); `detail(i)` may add a member's particulars (for example when its loop opened)."""
+    result = result if isinstance(result, RESULTS) else RESULTS.promote(result)
+    ok = np.asarray(result == RESULTS.successful)
+    members = [None] if ok.ndim == 0 else np.flatnonzero(~ok).tolist()
+    if ok.ndim == 0 and ok:
+        return {}
+    out = {}
+    for i in members:
+        r = result if i is None else jax.tree_util.tree_map(lambda x: x[i], result)
+        extra = detail(i) if detail is not None else ""
+        out[i] = RESULTS[r] + (f" ({extra})" if extra else "")
+    return out
+
+
+def check_result(result, what: str = "simulation", detail=None, value=None) -> None:
+    """Raise `SimulationError` if any (batch member's) `result` is not successful, naming the
+    failed members and the reason of each (`failure_reasons`). `value` is attached to the error
+    as `err.result`, so what succeeded is not lost."""
+    reasons = failure_reasons(result, detail)
+    if not reasons:
+        return
+    if None in reasons:
+        msg = f"{what} failed: {reasons[None]}"
+    else:
+        n = int(np.size(np.asarray(result == RESULTS.successful)))
+        shown = "; ".join(f"member {i}: {r}" for i, r in list(reasons.items())[:10])
+        more = f"; and {len(reasons) - 10} more" if len(reasons) > 10 else ""
+        msg = f"{what} failed ({len(reasons)} of {n} batch members): {shown}{more}"
+    if any("step" in r for r in reasons.values()):
+        msg += (". A stiff model (thin strip, L2) may need more steps (max_steps) or an implicit "
+                "solver (kvaerno5); a chain leaving its reach or a singular configuration also "
+                "makes the step size collapse")
+    err = SimulationError(msg)
+    err.result = value
+    raise err
 
 
 def is_traced(tree) -> bool:

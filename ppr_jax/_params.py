@@ -138,18 +138,16 @@ def check_params(params: RobotParams) -> None:
             )
 
 
-def validate_traced(params: RobotParams, x):
-    """Inside jit: attach range checks on the parameters to `x` (returns `x`; use the result)."""
-    for name, (lo, hi, unit, meaning) in PARAM_RANGES.items():
+def params_invalid(params: RobotParams):
+    """Traceable: True where a parameter is not finite or out of its range (a bool, batched like
+    the parameters). For status codes inside compiled programs (no host callback)."""
+    bad = jnp.asarray(False)
+    for name, (lo, hi, _, _) in PARAM_RANGES.items():
         v = getattr(params, name)
         if v is None:
             continue
-        x = eqx.error_if(
-            x,
-            ~jnp.isfinite(v) | (v < lo) | (v > hi),
-            f"parameter {name!r} ({meaning}) is out of its physical range [{lo:g}, {hi:g}] {unit}",
-        )
-    return x
+        bad = bad | ~jnp.isfinite(v) | (v < lo) | (v > hi)
+    return bad
 
 
 def stack_params(params_list: list[RobotParams]) -> RobotParams:

@@ -18,7 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._actuation import InverseDynamicsTorque, InverseKinematicsAngles, MotionDriven, TorqueDriven
-from ._checks import is_traced
+from ._checks import (
+    RESIDUAL_TOL, RESULTS, check_result, failure_reasons, first_failure, is_traced,
+)
 from ._custom_types import Array
 from ._dynamics import inverse_dynamics
 from ._kinematics import _fk
@@ -26,10 +28,10 @@ from ._linalg import solve
 from ._metrics import outputs
 from ._models import Reduced, get_model
 from ._modes import modes as _modes
-from ._params import RobotParams
+from ._params import RobotParams, params_invalid
 from ._robot import Robot
-from ._simulate import Solution, _simulate_core, check_result, get_solver
-from ._statics import quasi_static_state
+from ._simulate import Solution, _simulate_core, get_solver
+from ._statics import _quasi_static_state
 from ._trajectory import Circle, derivatives
 
 SCENES = ("paper-circle", "servo-circle", "modes")
@@ -56,8 +58,10 @@ class SceneResult(eqx.Module):
     platform pose (m, m, rad); X_nominal (m, 3) the nominal pose of eq 55; tau (m, 3) actuator
     torques (applied, or the reactions when motion-driven) (N m); end_rot (m, 2) rotations of
     chain 1's compliant-joint ends (rad); residual (m,) max loop-closure residual (m);
-    kinetic, potential (m,) energy (J); result the diffrax result code (a failure is raised by
-    the scene functions when they are called outside a transformation); num_steps,
+    kinetic, potential (m,) energy (J); result a `ppr_jax.RESULTS` code: diffrax's, or invalid
+    parameters, no initial state, a loop-closure residual above 1e-9 m at an output time (a
+    failure is raised by the scene functions when called outside a transformation with
+    `throw=True`; `failures()` lists them per member); num_steps,
     num_accepted, num_rejected solver statistics (0 for a scene that needs no ODE). `scene` and
     `model` (static) name what ran. Metrics, timings and printing: `ppr_jax.run_scene`."""
 
@@ -71,12 +75,21 @@ class SceneResult(eqx.Module):
     residual: Array
     kinetic: Array
     potential: Array
-    result: diffrax.RESULTS
+    result: RESULTS
     num_steps: Array
     num_accepted: Array
     num_rejected: Array
     scene: str = eqx.field(static=True)
     model: str = eqx.field(static=True)
+
+    @property
+    def ok(self) -> np.ndarray:
+        """True where the member succeeded (host-side; bool, or (batch,) bool)."""
+        return np.asarray(self.result == RESULTS.successful)
+
+    def failures(self) -> dict:
+        """{member index (None for one robot): reason} for every failed member (host-side)."""
+        return failure_reasons(self.result, _failure_detail(self))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -84,12 +97,28 @@ class SceneResult(eqx.Module):
 # ---------------------------------------------------------------------------------------------
 
 
-def _result(scene, model, robot, traj, sol: Solution) -> SceneResult:
+def _open_at(model, robot, z):
+    """A chain is open at coordinates z (loop-closure residual above `RESIDUAL_TOL`)."""
+    k = model.kinematics(robot, z)
+    return ~(jnp.max(jnp.linalg.norm(model.loop_residual(robot, k), axis=-1)) <= RESIDUAL_TOL)
+
+
+def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None) -> SceneResult:
     out = outputs(model, robot, sol.z, sol.zdot)
+    # Every precondition as a status code (most fundamental cause first): invalid parameters
+    # (in sol.result), no initial state, the solver's failure, a chain that does not close at
+    # some output time (an L0/L1 pose out of reach integrates happily on an open chain).
+    result = first_failure(
+        (params_invalid(robot.params), RESULTS.invalid_parameter),
+        (open0, RESULTS.loop_not_closed),
+        (qs_failed, RESULTS.initial_state_failed),
+        (None, sol.result),
+        (~(jnp.max(out.residual) <= RESIDUAL_TOL), RESULTS.loop_not_closed),
+    )
     return SceneResult(
         ts=sol.ts, z=sol.z, zdot=sol.zdot, X=out.X, X_nominal=jax.vmap(traj)(sol.ts),
         tau=sol.tau, end_rot=out.end_rot, residual=out.residual, kinetic=out.kinetic,
-        potential=out.potential, result=sol.result, num_steps=sol.num_steps,
+        potential=out.potential, result=result, num_steps=sol.num_steps,
         num_accepted=sol.num_accepted, num_rejected=sol.num_rejected, scene=scene,
         model=model.name,
     )
@@ -98,12 +127,14 @@ def _result(scene, model, robot, traj, sol: Solution) -> SceneResult:
 def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller, max_steps,
                        adjoint):
     act = TorqueDriven(InverseDynamicsTorque(torque_model, robot, traj))
-    z0, zd0 = quasi_static_state(model, robot, traj, ts[0], act)
+    z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
+    open0 = _open_at(model, robot, z0)
     sol = _simulate_core(
         model, robot, act, z0, zd0, ts, solver, controller, None, max_steps,
         jnp.zeros(3), False, diffrax.NoProgressMeter(), adjoint,
+        failed | open0 | params_invalid(robot.params),
     )
-    return _result("paper-circle", model, robot, traj, sol)
+    return _result("paper-circle", model, robot, traj, sol, failed, open0)
 
 
 def _kinematic_motion(model, robot, angles, X0, ts):
@@ -133,9 +164,8 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, ad
         X, Xd, tau, codes = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
         # A status code, not a callback: forward kinematics failing along the path is reported
         # like a solver failure (and the compiled program stays free of host callbacks).
-        result = diffrax.RESULTS.where(
-            jnp.any(codes != 0), diffrax.RESULTS.nonlinear_divergence, diffrax.RESULTS.successful
-        )
+        result = RESULTS.where(jnp.any(codes != 0), RESULTS.kinematics_failed,
+                               RESULTS.successful)
         zero = jnp.asarray(0)
         sol = Solution(
             ts=ts, z=X, zdot=Xd, tau=tau, result=result, num_steps=zero, num_accepted=zero,
@@ -143,11 +173,13 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, ad
         )
     else:
         act = MotionDriven(angles)
-        z0, zd0 = quasi_static_state(model, robot, traj, ts[0], act)
+        z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
+        open0 = _open_at(model, robot, z0)
         sol = _simulate_core(
             model, robot, act, z0, zd0, ts, solver, controller, None, max_steps, jnp.zeros(3),
-            False, diffrax.NoProgressMeter(), adjoint,
+            False, diffrax.NoProgressMeter(), adjoint, failed | open0 | params_invalid(robot.params),
         )
+        return _result("servo-circle", model, robot, traj, sol, failed, open0)
     return _result("servo-circle", model, robot, traj, sol)
 
 
@@ -202,9 +234,27 @@ def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solve
                      solver_name=solver_name)
 
 
+def _failure_detail(res: SceneResult):
+    """Host-side particulars of a failed member: when its loop opened, how far."""
+    resid = np.asarray(res.residual)
+    ts = np.asarray(res.ts)
+
+    def detail(i):
+        r = resid if i is None else resid[i]
+        t = ts if i is None else ts[i]
+        bad = np.flatnonzero(~(r <= RESIDUAL_TOL))
+        if bad.size == 0:
+            return ""
+        k = bad[0]
+        return (f"loop-closure residual {r[k]:.3g} m at t = {t[k]:.4g} s, largest "
+                f"{np.nanmax(r):.3g} m")
+
+    return detail
+
+
 def _finish(res: SceneResult, throw: bool = True) -> SceneResult:
     if throw and not is_traced(res.result):
-        check_result(res.result, f"{res.scene} ({res.model})")
+        check_result(res.result, f"{res.scene} ({res.model})", _failure_detail(res), res)
     return res
 
 

@@ -18,12 +18,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._actuation import AbstractActuation
-from ._checks import PPRError
+from ._checks import RESULTS, SimulationError, check_result, first_failure  # noqa: F401
 from ._custom_types import Array, Float
 from ._dynamics import eom_terms, generalized_force
 from ._linalg import solve_spd
 from ._models import AbstractModel
-from ._params import validate_traced
+from ._params import params_invalid
 from ._robot import RobotLike, as_robot
 
 SOLVERS = {
@@ -45,20 +45,16 @@ def get_solver(solver) -> diffrax.AbstractSolver:
         raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}") from None
 
 
-class SimulationError(PPRError, RuntimeError):
-    """A simulation failed (the message says which batch members, why, and what to try)."""
-
-
 class Solution(eqx.Module):
     """Result of `simulate`. ts (m,), z and zdot (m, n) the model's coordinates and velocities,
     tau (m, 3) actuator torques (applied, or the reaction torques when motion-driven) (N m),
-    result the diffrax result code, num_steps / num_accepted / num_rejected solver statistics."""
+    result a `ppr_jax.RESULTS` code (diffrax's, or invalid parameters), num_steps / num_accepted / num_rejected solver statistics."""
 
     ts: Array
     z: Array
     zdot: Array
     tau: Array
-    result: diffrax.RESULTS
+    result: RESULTS
     num_steps: Array
     num_accepted: Array
     num_rejected: Array
@@ -117,17 +113,21 @@ def _accel(model, robot, actuation, wrench, t, zf, zfd):
 @eqx.filter_jit
 def _simulate_core(
     model, robot, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0, max_steps, wrench,
-    throw, progress_meter, adjoint=None,
+    throw, progress_meter, adjoint=None, skip=None,
 ):
     robot = as_robot(robot)
     free, _ = _split(model, actuation)
     f = jnp.array(free)
     y0 = (z0[f], zdot0[f])
-    y0 = validate_traced(robot.params, y0)
 
     def vf(t, y, args):
         _, _, zdd, _ = _accel(model, robot, actuation, wrench, t, *y)
-        return (y[1], zdd[f])
+        dy = (y[1], zdd[f])
+        if skip is not None:
+            # A member already known to have failed (for example an open chain at t = 0) is
+            # frozen, so it finishes in a few steps instead of running a batch to max_steps.
+            dy = jax.tree_util.tree_map(lambda a: jnp.where(skip, 0.0, a), dy)
+        return dy
 
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(vf), solver, ts[0], ts[-1], dt0, y0,
@@ -138,8 +138,11 @@ def _simulate_core(
     z, zd, _, tau = jax.vmap(
         lambda t, a, b: _accel(model, robot, actuation, wrench, t, a, b)
     )(sol.ts, *sol.ys)
+    # A status code, not a host callback: invalid (traced) parameters name themselves.
+    result = first_failure((params_invalid(robot.params), RESULTS.invalid_parameter),
+                           (None, sol.result))
     return Solution(
-        ts=sol.ts, z=z, zdot=zd, tau=tau, result=sol.result,
+        ts=sol.ts, z=z, zdot=zd, tau=tau, result=result,
         num_steps=sol.stats["num_steps"], num_accepted=sol.stats["num_accepted_steps"],
         num_rejected=sol.stats["num_rejected_steps"],
     )
@@ -147,28 +150,6 @@ def _simulate_core(
 
 def _is_traced(tree) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
-
-
-def check_result(result: diffrax.RESULTS, what: str = "simulation") -> None:
-    """Raise `SimulationError` if any (batch member's) result is not successful, naming the
-    failed members and diffrax's reason for each (its public `RESULTS` API)."""
-    ok = np.atleast_1d(np.asarray(result == diffrax.RESULTS.successful))
-    if np.all(ok):
-        return
-    bad = np.flatnonzero(~ok)
-    batched = np.ndim(np.asarray(result == diffrax.RESULTS.successful)) > 0
-    if not batched:
-        detail = diffrax.RESULTS[result]
-    else:
-        detail = "; ".join(
-            f"member {i}: {diffrax.RESULTS[jax.tree_util.tree_map(lambda x: x[i], result)]}"
-            for i in bad[:10]
-        )
-    raise SimulationError(
-        f"{what} failed ({len(bad)} of {ok.size} batch members): {detail}. A chain that "
-        f"leaves its reach or a singular configuration makes the step size collapse; a stiff model "
-        f"(thin strip, L2) may need more steps (max_steps) or an implicit solver (kvaerno5)."
-    )
 
 
 def simulate(

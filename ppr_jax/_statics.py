@@ -122,7 +122,7 @@ def quasi_static_state(
 ):
     """Initial state (z, z') of `model` consistent with the L1 motion along `trajectory` at t
     under `actuation` (an `AbstractActuation`; the older flags `motion_driven` and `torque`
-    (a time function) say the same: one or the other).
+    (a time function) say the same: one or the other). Raises `PPRError` if it is not found.
 
     The reference is the model's coordinates on the L1 manifold, z_ref(t) =
     coords_from_pose(X(t)), with its velocity and acceleration. Models without internal degrees of
@@ -136,6 +136,28 @@ def quasi_static_state(
     difference of step `QS_DT`, error ~1e-13), so no fast internal vibration is excited at t = 0
     beyond what the model mismatch implies.
     """
+    z, zd, failed = _quasi_static_state(model, robot, trajectory, t, actuation,
+                                        motion_driven=motion_driven, torque=torque, wrench=wrench)
+    z = raise_if(
+        z, failed,
+        "quasi-static initial state not found (the chord iteration did not converge): the "
+        "scene's initial loads are beyond what the joints hold near the nominal pose",
+    )
+    return z, zd
+
+
+def _quasi_static_state(
+    model: AbstractModel,
+    robot: RobotLike,
+    trajectory: Callable,
+    t,
+    actuation: Optional[AbstractActuation] = None,
+    *,
+    motion_driven: Optional[bool] = None,
+    torque: Optional[Callable] = None,
+    wrench=None,
+):
+    """`quasi_static_state` without raising: (z, z', failed), failed a traceable bool."""
     robot = as_robot(robot)
     if actuation is None:
         if motion_driven is None:
@@ -157,7 +179,7 @@ def quasi_static_state(
     t = jnp.asarray(t, dtype=jnp.float64)
     if model.actuated_index is None:
         z, zd, _ = derivatives(ref, t)
-        return z, zd
+        return z, zd, jnp.asarray(False)
     act = tuple(model.actuated_index)
     # torque-driven: the pose is nominal and every internal coordinate balances;
     # motion-driven: the actuated angles are prescribed and everything else balances.
@@ -194,11 +216,7 @@ def quasi_static_state(
     zu = zus[0]
     zu_dot = (zus[1] - 8 * zus[2] + 8 * zus[3] - zus[4]) / (12 * QS_DT)
     z_r, zd_r, _ = derivatives(ref, t)
-    zu = raise_if(
-        zu, ~(jnp.max(errs) < 1e-10) | jnp.any(results != optx.RESULTS.successful),
-        "quasi-static initial state not found (Newton did not converge): the scene's initial "
-        "loads are beyond what the joints hold near the nominal pose",
-    )
+    failed = ~(jnp.max(errs) < 1e-10) | jnp.any(results != optx.RESULTS.successful)
     z = _assemble(n, unknown, zu, known, z_r[ik])
     zd = _assemble(n, unknown, zu_dot, known, zd_r[ik])
-    return z, zd
+    return z, zd, failed
