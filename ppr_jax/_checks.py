@@ -46,6 +46,11 @@ class RESULTS(diffrax.RESULTS):
         "the quasi-static initial state was not found: the scene's initial loads are beyond "
         "what the joints hold near the nominal pose, or the pose is out of reach"
     )
+    trajectory_out_of_reach = (
+        "the nominal trajectory leaves the chains' reach at an output time (its inverse "
+        "kinematics, which gives the scene's torques or prescribed angles, has an open loop): "
+        "shrink the trajectory or check a, h, l1, l3, r"
+    )
     loop_not_closed = (
         f"a kinematic chain does not close (loop-closure residual above {RESIDUAL_TOL:g} m at an "
         f"output time): the pose is out of the chains' reach (check a, h, l1, l3, r and the "
@@ -90,6 +95,7 @@ def check_result(result, what: str = "simulation", detail=None, value=None) -> N
     """Raise `SimulationError` if any (batch member's) `result` is not successful, naming the
     failed members and the reason of each (`failure_reasons`). `value` is attached to the error
     as `err.result`, so what succeeded is not lost."""
+    result = result if isinstance(result, RESULTS) else RESULTS.promote(result)
     reasons = failure_reasons(result, detail)
     if not reasons:
         return
@@ -107,6 +113,28 @@ def check_result(result, what: str = "simulation", detail=None, value=None) -> N
     err = SimulationError(msg)
     err.result = value
     raise err
+
+
+def check_number(name: str, value, lo: float, hi: float, unit: str = "", *,
+                 integer: bool = False, open_lo: bool = False):
+    """Validate a scalar argument before any computation: a finite number (an integer if
+    `integer`) in [lo, hi] (lo excluded with `open_lo`). Returns it as float or int; raises
+    `PPRError` naming the argument and the allowed range."""
+    rng = f"{'(' if open_lo else '['}{lo:g}, {hi:g}] {unit}".rstrip()
+    kind = "an integer" if integer else "a number"
+    if isinstance(value, bool):
+        raise PPRError(f"{name} must be {kind} in {rng}, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise PPRError(f"{name} must be {kind} in {rng}, got {value!r}") from None
+    if not np.isfinite(v):
+        raise PPRError(f"{name} must be finite ({kind} in {rng}), got {value!r}")
+    if integer and v != int(v):
+        raise PPRError(f"{name} must be an integer in {rng}, got {value!r}")
+    if v < lo or v > hi or (open_lo and v == lo):
+        raise PPRError(f"{name} = {value!r} is out of its allowed range {rng}")
+    return int(v) if integer else v
 
 
 def is_traced(tree) -> bool:

@@ -11,6 +11,8 @@ import time
 
 import numpy as np
 
+from ._checks import PPRError
+
 PAPER_REFERENCE = {
     "paper-circle": {
         "source": "paper section 2.2, theory vs ADAMS-ANSYS, t = 0.3 mm",
@@ -42,7 +44,7 @@ def _parse_sets(items, scene):
     kw = {}
     for item in items or []:
         if "=" not in item:
-            raise ValueError(f"--set expects NAME=VALUE, got {item!r}")
+            raise PPRError(f"--set expects NAME=VALUE, got {item!r}")
         name, value = item.split("=", 1)
         name = name.strip()
         kw[name] = parse_value(name, value)
@@ -78,7 +80,7 @@ def _models(text, default):
 
     for m in names:
         if m not in MODELS:
-            raise ValueError(f"unknown model {m!r}; allowed: {', '.join(MODELS)}")
+            raise PPRError(f"unknown model {m!r}; allowed: {', '.join(MODELS)}")
     return names
 
 
@@ -91,7 +93,7 @@ def cmd_simulate(args):
 
     scene = args.scene
     params = _parse_sets(args.set, scene)
-    os.makedirs(args.out, exist_ok=True)
+    check_out_dir(args.out)
     if scene == "modes":
         models = _models(args.model, "reduced,double1r")
         res = []
@@ -110,31 +112,49 @@ def cmd_simulate(args):
     models = _models(args.model, "rigid,reduced,double1r")
     kw = dict(t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol,
               atol=args.atol, max_steps=args.max_steps)
-    results = []
+    results, failed = [], {}
+    traj = Circle()
+    objs = [get_model(m, args.elements) for m in models]  # every argument checked before compiling
+
+    def write():
+        # After every model: a failing or interrupted later model keeps what finished.
+        summary = {
+            "scene": scene,
+            "torque_model": args.torque_model if scene == "paper-circle" else None,
+            "t_end_s": args.t_end,
+            "n_out": args.n_out,
+            "params": _params_dict(params),
+            "derived": _derived_dict(params),
+            "models": {r.model: dict(r.metrics, solver=r.solver) for r in results},
+            "failed": failed,
+            "paper_reference": PAPER_REFERENCE.get(scene),
+        }
+        _write_json(os.path.join(args.out, "summary.json"), summary)
+        if results:
+            _write_csv(os.path.join(args.out, "trajectory.csv"), results)
+
     for i, m in enumerate(models):
         _log(f"[{i + 1}/{len(models)}] {scene}: model {m} (compiling, then running) ...")
         t0 = time.perf_counter()
-        r = run_scene(scene, params, model=get_model(m, args.elements),
-                      torque_model=args.torque_model, **kw)
+        try:
+            r = run_scene(scene, params, model=objs[i], torque_model=args.torque_model, **kw)
+        except PPRError as err:
+            failed[m] = " ".join(str(err).split())
+            _log(f"      {m} failed: {failed[m]}")
+            write()
+            continue
         _log(f"      done in {time.perf_counter() - t0:.1f} s (compile {r.timing['compile_s']:.1f} s, "
              f"run {r.timing['run_s'] * 1e3:.1f} ms, {r.metrics['num_steps']} steps)")
         results.append(r)
-    traj = Circle()
-    summary = {
-        "scene": scene,
-        "torque_model": args.torque_model if scene == "paper-circle" else None,
-        "t_end_s": args.t_end,
-        "n_out": args.n_out,
-        "params": _params_dict(params),
-        "derived": _derived_dict(params),
-        "models": {r.model: dict(r.metrics, solver=r.solver) for r in results},
-        "paper_reference": PAPER_REFERENCE.get(scene),
-    }
-    _write_json(os.path.join(args.out, "summary.json"), summary)
-    _write_csv(os.path.join(args.out, "trajectory.csv"), results)
-    scene_figures(results, args.out, np.asarray(traj.center), float(traj.radius))
-    _print_table(scene, results, args)
-    print(f"wrote {args.out}/summary.json, trajectory.csv, trajectory.png, angle.png, radial_error.png")
+        write()
+    if results:
+        scene_figures(results, args.out, np.asarray(traj.center), float(traj.radius))
+        _print_table(scene, results, args)
+        print(f"wrote {args.out}/summary.json, trajectory.csv, trajectory.png, angle.png, "
+              f"radial_error.png")
+    if failed:
+        raise PPRError(f"{len(failed)} of {len(models)} models failed ({', '.join(failed)}); "
+                       f"see above and {args.out}/summary.json")
     return 0
 
 
@@ -203,9 +223,10 @@ def cmd_torques(args):
     from ._trajectory import Circle
 
     params = _parse_sets(args.set, "paper-circle")
+    check_out_dir(args.out)
     model = get_model(args.model)
     if model.actuated_index is not None:
-        raise ValueError(f"torques: inverse dynamics along eq 55 needs model rigid or reduced, "
+        raise PPRError(f"torques: inverse dynamics along eq 55 needs model rigid or reduced, "
                          f"not {model.name!r}")
     ts = jnp.linspace(0.0, args.t_end, args.n_out)
     from ._kinematics import inverse_kinematics
@@ -215,8 +236,7 @@ def cmd_torques(args):
     tau = jax.jit(jax.vmap(InverseDynamicsTorque(model, params, Circle())))(ts)
     tau = np.asarray(tau)
     if not np.all(np.isfinite(tau)):
-        raise ValueError("inverse dynamics produced non-finite torques (singular configuration)")
-    os.makedirs(args.out, exist_ok=True)
+        raise PPRError("inverse dynamics produced non-finite torques (singular configuration)")
     path = os.path.join(args.out, "torques.csv")
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
@@ -325,7 +345,7 @@ def cmd_prb_table(args):
     if args.kappa0 is not None:
         return _prb_at_kappa0(args, tab)
     if args.fit:
-        raise ValueError("--fit needs --kappa0 (it fits that one curvature afresh from the elastica)")
+        raise PPRError("--fit needs --kappa0 (it fits that one curvature afresh from the elastica)")
     if args.figure:
         _prb_figure(args.figure, tab)
     if not args.figure or args.json:
@@ -480,16 +500,46 @@ def build_parser():
     return p
 
 
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    from ._checks import PPRError
-    from ._simulate import SimulationError
+def check_out_dir(path: str) -> str:
+    """Make sure the output directory can be written before a long run starts (`PPRError`)."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise PPRError(f"--out {path!r} is a file, not a directory")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as err:
+        raise PPRError(f"--out {path!r}: cannot create the directory ({err.strerror})") from None
+    if not os.access(path, os.W_OK):
+        raise PPRError(f"--out {path!r}: the directory is not writable")
+    return path
 
+
+def _runtime_message(err: Exception) -> str:
+    """The library's own message out of an error raised inside compiled code (equinox's runtime
+    errors arrive wrapped in JAX's), without the framework's hints."""
+    text = str(err)
+    for marker in ("EqxRuntimeError: ", "XlaRuntimeError: "):
+        if marker in text:
+            text = text.split(marker, 1)[1]
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    keep = [ln for ln in lines if not ln.startswith(("-----", "This error", "Note:", "If this"))]
+    return keep[0] if keep else (lines[0] if lines else type(err).__name__)
+
+
+def main(argv=None) -> int:
+    """Run the command line; every user error is one line on stderr and exit status 2."""
+    import jax
+
+    args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, PPRError, SimulationError) as err:
-        print(f"ppr-jax: error: {err}", file=sys.stderr)
-        return 2
+    except (PPRError, ValueError) as err:
+        msg = str(err)
+    except OSError as err:
+        msg = f"{err.filename or ''}: {err.strerror or err}".lstrip(": ")
+    except jax.errors.JaxRuntimeError as err:
+        msg = _runtime_message(err)
+    print(f"ppr-jax: error: {' '.join(msg.split())}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

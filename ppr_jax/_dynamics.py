@@ -23,6 +23,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._checks import PPRError
 from ._custom_types import Array, Float
 from ._linalg import solve
 from ._models import AbstractModel, Kin
@@ -134,7 +135,7 @@ def inverse_dynamics(
     Returns (tau_a, eom); the caller checks `eom.kin.margin` and the conditioning of S.
     """
     if model.actuated_index is not None:
-        raise ValueError(
+        raise PPRError(
             f"inverse_dynamics along a platform trajectory needs a model whose coordinates are the "
             f"pose (rigid, reduced); {model.name!r} has internal degrees of freedom: simulate it "
             f"motion-driven instead"

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from ._checks import raise_if
+from ._checks import PPRError, raise_if
 from ._custom_types import Array, Float
 from ._linalg import SmallLU
 from ._geometry import home_pose, singularity_measure
@@ -92,7 +92,7 @@ def inverse_kinematics(
     robot = as_robot(robot)
     model = Reduced() if model is None else model
     if model.actuated_index is not None:
-        raise ValueError(
+        raise PPRError(
             f"inverse_kinematics is defined for models whose pose fixes every joint (rigid, "
             f"reduced), not {model.name!r}"
         )
@@ -101,7 +101,7 @@ def inverse_kinematics(
         res = eqx.filter_jit(eqx.filter_vmap(_ik, in_axes=(None, None, 0)))(model, robot, X)
         return check_pose(res, X)
     if X.shape != (3,):
-        raise ValueError(f"X must be a pose (x, y, phi) of shape (3,) or (m, 3), got {X.shape}")
+        raise PPRError(f"X must be a pose (x, y, phi) of shape (3,) or (m, 3), got {X.shape}")
     return check_pose(_ik_jit(model, robot, X), X)
 
 

@@ -13,6 +13,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._checks import PPRError
 from ._custom_types import Array
 from ._dynamics import eom_terms, generalized_force
 from ._geometry import home_pose
@@ -52,7 +53,7 @@ def modes(
     actuators="free": zero actuator torque, every coordinate free.
     """
     if actuators not in ("locked", "free"):
-        raise ValueError(f"actuators must be 'locked' or 'free', got {actuators!r}")
+        raise PPRError(f"actuators must be 'locked' or 'free', got {actuators!r}")
     X = home_pose(robot) if X is None else jnp.asarray(X, dtype=jnp.float64)
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
     return _modes_jit(model, as_robot(robot), X, actuators, w)

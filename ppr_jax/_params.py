@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import PPRError
 from ._custom_types import Array
 
 jax.config.update("jax_enable_x64", True)
@@ -95,15 +96,17 @@ class RobotParams(eqx.Module):
     sigma: int = eqx.field(static=True, default=-1)
 
     def __check_init__(self):
-        if self.sigma not in SIGMA_VALUES:
-            raise ValueError(f"sigma (elbow orientation) must be -1 or +1, got {self.sigma!r}")
+        if isinstance(self.sigma, bool) or self.sigma not in SIGMA_VALUES:
+            raise PPRError(
+                f"parameter 'sigma' (elbow orientation) must be -1 or +1, got {self.sigma!r}"
+            )
         check_params(self)
 
     def replace(self, **changes: Any) -> "RobotParams":
         """A copy with some fields changed (validated like the constructor)."""
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
         if unknown:
-            raise ValueError(
+            raise PPRError(
                 f"unknown parameter(s) {sorted(unknown)}; allowed: {sorted(settable_names())}"
             )
         kw = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -129,12 +132,15 @@ def check_params(params: RobotParams) -> None:
         if v is None or not _is_concrete(v):
             continue
         arr = np.asarray(v)
-        bad = ~np.isfinite(arr) | (arr < lo) | (arr > hi)
+        nonfinite = ~np.isfinite(arr)
+        bad = nonfinite | (arr < lo) | (arr > hi)
         if np.any(bad):
             where = "" if arr.ndim == 0 else f" at batch index {np.flatnonzero(bad).tolist()}"
-            raise ValueError(
+            what = ("is not finite" if np.all(nonfinite[bad]) else
+                    f"is out of its physical range [{lo:g}, {hi:g}] {unit}")
+            raise PPRError(
                 f"parameter {name!r} ({meaning}) = {arr[bad].tolist() if arr.ndim else float(arr)}"
-                f"{where} is out of its physical range [{lo:g}, {hi:g}] {unit}"
+                f"{where} {what} (allowed range [{lo:g}, {hi:g}] {unit})"
             )
 
 
@@ -151,14 +157,35 @@ def params_invalid(params: RobotParams):
 
 
 def stack_params(params_list: list[RobotParams]) -> RobotParams:
-    """Stack robots into one batched `RobotParams` (leading axis) for `jax.vmap`."""
-    sig = {p.sigma for p in params_list}
-    if len(sig) != 1:
-        raise ValueError("all robots of a batch must share sigma (a static branch choice)")
+    """Stack robots into one batched `RobotParams` (leading axis) for `jax.vmap`. Every member is
+    validated; an error names the bad member (its index in `params_list`)."""
+    params_list = list(params_list)
+    if not params_list:
+        raise PPRError("stack_params needs at least one RobotParams")
+    for i, p in enumerate(params_list):
+        if not isinstance(p, RobotParams):
+            raise PPRError(f"stack_params: member {i} is a {type(p).__name__}, not RobotParams")
+        if np.ndim(p.a) != 0:
+            raise PPRError(f"stack_params: member {i} is already a batch (stack single robots)")
+        try:
+            check_params(p)
+        except PPRError as err:
+            raise PPRError(f"stack_params: member {i}: {err}") from None
+    sigma0 = params_list[0].sigma
+    for i, p in enumerate(params_list):
+        if p.sigma != sigma0:
+            raise PPRError(
+                f"stack_params: member {i} has sigma = {p.sigma}, member 0 sigma = {sigma0}: all "
+                f"robots of a batch must share sigma (a static branch choice)"
+            )
     for name in ("gamma", "rho", "K_theta"):
-        if len({getattr(p, name) is None for p in params_list}) != 1:
-            raise ValueError(
-                f"either every robot of a batch gives {name} explicitly or none does"
+        given = [getattr(p, name) is not None for p in params_list]
+        if len(set(given)) != 1:
+            i = given.index(not given[0])
+            raise PPRError(
+                f"stack_params: member {i} {'gives' if given[i] else 'does not give'} {name} "
+                f"but member 0 {'does' if given[0] else 'does not'}: either every robot of a "
+                f"batch gives {name} explicitly or none does"
             )
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *params_list)
 
@@ -173,12 +200,15 @@ def parse_value(name: str, text: str):
     """Parse a CLI ``NAME=VALUE`` value (floats; ``sigma`` int; ``gamma``/``rho``/``K_theta``
     ``=auto`` for the default source: the fitted PRB table, Howell's geometric rho)."""
     if name not in settable_names():
-        raise ValueError(f"unknown parameter {name!r}; allowed: {', '.join(settable_names())}")
+        raise PPRError(f"unknown parameter {name!r}; allowed: {', '.join(settable_names())}")
     if name == "sigma":
-        v = int(float(text))
-        if v not in SIGMA_VALUES:
-            raise ValueError(f"parameter 'sigma' must be -1 or +1, got {text!r}")
-        return v
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if v not in SIGMA_VALUES:  # 1.5 is not truncated to 1
+            raise PPRError(f"parameter 'sigma' (elbow orientation) must be -1 or +1, got {text!r}")
+        return int(v)
     if name in ("gamma", "rho", "K_theta") and text.strip().lower() in (
         "none", "auto", "table", "geometry"
     ):
@@ -186,7 +216,10 @@ def parse_value(name: str, text: str):
     try:
         v = float(text)
     except ValueError:
-        raise ValueError(f"parameter {name!r}: cannot read {text!r} as a number") from None
+        raise PPRError(f"parameter {name!r}: cannot read {text!r} as a number") from None
     if not math.isfinite(v):
-        raise ValueError(f"parameter {name!r} must be finite, got {text!r}")
+        lo, hi, unit, _ = PARAM_RANGES[name]
+        raise PPRError(
+            f"parameter {name!r} must be finite (allowed range [{lo:g}, {hi:g}] {unit}), got {text!r}"
+        )
     return v

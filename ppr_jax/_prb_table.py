@@ -25,6 +25,8 @@ import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ._checks import PPRError
+
 __all__ = ["KAPPA0_RANGE", "prb_parameters", "prb_table"]
 
 #: Table domain of kappa0.
@@ -85,10 +87,10 @@ def _not_a_knot_coefficients(x, y):
     y = np.asarray(y, dtype=np.float64)
     n = x.shape[0]
     if n < 4 or y.shape != x.shape:
-        raise ValueError("not-a-knot spline needs at least 4 nodes and y of the same shape as x")
+        raise PPRError("not-a-knot spline needs at least 4 nodes and y of the same shape as x")
     h = np.diff(x)
     if not np.all(h > 0):
-        raise ValueError("spline nodes must be strictly increasing")
+        raise PPRError("spline nodes must be strictly increasing")
     d = np.diff(y) / h  # secant slopes
     A = np.zeros((n, n))
     r = np.zeros(n)
@@ -144,7 +146,7 @@ def prb_parameters(kappa0):
     except (jax.errors.JAXTypeError, TypeError):
         k_np = None
     if k_np is not None and not np.all((k_np >= lo - tol) & (k_np <= hi + tol)):
-        raise ValueError(f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range); got {kappa0}.")
+        raise PPRError(f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range); got {kappa0}.")
     k = jnp.asarray(kappa0, jnp.float64)
     k = eqx.error_if(
         k,

@@ -14,6 +14,7 @@ from typing import Optional, Union
 import jax
 import numpy as np
 
+from ._checks import PPRError
 from ._metrics import metrics
 from ._params import RobotParams
 from ._scenes import SceneResult, _finish, _prepare, scene_params
@@ -106,7 +107,7 @@ def run_scene(
     `timing = {compile_s: first call - fastest run, run_s: fastest run}`. A failure raises
     `SimulationError` naming the failed members. Returns a `SceneReport`."""
     if scene not in RUN_SCENES:
-        raise ValueError(f"unknown scene {scene!r}; allowed: {', '.join(RUN_SCENES)}")
+        raise PPRError(f"unknown scene {scene!r}; allowed: {', '.join(RUN_SCENES)}")
     params = scene_params(scene) if params is None else params
     c = _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solver, rtol,
                  atol, max_steps)

@@ -32,6 +32,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ._checks import PPRError
 from ._params import RobotParams
 from ._prb import Derived, derived
 
@@ -70,7 +71,7 @@ class Robot(eqx.Module):
         if equal_links is None:
             equal_links = auto
         elif equal_links and not auto and _concrete(params.l1) and _concrete(params.l3):
-            raise ValueError(
+            raise PPRError(
                 "equal_links=True needs l1 == l3 (drive and connecting links of equal length) "
                 "for every robot of the batch"
             )

@@ -19,7 +19,8 @@ import numpy as np
 
 from ._actuation import InverseDynamicsTorque, InverseKinematicsAngles, MotionDriven, TorqueDriven
 from ._checks import (
-    RESIDUAL_TOL, RESULTS, check_result, failure_reasons, first_failure, is_traced,
+    PPRError,
+    RESIDUAL_TOL, RESULTS, check_number, check_result, failure_reasons, first_failure, is_traced,
 )
 from ._custom_types import Array
 from ._dynamics import inverse_dynamics
@@ -44,7 +45,7 @@ DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "be
 def scene_params(scene: str, **overrides) -> RobotParams:
     """Default parameters of a scene (the strip thickness differs) with overrides applied."""
     if scene not in SCENES:
-        raise ValueError(f"unknown scene {scene!r}; allowed: {', '.join(SCENES)}")
+        raise PPRError(f"unknown scene {scene!r}; allowed: {', '.join(SCENES)}")
     kw = {"t": SCENE_THICKNESS[scene]}
     kw.update(overrides)
     return RobotParams().replace(**kw)
@@ -103,15 +104,28 @@ def _open_at(model, robot, z):
     return ~(jnp.max(jnp.linalg.norm(model.loop_residual(robot, k), axis=-1)) <= RESIDUAL_TOL)
 
 
-def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None) -> SceneResult:
+def _reference_open(ref_model, robot, traj, ts):
+    """The nominal trajectory is out of reach at some output time for the model whose inverse
+    kinematics drives the scene (`ref_model`, L0 or L1)."""
+
+    def resid(t):
+        k = ref_model.kinematics(robot, ref_model.coords_from_pose(robot, traj(t)))
+        return jnp.max(jnp.linalg.norm(ref_model.loop_residual(robot, k), axis=-1))
+
+    return ~(jnp.max(jax.vmap(resid)(ts)) <= RESIDUAL_TOL)
+
+
+def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None,
+            ref_open=None) -> SceneResult:
     out = outputs(model, robot, sol.z, sol.zdot)
     # Every precondition as a status code (most fundamental cause first): invalid parameters
     # (in sol.result), no initial state, the solver's failure, a chain that does not close at
     # some output time (an L0/L1 pose out of reach integrates happily on an open chain).
     result = first_failure(
         (params_invalid(robot.params), RESULTS.invalid_parameter),
-        (open0, RESULTS.loop_not_closed),
+        (ref_open, RESULTS.trajectory_out_of_reach),
         (qs_failed, RESULTS.initial_state_failed),
+        (open0, RESULTS.loop_not_closed),
         (None, sol.result),
         (~(jnp.max(out.residual) <= RESIDUAL_TOL), RESULTS.loop_not_closed),
     )
@@ -129,12 +143,13 @@ def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller,
     act = TorqueDriven(InverseDynamicsTorque(torque_model, robot, traj))
     z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
     open0 = _open_at(model, robot, z0)
+    ref_open = _reference_open(torque_model, robot, traj, ts)
     sol = _simulate_core(
         model, robot, act, z0, zd0, ts, solver, controller, None, max_steps,
         jnp.zeros(3), False, diffrax.NoProgressMeter(), adjoint,
-        failed | open0 | params_invalid(robot.params),
+        failed | open0 | ref_open | params_invalid(robot.params),
     )
-    return _result("paper-circle", model, robot, traj, sol, failed, open0)
+    return _result("paper-circle", model, robot, traj, sol, failed, open0, ref_open)
 
 
 def _kinematic_motion(model, robot, angles, X0, ts):
@@ -160,6 +175,7 @@ def _kinematic_motion(model, robot, angles, X0, ts):
 
 def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, adjoint):
     angles = InverseKinematicsAngles(Reduced(), robot, traj)
+    ref_open = _reference_open(Reduced(), robot, traj, ts)
     if model.actuated_index is None:
         X, Xd, tau, codes = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
         # A status code, not a callback: forward kinematics failing along the path is reported
@@ -177,10 +193,11 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, ad
         open0 = _open_at(model, robot, z0)
         sol = _simulate_core(
             model, robot, act, z0, zd0, ts, solver, controller, None, max_steps, jnp.zeros(3),
-            False, diffrax.NoProgressMeter(), adjoint, failed | open0 | params_invalid(robot.params),
+            False, diffrax.NoProgressMeter(), adjoint,
+            failed | open0 | ref_open | params_invalid(robot.params),
         )
-        return _result("servo-circle", model, robot, traj, sol, failed, open0)
-    return _result("servo-circle", model, robot, traj, sol)
+        return _result("servo-circle", model, robot, traj, sol, failed, open0, ref_open)
+    return _result("servo-circle", model, robot, traj, sol, ref_open=ref_open)
 
 
 #: scene name -> (core, index of the robot among the core's arguments)
@@ -199,6 +216,20 @@ def _batched(params: RobotParams) -> bool:
     return jnp.ndim(params.a) == 1
 
 
+def check_scene_args(t_end, n_out, rtol, atol, max_steps) -> None:
+    """Validate a scene's arguments before anything is compiled (`PPRError` naming the argument
+    and its allowed range). The tolerance bounds: below 1e-14 the error control chases round-off;
+    above 1e-2 the result is not worth a number."""
+    if not is_traced(t_end):
+        check_number("t_end", t_end, 0.0, 1e5, "s", open_lo=True)
+    check_number("n_out", n_out, 2, 10_000_000, integer=True)
+    check_number("max_steps", max_steps, 1, 10**9, integer=True)
+    if not is_traced(rtol):
+        check_number("rtol", rtol, 1e-14, 1e-2)
+    if not is_traced(atol):
+        check_number("atol", atol, 1e-16, 1e-2)
+
+
 class SceneCall(eqx.Module):
     """A scene ready to run: `fn(*args)` is the compiled (and, for a batch, vmapped) core."""
 
@@ -211,6 +242,7 @@ class SceneCall(eqx.Module):
 
 def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solver, rtol, atol,
              max_steps, adjoint=None) -> SceneCall:
+    check_scene_args(t_end, n_out, rtol, atol, max_steps)
     model = get_model(model)
     params = scene_params(scene) if params is None else params
     traj = Circle() if trajectory is None else trajectory

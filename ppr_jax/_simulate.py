@@ -18,7 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._actuation import AbstractActuation
-from ._checks import RESULTS, SimulationError, check_result, first_failure  # noqa: F401
+from ._checks import (  # noqa: F401 (SimulationError, check_result: re-exported)
+    PPRError, RESULTS, SimulationError, check_result, first_failure,
+)
 from ._custom_types import Array, Float
 from ._dynamics import eom_terms, generalized_force
 from ._linalg import solve_spd
@@ -42,7 +44,7 @@ def get_solver(solver) -> diffrax.AbstractSolver:
     try:
         return SOLVERS[str(solver).lower()]()
     except KeyError:
-        raise ValueError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}") from None
+        raise PPRError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}") from None
 
 
 class Solution(eqx.Module):
@@ -71,7 +73,7 @@ def _split(model: AbstractModel, actuation: AbstractActuation):
     if not actuation.prescribes_angles:
         return tuple(range(n)), ()
     if model.actuated_index is None:
-        raise ValueError(
+        raise PPRError(
             f"model {model.name!r} has no free degree of freedom when motion-driven: its pose "
             f"follows from the actuated angles by forward kinematics (use "
             f"ppr_jax.forward_kinematics_path); no ODE is needed"
@@ -185,14 +187,14 @@ def simulate(
     z0 = jnp.asarray(z0, dtype=jnp.float64)
     zdot0 = jnp.asarray(zdot0, dtype=jnp.float64)
     if z0.shape != (model.n_dof,) or zdot0.shape != (model.n_dof,):
-        raise ValueError(
+        raise PPRError(
             f"z0 and zdot0 must have shape ({model.n_dof},) for model {model.name!r}; got "
             f"{z0.shape} and {zdot0.shape}"
         )
     if ts.ndim != 1 or ts.shape[0] < 2:
-        raise ValueError("ts must be a 1-D array of at least two increasing output times")
+        raise PPRError("ts must be a 1-D array of at least two increasing output times")
     if not _is_traced(ts) and not bool(np.all(np.diff(np.asarray(ts)) > 0)):
-        raise ValueError("ts must be strictly increasing")
+        raise PPRError("ts must be strictly increasing")
     if stepsize_controller is None:
         # Array tolerances: changing them does not recompile.
         stepsize_controller = diffrax.PIDController(

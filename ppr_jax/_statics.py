@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from ._checks import raise_if
+from ._checks import PPRError, raise_if
 from ._actuation import AbstractActuation, TorqueDriven
 from ._dynamics import eom_terms, generalized_force, passive_force
 from ._linalg import SmallLU, lu_factor, lu_solve
@@ -161,14 +161,14 @@ def _quasi_static_state(
     robot = as_robot(robot)
     if actuation is None:
         if motion_driven is None:
-            raise ValueError("quasi_static_state needs an actuation (or motion_driven=True/False)")
+            raise PPRError("quasi_static_state needs an actuation (or motion_driven=True/False)")
         actuation = None if motion_driven else TorqueDriven(
             (lambda t: jnp.zeros(3)) if torque is None else torque
         )
         prescribed = bool(motion_driven)
     else:
         if motion_driven is not None or torque is not None:
-            raise ValueError("give either an actuation or motion_driven/torque, not both")
+            raise PPRError("give either an actuation or motion_driven/torque, not both")
         prescribed = actuation.prescribes_angles
     n = model.n_dof
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)

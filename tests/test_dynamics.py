@@ -138,7 +138,7 @@ def test_explicit_and_implicit_solvers_agree(params):
     b = pj.simulate(model, params, act, X0, jnp.zeros(3), TS, solver="kvaerno5", rtol=1e-10,
                     atol=1e-12)
     np.testing.assert_allclose(a.z, b.z, atol=1e-8)
-    assert isinstance(a.result, diffrax.RESULTS)
+    assert isinstance(a.result, pj.RESULTS)
 
 
 @pytest.mark.parametrize("motion_driven", [False, True])

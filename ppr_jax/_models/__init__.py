@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Optional, Union
 
+from .._checks import PPRError, check_number
 from .base import AbstractModel as AbstractModel, Kin as Kin
 from .beam import Beam as Beam
 from .double1r import AbstractDouble1R as AbstractDouble1R, Double1R as Double1R
@@ -22,8 +23,9 @@ MODELS: dict[str, type[AbstractModel]] = {
     Beam.name: Beam,
 }
 
-#: beam elements per strip of L3 when none is given
+#: beam elements per strip of L3 when none is given, and the most allowed
 DEFAULT_ELEMENTS = 8
+MAX_ELEMENTS = 256
 
 
 def get_model(model: Union[str, AbstractModel], n_elements: Optional[int] = None) -> AbstractModel:
@@ -33,10 +35,12 @@ def get_model(model: Union[str, AbstractModel], n_elements: Optional[int] = None
         return model
     cls = MODELS.get(str(model))
     if cls is None:
-        raise ValueError(f"unknown model {model!r}; allowed: {', '.join(MODELS)}")
+        raise PPRError(f"unknown model {model!r}; allowed: {', '.join(MODELS)}")
     if cls is Beam:
-        n = DEFAULT_ELEMENTS if n_elements is None else int(n_elements)
-        if n < 2:
-            raise ValueError(f"--elements (beam elements per strip) must be >= 2, got {n}")
+        n = DEFAULT_ELEMENTS if n_elements is None else n_elements
+        # The state grows as 3 + 3N and the compiled right-hand side as N^2: above 256 elements
+        # (773 coordinates) compilation alone takes hours, and the model has long converged.
+        n = check_number("elements (beam elements per strip of L3)", n, 2, MAX_ELEMENTS,
+                         integer=True)
         return Beam(n)
     return cls()

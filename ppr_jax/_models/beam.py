@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from .._checks import PPRError
 from .._custom_types import Array, Float
 from .._geometry import base_points, e, ik_reduced, platform_points, two_link, wrap
 from .._linalg import SmallLU, solve
@@ -97,7 +98,7 @@ class Beam(AbstractModel):
 
     def __check_init__(self):
         if not (isinstance(self.n_elements, int) and self.n_elements >= 2):
-            raise ValueError(f"n_elements must be an integer >= 2, got {self.n_elements!r}")
+            raise PPRError(f"n_elements must be an integer >= 2, got {self.n_elements!r}")
 
     @property
     def n_dof(self) -> int:  # type: ignore[override]

@@ -1,0 +1,198 @@
+"""Bad and extreme inputs, as a user types them by mistake or explores on purpose.
+
+For each one: a `PPRError` (the library's base error, a `ValueError`) naming the cause, or a result
+whose checks pass; the CLI answers with one line on stderr and exit status 2, never a traceback.
+The eager checks run before anything is compiled, so most of this module costs no compilation;
+the compiled cases share one small program per scene.
+"""
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import ppr_jax as pj
+from ppr_jax._cli import main
+from ppr_jax._params import PARAM_RANGES, parse_value
+
+NAMES = sorted(PARAM_RANGES)
+
+
+# ---------------------------------------------------------------------------------------------
+# Parameters
+# ---------------------------------------------------------------------------------------------
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    name=st.sampled_from(NAMES),
+    value=st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.floats(min_value=-1e3, max_value=1e3),
+        st.sampled_from([0.0, -0.0, 1e-300, -1e-9, math.nan, math.inf, -math.inf]),
+    ),
+)
+def test_any_parameter_value_is_accepted_iff_in_range(name, value):
+    lo, hi, _, _ = PARAM_RANGES[name]
+    ok = math.isfinite(value) and lo <= value <= hi
+    if ok:
+        assert float(getattr(pj.RobotParams(**{name: value}), name)) == value
+        return
+    with pytest.raises(pj.PPRError) as info:
+        pj.RobotParams(**{name: value})
+    msg = str(info.value)
+    assert repr(name) in msg and "allowed range" in msg
+    if not math.isfinite(value):
+        assert "not finite" in msg
+
+
+@pytest.mark.parametrize("sigma", [0, 2, 0.5, True, -3])
+def test_sigma_must_be_plus_or_minus_one(sigma):
+    with pytest.raises(pj.PPRError, match="sigma"):
+        pj.RobotParams(sigma=sigma)
+
+
+@pytest.mark.parametrize("text", ["1.5", "-0.9", "0", "nan", "one"])
+def test_sigma_on_the_command_line_is_not_truncated(text):
+    with pytest.raises(pj.PPRError, match="sigma.*-1 or \\+1"):
+        parse_value("sigma", text)
+
+
+def test_stack_params_names_the_bad_member():
+    good = pj.RobotParams()
+    # tree_at bypasses the constructor's check, as a user's own pytree surgery would
+    bad = eqx.tree_at(lambda p: p.t, good, jnp.asarray(-1e-3))
+    with pytest.raises(pj.PPRError, match=r"member 2:.*'t'"):
+        pj.stack_params([good, good, bad])
+    with pytest.raises(pj.PPRError, match="member 1 has sigma"):
+        pj.stack_params([good, good.replace(sigma=1)])
+    with pytest.raises(pj.PPRError, match="member 1 gives gamma"):
+        pj.stack_params([good, good.replace(gamma=0.85)])
+    with pytest.raises(pj.PPRError, match="at least one"):
+        pj.stack_params([])
+
+
+# ---------------------------------------------------------------------------------------------
+# Scene arguments: checked before any compilation
+# ---------------------------------------------------------------------------------------------
+
+BAD_SCENE_ARGS = [
+    (dict(t_end=-1.0), "t_end"),
+    (dict(t_end=0.0), "t_end"),
+    (dict(t_end=math.nan), "t_end must be finite"),
+    (dict(t_end=math.inf), "t_end must be finite"),
+    (dict(n_out=1), "n_out"),
+    (dict(n_out=2.5), "n_out must be an integer"),
+    (dict(rtol=0.0), "rtol"),
+    (dict(rtol=-1e-6), "rtol"),
+    (dict(rtol=0.5), "rtol"),
+    (dict(rtol=math.nan), "rtol must be finite"),
+    (dict(atol=-1.0), "atol"),
+    (dict(max_steps=0), "max_steps"),
+    (dict(max_steps=10.5), "max_steps must be an integer"),
+    (dict(solver="rk45"), "unknown solver"),
+    (dict(model="L2"), "unknown model"),
+]
+
+
+@pytest.mark.parametrize("scene", [pj.paper_circle, pj.servo_circle])
+@pytest.mark.parametrize("kw,msg", BAD_SCENE_ARGS)
+def test_scene_arguments_are_validated_first(scene, kw, msg):
+    with pytest.raises(pj.PPRError, match=msg) as info:
+        scene(**kw)
+    assert "allowed" in str(info.value) or "finite" in str(info.value)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2.5, 10_000, "eight"])
+def test_beam_element_count_has_bounds(n):
+    with pytest.raises(pj.PPRError, match="elements"):
+        pj.get_model("beam", n)
+
+
+# ---------------------------------------------------------------------------------------------
+# The command line: one line on stderr, exit status 2
+# ---------------------------------------------------------------------------------------------
+
+BAD_CLI = [
+    (["simulate", "--set", "t=-1"], "'t'"),
+    (["simulate", "--set", "t=nan"], "finite"),
+    (["simulate", "--set", "sigma=1.5"], "sigma"),
+    (["simulate", "--rtol", "-1"], "rtol"),
+    (["simulate", "--rtol", "0"], "rtol"),
+    (["simulate", "--t-end", "-1"], "t_end"),
+    (["simulate", "--t-end", "nan"], "t_end"),
+    (["simulate", "--n-out", "1"], "n_out"),
+    (["simulate", "--max-steps", "0"], "max_steps"),
+    (["simulate", "--model", "beam", "--elements", "0"], "elements"),
+    (["simulate", "--model", "beam", "--elements", "100000"], "elements"),
+    (["simulate", "--model", "L2"], "unknown model"),
+    (["simulate", "--out", "FILE"], "is a file"),
+    (["torques", "--out", "FILE"], "is a file"),
+    (["modes", "--set", "E=-5"], "'E'"),
+]
+
+
+@pytest.mark.parametrize("argv,msg", BAD_CLI)
+def test_cli_user_errors_are_one_line(tmp_path, capsys, argv, msg):
+    f = tmp_path / "a_file"
+    f.write_text("x")
+    argv = [str(f) if a == "FILE" else a for a in argv]
+    if "--out" not in argv and argv[0] in ("simulate", "torques"):
+        argv += ["--out", str(tmp_path / "out")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("ppr-jax: error:") and msg in lines[0]
+    assert "Traceback" not in err
+
+
+# ---------------------------------------------------------------------------------------------
+# Physics preconditions inside compiled scenes: status codes per member, nothing lost
+# ---------------------------------------------------------------------------------------------
+
+SHORT = dict(t_end=0.3, n_out=31)
+
+
+@pytest.fixture(scope="module")
+def open_chain_batch():
+    """A batch with a robot whose chains cannot close (base side a = 3 m) between two good ones:
+    the case that used to 'simulate' a perfect circle on a 1.8 m open loop."""
+    p = pj.scene_params("paper-circle")
+    batch = pj.stack_params([p, p.replace(a=3.0), p.replace(t=0.4e-3)])
+    return pj.paper_circle(batch, model="reduced", throw=False, **SHORT)
+
+
+def test_open_chain_fails_its_member_and_keeps_the_others(open_chain_batch):
+    r = open_chain_batch
+    np.testing.assert_array_equal(r.ok, [True, False, True])
+    f = r.failures()
+    assert list(f) == [1] and "reach" in f[1] and "1.8 m" in f[1]
+    for i in (0, 2):
+        assert np.all(np.isfinite(r.X[i])) and float(np.max(r.residual[i])) < 1e-9
+        # the good members still follow the circle to a few mm in 0.3 s of open loop
+        er = np.linalg.norm(r.X[i][:, :2] - r.X_nominal[i][:, :2], axis=-1)
+        assert float(er.max()) < 5e-3
+
+
+def test_open_chain_raises_with_the_result_attached(open_chain_batch):
+    p = pj.scene_params("paper-circle")
+    batch = pj.stack_params([p, p.replace(a=3.0), p.replace(t=0.4e-3)])
+    with pytest.raises(pj.SimulationError, match=r"1 of 3 batch members.*member 1:.*reach"
+                       ) as info:
+        pj.paper_circle(batch, model="reduced", **SHORT)
+    kept = info.value.result
+    np.testing.assert_allclose(kept.X[0], open_chain_batch.X[0], rtol=0, atol=1e-12)
+
+
+def test_circle_partly_outside_the_workspace_is_an_error():
+    """Motion-driven L1 (kinematics only): a circle of radius 0.3 m leaves the chains' reach
+    part-way; the first failing sample is named, no NaN pose is returned as a success."""
+    p = pj.scene_params("servo-circle")
+    with pytest.raises(pj.SimulationError, match="servo-circle.*leaves the chains. reach"):
+        pj.servo_circle(p, model="reduced", trajectory=pj.Circle(radius=jnp.asarray(0.3)),
+                        **SHORT)
