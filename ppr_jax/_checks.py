@@ -63,13 +63,18 @@ class RESULTS(diffrax.RESULTS):
 
 
 def first_failure(*checks):
-    """The result code of the first failed check: `checks` are (failed: bool array, code) pairs,
-    most fundamental cause first; a code may be a `RESULTS` array (then `failed` is ignored and
-    its own non-success counts). Traceable and vmappable."""
+    """The result code of the first failed check, most fundamental cause first. A check is a
+    pair (failed: bool array or None for "not checked", code), or a result code (diffrax's,
+    optimistix's or ours) that counts as failed when it is not successful. Traceable and
+    vmappable."""
     out = RESULTS.successful
-    for failed, code in reversed(checks):
-        if failed is None:
-            code = RESULTS.promote(code) if not isinstance(code, RESULTS) else code
+    for check in reversed(checks):
+        if isinstance(check, tuple):
+            failed, code = check
+            if failed is None:
+                continue
+        else:
+            code = check if isinstance(check, RESULTS) else RESULTS.promote(check)
             failed = code != RESULTS.successful
         out = RESULTS.where(failed, code, out)
     return out
@@ -123,15 +128,15 @@ def check_number(name: str, value, lo: float, hi: float, unit: str = "", *,
     rng = f"{'(' if open_lo else '['}{lo:g}, {hi:g}] {unit}".rstrip()
     kind = "an integer" if integer else "a number"
     if isinstance(value, bool):
-        raise PPRError(f"{name} must be {kind} in {rng}, got {value!r}")
+        raise PPRError(f"{name} must be {kind}, got {value!r} (allowed range {rng})")
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise PPRError(f"{name} must be {kind} in {rng}, got {value!r}") from None
+        raise PPRError(f"{name} must be {kind}, got {value!r} (allowed range {rng})") from None
     if not np.isfinite(v):
-        raise PPRError(f"{name} must be finite ({kind} in {rng}), got {value!r}")
+        raise PPRError(f"{name} must be finite, got {value!r} (allowed range {rng})")
     if integer and v != int(v):
-        raise PPRError(f"{name} must be an integer in {rng}, got {value!r}")
+        raise PPRError(f"{name} must be an integer, got {value!r} (allowed range {rng})")
     if v < lo or v > hi or (open_lo and v == lo):
         raise PPRError(f"{name} = {value!r} is out of its allowed range {rng}")
     return int(v) if integer else v

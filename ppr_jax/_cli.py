@@ -88,7 +88,7 @@ def cmd_simulate(args):
     from ._plots import scene_figures
     from ._models import get_model
     from ._report import run_scene
-    from ._scenes import modes_scene
+    from ._scenes import check_scene_args, modes_scene
     from ._trajectory import Circle
 
     scene = args.scene
@@ -114,7 +114,9 @@ def cmd_simulate(args):
               atol=args.atol, max_steps=args.max_steps)
     results, failed = [], {}
     traj = Circle()
-    objs = [get_model(m, args.elements) for m in models]  # every argument checked before compiling
+    # Every argument checked before the first compilation.
+    objs = [get_model(m, args.elements) for m in models]
+    check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
 
     def write():
         # After every model: a failing or interrupted later model keeps what finished.
@@ -222,7 +224,11 @@ def cmd_torques(args):
     from ._models import get_model
     from ._trajectory import Circle
 
+    from ._checks import check_number
+
     params = _parse_sets(args.set, "paper-circle")
+    check_number("t_end", args.t_end, 0.0, 1e5, "s", open_lo=True)
+    check_number("n_out", args.n_out, 2, 10_000_000, integer=True)
     check_out_dir(args.out)
     model = get_model(args.model)
     if model.actuated_index is not None:

@@ -126,7 +126,7 @@ def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None
         (ref_open, RESULTS.trajectory_out_of_reach),
         (qs_failed, RESULTS.initial_state_failed),
         (open0, RESULTS.loop_not_closed),
-        (None, sol.result),
+        sol.result,
         (~(jnp.max(out.residual) <= RESIDUAL_TOL), RESULTS.loop_not_closed),
     )
     return SceneResult(

@@ -142,7 +142,7 @@ def _simulate_core(
     )(sol.ts, *sol.ys)
     # A status code, not a host callback: invalid (traced) parameters name themselves.
     result = first_failure((params_invalid(robot.params), RESULTS.invalid_parameter),
-                           (None, sol.result))
+                           sol.result)
     return Solution(
         ts=sol.ts, z=z, zdot=zd, tau=tau, result=result,
         num_steps=sol.stats["num_steps"], num_accepted=sol.stats["num_accepted_steps"],
