@@ -146,7 +146,7 @@ def is_traced(tree) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
 
 
-def raise_if(x, bad, message: str):
+def raise_if(x, bad, message: str, what: str = "batch members"):
     """Return `x`, raising `PPRError(message)` where `bad` holds.
 
     Concrete `bad`: raised now; if `bad` has a leading batch axis, the failing batch members are
@@ -158,6 +158,6 @@ def raise_if(x, bad, message: str):
         if b.ndim >= 1 and b.shape[0] > 1:
             members = np.flatnonzero(b.reshape(b.shape[0], -1).any(axis=1)).tolist()
             shown = members if len(members) <= 10 else members[:10] + ["..."]
-            raise PPRError(f"{message} ({len(members)} batch members: {shown})")
+            raise PPRError(f"{message} ({len(members)} {what}: {shown})")
         raise PPRError(message)
     return x

@@ -98,7 +98,7 @@ def inverse_kinematics(
         )
     X = jnp.asarray(X, dtype=jnp.float64)
     if X.ndim == 2:  # a batch of poses: one vmapped call; errors name the failing members
-        res = eqx.filter_jit(eqx.filter_vmap(_ik, in_axes=(None, None, 0)))(model, robot, X)
+        res = _ik_path_jit(model, robot, X)
         return check_pose(res, X)
     if X.shape != (3,):
         raise PPRError(f"X must be a pose (x, y, phi) of shape (3,) or (m, 3), got {X.shape}")
@@ -206,12 +206,39 @@ def forward_kinematics_path(
     max_steps: int = 50,
 ) -> Float[Array, "m 3"]:
     """Forward kinematics along a sampled path of actuated angles, each Newton solve warm-started
-    from the previous pose (one `lax.scan`, compiled once per shape)."""
+    from the previous pose (one `lax.scan`, compiled once per shape).
+
+    Checked sample by sample (a `PPRError` names the samples): Newton converged; every chain
+    closes (reach margin); no singular configuration; and no silent change of assembly mode
+    between consecutive samples: the sign of det S (S = d th_a/dX) flips exactly when the path
+    crosses a singularity or Newton jumped to another branch, which a warm start does not
+    otherwise reveal (sample the path more finely if the jump is only too large a step)."""
     robot, model, th_a_path, X0 = _fk_inputs(robot, th_a_path, X0, model)
+    if th_a_path.ndim != 2 or th_a_path.shape[-1] != 3:
+        raise PPRError(f"th_a_path must have shape (m, 3), got {th_a_path.shape}")
     Xs, codes = _fk_path_jit(model, robot, th_a_path, X0, rtol, atol, max_steps)
     Xs = raise_if(
-        Xs, jnp.any(codes != 0),
-        "forward kinematics along the path did not converge at some sample (out of reach, "
-        "singular, or a jump between samples too large for the warm start)",
+        Xs, codes != 0,
+        "forward kinematics along the path did not converge (out of reach, singular, or a jump "
+        "between samples too large for the warm start)", what="samples",
     )
+    res = _ik_path_jit(model, robot, Xs)
+    Xs = raise_if(Xs, jnp.any(res.margin <= REACH_TOL, axis=-1),
+                  "unreachable pose along the path: a chain cannot close", what="samples")
+    Xs = raise_if(Xs, res.singularity < SINGULAR_TOL,
+                  f"singular configuration along the path (inverse condition number of S < "
+                  f"{SINGULAR_TOL:g})", what="samples")
+    S = res.S  # det by cofactors: no second LAPACK call beside the SVD (see README, Batches)
+    det = (S[:, 0, 0] * (S[:, 1, 1] * S[:, 2, 2] - S[:, 1, 2] * S[:, 2, 1])
+           - S[:, 0, 1] * (S[:, 1, 0] * S[:, 2, 2] - S[:, 1, 2] * S[:, 2, 0])
+           + S[:, 0, 2] * (S[:, 1, 0] * S[:, 2, 1] - S[:, 1, 1] * S[:, 2, 0]))
+    sign = jnp.sign(det)
+    flips = jnp.concatenate([jnp.zeros(1, bool), sign[1:] != sign[:-1]])
+    Xs = raise_if(Xs, flips,
+                  "the path changes assembly mode between consecutive samples (det S changes "
+                  "sign: a singularity is crossed, or Newton jumped to another branch)",
+                  what="samples")
     return Xs
+
+
+_ik_path_jit = eqx.filter_jit(eqx.filter_vmap(_ik, in_axes=(None, None, 0)))

@@ -75,6 +75,19 @@ def test_forward_kinematics_round_trip(params):
     np.testing.assert_allclose(Xs, jnp.array(POSES), atol=1e-12)
 
 
+def test_forward_kinematics_path_names_the_failing_samples(params):
+    """Turning one actuator by up to 3 rad from home drives the platform out of reach; the
+    error names the samples (from the first failing one), not just 'some member'."""
+    th0 = pj.inverse_kinematics(params, pj.home_pose(params)).th_a
+    path = th0 + jnp.linspace(0.0, 3.0, 31)[:, None] * jnp.array([1.0, 0.0, 0.0])
+    with pytest.raises(pj.PPRError, match=r"samples: \[") as info:
+        pj.forward_kinematics_path(params, path)
+    first = int(str(info.value).split("samples: [")[1].split(",")[0].rstrip("]"))
+    assert first > 0  # the start is fine
+    ok = pj.forward_kinematics_path(params, path[:first])  # the samples before it pass
+    np.testing.assert_allclose(pj.inverse_kinematics(params, ok).th_a, path[:first], atol=1e-10)
+
+
 def test_rotational_symmetry_of_kinematics(params, robot):
     c = jnp.array([0.45, 0.45 / jnp.sqrt(3.0)])
     X = jnp.array(POSES[2])
