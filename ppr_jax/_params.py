@@ -19,7 +19,6 @@ import numpy as np
 from ._checks import PPRError
 from ._custom_types import Array
 
-jax.config.update("jax_enable_x64", True)
 
 
 def _f(x):

@@ -13,10 +13,9 @@ import pytest
 
 import ppr_jax as pj
 from ppr_jax._models.beam import Beam, solve_strip, strip_constants
-from ppr_jax._geometry import BETA, base_points, e, platform_points
+from ppr_jax._geometry import BETA, base_points, e
 from ppr_jax.elastica import solve_cantilever
 
-from helpers import fd_jvp  # noqa: F401
 
 
 # ---------------------------------------------------------------------------------------------

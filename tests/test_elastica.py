@@ -8,7 +8,6 @@ differences; a Python loop for vmap.
 
 import jax
 
-jax.config.update("jax_enable_x64", True)
 
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

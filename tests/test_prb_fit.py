@@ -7,7 +7,6 @@ scipy's not-a-knot CubicSpline for the interpolant; central finite differences f
 
 import jax
 
-jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
