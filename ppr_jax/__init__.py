@@ -89,6 +89,7 @@ from ._report import (  # noqa: E402
     scene_metrics as scene_metrics,
 )
 
+from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
 from ._prb_table import (  # noqa: E402
     prb_parameters as prb_parameters,
     prb_table as prb_table,

@@ -536,6 +536,13 @@ def main(argv=None) -> int:
     import jax
 
     args = build_parser().parse_args(argv)
+    if os.environ.get("PPR_JAX_CACHE", "1") != "0":
+        from ._cache import enable_compilation_cache
+
+        try:
+            enable_compilation_cache()
+        except OSError as err:  # a read-only home: run without the cache, say so once
+            _log(f"ppr-jax: note: compilation cache disabled ({err})")
     try:
         return args.func(args)
     except (PPRError, ValueError) as err:

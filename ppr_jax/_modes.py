@@ -13,7 +13,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._checks import PPRError
+from ._checks import PPRError, raise_if
 from ._custom_types import Array
 from ._dynamics import eom_terms, generalized_force
 from ._geometry import home_pose
@@ -56,19 +56,27 @@ def modes(
         raise PPRError(f"actuators must be 'locked' or 'free', got {actuators!r}")
     X = home_pose(robot) if X is None else jnp.asarray(X, dtype=jnp.float64)
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
-    return _modes_jit(model, as_robot(robot), X, actuators, w)
+    res, failed = _modes_jit(model, as_robot(robot), X, actuators, w)
+    # The check outside the compiled program: a status, not a host callback inside it.
+    return raise_if(
+        res, failed,
+        "static equilibrium not found (Newton did not converge): the load may exceed what the "
+        "joints hold, or the pose is far from an equilibrium",
+    )
 
 
-def _modes_core(model, robot, X, actuators, w) -> Modes:
+def _modes_core(model, robot, X, actuators, w):
     robot = as_robot(robot)
     locked = actuators == "locked"
-    z_eq, free = static_equilibrium(
-        model, robot, model.coords_from_pose(robot, X), locked=locked, wrench=w
+    z_eq, free, failed = static_equilibrium(
+        model, robot, model.coords_from_pose(robot, X), locked=locked, wrench=w, check=False,
+        return_failed=True,
     )
     n = model.n_dof
     if not free:
         e = jnp.zeros((0,))
-        return Modes(e, e, e, jnp.zeros((0, 0)), z_eq, jnp.zeros((0, 0)), jnp.zeros((0, 0)), ())
+        z = jnp.zeros((0, 0))
+        return Modes(e, e, e, z, z_eq, z, z, ()), failed
     known = tuple(i for i in range(n) if i not in free)
     f = jnp.array(free)
     zk = z_eq[jnp.array(known)] if known else None
@@ -86,7 +94,7 @@ def _modes_core(model, robot, X, actuators, w) -> Modes:
     shapes = Li.T @ V
     freq = jnp.sign(lam) * jnp.sqrt(jnp.abs(lam)) / (2 * jnp.pi)
     growth = jnp.where(lam < 0, jnp.sqrt(jnp.abs(lam)), 0.0)
-    return Modes(freq, growth, lam, shapes, z_eq, M, K, free)
+    return Modes(freq, growth, lam, shapes, z_eq, M, K, free), failed
 
 
 _modes_jit = eqx.filter_jit(_modes_core)

@@ -46,6 +46,7 @@ def static_equilibrium(
     tau=None,
     wrench=None,
     check: bool = True,
+    return_failed: bool = False,
 ):
     """Static equilibrium z* of `model` near `z_guess`.
 
@@ -53,7 +54,9 @@ def static_equilibrium(
     coordinates move (L2: the pose; L0/L1 have none left and `z_guess` is returned).
     locked=False: every coordinate is free and the actuators apply constant torques `tau`
     (default 0, "free actuators"). `wrench` (3,) is a constant platform load.
-    Returns (z*, free_index) with free_index the coordinates that were free."""
+    Returns (z*, free_index) with free_index the coordinates that were free, and with
+    `return_failed` a traceable bool `failed` as a third element (`check=False` then leaves the
+    check to the caller: no host callback inside a compiled program)."""
     robot = as_robot(robot)
     n = model.n_dof
     tau = jnp.zeros(3) if tau is None else jnp.asarray(tau, dtype=jnp.float64)
@@ -61,7 +64,7 @@ def static_equilibrium(
     z_guess = jnp.asarray(z_guess, dtype=jnp.float64)
     if locked:
         if model.actuated_index is None:
-            return z_guess, ()
+            return (z_guess, (), jnp.asarray(False)) if return_failed else (z_guess, ())
         known = tuple(model.actuated_index)
     else:
         known = ()
@@ -74,13 +77,15 @@ def static_equilibrium(
         return generalized_force(eom, tau, w)[jnp.array(free)]
 
     zf, result = _newton(resid, z_guess[jnp.array(free)], None)
+    failed = result != optx.RESULTS.successful
     if check:
         zf = raise_if(
             zf, result != optx.RESULTS.successful,
             "static equilibrium not found (Newton did not converge): the load may exceed what "
             "the joints hold, or the guess is far from an equilibrium",
         )
-    return _assemble(n, free, zf, known, zk), free
+    z = _assemble(n, free, zf, known, zk)
+    return (z, free, failed) if return_failed else (z, free)
 
 
 #: time step (s) of the 5-point stencil that gives the quasi-static velocity; truncation error
