@@ -57,7 +57,7 @@ def _params_dict(params):
     out = {}
     for f in dataclasses.fields(params):
         v = getattr(params, f.name)
-        out[f.name] = None if v is None else (v if isinstance(v, int) else float(v))
+        out[f.name] = None if v is None else (v if isinstance(v, (int, str)) else float(v))
     return out
 
 

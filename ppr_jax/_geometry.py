@@ -108,19 +108,23 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     u = jnp.arctan2(d[:, 1], d[:, 0])
     th1, th3 = u - v, u + v
 
+    # d_i1 = d_i2 (eq 29) puts the middle angle at the mean plus a constant, nonzero only for the
+    # strip geometry with unequal links: th_i2 = (th_i1 + th_i3)/2 + c, c = sigma (delta3 - delta1)/2
+    c2 = robot.sigma * (robot.delta3 - robot.delta1) / 2
+
     def resid(th13, di):
         t1, t3 = th13
-        t2 = (t1 + t3) / 2
+        t2 = (t1 + t3) / 2 + c2
         return robot.r1 * e(t1) + robot.r2 * e(t2) + robot.r3 * e(t3) - di
 
     def newton(th13, di):
         # Derivative-free (inputs stopped): the derivatives come from `implicit_correction` at
         # the root, so the loop needs no reverse-mode rule and costs nothing under jvp.
-        rob, th13, di = jax.lax.stop_gradient((robot, th13, di))
+        rob, th13, di, c = jax.lax.stop_gradient((robot, th13, di, c2))
 
         def res(th13):
             t1, t3 = th13
-            return rob.r1 * e(t1) + rob.r2 * e((t1 + t3) / 2) + rob.r3 * e(t3) - di
+            return rob.r1 * e(t1) + rob.r2 * e((t1 + t3) / 2 + c) + rob.r3 * e(t3) - di
 
         def body(c):
             th, k, _ = c
@@ -142,7 +146,7 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
         # inside every right-hand side under two nested derivatives.
         t1, t3 = th13
         de = lambda a: jnp.stack([-jnp.sin(a), jnp.cos(a)])  # noqa: E731
-        h2 = (robot.r2 / 2) * de((t1 + t3) / 2)
+        h2 = (robot.r2 / 2) * de((t1 + t3) / 2 + c2)
         J = jax.lax.stop_gradient(
             jnp.stack([robot.r1 * de(t1) + h2, h2 + robot.r3 * de(t3)], axis=-1)
         )
@@ -156,7 +160,7 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
         th13 = jax.vmap(newton)(th13, d)
     th13 = jax.vmap(implicit_correction)(th13, d)
     th1, th3 = th13[:, 0], th13[:, 1]
-    th = jnp.stack([th1, (th1 + th3) / 2, th3], axis=-1)
+    th = jnp.stack([th1, (th1 + th3) / 2 + c2, th3], axis=-1)
     return th, margin
 
 
@@ -172,15 +176,17 @@ def ik_rigid(robot: Robot, X: Float[Array, "3"]):
 
 def chain_closure_double1r(robot: Robot, X, th_a):
     """L2: given the platform pose X and the actuated angles th_a (3,), close each chain with the
-    two-link (r2, r3) solution on the elbow branch sigma. Returns (th (3, 3), margin (3,))."""
-    B = base_points(robot) + robot.r1 * e(th_a)
+    two-link (r2, r3) solution on the elbow branch sigma. Returns (th (3, 3) chain angles, margin
+    (3,)); the first chain angle is th_a + sigma delta1 (th_a itself on the centre lines)."""
+    t1 = th_a + robot.sigma * robot.delta1
+    B = base_points(robot) + robot.r1 * e(t1)
     d = platform_points(robot, X) - B
     t2, t3, margin = two_link(d, robot.r2, robot.r3, robot.sigma)
     # th_a is an unbounded coordinate while atan2 wraps: keep the chain's angles continuous with
     # it so that joint angles, plots and deflections never jump by 2 pi.
-    t2 = th_a + wrap(t2 - th_a)
+    t2 = t1 + wrap(t2 - t1)
     t3 = t2 + wrap(t3 - t2)
-    return jnp.stack([th_a, t2, t3], axis=-1), margin
+    return jnp.stack([t1, t2, t3], axis=-1), margin
 
 
 def loop_residual(robot: Robot, th, X) -> Float[Array, "3 2"]:
@@ -206,12 +212,13 @@ def loop_residual_rigid(robot: Robot, th, X) -> Float[Array, "3 2"]:
 
 
 def deflections(robot: Robot, th) -> Float[Array, "3 2"]:
-    """Spring deflections of the double-1R model (MODEL.md section 4), th (3, 3):
-    d_i1 = (th_i2 - th_i1) - sigma psi0, d_i2 = (th_i3 - th_i2) - sigma psi0 (rad)."""
+    """Spring deflections of the double-1R model (MODEL.md sections 4 and 3a), th (3, 3) chain
+    angles: d_i1 = (th_i2 - th_i1) - sigma (psi0 - delta1), d_i2 = (th_i3 - th_i2) - sigma
+    (psi0 - delta3) (rad), measured from the links' tangents (delta = 0 on the centre lines)."""
     return jnp.stack(
         [
-            wrap(th[:, 1] - th[:, 0] - robot.sigma * robot.psi0),
-            wrap(th[:, 2] - th[:, 1] - robot.sigma * robot.psi0),
+            wrap(th[:, 1] - th[:, 0] - robot.sigma * (robot.psi0 - robot.delta1)),
+            wrap(th[:, 2] - th[:, 1] - robot.sigma * (robot.psi0 - robot.delta3)),
         ],
         axis=-1,
     )

@@ -58,6 +58,9 @@ PARAM_RANGES: dict[str, tuple[float, float, str, str]] = {
 }
 #: `sigma` (elbow orientation) is +1 or -1.
 SIGMA_VALUES = (-1, 1)
+#: where the PRB joint is built (MODEL.md sections 3 and 3a): on the link centre lines, as the
+#: paper does, or on the actual strip (radius r, ends at the clamps on the links' inner sides)
+JOINT_GEOMETRIES = ("centerline", "strip")
 
 
 class RobotParams(eqx.Module):
@@ -93,11 +96,17 @@ class RobotParams(eqx.Module):
     c_spring: Array = _field(0.0)
     c_act: Array = _field(0.0)
     sigma: int = eqx.field(static=True, default=-1)
+    joint_geometry: str = eqx.field(static=True, default="centerline")
 
     def __check_init__(self):
         if isinstance(self.sigma, bool) or self.sigma not in SIGMA_VALUES:
             raise PPRError(
                 f"parameter 'sigma' (elbow orientation) must be -1 or +1, got {self.sigma!r}"
+            )
+        if self.joint_geometry not in JOINT_GEOMETRIES:
+            raise PPRError(
+                f"parameter 'joint_geometry' must be one of {', '.join(JOINT_GEOMETRIES)}, got "
+                f"{self.joint_geometry!r}"
             )
         check_params(self)
 
@@ -115,7 +124,7 @@ class RobotParams(eqx.Module):
 
 def settable_names() -> list[str]:
     """Names accepted by `RobotParams.replace` and the CLI's ``--set``."""
-    return list(PARAM_RANGES) + ["sigma"]
+    return list(PARAM_RANGES) + ["sigma", "joint_geometry"]
 
 
 def _is_concrete(x) -> bool:
@@ -177,6 +186,12 @@ def stack_params(params_list: list[RobotParams]) -> RobotParams:
                 f"stack_params: member {i} has sigma = {p.sigma}, member 0 sigma = {sigma0}: all "
                 f"robots of a batch must share sigma (a static branch choice)"
             )
+    for i, p in enumerate(params_list):
+        if p.joint_geometry != params_list[0].joint_geometry:
+            raise PPRError(
+                f"stack_params: member {i} has joint_geometry = {p.joint_geometry!r}, member 0 "
+                f"{params_list[0].joint_geometry!r}: a batch shares its joint geometry (static)"
+            )
     for name in ("gamma", "rho", "K_theta"):
         given = [getattr(p, name) is not None for p in params_list]
         if len(set(given)) != 1:
@@ -200,6 +215,11 @@ def parse_value(name: str, text: str):
     ``=auto`` for the default source: the fitted PRB table, Howell's geometric rho)."""
     if name not in settable_names():
         raise PPRError(f"unknown parameter {name!r}; allowed: {', '.join(settable_names())}")
+    if name == "joint_geometry":
+        if text.strip() not in JOINT_GEOMETRIES:
+            raise PPRError(f"parameter 'joint_geometry' must be one of "
+                           f"{', '.join(JOINT_GEOMETRIES)}, got {text!r}")
+        return text.strip()
     if name == "sigma":
         try:
             v = float(text)

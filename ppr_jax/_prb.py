@@ -24,6 +24,13 @@ class Derived(eqx.Module):
     `L = r theta_c` actual strip length (eq 7), `K` spring stiffness of each pivot (eq 6),
     `r2` equivalent pseudo-link (eq 8), `r1, r3` theory link lengths (eqs 10, 11), `psi0` rest turn
     at each pivot (replaces eq 9, see MODEL.md).
+    The chain (`params.joint_geometry`): `s, r1, r2, r3` are the short segment and the chain's
+    vectors A->B, B->D, D->E of the geometry in use, `delta1, delta3` the fixed angles between the
+    drive (connecting) link's centre line and its chain vector (0 on the centre lines). With
+    `strip` (MODEL.md section 3a) the PRB joint sits on the actual strip: l_h' = r theta_c/2,
+    s' = (1 - gamma) l_h', r2' = r2 r/r_i, r1' = |(l1 + s', b_r/2)|, delta1 = atan2(b_r/2, l1 + s')
+    (likewise r3', delta3); kappa0, gamma, rho, K_theta, Theta_i, Theta_0, K and psi0 are
+    unchanged (the curvature and the strip are the same).
     L0 (rigid): `R1, R3` link lengths to the virtual corner, `K0 = E I_s / L` pin stiffness.
     Mass properties: `m1, I1` drive link (I about its COM), `m2, I2` strip / pseudo-link,
     `m3, I3` connecting link, `m4, I4` platform, `rho_E = h/sqrt(3)` platform circumradius.
@@ -47,6 +54,8 @@ class Derived(eqx.Module):
     r2: Array
     r1: Array
     r3: Array
+    delta1: Array
+    delta3: Array
     psi0: Array
     R1: Array
     R3: Array
@@ -85,6 +94,15 @@ def derived(params: RobotParams) -> Derived:
     r2 = rho * l_h * jnp.sqrt(2 * (1 - jnp.cos(Theta_0)))  # eq 8
     r1 = p.l1 + s  # eq 10
     r3 = p.l3 + s  # eq 11
+    delta1 = delta3 = jnp.zeros_like(r1)
+    if p.joint_geometry == "strip":
+        # MODEL.md 3a: the same joint scaled to the strip's radius, its pivots offset b_r/2 from
+        # the centre lines towards the bend; the bodies keep their centre lines.
+        s = (1 - gamma) * p.r * p.theta_c / 2
+        r2 = r2 * p.r / r_i
+        off = p.b_r / 2
+        r1, delta1 = jnp.hypot(p.l1 + s, off), jnp.arctan2(off, p.l1 + s)
+        r3, delta3 = jnp.hypot(p.l3 + s, off), jnp.arctan2(off, p.l3 + s)
     # The joint is symmetric, so the rest turn at each pivot is half the arc angle whatever gamma
     # and rho are; eq 9 as printed breaks that symmetry (MODEL.md section 3).
     psi0 = p.theta_c / 2
@@ -104,6 +122,6 @@ def derived(params: RobotParams) -> Derived:
     return Derived(
         r_i=r_i, l=l, l_h=l_h, kappa0=kappa0, a_i=a_i, b_i=b_i, gamma=gamma, rho=rho,
         K_theta=K_theta, s=s, Theta_i=Theta_i, Theta_0=Theta_0, I_s=I_s, L=L, K=K, r2=r2, r1=r1,
-        r3=r3, psi0=psi0, R1=R1, R3=R3, K0=K0, m1=m1, I1=I1, m2=m2, I2=I2, m3=m3, I3=I3, m4=m4,
+        r3=r3, delta1=delta1, delta3=delta3, psi0=psi0, R1=R1, R3=R3, K0=K0, m1=m1, I1=I1, m2=m2, I2=I2, m3=m3, I3=I3, m4=m4,
         I4=I4, rho_E=rho_E,
     )

@@ -171,13 +171,14 @@ def static_locked():
 def equilibria(params, static_locked):
     """Locked equilibria at home (L1 inverse-kinematics angles), unloaded and under WRENCH, for
     L2 and L3 with N = 4, 8, 16: {name: (z0, zw)}."""
-    robot = pj.Robot(params)
     X = pj.home_pose(params)
+    strip = params.replace(joint_geometry="strip")
     res = {}
-    for name, m in [("L2", pj.Double1R()), (4, Beam(4)), (8, Beam(8)), (16, Beam(16))]:
-        z = m.coords_from_pose(robot, X)
-        z0 = static_locked(m, params, z, jnp.zeros(3))
-        zw = static_locked(m, params, z0, WRENCH)
+    for name, m, p in [("L2", pj.Double1R(), params), ("L2 strip", pj.Double1R(), strip),
+                       (4, Beam(4), params), (8, Beam(8), params), (16, Beam(16), params)]:
+        z = m.coords_from_pose(pj.Robot(p), X)
+        z0 = static_locked(m, p, z, jnp.zeros(3))
+        zw = static_locked(m, p, z0, WRENCH)
         res[name] = (m, np.asarray(z0), np.asarray(zw))
     return res
 
@@ -187,6 +188,8 @@ def test_statics_converge_in_N_and_compare_with_L2(params, equilibria):
     Xh = np.asarray(pj.home_pose(params))
     phi, dX = {}, {}
     for name, (m, z0, zw) in equilibria.items():
+        if name == "L2 strip":
+            continue
         k = m.kinematics(robot, jnp.asarray(z0))
         assert np.abs(m.loop_residual(robot, k)).max() < 1e-13
         # three-fold symmetry: the platform centre stays at home, only phi can move
@@ -206,6 +209,20 @@ def test_statics_converge_in_N_and_compare_with_L2(params, equilibria):
     for j in range(3):
         assert np.sign(dX[16][j]) == np.sign(dX["L2"][j])
         assert 0.2 < dX[16][j] / dX["L2"][j] < 1.0, (j, dX[16], dX["L2"])
+
+
+def test_strip_geometry_prb_matches_l3_compliance(params, equilibria):
+    """The platform's static compliance at home (locked actuators): the paper's centre-line PRB
+    joint (L2) is about 2.3 times softer than the converged beam L3 (Richardson from N = 8, 16);
+    the same PRB joint on the actual strip (MODEL.md 3a) lands within the PRB model's own error
+    (measured 8 % stiffer), not a factor 2.3."""
+    d = {k: v[2][:3] - v[1][:3] for k, v in equilibria.items()}
+    l3 = d[16] + (d[16] - d[8]) / 3
+    assert np.all(np.abs(d[16] - d[8]) < 0.05 * np.abs(l3))  # N = 16 is converged to 2 %
+    ratio_c = d["L2"] / l3
+    ratio_s = d["L2 strip"] / l3
+    assert np.all((2.1 < ratio_c) & (ratio_c < 2.5)), ratio_c
+    assert np.all((0.88 < ratio_s) & (ratio_s < 1.0)), ratio_s
 
 
 def test_gradient_of_static_pose_vs_finite_differences(params, static_locked):

@@ -189,9 +189,13 @@ class Beam(AbstractModel):
         `static_equilibrium` / `quasi_static_state`, not an equilibrium of L3."""
         N = self.n_elements
         th, _ = ik_reduced(robot, X)
-        D = wrap(th[:, 2] - th[:, 0] - robot.sigma * robot.theta_c)
+        # the links' centre-line angles (the chain's first and last vectors are offset from
+        # them by delta1, delta3 when `joint_geometry` is `strip`; L3 itself ignores the option)
+        th_a = th[:, 0] - robot.sigma * robot.delta1
+        th3 = th[:, 2] + robot.sigma * robot.delta3
+        D = wrap(th3 - th_a - robot.sigma * robot.theta_c)
         phi = jnp.broadcast_to(((robot.sigma * robot.theta_c + D) / N)[:, None], (3, N - 1))
-        return jnp.concatenate([X, th[:, 0], phi.reshape(-1)])
+        return jnp.concatenate([X, th_a, phi.reshape(-1)])
 
     # -- outputs --------------------------------------------------------------------------------
 

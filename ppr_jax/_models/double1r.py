@@ -36,15 +36,20 @@ class AbstractDouble1R(AbstractModel):
 
     def chain_bodies(self, robot: Robot, th, X):
         """Bodies of the chains and the platform: (p (10, 2), ang (10,)), chain-major by body
-        type (3 drive links, 3 pseudo-links, 3 connecting links, platform)."""
+        type (3 drive links, 3 pseudo-links, 3 connecting links, platform). The links keep their
+        centre lines whatever the joint geometry: their angles are the chain angles less the
+        fixed offsets delta1, delta3 (zero on the centre lines)."""
         A = base_points(robot)
+        sig = robot.sigma
+        th1 = th[:, 0] - sig * robot.delta1  # the drive link's centre line (= th_a)
+        th3 = th[:, 2] + sig * robot.delta3  # the connecting link's centre line
         B = A + robot.r1 * e(th[:, 0])
-        p1 = A + (robot.l1 / 2) * e(th[:, 0])
+        p1 = A + (robot.l1 / 2) * e(th1)
         p2 = B + (robot.r2 / 2) * e(th[:, 1])
-        D = B + robot.r2 * e(th[:, 1])
-        p3 = D + (robot.s + robot.l3 / 2) * e(th[:, 2])
+        E = B + robot.r2 * e(th[:, 1]) + robot.r3 * e(th[:, 2])
+        p3 = E - (robot.l3 / 2) * e(th3)
         p = jnp.concatenate([p1, p2, p3, X[None, :2]], axis=0)
-        ang = jnp.concatenate([th[:, 0], th[:, 1], th[:, 2], X[2:3]])
+        ang = jnp.concatenate([th1, th[:, 1], th3, X[2:3]])
         return p, ang
 
     def kin_from_angles(self, robot: Robot, X, th, margin) -> Kin:
@@ -52,7 +57,7 @@ class AbstractDouble1R(AbstractModel):
         p, ang = self.chain_bodies(robot, th, X)
         return Kin(
             X=X, th=th, body_p=p, body_ang=ang, deflection=deflections(robot, th).reshape(-1),
-            th_a=th[:, 0], margin=margin,
+            th_a=th[:, 0] - robot.sigma * robot.delta1, margin=margin,
         )
 
     def masses(self, robot):
@@ -90,4 +95,4 @@ class Double1R(AbstractDouble1R):
 
     def coords_from_pose(self, robot, X):
         th, _ = ik_reduced(robot, X)
-        return jnp.concatenate([X, th[:, 0]])
+        return jnp.concatenate([X, th[:, 0] - robot.sigma * robot.delta1])
