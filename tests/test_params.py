@@ -46,12 +46,29 @@ def test_default_prb_parameters_come_from_the_elastica_table(params, dv):
     assert 0.80 < float(g) < 0.86 and 2.4 < float(K) < 2.9
 
 
-def test_psi0_independent_of_prb_parameters(params):
-    g = jax.grad(lambda g_: pj.derived(params.replace(gamma=g_)).psi0)(0.81)
-    gk = jax.grad(lambda th: pj.derived(params.replace(theta_c=th)).s)(1.88)
-    assert np.isfinite(float(gk)) and float(gk) != 0.0  # table-derived gamma is differentiable
-    assert float(g) == 0.0
-    assert float(pj.derived(params.replace(gamma=0.9, rho=0.7)).psi0) == pytest.approx(0.94)
+@pytest.mark.parametrize("gamma", [0.75, 0.81, 0.85, 0.9])
+def test_pseudo_link_and_rest_turn_from_the_arc(params, gamma):
+    """Build the double-1R joint from the ideal arc directly (pivots s along the arc's end
+    tangents from its ends) and compare with eqs 4-8 and psi0: the pivot distance is r2 (with
+    Howell's rho) and each pivot turns by psi0 = theta_c/2 whatever gamma is."""
+    p = params.replace(gamma=gamma)
+    dv = pj.derived(p)
+    r_i, th_c = float(p.r + p.b_r / 2), float(p.theta_c)
+    s = (1 - gamma) * r_i * th_c / 2
+    # arc of radius r_i from the origin heading +x, turning clockwise by theta_c
+    start, t_start = np.array([0.0, 0.0]), np.array([1.0, 0.0])
+    end = np.array([r_i * np.sin(th_c), -r_i * (1 - np.cos(th_c))])
+    t_end = np.array([np.cos(th_c), -np.sin(th_c)])
+    P1, P2 = start + s * t_start, end - s * t_end
+    link = P2 - P1
+    np.testing.assert_allclose(np.linalg.norm(link), float(dv.r2), rtol=1e-12)
+    turn1 = -np.arctan2(link[1], link[0])  # from the first tangent to the pseudo-link
+    turn2 = np.arctan2(link[1], link[0]) - np.arctan2(t_end[1], t_end[0])
+    np.testing.assert_allclose([turn1, turn2], float(dv.psi0), rtol=1e-12)
+    np.testing.assert_allclose(float(dv.s), s, rtol=1e-12)
+    # and gamma moves r2 but not psi0 (derivatives by autodiff, not constants)
+    g_r2 = jax.grad(lambda g: pj.derived(params.replace(gamma=g)).r2)(gamma)
+    assert abs(float(g_r2)) > 1e-4
 
 
 def test_explicit_rho_overrides(params):
