@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Callable, Optional
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optimistix as optx
@@ -141,8 +142,10 @@ def quasi_static_state(
     difference of step `QS_DT`, error ~1e-13), so no fast internal vibration is excited at t = 0
     beyond what the model mismatch implies.
     """
-    z, zd, failed = _quasi_static_state(model, robot, trajectory, t, actuation,
-                                        motion_driven=motion_driven, torque=torque, wrench=wrench)
+    z, zd, failed = _quasi_static_state_jit(
+        model, as_robot(robot), trajectory, t, actuation, motion_driven=motion_driven,
+        torque=torque, wrench=wrench,
+    )
     z = raise_if(
         z, failed,
         "quasi-static initial state not found (the chord iteration did not converge): the "
@@ -225,3 +228,8 @@ def _quasi_static_state(
     z = _assemble(n, unknown, zu, known, z_r[ik])
     zd = _assemble(n, unknown, zu_dot, known, zd_r[ik])
     return z, zd, failed
+
+
+# Compiled once per (model, actuation type, shapes): run op by op, the chord iteration's many
+# small operations cost minutes.
+_quasi_static_state_jit = eqx.filter_jit(_quasi_static_state)
