@@ -87,6 +87,8 @@ def _chain_vectors(robot: Robot, X):
 N_NEWTON_IK = 30
 #: step (rad) below which that Newton iteration has converged
 NEWTON_IK_TOL = 1e-15
+#: differentiable Newton steps from the converged root: derivatives exact to this order
+N_NEWTON_DIFF = 3
 
 
 def ik_reduced(robot: Robot, X: Float[Array, "3"]):
@@ -96,8 +98,9 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     The closed form (MODEL.md section 4) with u = (th1 + th3)/2, v = (th3 - th1)/2:
     (2 r cos v + r2) e(u) = E_i - A_i, is exact when r1 = r3; for r1 != r3 it is the initial guess
     of Newton's method on the 2x2 chain closure, iterated to a step below `NEWTON_IK_TOL` (at most
-    `N_NEWTON_IK` iterations). `robot.equal_links` (static) picks the branch. Either way the
-    derivatives come from one implicit-function step at the root, never through the iterations.
+    `N_NEWTON_IK` iterations, without derivatives), then `N_NEWTON_DIFF` differentiable Newton
+    steps from the root, which carry exact derivatives up to that order. `robot.equal_links`
+    (static) picks the branch.
     """
     d = _chain_vectors(robot, X)
     rbar = (robot.r1 + robot.r3) / 2
@@ -156,9 +159,20 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     th13 = jnp.stack([th1, th3], axis=-1)
     # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
     # running Newton for every member.
-    if not robot.equal_links:
+    if robot.equal_links:
+        th13 = jax.vmap(implicit_correction)(th13, d)
+    else:
+        # Converged without derivatives, then N_NEWTON_DIFF differentiable Newton steps: at the
+        # root each step is exact to one more order of derivative (the Newton map's own
+        # derivative vanishes there), and the equations of motion need second derivatives in X
+        # (convective terms) and a third order for their parameter gradients.
         th13 = jax.vmap(newton)(th13, d)
-    th13 = jax.vmap(implicit_correction)(th13, d)
+
+        def step(th13, di):
+            return th13 - solve(jax.jacfwd(resid)(th13, di), resid(th13, di))
+
+        for _ in range(N_NEWTON_DIFF):
+            th13 = jax.vmap(step)(th13, d)
     th1, th3 = th13[:, 0], th13[:, 1]
     th = jnp.stack([th1, (th1 + th3) / 2 + c2, th3], axis=-1)
     return th, margin

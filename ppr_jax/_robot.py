@@ -13,7 +13,8 @@ Static structural choices:
 - `equal_links`: r1 == r3 (l1 == l3), for every member of a batch. The L1 inverse kinematics is
   then closed form (MODEL.md section 4) and needs a single Newton step, whose update is zero but
   whose derivative is the implicit-function derivative (so gradients with respect to l1 or l3
-  alone stay exact); otherwise Newton's method from the closed-form guess, to a step of 1e-15 rad.
+  alone stay exact); otherwise Newton's method from the closed-form guess, to a step of 1e-15 rad, then three
+  differentiable Newton steps (derivatives exact to third order).
   Decided from the concrete values; with traced parameters (a `Robot` built inside `jit`,
   `grad` or `vmap`) it cannot be known and is False, the general path, which is exact for
   equal links too.

@@ -64,6 +64,34 @@ def test_jacobian_against_finite_differences_and_eq47(params, X):
     np.testing.assert_allclose(r.S, r.J[jnp.array([0, 3, 6])], rtol=0, atol=0)
 
 
+def test_newton_path_higher_derivatives_equal_the_closed_form(params):
+    """The equations of motion differentiate the inverse kinematics twice in X (convective terms)
+    and once more for parameter gradients: with l1 == l3 the general (Newton) path must match the
+    closed form, which is exact to every order, in second and third derivatives."""
+    from ppr_jax._geometry import ik_reduced
+
+    X = jnp.array([0.46, 0.25, 0.02])
+    v = jnp.array([0.3, -0.2, 0.5])
+
+    def th(X, equal, l1=params.l1):
+        p = params.replace(l1=l1, l3=l1)
+        return ik_reduced(pj.Robot(p, equal_links=equal), X)[0]
+
+    h2 = {e: jax.jvp(lambda X: jax.jvp(lambda Y: th(Y, e), (X,), (v,))[1], (X,), (v,))[1]
+          for e in (True, False)}
+    np.testing.assert_allclose(h2[False], h2[True], rtol=0, atol=1e-10)
+    w = jnp.arange(1.0, 10.0).reshape(3, 3)
+
+    def d2(l, e):
+        return jnp.sum(w * jax.jvp(lambda Y: jax.jvp(lambda Z: th(Z, e, l), (Y,), (v,))[1],
+                                   (X,), (v,))[1])
+
+    d3 = {e: jax.grad(lambda l: d2(l, e))(params.l1) for e in (True, False)}
+    assert abs(float(d3[True])) > 1e-3
+    np.testing.assert_allclose(d3[False], d3[True], rtol=1e-8)
+    assert float(jnp.abs(h2[True]).max()) > 1e-2
+
+
 def test_forward_kinematics_round_trip(params):
     for model in (pj.Reduced(), pj.Rigid()):
         X = jnp.array(POSES[3])
