@@ -65,7 +65,7 @@ from ._prb import derived
 from ._robot import Robot
 from ._scenes import _kinematic_motion, scene_params
 from ._simulate import _simulate_core, get_solver
-from ._statics import quasi_static_state
+from ._statics import _quasi_static_state
 from ._trajectory import Circle, Interpolated
 
 LOSSES = ("linear", "huber", "cauchy")
@@ -154,13 +154,14 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau):
         torque = (InverseDynamicsTorque(Reduced(), base_robot, traj) if tau is None
                   else Interpolated(ts, tau))
         act = TorqueDriven(torque)
-    z0, zd0 = quasi_static_state(model, robot, traj, ts[0], act)
+    # The status-returning form: a failure is a flag of the compiled program, not a callback.
+    z0, zd0, qs_failed = _quasi_static_state(model, robot, traj, ts[0], act)
     sol = _simulate_core(model, robot, act, z0, zd0, ts, prob.solver, ctrl, None,
                          prob.max_steps, jnp.zeros(3), False, diffrax.NoProgressMeter(),
                          diffrax.ForwardMode())
     X = jax.vmap(lambda z: model.kinematics(robot, z).X)(sol.z)
     # Compared by code (0 = success) so that any RESULTS enumeration built on diffrax's works.
-    return X, sol.result._value == diffrax.RESULTS.successful._value
+    return X, (sol.result._value == diffrax.RESULTS.successful._value) & ~qs_failed
 
 
 def _robust(r, loss, c):
