@@ -450,6 +450,10 @@ def identify(
         raise IdentificationError(f"parameter(s) {sorted(clash)} are both unknown and fixed")
     if len(noise) != 2 or not all(float(v) > 0 for v in noise):
         raise IdentificationError(f"noise must be (position m, phi rad), both > 0, got {noise}")
+    stray = set(initial or {}) - set(names)
+    if stray:
+        raise IdentificationError(f"initial values given for {sorted(stray)}, which are not "
+                                  f"unknowns (to hold a parameter at a value, use fixed=)")
     mdl = get_model(model, n_elements)
     base = scene_params(scene) if params is None else params
     try:

@@ -177,6 +177,8 @@ def test_bad_requests_raise_clear_errors(truth, clean):
         pj.identify(exp, ("t",), bounds={"t": (1e-3, 1e-4)})
     with pytest.raises(pj.PPRError, match=r"initial value of 't' = 0.0005 m is not strictly inside"):
         pj.identify(exp, ("t",), bounds={"t": (1e-4, 4e-4)})
+    with pytest.raises(pj.PPRError, match=r"initial values given for \['E'\]"):
+        pj.identify(exp, ("t",), initial={"E": 70e9})
     with pytest.raises(pj.PPRError, match="unknown loss"):
         pj.identify(exp, ("t",), loss="l1")
     with pytest.raises(pj.PPRError, match="unknown scene"):
@@ -234,3 +236,19 @@ def test_cli_user_errors_exit_2(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
     assert main(["synth", "--rate", "0", "--out", str(tmp_path / "s.csv")]) == 2
     assert "rate and t_end must be > 0" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_paper_circle_with_measured_torques_recovers_t():
+    """Torque-driven: the file's torques (L1's inverse dynamics at t = 0.3 mm, as `synthesize`
+    records them) drive L1 open loop; a wrong t makes the platform drift, so t alone is
+    identified, within its interval (one more compilation: slow)."""
+    truth = pj.scene_params("paper-circle")
+    exp = pj.synthesize("paper-circle", "reduced", truth, noise_pos=NOISE[0],
+                        noise_phi=NOISE[1], rate=100, t_end=T_END, seed=2)
+    assert exp.tau is not None
+    fit = pj.identify(exp, ("t",), model="reduced", scene="paper-circle",
+                      initial={"t": 0.8 * float(truth.t)}, noise=NOISE)
+    lo, hi = fit.ci95[0]
+    assert lo <= float(truth.t) <= hi, fit.table()
+    assert fit.std[0] < 0.05 * float(truth.t)
