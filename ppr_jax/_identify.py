@@ -666,7 +666,8 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise) -> Identification:
     Jr = J * p[None, :]
     U, sv, Vt = np.linalg.svd(Jr, full_matrices=False)
     null = ~(sv > sv[0] * 1e-14) | ~(sv > 0)
-    inv = np.where(null, 0.0, 1.0 / np.maximum(sv, 1e-300) ** 2)
+    inv = np.zeros_like(sv)
+    inv[~null] = 1.0 / sv[~null] ** 2
     Cr = (Vt.T * inv) @ Vt * s2
     # Directions the data do not see at all have infinite variance (not the zero of a
     # pseudo-inverse): every parameter with a component along them is undetermined.

@@ -141,7 +141,7 @@ def add_identify(sub, parents, fmt):
         parents=[parents[k] for k in ("params", "model", "solve")],
         help="identify parameters from measured trajectories (CSV), with 95%% intervals",
         description="Fit unknown parameters to tracker data by least squares through the "
-                    "simulation; write estimates.json (estimates, 95%% intervals, correlations, "
+                    "simulation; write estimates.json (estimates, 95 % intervals, correlations, "
                     "identifiability, residual statistics), estimates.txt, fitted.csv and "
                     "figures. CSV format: README, 'Identification'.")
     p.add_argument("--data", action="append", required=True, metavar="FILE.csv",

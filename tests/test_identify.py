@@ -252,3 +252,7 @@ def test_paper_circle_with_measured_torques_recovers_t():
     lo, hi = fit.ci95[0]
     assert lo <= float(truth.t) <= hi, fit.table()
     assert fit.std[0] < 0.05 * float(truth.t)
+    # optimistix's Levenberg-Marquardt reaches the same minimum (its own compiled loop)
+    fo = pj.identify(exp, ("t",), model="reduced", scene="paper-circle",
+                     initial={"t": 0.8 * float(truth.t)}, noise=NOISE, solver="optimistix-lm")
+    assert abs(fo.estimate[0] - fit.estimate[0]) < 0.01 * fit.std[0], (fo.table(), fit.table())
