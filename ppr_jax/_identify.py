@@ -69,6 +69,8 @@ from ._statics import _quasi_static_state
 from ._trajectory import Circle, Interpolated
 
 LOSSES = ("linear", "huber", "cauchy")
+#: largest step of the Levenberg-Marquardt loop in the reparametrised unknowns z
+MAX_STEP_Z = 1.0
 SOLVERS = ("lm", "optimistix-lm", "optimistix-gn")
 ID_SCENES = ("servo-circle", "paper-circle")
 #: default noise weights: tracker position (m) and platform angle (rad), Optotrak-like
@@ -213,7 +215,8 @@ class Identification(eqx.Module):
     """The result of `identify` (SI units; P unknowns, E experiments).
 
     names (P,) unknowns; estimate, initial, std (P,); ci95 (P, 2) 95 % confidence intervals
-    (Student t on the Gauss-Newton standard errors); covariance, correlation (P, P); params the
+    (Student t on the Gauss-Newton standard errors); ci95_log (P, 2) the same for log p,
+    p exp(+-q std/p), positive (the better reading when std/p is not small); covariance, correlation (P, P); params the
     fitted `RobotParams`; sigma2 the estimated variance of the weighted residuals (about 1 when
     the noise is as stated: s^2 = sum r^2/(N - P)); jacobian (N, P) d(weighted residual)/d(p)
     at the estimate; residuals (N,) weighted residuals (after the loss) at the estimate;
@@ -228,6 +231,7 @@ class Identification(eqx.Module):
     initial: Array
     std: Array
     ci95: Array
+    ci95_log: Array
     covariance: Array
     correlation: Array
     params: RobotParams
@@ -298,6 +302,7 @@ class Identification(eqx.Module):
             "unknowns": {
                 n: {"estimate": float(self.estimate[i]), "std": float(self.std[i]),
                     "ci95": [float(self.ci95[i, 0]), float(self.ci95[i, 1])],
+                    "ci95_log": [float(self.ci95_log[i, 0]), float(self.ci95_log[i, 1])],
                     "initial": float(self.initial[i])}
                 for i, n in enumerate(self.names)
             },
@@ -528,7 +533,7 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol):
     z = np.asarray(z0, dtype=np.float64)
     cost = float(r @ r)
     A = J.T @ J
-    lam = 1e-3 * float(np.max(np.diag(A))) if np.max(np.diag(A)) > 0 else 1e-3
+    lam = 1e-3  # dimensionless: the damping term is lam * diag(J^T J) (Marquardt's scaling)
     nu = 2.0
     costs = [cost]
     n_eval, it, reason = 1, 0, "max_iter"
@@ -546,6 +551,12 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol):
             lam *= nu
             nu *= 2
             continue
+        # A trust region in z (unit steps: a factor of about 10 in a log-bounded parameter):
+        # along a direction the data barely see (t against K_theta) the Gauss-Newton step is
+        # huge and would run the estimate into its bounds.
+        big = float(np.max(np.abs(dz)))
+        if big > MAX_STEP_Z:
+            dz = dz * (MAX_STEP_Z / big)
         z_new = z + dz
         r_new, J_new, ok_new, X_new = _residual_and_jacobian(prob, jnp.asarray(z_new))
         n_eval += 1
@@ -565,8 +576,11 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol):
             # The step's length in standard errors is measured with the information matrix
             # (sqrt(dz' J'J dz / s^2)): steps along directions the data do not determine (t
             # against K_theta) are free and must not count, steps along determined ones must.
+            # The noise scale is the smaller of the stated one (1 in weighted units) and the
+            # residuals' estimate: far from the optimum the misfit inflates the latter, which
+            # would make every step look negligible.
             A = J.T @ J
-            s2 = cost / max(r.size - z.size, 1)
+            s2 = min(cost / max(r.size - z.size, 1), 1.0)
             step_se = math.sqrt(max(float(dz @ A @ dz), 0.0) / max(s2, 1e-300))
             if (np.max(np.abs(dz)) < xtol * (1 + np.max(np.abs(z))) or rel < ftol
                     or step_se < stat_tol):
@@ -657,7 +671,13 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise) -> Identification:
     z = jnp.asarray(z)
     p = np.asarray(_to_p(prob, z))
     dpdz = np.asarray(_dp_dz(prob, z))
-    J = Jz / dpdz[None, :]  # d r / d p (physical)
+    sz = np.asarray(jax.nn.sigmoid(z))
+    # At a bound the reparametrisation is flat (dp/dz -> 0): the chain rule loses the
+    # physical Jacobian there, so such unknowns are reported and their columns kept finite.
+    at_bound = [n for n, v in zip(prob.names, sz * (1 - sz)) if v < 1e-9]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        J = Jz / np.maximum(dpdz, 1e-300)[None, :]  # d r / d p (physical)
+    J = np.where(np.isfinite(J), J, 0.0)
     N, P = J.shape[0], J.shape[1]
     N = int(mask.sum()) * 3  # padding rows are exact zeros
     dof = max(N - P, 1)
@@ -677,9 +697,19 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise) -> Identification:
     std = np.sqrt(np.diag(C))
     q = float(stats.t.ppf(0.975, dof))
     ci = np.column_stack([p - q * std, p + q * std])
+    # The same interval for log p (first order: std(log p) = std / p): positive, and the better
+    # reading when std / p is not small (a linear interval of t can reach below 0).
+    with np.errstate(over="ignore", invalid="ignore"):
+        rel = std / np.abs(p)
+        ci_log = np.column_stack([p * np.exp(-q * rel), p * np.exp(q * rel)])
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = np.where(np.isfinite(np.outer(std, std)), C / np.outer(std, std), np.nan)
     idf = _identifiability(prob.names, p, J, s2)
+    idf["at_bound"] = at_bound
+    if at_bound:
+        idf["note"] = ((idf["note"] + "; ") if idf["note"] else "") + (
+            f"{', '.join(at_bound)} ended at a bound: its interval is not meaningful (widen the "
+            f"bounds, or fix it)")
     raw = np.where(np.asarray(prob.w) > 0, (X - np.asarray(prob.X)) * np.asarray(prob.w), 0.0)
     rs = []
     for k, e in enumerate(exps):
@@ -698,7 +728,7 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise) -> Identification:
                       "model that fits, RMS x, y ~ noise position and RMS phi ~ noise phi"}
     params = _params_at(prob, jnp.asarray(p))
     return Identification(
-        names=prob.names, estimate=p, initial=p0, std=std, ci95=ci, covariance=C,
+        names=prob.names, estimate=p, initial=p0, std=std, ci95=ci, ci95_log=ci_log, covariance=C,
         correlation=corr, params=params, sigma2=s2, jacobian=J, residuals=r, fitted=X,
         measured=np.asarray(prob.X), ts=np.asarray(prob.ts), mask=mask, identifiability=idf,
         residual_stats=stats_, history=hist, model=prob.model.name, scene=prob.scene,

@@ -135,6 +135,11 @@ def test_covariance_against_finite_difference_jacobian(fits):
     q = stats.t.ppf(0.975, r.size - 2)
     np.testing.assert_allclose(fit.ci95, np.column_stack([p_hat - q * fit.std,
                                                           p_hat + q * fit.std]), rtol=1e-12)
+    rel = fit.std / p_hat
+    np.testing.assert_allclose(fit.ci95_log, np.column_stack([p_hat * np.exp(-q * rel),
+                                                              p_hat * np.exp(q * rel)]),
+                               rtol=1e-12)
+    assert np.all(fit.ci95_log >= 0)  # [0, inf] for the direction the data do not see
 
 
 def test_robust_loss_resists_outliers(truth, clean, fits):
