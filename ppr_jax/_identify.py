@@ -44,7 +44,6 @@ Method, and why:
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from typing import Optional, Sequence, Union

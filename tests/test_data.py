@@ -2,7 +2,6 @@
 (each must raise `DataError` naming what is wrong). No simulation: fast."""
 
 import math
-import os
 
 import numpy as np
 import pytest
