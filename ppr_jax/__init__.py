@@ -95,6 +95,21 @@ from ._prb_table import (  # noqa: E402
     prb_table as prb_table,
 )
 
+from ._data import (  # noqa: E402
+    DataError as DataError,
+    Experiment as Experiment,
+    experiment as experiment,
+    load_csv as load_csv,
+    load_experiments as load_experiments,
+    write_csv as write_csv,
+)
+from ._identify import (  # noqa: E402
+    Identification as Identification,
+    IdentificationError as IdentificationError,
+    identify as identify,
+    synthesize as synthesize,
+)
+
 __version__ = "0.1.0"
 
 # The offline PRB fit and the elastica solver it uses (and scipy.optimize) are loaded on first

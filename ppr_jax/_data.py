@@ -1,0 +1,338 @@
+"""Measured trajectories (MODEL.md section 7): tracker CSV files, their units and their validation.
+
+A tracker file is a CSV table, one row per sample, with the columns
+
+    time, x, y, phi                 required: sample time and platform pose (x, y, phi)
+    th_1, th_2, th_3                optional: actuated angles (all three or none)
+    tau_1, tau_2, tau_3             optional: actuator torques (all three or none)
+
+Units are SI (s, m, rad, N m) unless declared, in this order of precedence:
+- in the column name, ``x[mm]``, ``phi[deg]``, ``time[ms]``;
+- in a header comment line, ``# units: time=s, length=mm, angle=deg, torque=N m``;
+- by the caller (``load_csv(..., length_unit="mm")``, CLI ``--length-unit mm``).
+A declared unit that contradicts the caller's raises, rather than picking one silently.
+Lines starting with ``#`` are comments; blank lines are skipped. ``t`` is accepted for ``time``.
+
+Everything the loader rejects raises `DataError` (a `PPRError`, hence a `ValueError`) naming the
+file, the column or the (1-based, as an editor shows them) line numbers.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+from typing import Optional, Sequence
+
+import equinox as eqx
+import numpy as np
+
+from ._checks import PPRError
+from ._custom_types import Array
+
+#: unit name -> factor to SI, per kind of quantity
+UNITS = {
+    "time": {"s": 1.0, "ms": 1e-3},
+    "length": {"m": 1.0, "mm": 1e-3},
+    "angle": {"rad": 1.0, "mrad": 1e-3, "deg": math.pi / 180.0},
+    "torque": {"nm": 1.0, "n m": 1.0, "n*m": 1.0, "n.m": 1.0, "nmm": 1e-3, "n mm": 1e-3},
+}
+#: column -> kind of quantity
+COLUMNS = {
+    "time": "time", "x": "length", "y": "length", "phi": "angle",
+    "th_1": "angle", "th_2": "angle", "th_3": "angle",
+    "tau_1": "torque", "tau_2": "torque", "tau_3": "torque",
+}
+REQUIRED = ("time", "x", "y", "phi")
+ALIASES = {"t": "time"}
+#: reference size of the workspace (m): the base side of Table 1. A pose whose distance from the
+#: base origin is 30 times larger or smaller than this is in the wrong units.
+WORKSPACE_SCALE = 0.9
+#: fewest samples an experiment may have
+MIN_SAMPLES = 5
+
+
+class DataError(PPRError):
+    """A measured-data file or array that cannot be used: missing or misnamed columns, bad units,
+    non-increasing time, NaN rows, too few samples. The message names the file, column and lines."""
+
+
+class Experiment(eqx.Module):
+    """One measured experiment, in SI units.
+
+    ts (n,) sample times (s), strictly increasing; X (n, 3) platform pose x, y (m), phi (rad);
+    th (n, 3) actuated angles (rad) or None; tau (n, 3) actuator torques (N m) or None.
+    `name` (static) labels the experiment in reports; `dropped_lines` (static) the file lines
+    dropped as NaN rows (``drop_nan=True``)."""
+
+    ts: Array
+    X: Array
+    th: Optional[Array] = None
+    tau: Optional[Array] = None
+    name: str = eqx.field(static=True, default="experiment")
+    dropped_lines: tuple = eqx.field(static=True, default=())
+
+    @property
+    def n(self) -> int:
+        return int(np.shape(self.ts)[0])
+
+
+def _where(source, lines):
+    shown = ", ".join(str(v) for v in lines[:10]) + (", ..." if len(lines) > 10 else "")
+    return f"{source}: line{'s' if len(lines) > 1 else ''} {shown}"
+
+
+def experiment(ts, X, th=None, tau=None, *, name: str = "experiment",
+               min_samples: int = MIN_SAMPLES, lines: Optional[Sequence[int]] = None,
+               check_units: bool = True) -> Experiment:
+    """Validate arrays in SI units and build an `Experiment` (see `load_csv` for the checks).
+
+    ts (n,) s; X (n, 3) m, m, rad; th, tau (n, 3) rad, N m or None. `lines` gives the row labels
+    used in messages (file lines; default: 1-based sample index)."""
+    ts = np.asarray(ts, dtype=np.float64)
+    X = np.asarray(X, dtype=np.float64)
+    n = ts.shape[0] if ts.ndim == 1 else -1
+    if ts.ndim != 1:
+        raise DataError(f"{name}: time must be a vector (n,), got shape {ts.shape}")
+    if X.shape != (n, 3):
+        raise DataError(f"{name}: pose must have shape (n, 3) = ({n}, 3) (x, y, phi), got {X.shape}")
+    lines = np.arange(1, n + 1) if lines is None else np.asarray(lines)
+    extra = {}
+    for key, v in (("th", th), ("tau", tau)):
+        if v is not None:
+            v = np.asarray(v, dtype=np.float64)
+            if v.shape != (n, 3):
+                raise DataError(f"{name}: {key} must have shape ({n}, 3), got {v.shape}")
+        extra[key] = v
+    allv = np.column_stack([ts, X] + [v for v in extra.values() if v is not None])
+    bad = ~np.all(np.isfinite(allv), axis=1)
+    if bad.any():
+        raise DataError(f"{_where(name, lines[bad].tolist())}: NaN or infinite values "
+                        f"({int(bad.sum())} rows); drop them with drop_nan=True (CLI --drop-nan)")
+    if n < min_samples:
+        raise DataError(f"{name}: too few samples: {n} (at least {min_samples} needed)")
+    dt = np.diff(ts)
+    dup = np.flatnonzero(dt == 0)
+    if dup.size:
+        raise DataError(f"{_where(name, lines[dup + 1].tolist())}: duplicated time "
+                        f"(same as the line before); times must be strictly increasing")
+    back = np.flatnonzero(dt < 0)
+    if back.size:
+        raise DataError(f"{_where(name, lines[back + 1].tolist())}: time decreases; times must "
+                        f"be strictly increasing (sort the file, or split it into experiments)")
+    if check_units:
+        _check_units(name, X)
+    return Experiment(ts=ts, X=X, th=extra["th"], tau=extra["tau"], name=name)
+
+
+def _check_units(name, X):
+    # Why a scale test: a tracker exporting mm into a file read as m (or the reverse) gives poses
+    # 1000 times off, and a fit would then "succeed" on nonsense.
+    d = float(np.median(np.hypot(X[:, 0], X[:, 1])))
+    if d > 30 * WORKSPACE_SCALE:
+        raise DataError(
+            f"{name}: the platform position is {d:.4g} m from the base origin, about "
+            f"{d / WORKSPACE_SCALE:.0f} times the workspace (base side {WORKSPACE_SCALE} m): "
+            f"probably millimetres read as metres; declare the unit (column 'x[mm]', header "
+            f"'# units: length=mm', or length_unit='mm' / --length-unit mm)")
+    if d < WORKSPACE_SCALE / 30:
+        raise DataError(
+            f"{name}: the platform position is only {d:.4g} m from the base origin, about "
+            f"1/{WORKSPACE_SCALE / max(d, 1e-300):.0f} of the workspace (base side "
+            f"{WORKSPACE_SCALE} m): probably wrong units (metres read as millimetres?); declare "
+            f"the unit of the file")
+    phimax = float(np.max(np.abs(X[:, 2])))
+    if phimax > math.pi / 2:
+        raise DataError(
+            f"{name}: platform rotation |phi| reaches {phimax:.4g} rad, beyond what the robot "
+            f"can turn (pi/2): probably degrees read as radians; declare the unit (column "
+            f"'phi[deg]', header '# units: angle=deg', or angle_unit='deg' / --angle-unit deg)")
+
+
+_HEADER_UNITS = re.compile(r"^\s*#\s*units?\s*:\s*(.*)$", re.IGNORECASE)
+_COL = re.compile(r"^\s*([A-Za-z_0-9]+)\s*(?:\[\s*([^\]]*?)\s*\]|\(\s*([^)]*?)\s*\))?\s*$")
+
+
+def _unit_factor(source, kind, unit, where):
+    u = unit.strip().lower()
+    if u not in UNITS[kind]:
+        allowed = ", ".join(k for k in UNITS[kind] if " " not in k or kind == "torque")
+        raise DataError(f"{source}: unknown {kind} unit {unit!r} in {where}; allowed: {allowed}")
+    return UNITS[kind][u]
+
+
+def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optional[str] = None,
+             angle_unit: Optional[str] = None, torque_unit: Optional[str] = None,
+             drop_nan: bool = False, min_samples: int = MIN_SAMPLES,
+             name: Optional[str] = None, check_units: bool = True) -> Experiment:
+    """Read a tracker CSV file (format: module docstring) into an `Experiment` in SI units.
+
+    Units: column ``name[unit]`` > header ``# units: kind=unit, ...`` > the `*_unit` options > SI;
+    an option that contradicts a declared unit raises `DataError`. NaN (or empty) cells make
+    their rows fail with their line numbers, unless `drop_nan` (then they are dropped and listed
+    in `Experiment.dropped_lines`). Raises `DataError` for: a missing file, missing or unknown
+    columns (the message lists the allowed names), unreadable numbers, fewer than `min_samples`
+    rows, duplicated or decreasing times, poses about 1000 times off the workspace or |phi| >
+    pi/2 (wrong units; `check_units=False` skips this)."""
+    source = os.path.basename(path)
+    name = name or os.path.splitext(source)[0]
+    if not os.path.isfile(path):
+        raise DataError(f"{path}: no such file")
+    options = {"time": time_unit, "length": length_unit, "angle": angle_unit,
+               "torque": torque_unit}
+    for kind, u in options.items():
+        if u is not None:
+            _unit_factor(source, kind, u, "the options")
+    header_units: dict[str, str] = {}
+    rows: list[tuple[int, list[str]]] = []
+    header: Optional[list[str]] = None
+    header_line = 0
+    with open(path, newline="") as f:
+        for lineno, line in enumerate(f, start=1):
+            s = line.strip()
+            if not s:
+                continue
+            if s.startswith("#"):
+                m = _HEADER_UNITS.match(s)
+                if m:
+                    for item in m.group(1).split(","):
+                        if not item.strip():
+                            continue
+                        if "=" not in item:
+                            raise DataError(f"{source}: line {lineno}: units header expects "
+                                            f"kind=unit items (kinds: {', '.join(UNITS)}), got "
+                                            f"{item.strip()!r}")
+                        k, u = (v.strip() for v in item.split("=", 1))
+                        k = k.lower()
+                        if k not in UNITS:
+                            raise DataError(f"{source}: line {lineno}: unknown kind {k!r} in the "
+                                            f"units header; allowed: {', '.join(UNITS)}")
+                        _unit_factor(source, k, u, f"line {lineno}")
+                        header_units[k] = u
+                continue
+            cells = next(csv.reader([line]))
+            if header is None:
+                header, header_line = cells, lineno
+            else:
+                rows.append((lineno, cells))
+    if header is None:
+        raise DataError(f"{source}: no header row (expected columns {', '.join(REQUIRED)})")
+    cols: list[str] = []
+    col_units: list[Optional[str]] = []
+    for raw in header:
+        m = _COL.match(raw)
+        if not m:
+            raise DataError(f"{source}: line {header_line}: cannot read column name {raw!r} "
+                            f"(expected NAME or NAME[unit])")
+        c = ALIASES.get(m.group(1).lower(), m.group(1).lower())
+        if c not in COLUMNS:
+            raise DataError(f"{source}: unknown column {raw.strip()!r}; allowed names: "
+                            f"{', '.join(COLUMNS)} (units as NAME[unit]; 't' is read as 'time')")
+        if c in cols:
+            raise DataError(f"{source}: column {c!r} appears twice")
+        cols.append(c)
+        col_units.append(m.group(2) or m.group(3))
+    missing = [c for c in REQUIRED if c not in cols]
+    if missing:
+        raise DataError(f"{source}: missing column(s) {', '.join(missing)}; required: "
+                        f"{', '.join(REQUIRED)}; optional: th_1..th_3, tau_1..tau_3; found: "
+                        f"{', '.join(header)}")
+    for group in (("th_1", "th_2", "th_3"), ("tau_1", "tau_2", "tau_3")):
+        have = [c for c in group if c in cols]
+        if have and len(have) != 3:
+            raise DataError(f"{source}: columns {', '.join(group)} come as a set of three; "
+                            f"found only {', '.join(have)}")
+    factors = []
+    for c, cu in zip(cols, col_units):
+        kind = COLUMNS[c]
+        declared = cu if cu else header_units.get(kind)
+        opt = options[kind]
+        if declared and opt and (_unit_factor(source, kind, declared, f"column {c!r}")
+                                 != _unit_factor(source, kind, opt, "the options")):
+            raise DataError(f"{source}: column {c!r} is declared in {declared!r} by the file "
+                            f"but {opt!r} was given as an option; remove one")
+        unit = declared or opt
+        factors.append(1.0 if unit is None else _unit_factor(source, kind, unit, f"column {c!r}"))
+    data = np.full((len(rows), len(cols)), np.nan)
+    lines = np.array([ln for ln, _ in rows], dtype=int)
+    for i, (ln, cells) in enumerate(rows):
+        if len(cells) != len(cols):
+            raise DataError(f"{source}: line {ln}: {len(cells)} cells, the header has {len(cols)}")
+        for j, cell in enumerate(cells):
+            s = cell.strip()
+            if s == "" or s.lower() in ("nan", "na", "null", "none"):
+                continue  # missing value: a NaN row, reported below
+            try:
+                data[i, j] = float(s)
+            except ValueError:
+                raise DataError(f"{source}: line {ln}, column {cols[j]!r}: cannot read "
+                                f"{s!r} as a number") from None
+    data = data * np.asarray(factors)
+    bad = ~np.all(np.isfinite(data), axis=1)
+    dropped: tuple = ()
+    if bad.any():
+        if not drop_nan:
+            raise DataError(f"{_where(source, lines[bad].tolist())}: NaN, empty or infinite values "
+                            f"({int(bad.sum())} rows); drop them with drop_nan=True "
+                            f"(CLI --drop-nan)")
+        dropped = tuple(int(v) for v in lines[bad])
+        data, lines = data[~bad], lines[~bad]
+    col = {c: data[:, j] for j, c in enumerate(cols)}
+
+    def triple(prefix):
+        if f"{prefix}_1" not in col:
+            return None
+        return np.column_stack([col[f"{prefix}_{k}"] for k in (1, 2, 3)])
+
+    exp = experiment(col["time"], np.column_stack([col["x"], col["y"], col["phi"]]),
+                     triple("th"), triple("tau"), name=source, min_samples=min_samples,
+                     lines=lines, check_units=check_units)
+    return Experiment(ts=exp.ts, X=exp.X, th=exp.th, tau=exp.tau, name=name,
+                      dropped_lines=dropped)
+
+
+def load_experiments(paths: Sequence[str], **kw) -> list[Experiment]:
+    """Several files as several experiments (options as `load_csv`, shared by all files)."""
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    if not paths:
+        raise DataError("no data file given")
+    exps = [load_csv(p, **kw) for p in paths]
+    names = [e.name for e in exps]
+    if len(set(names)) != len(names):  # name them apart in reports
+        exps = [Experiment(ts=e.ts, X=e.X, th=e.th, tau=e.tau, name=f"{e.name}#{i + 1}",
+                           dropped_lines=e.dropped_lines) for i, e in enumerate(exps)]
+    return exps
+
+
+def write_csv(path: str, exp: Experiment, *, length_unit: str = "mm", angle_unit: str = "rad",
+              comments: Sequence[str] = ()) -> None:
+    """Write an `Experiment` as a tracker file (units in the header comment and column names)."""
+    fl = UNITS["length"][length_unit]
+    fa = UNITS["angle"][angle_unit]
+    cols = ["time[s]", f"x[{length_unit}]", f"y[{length_unit}]", f"phi[{angle_unit}]"]
+    blocks = [np.asarray(exp.ts)[:, None], np.asarray(exp.X)[:, :2] / fl,
+              np.asarray(exp.X)[:, 2:] / fa]
+    if exp.th is not None:
+        cols += [f"th_{k}[{angle_unit}]" for k in (1, 2, 3)]
+        blocks.append(np.asarray(exp.th) / fa)
+    if exp.tau is not None:
+        cols += [f"tau_{k}[Nm]" for k in (1, 2, 3)]
+        blocks.append(np.asarray(exp.tau))
+    data = np.column_stack(blocks)
+    d = os.path.dirname(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        for c in comments:
+            f.write(f"# {c}\n")
+        f.write(f"# units: time=s, length={length_unit}, angle={angle_unit}, torque=Nm\n")
+        w = csv.writer(f)
+        w.writerow(cols)
+        for row in data:
+            w.writerow([f"{v:.10g}" for v in row])
+
+
+def example_path() -> str:
+    """Path of the example tracker file shipped with the package (ppr_jax/data/)."""
+    return os.path.join(os.path.dirname(__file__), "data", "servo_circle_example.csv")

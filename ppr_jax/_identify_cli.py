@@ -1,0 +1,200 @@
+"""Commands `identify` and `synth` of the `ppr-jax` command line (see README, "Identification")."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+
+def _log(msg):
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _name_values(items, what):
+    from ._params import parse_value
+
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ValueError(f"{what} expects NAME=VALUE, got {item!r}")
+        name, value = (v.strip() for v in item.split("=", 1))
+        out[name] = parse_value(name, value)
+    return out
+
+
+def _bounds(items):
+    out = {}
+    for item in items or []:
+        try:
+            name, rng = item.split("=", 1)
+            lo, hi = (float(v) for v in rng.split(","))
+        except ValueError:
+            raise ValueError(f"--bound expects NAME=LO,HI, got {item!r}") from None
+        out[name.strip()] = (lo, hi)
+    return out
+
+
+def cmd_identify(args):
+    from ._data import load_experiments
+    from ._identify import identify
+    from ._identify_plots import identification_figures
+    from ._models import get_model
+    from ._scenes import scene_params
+
+    exps = load_experiments(args.data, time_unit=args.time_unit, length_unit=args.length_unit,
+                            angle_unit=args.angle_unit, drop_nan=args.drop_nan)
+    for e in exps:
+        if e.dropped_lines:
+            _log(f"{e.name}: dropped {len(e.dropped_lines)} NaN rows (lines "
+                 f"{', '.join(map(str, e.dropped_lines[:10]))}{', ...' if len(e.dropped_lines) > 10 else ''})")
+    params = scene_params(args.scene, **_name_values(args.set, "--set"))
+    fixed = _name_values(args.fix, "--fix")
+    initial = _name_values(args.initial, "--initial")
+    unknowns = args.unknown or ["t", "K_theta"]
+    _log(f"identify {', '.join(unknowns)} with {args.model} from {len(exps)} experiment(s), "
+         f"{sum(e.n for e in exps)} samples (compiling the simulation and its Jacobian first) ...")
+    t0 = time.perf_counter()
+    fit = identify(exps, unknowns, model=get_model(args.model, args.elements), scene=args.scene,
+                   params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
+                   noise=(args.noise_pos, args.noise_phi), loss=args.loss,
+                   loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
+                   ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
+                   max_steps=args.max_steps)
+    _log(f"done in {time.perf_counter() - t0:.1f} s ({fit.history.get('iterations')} iterations, "
+         f"stop: {fit.history.get('stop')})")
+    os.makedirs(args.out, exist_ok=True)
+    summary = fit.to_dict()
+    summary["data"] = [os.path.abspath(p) for p in args.data]
+    with open(os.path.join(args.out, "estimates.json"), "w") as f:
+        json.dump(summary, f, indent=2)
+    table = fit.table()
+    with open(os.path.join(args.out, "estimates.txt"), "w") as f:
+        f.write(table + "\n")
+    _write_fitted(os.path.join(args.out, "fitted.csv"), fit)
+    figs = identification_figures(fit, args.out)
+    print(table)
+    print(f"wrote {args.out}/estimates.json, estimates.txt, fitted.csv, "
+          + ", ".join(os.path.basename(p) for p in figs))
+    return 0
+
+
+def _write_fitted(path, fit):
+    """Measured and fitted pose of every experiment at its sample times (SI units)."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["experiment", "time", "x_measured", "y_measured", "phi_measured", "x_fitted",
+                    "y_fitted", "phi_fitted"])
+        for k, name in enumerate(fit.experiment_names):
+            m = np.asarray(fit.mask[k])
+            for t, xm, xf in zip(np.asarray(fit.ts[k])[m], np.asarray(fit.measured[k])[m],
+                                 np.asarray(fit.fitted[k])[m]):
+                w.writerow([name, f"{t:.10g}", *(f"{v:.12g}" for v in xm),
+                            *(f"{v:.12g}" for v in xf)])
+
+
+def cmd_synth(args):
+    from ._data import write_csv
+    from ._identify import synthesize
+    from ._models import get_model
+    from ._scenes import scene_params
+
+    params = scene_params(args.scene, **_name_values(args.set, "--set"))
+    _log(f"synth: {args.scene} with {args.model}, {args.t_end} s at {args.rate} Hz (compiling, "
+         f"then running) ...")
+    exp = synthesize(args.scene, get_model(args.model, args.elements), params,
+                     noise_pos=args.noise_pos, noise_phi=args.noise_phi, rate=args.rate,
+                     t_end=args.t_end, seed=args.seed,
+                     name=os.path.splitext(os.path.basename(args.out))[0], solver=args.solver,
+                     rtol=args.rtol, atol=args.atol, max_steps=args.max_steps)
+    sets = " ".join(args.set or []) or "scene defaults"
+    write_csv(args.out, exp, length_unit=args.length_unit, angle_unit=args.angle_unit, comments=[
+        f"synthetic tracker data from ppr_jax: scene {args.scene}, model {args.model}, "
+        f"parameters: {sets}",
+        f"Gaussian noise: {args.noise_pos:g} m on x and y, {args.noise_phi:g} rad on phi, seed "
+        f"{args.seed}; {args.rate:g} Hz; th_i noise-free; tau: applied or reaction torques",
+    ])
+    print(f"wrote {args.out} ({exp.n} samples)")
+    return 0
+
+
+def _units(p):
+    p.add_argument("--time-unit", default=None, choices=["s", "ms"],
+                   help="unit of the time column when the file does not declare it")
+    p.add_argument("--length-unit", default=None, choices=["m", "mm"],
+                   help="unit of x, y when the file does not declare it")
+    p.add_argument("--angle-unit", default=None, choices=["rad", "mrad", "deg"],
+                   help="unit of phi (and th_i) when the file does not declare it")
+
+
+def add_identify(sub, parents, fmt):
+    from ._identify import ID_SCENES, LOSSES, SOLVERS
+    from ._models import MODELS
+    from ._params import PARAM_RANGES
+
+    p = sub.add_parser(
+        "identify", formatter_class=fmt,
+        parents=[parents[k] for k in ("params", "model", "solve")],
+        help="identify parameters from measured trajectories (CSV), with 95%% intervals",
+        description="Fit unknown parameters to tracker data by least squares through the "
+                    "simulation; write estimates.json (estimates, 95 % intervals, correlations, "
+                    "identifiability, residual statistics), estimates.txt, fitted.csv and "
+                    "figures. CSV format: README, 'Identification'.")
+    p.add_argument("--data", action="append", required=True, metavar="FILE.csv",
+                   help="tracker CSV file; repeat for several experiments (fitted jointly)")
+    p.add_argument("--model", default="double1r", choices=list(MODELS),
+                   help="model to fit (beam/L3 is too slow for time-domain fits)")
+    p.add_argument("--scene", default="servo-circle", choices=list(ID_SCENES),
+                   help="what the motors did during the experiments")
+    p.add_argument("--unknown", action="append", metavar="NAME", choices=list(PARAM_RANGES),
+                   help="parameter to identify; repeatable (default: t and K_theta)")
+    p.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="parameter held at a known value (as --set); repeatable")
+    p.add_argument("--initial", action="append", metavar="NAME=VALUE",
+                   help="start value of an unknown (default: the scene's value)")
+    p.add_argument("--bound", action="append", metavar="NAME=LO,HI",
+                   help="bounds of an unknown (default: its physical range)")
+    p.add_argument("--noise-pos", type=float, default=1e-4,
+                   help="tracker position noise (m): weight of x, y residuals")
+    p.add_argument("--noise-phi", type=float, default=1e-3,
+                   help="platform angle noise (rad): weight of phi residuals")
+    p.add_argument("--loss", default="linear", choices=list(LOSSES),
+                   help="robust loss for outliers")
+    p.add_argument("--loss-scale", type=float, default=3.0,
+                   help="robust loss scale in noise units")
+    p.add_argument("--method", default="lm", choices=list(SOLVERS),
+                   help="least-squares solver")
+    p.add_argument("--max-iter", type=int, default=50, help="iteration limit of the fit")
+    p.add_argument("--drop-nan", action="store_true", help="drop NaN rows (reported)")
+    _units(p)
+    p.add_argument("--out", default="identify_out", help="output directory")
+    p.set_defaults(func=cmd_identify)
+
+
+def add_synth(sub, parents, fmt):
+    from ._identify import ID_SCENES
+    from ._models import MODELS
+
+    p = sub.add_parser(
+        "synth", formatter_class=fmt,
+        parents=[parents[k] for k in ("params", "model", "solve")],
+        help="write a synthetic tracker CSV (a scene plus Gaussian noise)",
+        description="Simulate a scene with a model and write what a tracker would record: the "
+                    "platform pose at --rate Hz with Gaussian noise (seeded), the actuated "
+                    "angles and torques, in the CSV format that 'identify' reads.")
+    p.add_argument("--scene", default="servo-circle", choices=list(ID_SCENES))
+    p.add_argument("--model", default="double1r", choices=list(MODELS))
+    p.add_argument("--noise-pos", type=float, default=0.1e-3, help="position noise std (m)")
+    p.add_argument("--noise-phi", type=float, default=1e-3, help="angle noise std (rad)")
+    p.add_argument("--rate", type=float, default=100.0, help="sample rate (Hz)")
+    p.add_argument("--t-end", type=float, default=7.54, help="duration (s)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the noise")
+    p.add_argument("--length-unit", default="mm", choices=["m", "mm"], help="unit of x, y")
+    p.add_argument("--angle-unit", default="rad", choices=["rad", "mrad", "deg"],
+                   help="unit of phi and th_i")
+    p.add_argument("--out", required=True, metavar="FILE.csv")
+    p.set_defaults(func=cmd_synth)

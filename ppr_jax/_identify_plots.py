@@ -1,0 +1,72 @@
+"""Figures of an identification (matplotlib, Agg backend): measured against fitted trajectory,
+and the residuals over time against the stated noise."""
+
+from __future__ import annotations
+
+import os
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def identification_figures(fit, out_dir: str) -> list[str]:
+    """Write fit_trajectory.png (x-y path and phi(t), measured dots, fitted lines) and
+    fit_residuals.png (x, y in mm and phi in mrad over time, with +-2 noise bands) for an
+    `Identification`; returns the paths."""
+    os.makedirs(out_dir, exist_ok=True)
+    paths = []
+    names = fit.experiment_names
+    fig, axs = plt.subplots(1, 2, figsize=(11, 4.5))
+    for k, name in enumerate(names):
+        m = np.asarray(fit.mask[k])
+        t = np.asarray(fit.ts[k])[m]
+        Xm, Xf = np.asarray(fit.measured[k])[m], np.asarray(fit.fitted[k])[m]
+        c = f"C{k % 10}"
+        axs[0].plot(Xm[:, 0], Xm[:, 1], ".", color=c, ms=2.5, alpha=0.6, label=f"{name} measured")
+        axs[0].plot(Xf[:, 0], Xf[:, 1], "-", color=c, lw=1.2, label=f"{name} fitted")
+        axs[1].plot(t, Xm[:, 2] * 1e3, ".", color=c, ms=2.5, alpha=0.6)
+        axs[1].plot(t, Xf[:, 2] * 1e3, "-", color=c, lw=1.2)
+    axs[0].set_xlabel("x (m)")
+    axs[0].set_ylabel("y (m)")
+    axs[0].set_aspect("equal", adjustable="datalim")
+    axs[0].legend(fontsize=7)
+    axs[0].set_title(f"platform path, {fit.model}")
+    axs[1].set_xlabel("t (s)")
+    axs[1].set_ylabel("phi (mrad)")
+    axs[1].set_title("platform angle")
+    for ax in axs:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    paths.append(_save(fig, out_dir, "fit_trajectory.png"))
+
+    fig, axs = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    scale = (1e3, 1e3, 1e3)
+    labels = ("x residual (mm)", "y residual (mm)", "phi residual (mrad)")
+    noise = (fit.noise[0], fit.noise[0], fit.noise[1])
+    for k, name in enumerate(names):
+        m = np.asarray(fit.mask[k])
+        t = np.asarray(fit.ts[k])[m]
+        d = (np.asarray(fit.fitted[k]) - np.asarray(fit.measured[k]))[m]
+        for j in range(3):
+            axs[j].plot(t, d[:, j] * scale[j], ".-", color=f"C{k % 10}", ms=2, lw=0.5,
+                        label=name if j == 0 else None)
+    for j in range(3):
+        axs[j].axhspan(-2 * noise[j] * scale[j], 2 * noise[j] * scale[j], color="0.85", zorder=0)
+        axs[j].set_ylabel(labels[j])
+        axs[j].grid(alpha=0.3)
+    axs[0].legend(fontsize=7)
+    axs[0].set_title("fitted - measured (grey: +-2 x stated noise)")
+    axs[-1].set_xlabel("t (s)")
+    fig.tight_layout()
+    paths.append(_save(fig, out_dir, "fit_residuals.png"))
+    return paths
+
+
+def _save(fig, out_dir, name):
+    path = os.path.join(out_dir, name)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,206 @@
+"""Tracker CSV files: units, several experiments, and one test per kind of malformed file
+(each must raise `DataError` naming what is wrong). No simulation: fast."""
+
+import math
+
+import numpy as np
+import pytest
+
+import ppr_jax as pj
+from ppr_jax._data import DataError
+
+
+def _write(tmp_path, text, name="f.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return str(p)
+
+
+def _good_rows(n=8, scale=1.0, phi_scale=1.0):
+    t = np.arange(n) * 0.01
+    x = (0.55 + 0.001 * np.arange(n)) * scale
+    y = 0.2598 * scale * np.ones(n)
+    phi = -0.01 * np.arange(n) * phi_scale
+    return t, x, y, phi
+
+
+def _table(header, cols):
+    lines = [header] + [",".join(f"{v:.17g}" for v in row) for row in np.column_stack(cols)]
+    return "\n".join(lines) + "\n"
+
+
+def test_si_file_reads_back_exactly(tmp_path):
+    t, x, y, phi = _good_rows()
+    e = pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+    np.testing.assert_allclose(e.ts, t, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(e.X, np.column_stack([x, y, phi]), rtol=1e-12)
+    assert e.th is None and e.tau is None and e.name == "f"
+
+
+def test_units_from_columns_header_and_options_agree(tmp_path):
+    t, x, y, phi = _good_rows()
+    ref = np.column_stack([x, y, phi])
+    # column units: ms, mm, deg
+    cols = [t * 1e3, x * 1e3, y * 1e3, np.degrees(phi)]
+    e1 = pj.load_csv(_write(tmp_path, _table("time[ms],x[mm],y[mm],phi[deg]", cols), "a.csv"))
+    # header comment
+    txt = "# units: time=ms, length=mm, angle=deg\n" + _table("t,x,y,phi", cols)
+    e2 = pj.load_csv(_write(tmp_path, txt, "b.csv"))
+    # options
+    e3 = pj.load_csv(_write(tmp_path, _table("time,x,y,phi", cols), "c.csv"), time_unit="ms",
+                     length_unit="mm", angle_unit="deg")
+    for e in (e1, e2, e3):
+        np.testing.assert_allclose(e.ts, t, atol=1e-15)
+        np.testing.assert_allclose(e.X, ref, rtol=1e-12, atol=1e-15)
+
+
+def test_optional_angles_and_torques(tmp_path):
+    t, x, y, phi = _good_rows()
+    th = np.column_stack([np.full_like(t, v) for v in (0.1, 0.2, 0.3)])
+    tau = th * 10
+    e = pj.load_csv(_write(tmp_path, _table("time,x,y,phi,th_1,th_2,th_3,tau_1,tau_2,tau_3",
+                                            [t, x, y, phi, *th.T, *tau.T])))
+    np.testing.assert_allclose(e.th, th)
+    np.testing.assert_allclose(e.tau, tau)
+
+
+def test_write_then_load_round_trip(tmp_path):
+    t, x, y, phi = _good_rows()
+    e = pj.experiment(t, np.column_stack([x, y, phi]), th=np.ones((len(t), 3)) * 0.5)
+    path = str(tmp_path / "w.csv")
+    pj.write_csv(path, e, length_unit="mm", angle_unit="deg", comments=["synthetic"])
+    back = pj.load_csv(path)
+    np.testing.assert_allclose(back.X, e.X, rtol=1e-9)
+    np.testing.assert_allclose(back.th, e.th, rtol=1e-9)
+
+
+def test_several_files_are_several_experiments(tmp_path):
+    t, x, y, phi = _good_rows()
+    a = _write(tmp_path, _table("time,x,y,phi", [t, x, y, phi]), "run.csv")
+    d = tmp_path / "other"
+    d.mkdir()
+    b = _write(d, _table("time,x,y,phi", [t, x, y, phi]), "run.csv")
+    exps = pj.load_experiments([a, b])
+    assert len(exps) == 2 and exps[0].name != exps[1].name
+
+
+def test_shipped_example_file_loads():
+    from ppr_jax._data import example_path
+
+    e = pj.load_csv(example_path())
+    assert e.n >= 50 and e.th is not None
+    assert 0.3 < float(np.median(e.X[:, 0])) < 0.6  # the circle of eq 55, in metres
+
+
+# ---------------------------------------------------------------------------------------------
+# Malformed files: one test per kind
+# ---------------------------------------------------------------------------------------------
+
+
+def test_missing_column(tmp_path):
+    t, x, y, _ = _good_rows()
+    with pytest.raises(DataError, match=r"missing column\(s\) phi.*required: time, x, y, phi"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y", [t, x, y])))
+
+
+def test_misnamed_column_lists_allowed_names(tmp_path):
+    t, x, y, phi = _good_rows()
+    with pytest.raises(DataError, match=r"unknown column 'theta'.*allowed names: time, x, y, phi"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,theta", [t, x, y, phi])))
+
+
+def test_incomplete_angle_set(tmp_path):
+    t, x, y, phi = _good_rows()
+    with pytest.raises(DataError, match="th_1, th_2, th_3 come as a set"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,phi,th_1", [t, x, y, phi, t])))
+
+
+def test_unknown_unit(tmp_path):
+    t, x, y, phi = _good_rows()
+    with pytest.raises(DataError, match=r"unknown length unit 'inch'.*allowed: m, mm"):
+        pj.load_csv(_write(tmp_path, _table("time,x[inch],y,phi", [t, x, y, phi])))
+
+
+def test_unit_option_contradicting_file(tmp_path):
+    t, x, y, phi = _good_rows()
+    with pytest.raises(DataError, match="declared in 'mm' by the file but 'm' was given"):
+        pj.load_csv(_write(tmp_path, _table("time,x[mm],y[mm],phi", [t, x * 1e3, y * 1e3, phi])),
+                    length_unit="m")
+
+
+def test_duplicated_time(tmp_path):
+    t, x, y, phi = _good_rows()
+    t[4] = t[3]
+    # header is line 1, sample k (0-based) is line k + 2: the duplicate is line 6
+    with pytest.raises(DataError, match=r"line 6: duplicated time"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+
+
+def test_decreasing_time(tmp_path):
+    t, x, y, phi = _good_rows()
+    t[5] = t[2]
+    with pytest.raises(DataError, match=r"line 7: time decreases"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+
+
+def test_nan_rows_reported_with_lines_and_dropped_only_if_asked(tmp_path):
+    t, x, y, phi = _good_rows(10)
+    text = _table("time,x,y,phi", [t, x, y, phi]).splitlines()
+    text[3] = f"{t[2]:.10g},nan,{y[2]:.10g},{phi[2]:.10g}"  # line 4
+    text[7] = f"{t[6]:.10g},{x[6]:.10g},,{phi[6]:.10g}"  # line 8, an empty cell
+    path = _write(tmp_path, "\n".join(text) + "\n")
+    with pytest.raises(DataError, match=r"lines 4, 8: NaN.*drop_nan=True"):
+        pj.load_csv(path)
+    e = pj.load_csv(path, drop_nan=True)
+    assert e.n == 8 and e.dropped_lines == (4, 8)
+    assert not np.any(np.isin(e.ts, [t[2], t[6]]))
+
+
+def test_unreadable_number(tmp_path):
+    t, x, y, phi = _good_rows()
+    text = _table("time,x,y,phi", [t, x, y, phi]).splitlines()
+    text[2] = text[2].replace(text[2].split(",")[1], "0.5O")
+    with pytest.raises(DataError, match=r"line 3, column 'x': cannot read '0.5O'"):
+        pj.load_csv(_write(tmp_path, "\n".join(text) + "\n"))
+
+
+def test_millimetres_read_as_metres(tmp_path):
+    t, x, y, phi = _good_rows(scale=1e3)
+    with pytest.raises(DataError, match="probably millimetres read as metres"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+
+
+def test_pose_1000_times_too_small(tmp_path):
+    t, x, y, phi = _good_rows(scale=1e-3)
+    with pytest.raises(DataError, match="probably wrong units"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+
+
+def test_degrees_read_as_radians(tmp_path):
+    t, x, y, phi = _good_rows(phi_scale=180 / math.pi * 5)  # up to 20 deg, read as rad
+    with pytest.raises(DataError, match="probably degrees read as radians"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+
+
+def test_too_few_samples(tmp_path):
+    t, x, y, phi = _good_rows(3)
+    with pytest.raises(DataError, match=r"too few samples: 3 \(at least 5"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+
+
+def test_missing_file_and_empty_file(tmp_path):
+    with pytest.raises(DataError, match="no such file"):
+        pj.load_csv(str(tmp_path / "nope.csv"))
+    with pytest.raises(DataError, match="no header row"):
+        pj.load_csv(_write(tmp_path, "# only a comment\n"))
+
+
+def test_ragged_row(tmp_path):
+    t, x, y, phi = _good_rows()
+    text = _table("time,x,y,phi", [t, x, y, phi]) + "0.5,0.55\n"
+    with pytest.raises(DataError, match=r"line 10: 2 cells, the header has 4"):
+        pj.load_csv(_write(tmp_path, text))
+
+
+def test_data_error_is_a_ppr_error():
+    assert issubclass(DataError, pj.PPRError) and issubclass(DataError, ValueError)
