@@ -18,9 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._actuation import AbstractActuation
-from ._checks import (  # noqa: F401 (SimulationError, check_result: re-exported)
-    PPRError, RESULTS, SimulationError, check_result, first_failure,
-)
+from ._checks import PPRError, RESULTS, check_result, first_failure
 from ._custom_types import Array, Float
 from ._dynamics import eom_terms, generalized_force
 from ._linalg import solve_spd

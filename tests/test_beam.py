@@ -4,7 +4,6 @@ convergence in N and the comparison with L2), gradients through the static solve
 
 Compiled functions are shared through module fixtures; shapes are static per N."""
 
-import diffrax  # noqa: F401
 import equinox as eqx
 import jax
 import jax.numpy as jnp
