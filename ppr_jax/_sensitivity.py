@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import diffrax
 import equinox as eqx
@@ -113,7 +113,8 @@ class Sensitivity:
     `jacobian` (k, p) numpy array dm/dp (metric unit per parameter unit); `normalized` (k, p)
     (p / m) dm/dp (dimensionless; NaN where m == 0); `mode` 'fwd' or 'rev'; `timing` {compile_s,
     run_s, value_run_s} (s) of the derivative and of the plain metric evaluation; `info` the
-    settings."""
+    settings; `evaluate(x)` the compiled metrics (k,) at parameter values x (p,) in `parameters`
+    order (for checks such as finite differences; NaN where the solve fails)."""
 
     metrics: list
     parameters: list
@@ -124,6 +125,7 @@ class Sensitivity:
     mode: str
     timing: dict
     info: dict
+    evaluate: Optional[Callable] = dataclasses.field(default=None, repr=False)
 
     def rows(self) -> list:
         """One dict per (metric, parameter): the tidy form the CLI writes."""
@@ -158,7 +160,10 @@ def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] =
     x0 = jnp.array([float(getattr(base, n)) for n in names])
     model_, tmodel = get_model(model), get_model(torque_model)
     fmodel = get_model(frequency_model)
-    equal = float(base.l1) == float(base.l3)  # static, decided on the nominal values
+    # The general (Newton) inverse kinematics for every member: exact for equal links too, and
+    # its derivative in l1 or l3 alone is the implicit-function one (the equal-links closed form
+    # is only valid while l1 == l3, which a derivative in l3 alone leaves).
+    equal = False
     traj = Circle()
     ts = jnp.linspace(0.0, t_end, n_out)
     solver_ = get_solver(DEFAULT_SOLVER[model_.name] if solver is None else solver)
@@ -166,8 +171,6 @@ def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] =
 
     def f(x, adjoint=None):
         p = eqx.tree_at(lambda q: [getattr(q, n) for n in names], base, list(x))
-        # equal_links only if l1 and l3 are not differentiated separately: the closed form's
-        # derivative is exact for equal lengths (tests/test_kinematics.py).
         robot = Robot(p, equal_links=equal)
         out = {}
         if scene_metrics_needed:
@@ -209,12 +212,26 @@ def sensitivity(scene: str = "paper-circle", params: Optional[RobotParams] = Non
         scene, params, model=model, torque_model=torque_model, frequency_model=frequency_model,
         parameters=parameters, t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
         max_steps=max_steps, metrics=metrics)
-    if mode == "fwd":
-        jac = jax.jit(jax.jacfwd(lambda x: f(x, diffrax.ForwardMode())))
-    else:
-        adj = diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints)
-        jac = jax.jit(jax.jacrev(lambda x: f(x, adj)))
-    value = jax.jit(f)
+    base = explicit_params(scene_params(scene) if params is None else params)
+    key = (scene, get_model(model), get_model(torque_model), get_model(frequency_model),
+           tuple(names), tuple(metrics), float(t_end), int(n_out), str(solver), float(rtol),
+           float(atol), int(max_steps), mode, checkpoints,
+           tuple((fl.name, getattr(base, fl.name) if fl.name == "sigma" else
+                  float(getattr(base, fl.name))) for fl in dataclasses.fields(base)))
+    try:
+        cached = _JIT_CACHE.get(key)
+    except TypeError:  # an unhashable model or solver: no reuse
+        key, cached = None, None
+    if cached is None:
+        if mode == "fwd":
+            jac = jax.jit(jax.jacfwd(lambda x: f(x, diffrax.ForwardMode())))
+        else:
+            adj = diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints)
+            jac = jax.jit(jax.jacrev(lambda x: f(x, adj)))
+        cached = (jax.jit(f), jac)
+        if key is not None:
+            _JIT_CACHE[key] = cached
+    value, jac = cached
     t0 = time.perf_counter()
     v = np.asarray(value(x0))
     t1 = time.perf_counter()
@@ -244,4 +261,5 @@ def sensitivity(scene: str = "paper-circle", params: Optional[RobotParams] = Non
                   torque_model=get_model(torque_model).name,
                   frequency_model=get_model(frequency_model).name, t_end=t_end, n_out=n_out,
                   rtol=rtol, atol=atol, checkpoints=checkpoints),
+        evaluate=lambda x: np.asarray(value(jnp.asarray(x, dtype=jnp.float64))),
     )

@@ -108,7 +108,9 @@ def design_members(vary: dict, design: str = "grid", n: Optional[int] = None,
     `design="grid"`: the Cartesian product of the given values (the first name varies slowest).
     `design="lhs"`: a Latin hypercube of `n` members, seeded, over [min, max] of each entry of
     `vary` (a (low, high) pair or the grid values): each parameter's range is cut into `n` equal
-    strata and every stratum holds exactly one member, at a uniform random point in it."""
+    strata and every stratum holds exactly one member, at a uniform random point in it.
+    `design="list"`: the members as given, member i taking entry i of every list (all of one
+    length), e.g. one process's share of a larger design."""
     if not vary:
         raise PPRError("a sweep needs at least one parameter to vary")
     for name in vary:
@@ -121,6 +123,11 @@ def design_members(vary: dict, design: str = "grid", n: Optional[int] = None,
     if design == "grid":
         prod = list(itertools.product(*vals.values()))
         return {k: np.array([p[i] for p in prod]) for i, k in enumerate(vals)}
+    if design == "list":
+        sizes = {v.size for v in vals.values()}
+        if len(sizes) != 1:
+            raise PPRError(f"design 'list' needs lists of one length, got {sorted(sizes)}")
+        return vals
     if design == "lhs":
         if n is None or int(n) < 1:
             raise PPRError("a Latin hypercube needs a number of members n >= 1")
@@ -132,7 +139,7 @@ def design_members(vary: dict, design: str = "grid", n: Optional[int] = None,
             u = (rng.permutation(n) + rng.uniform(size=n)) / n
             out[k] = lo + u * (hi - lo)
         return out
-    raise PPRError(f"unknown design {design!r}; allowed: grid, lhs")
+    raise PPRError(f"unknown design {design!r}; allowed: grid, lhs, list")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -386,12 +393,13 @@ def sweep(
 
     vary: {name: values} of float parameters (`PARAM_RANGES`); `design="grid"` runs their
     Cartesian product, `design="lhs"` a seeded Latin hypercube of `n` members over each entry's
-    [min, max] (`design_members`). Other parameters are `base_params` (default: the scene's).
-    Scene settings (`model`, `torque_model`, times, solver, tolerances, `max_steps`) as
-    `paper_circle`. Members are validated first (`validate_members`; the invalid ones are
-    reported, not run), then run `chunk_size` at a time in one compiled program (the last
-    chunk padded to the same shape). `devices`: a list of devices to split each chunk over
-    (`chunk_size` must be divisible by their number); default one device.
+    [min, max], `design="list"` the members as listed (`design_members`). Other parameters
+    are `base_params` (default: the scene's). Scene settings (`model`, `torque_model`, times,
+    solver, tolerances, `max_steps`) as `paper_circle`. Members are validated first
+    (`validate_members`; the invalid ones are reported, not run), then run `chunk_size` at a
+    time in one compiled program (the last chunk padded to the same shape). `devices`: a list
+    of devices to split each chunk over (`chunk_size` must be divisible by their number);
+    default one device.
     `checkpoint_dir`: each finished chunk's rows are written there, and a rerun with the same
     settings loads them instead of running them again (resume). `progress`: True for a bar on
     stderr, or a callable `f(done, total)`.

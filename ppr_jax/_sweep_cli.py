@@ -1,4 +1,4 @@
-"""Commands `ppr-jax sweep` and `ppr-jax sensitivity` (see README.md, "Sweeps and sensitivities")."""
+"""Commands `ppr-jax sweep` and `ppr-jax sensitivity` (README.md, "Sweeps and sensitivities")."""
 
 from __future__ import annotations
 
@@ -182,6 +182,15 @@ def cmd_sensitivity(args):
     metrics = SENSITIVITY_METRICS
     if args.metrics:
         metrics = tuple(s.strip() for s in args.metrics.split(",") if s.strip())
+    # Names checked before the (long) compilation starts.
+    from ._sweep import FLOAT_PARAMS
+
+    for n in names or []:
+        if n not in FLOAT_PARAMS:
+            raise ValueError(f"unknown parameter {n!r}; allowed: {', '.join(FLOAT_PARAMS)}")
+    for m in metrics:
+        if m not in SENSITIVITY_METRICS:
+            raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
     _log(f"sensitivity {args.scene} ({args.model}, {args.mode} mode): compiling and running ...")
     s = sensitivity(
         args.scene, params, mode=args.mode, model=get_model(args.model, args.elements),
