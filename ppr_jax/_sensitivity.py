@@ -39,7 +39,7 @@ import numpy as np
 
 from ._checks import PPRError
 from ._dynamics import eom_terms, generalized_force
-from ._kinematics import home_pose
+from ._geometry import home_pose
 from ._models import get_model
 from ._params import RobotParams
 from ._prb import derived
@@ -47,7 +47,7 @@ from ._robot import Robot
 from ._scenes import DEFAULT_SOLVER, scene_params
 from ._simulate import get_solver
 from ._statics import _assemble, static_equilibrium
-from ._sweep import FLOAT_PARAMS, run_member, traced_metrics
+from ._sweep import FLOAT_PARAMS, _plain, run_member, traced_metrics
 from ._trajectory import Circle
 
 #: the metrics a sensitivity table reports (rows), SI units
@@ -75,8 +75,10 @@ def base_frequency(model, robot: Robot, X=None):
     docstring: Rayleigh quotient with the mode shapes held fixed; repeated lowest eigenvalues
     averaged). Raises for a model without free coordinates when locked (L0, L1)."""
     X = home_pose(robot) if X is None else X
-    z_eq, free = static_equilibrium(model, robot, model.coords_from_pose(robot, X), locked=True,
-                                    wrench=jnp.zeros(3))
+    # No host callback in the differentiated program: a failed equilibrium gives NaN.
+    z_eq, free, failed = static_equilibrium(model, robot, model.coords_from_pose(robot, X),
+                                            locked=True, wrench=jnp.zeros(3), check=False,
+                                            return_failed=True)
     if not free:
         raise PPRError(f"model {model.name!r} has no vibration mode with locked actuators; "
                        f"use double1r (or beam) for the base frequency")
@@ -103,7 +105,8 @@ def base_frequency(model, robot: Robot, X=None):
                                                                     shapes)
     w = (jnp.abs(lam0 - lam0[0]) <= CLUSTER_RTOL * jnp.abs(lam0[0])).astype(lam.dtype)
     lam1 = jnp.sum(w * lam) / jnp.sum(w)
-    return jnp.sign(lam1) * jnp.sqrt(jnp.abs(lam1)) / (2 * jnp.pi)
+    f = jnp.sign(lam1) * jnp.sqrt(jnp.abs(lam1)) / (2 * jnp.pi)
+    return jnp.where(failed, jnp.nan, f)
 
 
 @dataclasses.dataclass
@@ -216,8 +219,7 @@ def sensitivity(scene: str = "paper-circle", params: Optional[RobotParams] = Non
     key = (scene, get_model(model), get_model(torque_model), get_model(frequency_model),
            tuple(names), tuple(metrics), float(t_end), int(n_out), str(solver), float(rtol),
            float(atol), int(max_steps), mode, checkpoints,
-           tuple((fl.name, getattr(base, fl.name) if fl.name == "sigma" else
-                  float(getattr(base, fl.name))) for fl in dataclasses.fields(base)))
+           tuple((fl.name, _plain(getattr(base, fl.name))) for fl in dataclasses.fields(base)))
     try:
         cached = _JIT_CACHE.get(key)
     except TypeError:  # an unhashable model or solver: no reuse

@@ -11,9 +11,9 @@ finite, or whose loop-closure residual exceeds `RESIDUAL_TOL` is reported as fai
 the others are kept. A chunk that raises as a whole (an `eqx.error_if` inside the program) is
 retried member by member, so one bad member never discards its neighbours.
 
-Structural choices are decided once for the whole sweep, outside the trace: `equal_links` holds
-if l1 == l3 for every valid member (otherwise every member takes the general Newton inverse
-kinematics, which is exact for equal links too), so the program is the same for every chunk.
+Structural choices are decided outside the trace: the members are grouped by `equal_links`
+(l1 == l3: the closed-form inverse kinematics; otherwise Newton), each group runs its own
+program (compiled once), and so every member runs the same program as its single run.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import PPRError
-from ._ik import REACH_TOL, SINGULAR_TOL, _ik
+from ._checks import RESULTS, PPRError
+from ._kinematics import REACH_TOL, SINGULAR_TOL, _ik
 from ._metrics import radial_error
 from ._models import Reduced, get_model
 from ._params import PARAM_RANGES, RobotParams, stack_params
@@ -283,7 +283,7 @@ def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
 class SweepResult:
     """A sweep's tidy table: one row per member (`rows`, a list of dicts with the keys
     `columns`): `member` (index), the varied parameters, `status` ('ok' or 'failed'), `reason`
-    ('' or why), the metrics of `METRICS` (NaN for a failed member), `result_code` (diffrax's,
+    ('' or why), the metrics of `METRICS` (NaN for a failed member), `result_code` (`RESULTS`,
     -1 if the member was not run), `num_steps`. `varied` the varied names; `timing`
     {compile_s, run_s, per_member_ms} (s; wall clock); `info` the sweep's settings."""
 
@@ -326,7 +326,7 @@ def _member_rows(idx, members, names, out, codes, steps):
         m = {k: float(out[k][j]) for k in METRICS}
         code = int(codes[j])
         if code != 0:
-            reason = "solver: " + diffrax.RESULTS._index_to_message[code]
+            reason = RESULTS._index_to_message[code]
         elif not all(np.isfinite(v) for v in m.values()):
             reason = "non-finite metrics (NaN or inf)"
         elif m["constraint_residual_max_m"] > RESIDUAL_TOL:
@@ -340,6 +340,17 @@ def _member_rows(idx, members, names, out, codes, steps):
                    num_steps=int(steps[j]))
         rows.append(row)
     return rows
+
+
+def _plain(v):
+    """A parameter field as JSON: None, a static choice (int, str) as is, else a float."""
+    return v if v is None or isinstance(v, (int, str)) else float(v)
+
+
+def _static_fields(params) -> tuple:
+    """The static (non-array) choices of `RobotParams` (elbow, joint geometry, ...)."""
+    return tuple((f.name, getattr(params, f.name)) for f in dataclasses.fields(params)
+                 if isinstance(getattr(params, f.name), (int, str)))
 
 
 def _failed_row(i, members, names, reason):
@@ -429,15 +440,18 @@ def sweep(
                                  (vary or {}).items()},
                 t_end=float(t_end), n_out=int(n_out), solver=str(solver), rtol=float(rtol),
                 atol=float(atol), max_steps=int(max_steps), chunk_size=chunk_size,
-                base={f.name: (None if getattr(base, f.name) is None else
-                               float(getattr(base, f.name)))
-                      for f in dataclasses.fields(base)})
+                base={f.name: _plain(getattr(base, f.name)) for f in dataclasses.fields(base)})
     t0 = time.perf_counter()
     plist, reasons = validate_members(scene, base, members, torque_model=tmodel, trajectory=traj,
                                       t_end=t_end)
     rows: dict = {i: _failed_row(i, members, names, reasons[i]) for i in range(N) if reasons[i]}
     valid = [i for i in range(N) if not reasons[i]]
-    chunks = [valid[k:k + chunk_size] for k in range(0, len(valid), chunk_size)]
+    # Members grouped by the static structure of their program (equal links or not), so that
+    # each runs the same program as its single run; one compilation per group present.
+    groups = {eq: [i for i in valid if (float(plist[i].l1) == float(plist[i].l3)) == eq]
+              for eq in (True, False)}
+    chunks = [(eq, g[k:k + chunk_size]) for eq, g in groups.items()
+              for k in range(0, len(g), chunk_size)]
     timing = {"validate_s": time.perf_counter() - t0, "compile_s": 0.0, "run_s": 0.0}
 
     store = _ChunkStore(checkpoint_dir, info) if checkpoint_dir else None
@@ -455,56 +469,58 @@ def sweep(
         update, close = (lambda k: None), (lambda: None)
     update(len(rows))
 
-    fn = None
-    if chunks:
-        equal = all(float(plist[i].l1) == float(plist[i].l3) for i in valid)
-        sample = Robot(stack_params([plist[valid[0]]] * chunk_size), equal_links=equal)
-        robot_static = eqx.partition(sample, eqx.is_array)[1]
-        ts = jnp.linspace(0.0, t_end, n_out)
-        solver_ = get_solver(DEFAULT_SOLVER[model_.name] if solver is None else solver)
-        key = (scene, model_, tmodel, n_out, float(t_end), type(solver_), max_steps, equal,
-               base.sigma, chunk_size, tuple(devices or ()), trajectory is None,
-               tuple(sorted(n for n in ("gamma", "rho", "K_theta")
-                            if getattr(base, n) is None and n not in names)))
-        fn = _get_program(key, scene, model_, tmodel, traj, ts, solver_, max_steps,
-                          robot_static, devices)
-        tol = (jnp.asarray(rtol, jnp.float64), jnp.asarray(atol, jnp.float64))
+    ts = jnp.linspace(0.0, t_end, n_out)
+    solver_ = get_solver(DEFAULT_SOLVER[model_.name] if solver is None else solver)
+    tol = (jnp.asarray(rtol, jnp.float64), jnp.asarray(atol, jnp.float64))
+    fns = {}
 
-        def run(idx):
-            members_p = [plist[i] for i in idx] + [plist[idx[0]]] * (chunk_size - len(idx))
-            robot = Robot(stack_params(members_p), equal_links=equal)
-            dyn = eqx.partition(robot, eqx.is_array)[0]
-            out, codes, steps = fn(dyn, *tol)
-            out = {k: np.asarray(v) for k, v in out.items()}
-            return out, np.asarray(codes), np.asarray(steps)
+    def program(equal, i0):
+        if equal not in fns:
+            sample = Robot(stack_params([plist[i0]] * chunk_size), equal_links=equal)
+            robot_static = eqx.partition(sample, eqx.is_array)[1]
+            key = (scene, model_, tmodel, n_out, float(t_end), type(solver_), max_steps, equal,
+                   _static_fields(base), chunk_size, tuple(devices or ()), trajectory is None,
+                   tuple(sorted(n for n in ("gamma", "rho", "K_theta")
+                                if getattr(base, n) is None and n not in names)))
+            fns[equal] = _get_program(key, scene, model_, tmodel, traj, ts, solver_, max_steps,
+                                      robot_static, devices)
+        return fns[equal]
 
-    first = True
-    for c, idx in enumerate(chunks):
+    def run(equal, idx):
+        fn = program(equal, idx[0])
+        members_p = [plist[i] for i in idx] + [plist[idx[0]]] * (chunk_size - len(idx))
+        robot = Robot(stack_params(members_p), equal_links=equal)
+        dyn = eqx.partition(robot, eqx.is_array)[0]
+        out, codes, steps = fn(dyn, *tol)
+        out = {k: np.asarray(v) for k, v in out.items()}
+        return out, np.asarray(codes), np.asarray(steps)
+
+    compiled = set()  # groups whose program has run once (its first chunk includes compiling)
+    for c, (equal, idx) in enumerate(chunks):
         cached = store.load(c, idx) if store else None
         if cached is not None:
             new = cached
         else:
             t1 = time.perf_counter()
             try:
-                out, codes, steps = run(idx)
+                out, codes, steps = run(equal, idx)
                 new = _member_rows(idx, members, names, out, codes, steps)
-            except Exception as err:  # noqa: BLE001 (a runtime check inside the program)
-                if isinstance(err, KeyboardInterrupt):
-                    raise
+            except Exception:  # noqa: BLE001 (a runtime check inside the program)
                 # Retry member by member (a chunk of copies of one member: the same compiled
                 # shape), so the error is pinned on the members that raise it.
                 new = []
                 for i in idx:
                     try:
-                        out, codes, steps = run([i])
+                        out, codes, steps = run(equal, [i])
                         new += _member_rows([i], members, names, out, codes, steps)
                     except Exception as err1:  # noqa: BLE001
                         msg = str(err1).strip().splitlines()[0] if str(err1).strip() else repr(err1)
                         new.append(_failed_row(i, members, names, f"error: {msg}"))
             dt = time.perf_counter() - t1
-            if first:
-                timing["first_chunk_s"] = dt
-                first = False
+            if equal not in compiled:
+                timing["first_chunk_s"] = timing.get("first_chunk_s", 0.0) + dt
+                timing["programs"] = timing.get("programs", 0) + 1
+                compiled.add(equal)
             else:
                 timing["run_s"] += dt
                 timing.setdefault("chunks_timed", 0)
@@ -520,7 +536,7 @@ def sweep(
         per_chunk = timing["run_s"] / nt
         timing["per_chunk_s"] = per_chunk
         timing["per_member_ms"] = per_chunk / chunk_size * 1e3
-        timing["compile_s"] = max(timing["first_chunk_s"] - per_chunk, 0.0)
+        timing["compile_s"] = max(timing["first_chunk_s"] - timing["programs"] * per_chunk, 0.0)
     columns = ["member", *names, "status", "reason", *METRICS, "result_code", "num_steps"]
     return SweepResult(rows=[rows[i] for i in range(N)], columns=columns, varied=names,
                        timing=timing, info=info)

@@ -65,9 +65,10 @@ def test_failed_members_reported_and_rest_kept(swept):
 
 
 def test_sweep_members_equal_single_runs(swept):
-    """Each member against its own single run (closed-form inverse kinematics where l3 = l1,
-    while the sweep runs every member on the general Newton path), with the metrics computed by
-    the numpy reduction of `scene_metrics`: an independent path from the traced metrics."""
+    """Each member against its own single run, with the metrics computed by the numpy reduction
+    of `scene_metrics` (an independent path from the traced metrics). Equal- and unequal-links
+    members share the sweep; each group runs the program of its single runs (closed-form or
+    Newton inverse kinematics)."""
     base = pj.scene_params("paper-circle")
     for r in swept.ok:
         p = base.replace(t=r["t"], l3=r["l3"], a=r["a"])
