@@ -90,6 +90,18 @@ from ._report import (  # noqa: E402
 )
 
 from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
+from ._sweep import (  # noqa: E402
+    SweepResult as SweepResult,
+    sweep as sweep,
+    shard_batch as shard_batch,
+    design_members as design_members,
+)
+from ._sensitivity import (  # noqa: E402
+    Sensitivity as Sensitivity,
+    sensitivity as sensitivity,
+    base_frequency as base_frequency,
+)
+
 from ._prb_table import (  # noqa: E402
     prb_parameters as prb_parameters,
     prb_table as prb_table,

@@ -494,8 +494,12 @@ def _add_prb_table(sub, parents, fmt):
 #: The commands, in the order `--help` lists them: each entry adds one subparser. A new command
 #: is a function `add(sub, parents, fmt)` (in this file or its own module) and one line here.
 from ._identify_cli import add_identify, add_synth  # noqa: E402
+from ._sweep_cli import add_sensitivity, add_sweep  # noqa: E402
 
-COMMANDS = [_add_simulate, _add_torques, _add_modes, _add_prb, _add_prb_table, add_identify, add_synth]
+COMMANDS = [
+    _add_simulate, _add_torques, _add_modes, _add_prb, _add_prb_table,
+    add_sweep, add_sensitivity, add_identify, add_synth,
+]
 
 
 def build_parser():

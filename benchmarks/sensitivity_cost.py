@@ -1,0 +1,106 @@
+"""Cost of a derivative through the scene against the forward run: L1 `paper-circle`.
+
+The scalar is the radial error's minimum over the run (`radial_error_min_m`) as a function of
+every float parameter (19). Timed (each after `block_until_ready`, minimum of `--repeats`, after
+a first call that compiles): the plain metric (forward run), one `jax.jvp` (one tangent, with
+`diffrax.ForwardMode()`), the full forward Jacobian (`jax.jacfwd`, 19 tangents in one vmapped
+pass) and `jax.grad` (reverse mode, `RecursiveCheckpointAdjoint` with diffrax's default number
+of checkpoints and with the given `--checkpoints`). Memory: XLA's `memory_analysis()` of each
+compiled program (temporary buffers, bytes). Writes benchmarks/results/sensitivity_cost.json.
+
+Run: python benchmarks/sensitivity_cost.py [--model reduced] [--t-end 7.54] [--checkpoints 64 4096]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+import diffrax
+import jax
+import jax.numpy as jnp
+
+import ppr_jax as pj
+from ppr_jax._sensitivity import metric_function
+
+OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+
+
+def _compile(fn, x):
+    """(compile time (s), compiled program): one compilation, reused for timing and memory."""
+    t0 = time.perf_counter()
+    compiled = fn.lower(x).compile()
+    return time.perf_counter() - t0, compiled
+
+
+def _run_time(compiled, x, repeats):
+    jax.block_until_ready(compiled(x))
+    runs = []
+    for _ in range(repeats):
+        t1 = time.perf_counter()
+        jax.block_until_ready(compiled(x))
+        runs.append(time.perf_counter() - t1)
+    return min(runs)
+
+
+def _memory(compiled):
+    try:
+        m = compiled.memory_analysis()
+        return {"temp_bytes": int(m.temp_size_in_bytes),
+                "argument_bytes": int(m.argument_size_in_bytes),
+                "output_bytes": int(m.output_size_in_bytes)}
+    except Exception as err:  # noqa: BLE001 (not every backend reports it)
+        return {"error": str(err)}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", default="reduced")
+    ap.add_argument("--t-end", type=float, default=7.54)
+    ap.add_argument("--n-out", type=int, default=755)
+    ap.add_argument("--rtol", type=float, default=1e-8)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--checkpoints", type=int, nargs="*", default=[])
+    ap.add_argument("--skip-jacfwd", action="store_true")
+    args = ap.parse_args()
+    os.makedirs(OUT, exist_ok=True)
+    f, x0, names = metric_function("paper-circle", model=args.model, t_end=args.t_end,
+                                   n_out=args.n_out, rtol=args.rtol, atol=args.rtol * 1e-2,
+                                   metrics=("radial_error_min_m",))
+    out = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+           "jax": jax.__version__, "diffrax": diffrax.__version__,
+           "backend": jax.default_backend(), "model": args.model, "t_end_s": args.t_end,
+           "n_out": args.n_out, "rtol": args.rtol, "n_parameters": len(names),
+           "scalar": "radial_error_min_m", "rows": {}}
+    path = os.path.join(OUT, "sensitivity_cost.json")
+
+    def record(name, fn):
+        c, compiled = _compile(fn, x0)
+        r = _run_time(compiled, x0, args.repeats)
+        out["rows"][name] = {"compile_s": c, "run_s": r, "memory": _memory(compiled)}
+        base = out["rows"].get("forward_run")
+        if base:
+            out["rows"][name]["ratio_to_forward_run"] = r / base["run_s"]
+        print(name, json.dumps(out["rows"][name]), flush=True)
+        with open(path, "w") as fh:
+            json.dump(out, fh, indent=2)
+
+    tangent = jnp.zeros_like(x0).at[names.index("t")].set(x0[names.index("t")])
+    record("forward_run", jax.jit(lambda x: f(x)[0]))
+    record("jvp_one_tangent", jax.jit(
+        lambda x: jax.jvp(lambda y: f(y, diffrax.ForwardMode())[0], (x,), (tangent,))[1]))
+    record("grad_checkpoints_default", jax.jit(jax.grad(lambda x: f(x)[0])))
+    for c in args.checkpoints:
+        adj = diffrax.RecursiveCheckpointAdjoint(checkpoints=c)
+        record(f"grad_checkpoints_{c}", jax.jit(jax.grad(lambda x, adj=adj: f(x, adj)[0])))
+    if not args.skip_jacfwd:
+        record("jacfwd_all_parameters", jax.jit(
+            jax.jacfwd(lambda x: f(x, diffrax.ForwardMode())[0])))
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

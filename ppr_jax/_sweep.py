@@ -1,0 +1,588 @@
+"""Parameter sweeps: one compiled, vmapped (and optionally sharded) program over many robots.
+
+`sweep` runs a scene (`paper-circle` or `servo-circle`) over a grid or a Latin hypercube of
+parameter values. The members are validated first (parameter ranges, reach and singularity along
+the whole nominal path) and the invalid ones are reported with their reason, not run. The valid
+ones run in chunks of a fixed size: the last chunk is padded with copies of its first member, so
+every chunk has the same static shape and the program compiles once. Inside the program each
+member's trajectory is reduced to a handful of scalars (`traced_metrics`), so only small arrays
+come back to the host. A member whose solver fails (diffrax result code), whose metrics are not
+finite, or whose loop-closure residual exceeds `RESIDUAL_TOL` is reported as failed with the reason;
+the others are kept. A chunk that raises as a whole (an `eqx.error_if` inside the program) is
+retried member by member, so one bad member never discards its neighbours.
+
+Structural choices are decided outside the trace: the members are grouped by `equal_links`
+(l1 == l3: the closed-form inverse kinematics; otherwise Newton), each group runs its own
+program (compiled once), and so every member runs the same program as its single run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import os
+import sys
+import time
+from typing import Callable, Optional, Sequence, Union
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._checks import RESULTS, PPRError
+from ._kinematics import REACH_TOL, SINGULAR_TOL, _ik
+from ._metrics import radial_error
+from ._models import Reduced, get_model
+from ._params import PARAM_RANGES, RobotParams, stack_params
+from ._robot import Robot
+from ._scenes import _CORES, DEFAULT_SOLVER, scene_params
+from ._simulate import get_solver
+from ._trajectory import Circle
+
+#: a member whose max loop-closure residual (m) at the output times exceeds this has failed
+RESIDUAL_TOL = 1e-9
+#: the per-member metrics computed inside the program (`traced_metrics`), SI unless named
+METRICS = (
+    "radial_error_max_m",
+    "radial_error_min_m",
+    "radial_error_mean_m",
+    "radial_error_max_relative_percent",
+    "phi_error_max_rad",
+    "end_rotation_diff_max_deg",
+    "end_rotation_diff_min_deg",
+    "end_rotation_diff_mean_deg",
+    "torque_peak_Nm",
+    "constraint_residual_max_m",
+)
+SWEEP_SCENES = tuple(_CORES)
+#: the float parameters a sweep (or a sensitivity) may vary
+FLOAT_PARAMS = tuple(PARAM_RANGES)
+
+
+def traced_metrics(res, trajectory: Circle) -> dict:
+    """The scene metrics of one member as traced scalars (jit-, vmap- and grad-able).
+
+    `res` is one member's `SceneResult`. Radial error e_r = |(x, y) - c| - R (m) against the
+    nominal circle; its max and min are the exact max / min over the output samples, whose
+    derivative is that of the arg-max sample (a subgradient; exact while the arg-max sample does
+    not change). phi error vs the nominal pose (rad); chain 1's joint end-rotation difference
+    (deg); peak actuator torque max |tau| over time and actuators (N m); max loop residual (m)."""
+    er = radial_error(res.X, trajectory.center, trajectory.radius)
+    dphi = res.X[:, 2] - res.X_nominal[:, 2]
+    diff = jnp.degrees(res.end_rot[:, 0] - res.end_rot[:, 1])
+    return {
+        "radial_error_max_m": jnp.max(er),
+        "radial_error_min_m": jnp.min(er),
+        "radial_error_mean_m": jnp.mean(er),
+        "radial_error_max_relative_percent": jnp.max(jnp.abs(er)) / trajectory.radius * 100,
+        "phi_error_max_rad": jnp.max(jnp.abs(dphi)),
+        "end_rotation_diff_max_deg": jnp.max(diff),
+        "end_rotation_diff_min_deg": jnp.min(diff),
+        "end_rotation_diff_mean_deg": jnp.mean(diff),
+        "torque_peak_Nm": jnp.max(jnp.abs(res.tau)),
+        "constraint_residual_max_m": jnp.max(res.residual),
+    }
+
+
+def run_member(scene, model, torque_model, robot, trajectory, ts, solver, controller, max_steps,
+               adjoint):
+    """One member's scene, traced: its `SceneResult` (the scene cores of `_scenes`)."""
+    core, _ = _CORES[scene]
+    pre = (model, torque_model) if scene == "paper-circle" else (model,)
+    return core(*pre, robot, trajectory, ts, solver, controller, max_steps, adjoint)
+
+
+# ---------------------------------------------------------------------------------------------
+# Designs: which members to run
+# ---------------------------------------------------------------------------------------------
+
+
+def design_members(vary: dict, design: str = "grid", n: Optional[int] = None,
+                   seed: int = 0) -> dict:
+    """The members of a sweep as {name: (N,) values}.
+
+    `design="grid"`: the Cartesian product of the given values (the first name varies slowest).
+    `design="lhs"`: a Latin hypercube of `n` members, seeded, over [min, max] of each entry of
+    `vary` (a (low, high) pair or the grid values): each parameter's range is cut into `n` equal
+    strata and every stratum holds exactly one member, at a uniform random point in it.
+    `design="list"`: the members as given, member i taking entry i of every list (all of one
+    length), e.g. one process's share of a larger design."""
+    if not vary:
+        raise PPRError("a sweep needs at least one parameter to vary")
+    for name in vary:
+        if name not in FLOAT_PARAMS:
+            raise PPRError(f"cannot vary {name!r}; allowed: {', '.join(FLOAT_PARAMS)}")
+    vals = {k: np.atleast_1d(np.asarray(v, dtype=np.float64)) for k, v in vary.items()}
+    for k, v in vals.items():
+        if v.ndim != 1 or v.size == 0 or not np.all(np.isfinite(v)):
+            raise PPRError(f"the values of {k!r} must be a non-empty 1-D list of finite numbers")
+    if design == "grid":
+        prod = list(itertools.product(*vals.values()))
+        return {k: np.array([p[i] for p in prod]) for i, k in enumerate(vals)}
+    if design == "list":
+        sizes = {v.size for v in vals.values()}
+        if len(sizes) != 1:
+            raise PPRError(f"design 'list' needs lists of one length, got {sorted(sizes)}")
+        return vals
+    if design == "lhs":
+        if n is None or int(n) < 1:
+            raise PPRError("a Latin hypercube needs a number of members n >= 1")
+        n = int(n)
+        rng = np.random.default_rng(seed)
+        out = {}
+        for k, v in vals.items():
+            lo, hi = float(v.min()), float(v.max())
+            u = (rng.permutation(n) + rng.uniform(size=n)) / n
+            out[k] = lo + u * (hi - lo)
+        return out
+    raise PPRError(f"unknown design {design!r}; allowed: grid, lhs, list")
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation before running: parameters, reach and singularity along the nominal path
+# ---------------------------------------------------------------------------------------------
+
+#: samples of the nominal path checked for reach and singularity before a member runs
+N_PATH_CHECK = 64
+
+
+def _path_check(model, robot, Xs):
+    def one(X):
+        r = _ik(model, robot, X)
+        return jnp.min(r.margin), r.singularity
+
+    margin, sing = jax.vmap(one)(Xs)
+    return jnp.min(margin), jnp.min(sing)
+
+
+_path_check_batch = eqx.filter_jit(eqx.filter_vmap(_path_check, in_axes=(None, 0, None)))
+
+
+def validate_members(scene, base: RobotParams, members: dict, *, torque_model="reduced",
+                     trajectory=None, t_end=7.54):
+    """Build each member's `RobotParams` and check it before any solve.
+
+    Returns (params list with None for invalid members, reasons list: '' or why the member cannot
+    run). Checks: parameter ranges (`RobotParams`); every chain closes with margin and the
+    actuation is not singular at `N_PATH_CHECK` samples of the nominal path over [0, t_end]
+    (paper-circle: with the torque model's kinematics; servo-circle: L1's, which gives the
+    angles)."""
+    names = list(members)
+    N = len(members[names[0]])
+    plist, reasons = [], []
+    for i in range(N):
+        try:
+            p = base.replace(**{k: float(members[k][i]) for k in names})
+            plist.append(p)
+            reasons.append("")
+        except (ValueError, PPRError) as err:
+            plist.append(None)
+            reasons.append(f"invalid parameters: {err}")
+    ok = [i for i in range(N) if plist[i] is not None]
+    if not ok:
+        return plist, reasons
+    traj = Circle() if trajectory is None else trajectory
+    Xs = jax.vmap(traj)(jnp.linspace(0.0, t_end, N_PATH_CHECK))
+    kin = get_model(torque_model) if scene == "paper-circle" else Reduced()
+    if kin.actuated_index is not None:
+        kin = Reduced()
+    # One vmapped call for all valid members, in fixed-size pieces (a few compiles at most).
+    margins, sings = [], []
+    for lo in range(0, len(ok), 256):
+        idx = ok[lo:lo + 256]
+        batch = stack_params([plist[i] for i in idx])
+        m, s = _path_check_batch(kin, Robot(batch, equal_links=False), Xs)
+        margins.append(np.asarray(m))
+        sings.append(np.asarray(s))
+    margin, sing = np.concatenate(margins), np.concatenate(sings)
+    for j, i in enumerate(ok):
+        if not np.isfinite(margin[j]) or margin[j] <= REACH_TOL:
+            reasons[i] = ("unreachable path: a chain cannot close along the nominal circle "
+                          f"(min closure margin {margin[j]:.3g})")
+            plist[i] = None
+        elif not np.isfinite(sing[j]) or sing[j] < SINGULAR_TOL:
+            reasons[i] = ("singular configuration along the nominal circle (inverse condition "
+                          f"number of S {sing[j]:.3g} < {SINGULAR_TOL:g})")
+            plist[i] = None
+    return plist, reasons
+
+
+# ---------------------------------------------------------------------------------------------
+# The compiled program: a vmap over members, optionally shard_map'ed over devices
+# ---------------------------------------------------------------------------------------------
+
+
+def _program(scene, model, torque_model, trajectory, ts, solver, max_steps, robot_static,
+             devices):
+    """jit(f)(robot_arrays, rtol, atol) -> ({metric: (B,)}, result codes (B,), num_steps (B,)).
+
+    With `devices` (more than one), the batch axis is split over a 1-D mesh with `shard_map` and
+    each device runs a local vmap over its members: adaptive steps never synchronise across
+    devices (a member only waits for the slowest member of its own shard)."""
+    adjoint = diffrax.RecursiveCheckpointAdjoint()
+
+    def member(robot_dyn, rtol, atol):
+        robot = eqx.combine(robot_dyn, robot_static)
+        controller = diffrax.PIDController(rtol=rtol, atol=atol)
+        res = run_member(scene, model, torque_model, robot, trajectory, ts, solver, controller,
+                         max_steps, adjoint)
+        return traced_metrics(res, trajectory), res.result._value, res.num_steps
+
+    local = jax.vmap(member, in_axes=(0, None, None))
+    if devices is None or len(devices) <= 1:
+        return jax.jit(local)
+    from jax.sharding import Mesh, PartitionSpec as P
+
+    mesh = Mesh(np.asarray(devices), ("batch",))
+    # check_vma=False: diffrax's loops carry values that are replicated at entry and vary per
+    # device after one step, which the varying-axes type check rejects; each device's body is a
+    # plain local vmap, so there is no cross-device collective to get wrong.
+    sharded = jax.shard_map(local, mesh=mesh, in_specs=(P("batch"), P(), P()),
+                            out_specs=P("batch"), check_vma=False)
+    return jax.jit(sharded)
+
+
+_PROGRAMS: dict = {}
+
+
+def _get_program(key, *args):
+    try:
+        hash(key)
+    except TypeError:
+        return _program(*args)
+    if key not in _PROGRAMS:
+        _PROGRAMS[key] = _program(*args)
+    return _PROGRAMS[key]
+
+
+def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
+    """Place a batched `RobotParams` (leading axis divisible by the number of devices) split
+    over `devices` (default: all local devices) along its leading axis: each device holds its
+    slice. The sweep does this itself through `shard_map`; use it to feed your own jitted,
+    vmapped functions."""
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+
+    devices = list(jax.local_devices() if devices is None else devices)
+    mesh = Mesh(np.asarray(devices), ("batch",))
+    n = params.a.shape[0]
+    if n % len(devices):
+        raise PPRError(f"a batch of {n} cannot be split evenly over {len(devices)} devices")
+    return jax.device_put(params, NamedSharding(mesh, P("batch")))
+
+
+# ---------------------------------------------------------------------------------------------
+# The sweep
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class SweepResult:
+    """A sweep's tidy table: one row per member (`rows`, a list of dicts with the keys
+    `columns`): `member` (index), the varied parameters, `status` ('ok' or 'failed'), `reason`
+    ('' or why), the metrics of `METRICS` (NaN for a failed member), `result_code` (`RESULTS`,
+    -1 if the member was not run), `num_steps`. `varied` the varied names; `timing`
+    {compile_s, run_s, per_member_ms} (s; wall clock); `info` the sweep's settings."""
+
+    rows: list
+    columns: list
+    varied: list
+    timing: dict
+    info: dict
+
+    @property
+    def ok(self) -> list:
+        return [r for r in self.rows if r["status"] == "ok"]
+
+    @property
+    def failed(self) -> list:
+        return [r for r in self.rows if r["status"] != "ok"]
+
+    def column(self, name: str) -> np.ndarray:
+        """One column as a numpy array (float for numeric columns)."""
+        vals = [r[name] for r in self.rows]
+        return np.asarray(vals, dtype=object if isinstance(vals[0], str) else np.float64)
+
+    def to_numpy(self) -> np.ndarray:
+        """The table as a numpy structured array."""
+        dt = [(c, "U400" if isinstance(self.rows[0][c], str) else np.float64)
+              for c in self.columns]
+        return np.array([tuple(r[c] for c in self.columns) for r in self.rows], dtype=dt)
+
+    def to_pandas(self):
+        """The table as a pandas DataFrame (needs pandas)."""
+        import pandas as pd
+
+        return pd.DataFrame(self.rows, columns=self.columns)
+
+
+def _member_rows(idx, members, names, out, codes, steps):
+    rows = []
+    for j, i in enumerate(idx):
+        row = {"member": int(i), **{k: float(members[k][i]) for k in names}}
+        m = {k: float(out[k][j]) for k in METRICS}
+        code = int(codes[j])
+        if code != 0:
+            reason = RESULTS._index_to_message[code]
+        elif not all(np.isfinite(v) for v in m.values()):
+            reason = "non-finite metrics (NaN or inf)"
+        elif m["constraint_residual_max_m"] > RESIDUAL_TOL:
+            reason = (f"loop-closure residual {m['constraint_residual_max_m']:.3g} m above "
+                      f"{RESIDUAL_TOL:g} m")
+        else:
+            reason = ""
+        if reason:
+            m = {k: float("nan") for k in METRICS}
+        row.update(status="failed" if reason else "ok", reason=reason, **m, result_code=code,
+                   num_steps=int(steps[j]))
+        rows.append(row)
+    return rows
+
+
+def _plain(v):
+    """A parameter field as JSON: None, a static choice (int, str) as is, else a float."""
+    return v if v is None or isinstance(v, (int, str)) else float(v)
+
+
+def _static_fields(params) -> tuple:
+    """The static (non-array) choices of `RobotParams` (elbow, joint geometry, ...)."""
+    return tuple((f.name, getattr(params, f.name)) for f in dataclasses.fields(params)
+                 if isinstance(getattr(params, f.name), (int, str)))
+
+
+def _failed_row(i, members, names, reason):
+    return {"member": int(i), **{k: float(members[k][i]) for k in names}, "status": "failed",
+            "reason": reason, **{k: float("nan") for k in METRICS}, "result_code": -1,
+            "num_steps": 0}
+
+
+def _progress(total: int, desc: str):
+    """A progress bar: tqdm if installed, else one plain line per update on stderr."""
+    try:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=total, desc=desc, unit="member", file=sys.stderr)
+        return bar.update, bar.close
+    except ImportError:
+        state = {"n": 0, "t0": time.perf_counter()}
+
+        def update(k):
+            state["n"] += k
+            el = time.perf_counter() - state["t0"]
+            print(f"{desc}: {state['n']}/{total} members ({el:.1f} s)", file=sys.stderr,
+                  flush=True)
+
+        return update, lambda: None
+
+
+def sweep(
+    scene: str = "paper-circle",
+    base_params: Optional[RobotParams] = None,
+    vary: Optional[dict] = None,
+    *,
+    design: str = "grid",
+    n: Optional[int] = None,
+    seed: int = 0,
+    model="reduced",
+    torque_model="reduced",
+    trajectory: Optional[Circle] = None,
+    t_end: float = 7.54,
+    n_out: int = 755,
+    solver=None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_steps: int = 200_000,
+    chunk_size: int = 64,
+    devices: Optional[Sequence] = None,
+    checkpoint_dir: Optional[str] = None,
+    progress: Union[bool, Callable] = False,
+) -> SweepResult:
+    """Run `scene` over a design of parameter values and return a `SweepResult` table.
+
+    vary: {name: values} of float parameters (`PARAM_RANGES`); `design="grid"` runs their
+    Cartesian product, `design="lhs"` a seeded Latin hypercube of `n` members over each entry's
+    [min, max], `design="list"` the members as listed (`design_members`). Other parameters
+    are `base_params` (default: the scene's). Scene settings (`model`, `torque_model`, times,
+    solver, tolerances, `max_steps`) as `paper_circle`. Members are validated first
+    (`validate_members`; the invalid ones are reported, not run), then run `chunk_size` at a
+    time in one compiled program (the last chunk padded to the same shape). `devices`: a list
+    of devices to split each chunk over (`chunk_size` must be divisible by their number);
+    default one device.
+    `checkpoint_dir`: each finished chunk's rows are written there, and a rerun with the same
+    settings loads them instead of running them again (resume). `progress`: True for a bar on
+    stderr, or a callable `f(done, total)`.
+    """
+    if scene not in SWEEP_SCENES:
+        raise PPRError(f"unknown sweep scene {scene!r}; allowed: {', '.join(SWEEP_SCENES)}")
+    base = scene_params(scene) if base_params is None else base_params
+    if np.ndim(base.a) != 0:
+        raise PPRError("base_params must be one robot, not a batch")
+    chunk_size = int(chunk_size)
+    if chunk_size < 1:
+        raise PPRError(f"chunk_size must be >= 1, got {chunk_size}")
+    devices = None if devices is None else list(devices)
+    if devices is not None and chunk_size % len(devices):
+        raise PPRError(f"chunk_size {chunk_size} must be divisible by the number of devices "
+                       f"({len(devices)})")
+    if not (np.isfinite(t_end) and t_end > 0) or int(n_out) < 2:
+        raise PPRError("t_end must be finite and positive and n_out >= 2")
+    members = design_members(vary or {}, design, n, seed)
+    names = list(members)
+    N = len(members[names[0]])
+    model_ = get_model(model)
+    tmodel = get_model(torque_model)
+    traj = Circle() if trajectory is None else trajectory
+    info = dict(scene=scene, model=model_.name, torque_model=tmodel.name, design=design, n=N,
+                seed=seed, vary={k: [float(x) for x in np.atleast_1d(v)] for k, v in
+                                 (vary or {}).items()},
+                t_end=float(t_end), n_out=int(n_out), solver=str(solver), rtol=float(rtol),
+                atol=float(atol), max_steps=int(max_steps), chunk_size=chunk_size,
+                base={f.name: _plain(getattr(base, f.name)) for f in dataclasses.fields(base)})
+    t0 = time.perf_counter()
+    plist, reasons = validate_members(scene, base, members, torque_model=tmodel, trajectory=traj,
+                                      t_end=t_end)
+    rows: dict = {i: _failed_row(i, members, names, reasons[i]) for i in range(N) if reasons[i]}
+    valid = [i for i in range(N) if not reasons[i]]
+    # Members grouped by the static structure of their program (equal links or not), so that
+    # each runs the same program as its single run; one compilation per group present.
+    groups = {eq: [i for i in valid if (float(plist[i].l1) == float(plist[i].l3)) == eq]
+              for eq in (True, False)}
+    chunks = [(eq, g[k:k + chunk_size]) for eq, g in groups.items()
+              for k in range(0, len(g), chunk_size)]
+    timing = {"validate_s": time.perf_counter() - t0, "compile_s": 0.0, "run_s": 0.0}
+
+    store = _ChunkStore(checkpoint_dir, info) if checkpoint_dir else None
+    if progress is True:
+        update, close = _progress(N, f"sweep {scene} ({model_.name})")
+    elif callable(progress):
+        done = {"n": 0}
+
+        def update(k):
+            done["n"] += k
+            progress(done["n"], N)
+
+        close = lambda: None  # noqa: E731
+    else:
+        update, close = (lambda k: None), (lambda: None)
+    update(len(rows))
+
+    ts = jnp.linspace(0.0, t_end, n_out)
+    solver_ = get_solver(DEFAULT_SOLVER[model_.name] if solver is None else solver)
+    tol = (jnp.asarray(rtol, jnp.float64), jnp.asarray(atol, jnp.float64))
+    fns = {}
+
+    def program(equal, i0):
+        if equal not in fns:
+            sample = Robot(stack_params([plist[i0]] * chunk_size), equal_links=equal)
+            robot_static = eqx.partition(sample, eqx.is_array)[1]
+            key = (scene, model_, tmodel, n_out, float(t_end), type(solver_), max_steps, equal,
+                   _static_fields(base), chunk_size, tuple(devices or ()), trajectory is None,
+                   tuple(sorted(n for n in ("gamma", "rho", "K_theta")
+                                if getattr(base, n) is None and n not in names)))
+            fns[equal] = _get_program(key, scene, model_, tmodel, traj, ts, solver_, max_steps,
+                                      robot_static, devices)
+        return fns[equal]
+
+    def run(equal, idx):
+        fn = program(equal, idx[0])
+        members_p = [plist[i] for i in idx] + [plist[idx[0]]] * (chunk_size - len(idx))
+        robot = Robot(stack_params(members_p), equal_links=equal)
+        dyn = eqx.partition(robot, eqx.is_array)[0]
+        out, codes, steps = fn(dyn, *tol)
+        out = {k: np.asarray(v) for k, v in out.items()}
+        return out, np.asarray(codes), np.asarray(steps)
+
+    compiled = set()  # groups whose program has run once (its first chunk includes compiling)
+    for c, (equal, idx) in enumerate(chunks):
+        cached = store.load(c, idx) if store else None
+        if cached is not None:
+            new = cached
+        else:
+            t1 = time.perf_counter()
+            try:
+                out, codes, steps = run(equal, idx)
+                new = _member_rows(idx, members, names, out, codes, steps)
+            except Exception:  # noqa: BLE001 (a runtime check inside the program)
+                # Retry member by member (a chunk of copies of one member: the same compiled
+                # shape), so the error is pinned on the members that raise it.
+                new = []
+                for i in idx:
+                    try:
+                        out, codes, steps = run(equal, [i])
+                        new += _member_rows([i], members, names, out, codes, steps)
+                    except Exception as err1:  # noqa: BLE001
+                        msg = str(err1).strip().splitlines()[0] if str(err1).strip() else repr(err1)
+                        new.append(_failed_row(i, members, names, f"error: {msg}"))
+            dt = time.perf_counter() - t1
+            if equal not in compiled:
+                timing["first_chunk_s"] = timing.get("first_chunk_s", 0.0) + dt
+                timing["programs"] = timing.get("programs", 0) + 1
+                compiled.add(equal)
+            else:
+                timing["run_s"] += dt
+                timing.setdefault("chunks_timed", 0)
+                timing["chunks_timed"] += 1
+            if store:
+                store.save(c, idx, new)
+        for r in new:
+            rows[r["member"]] = r
+        update(len(idx))
+    close()
+    nt = timing.get("chunks_timed", 0)
+    if nt:
+        per_chunk = timing["run_s"] / nt
+        timing["per_chunk_s"] = per_chunk
+        timing["per_member_ms"] = per_chunk / chunk_size * 1e3
+        timing["compile_s"] = max(timing["first_chunk_s"] - timing["programs"] * per_chunk, 0.0)
+    columns = ["member", *names, "status", "reason", *METRICS, "result_code", "num_steps"]
+    return SweepResult(rows=[rows[i] for i in range(N)], columns=columns, varied=names,
+                       timing=timing, info=info)
+
+
+class _ChunkStore:
+    """Finished chunks on disk (`chunk_00000.json`, ...) next to the sweep's settings
+    (`sweep_settings.json`): a rerun with the same settings skips the chunks found there."""
+
+    def __init__(self, path, info):
+        self.path = path
+        os.makedirs(path, exist_ok=True)
+        spec = json.dumps(info, sort_keys=True)
+        self.digest = hashlib.sha256(spec.encode()).hexdigest()[:16]
+        settings = os.path.join(path, "sweep_settings.json")
+        if os.path.exists(settings):
+            with open(settings) as f:
+                old = json.load(f)
+            if old.get("digest") != self.digest:
+                raise PPRError(f"{path} holds the chunks of a different sweep (other settings); "
+                               f"use another output directory or remove it")
+        else:
+            with open(settings, "w") as f:
+                json.dump({"digest": self.digest, "settings": info}, f, indent=2)
+
+    def _file(self, c):
+        return os.path.join(self.path, f"chunk_{c:05d}.json")
+
+    def load(self, c, idx):
+        try:
+            with open(self._file(c)) as f:
+                rows = json.load(f)
+        except (OSError, ValueError):
+            return None
+        if [r["member"] for r in rows] != list(idx):
+            return None
+        for r in rows:  # JSON has no NaN by default: stored as null
+            for k, v in r.items():
+                if v is None:
+                    r[k] = float("nan")
+        return rows
+
+    def save(self, c, idx, rows):
+        tmp = self._file(c) + ".tmp"
+        clean = [{k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+                  for k, v in r.items()} for r in rows]
+        with open(tmp, "w") as f:
+            json.dump(clean, f)
+        os.replace(tmp, self._file(c))  # atomic: an interrupted write leaves no partial chunk

@@ -1,0 +1,282 @@
+"""Commands `ppr-jax sweep` and `ppr-jax sensitivity` (README.md, "Sweeps and sensitivities")."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import sys
+
+import numpy as np
+
+
+def _log(msg):
+    print(msg, file=sys.stderr, flush=True)
+
+
+def parse_vary(items) -> dict:
+    """``NAME=LO:HI:N`` (N evenly spaced values, ends included) or ``NAME=V1,V2,...`` ->
+    {name: values}."""
+    from ._sweep import FLOAT_PARAMS
+
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ValueError(f"--vary expects NAME=LO:HI:N or NAME=V1,V2,..., got {item!r}")
+        name, spec = (s.strip() for s in item.split("=", 1))
+        if name not in FLOAT_PARAMS:
+            raise ValueError(f"--vary: cannot vary {name!r}; allowed: {', '.join(FLOAT_PARAMS)}")
+        if name in out:
+            raise ValueError(f"--vary: {name!r} given twice")
+        try:
+            if ":" in spec:
+                parts = spec.split(":")
+                if len(parts) != 3:
+                    raise ValueError
+                lo, hi, n = float(parts[0]), float(parts[1]), int(parts[2])
+                if n < 1:
+                    raise ValueError
+                vals = np.linspace(lo, hi, n)
+            else:
+                vals = np.array([float(v) for v in spec.split(",") if v.strip()])
+        except ValueError:
+            raise ValueError(f"--vary {name}: cannot read {spec!r} (LO:HI:N with N >= 1, or a "
+                             f"comma list of numbers)") from None
+        if vals.size == 0 or not np.all(np.isfinite(vals)):
+            raise ValueError(f"--vary {name}: values must be finite numbers, got {spec!r}")
+        out[name] = vals
+    if not out:
+        raise ValueError("sweep needs at least one --vary NAME=LO:HI:N")
+    return out
+
+
+def _out_dir(path):
+    """Create the output directory (or check it) before a long run."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise ValueError(f"--out {path!r} is a file, not a directory")
+    os.makedirs(path, exist_ok=True)
+    if not os.access(path, os.W_OK):
+        raise ValueError(f"--out {path!r} is not writable")
+
+
+def _write_rows(path, rows, columns):
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns)
+        w.writeheader()
+        for r in rows:
+            w.writerow({c: r[c] for c in columns})
+
+
+def _write_parquet(path, rows, columns) -> bool:
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:
+        return False
+    pq.write_table(pa.table({c: [r[c] for r in rows] for c in columns}), path)
+    return True
+
+
+def sweep_figures(result, out_dir) -> list:
+    """One PNG per varied parameter: every metric against it (failed members left out).
+    Returns the paths written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ._sweep import METRICS
+
+    ok = result.ok
+    paths = []
+    ncol = 4
+    nrow = math.ceil(len(METRICS) / ncol)
+    for name in result.varied:
+        fig, axs = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 2.6 * nrow), squeeze=False)
+        x = np.array([r[name] for r in ok])
+        for ax, m in zip(axs.flat, METRICS):
+            y = np.array([r[m] for r in ok])
+            ax.plot(x, y, ".", ms=4)
+            ax.set_xlabel(name)
+            ax.set_title(m, fontsize=8)
+            ax.tick_params(labelsize=7)
+            ax.grid(alpha=0.3)
+        for ax in list(axs.flat)[len(METRICS):]:
+            ax.axis("off")
+        fig.suptitle(f"sweep {result.info['scene']} ({result.info['model']}): metrics vs {name} "
+                     f"({len(ok)} ok, {len(result.failed)} failed)", fontsize=9)
+        fig.tight_layout()
+        p = os.path.join(out_dir, f"metrics_vs_{name}.png")
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(p)
+    return paths
+
+
+def cmd_sweep(args):
+    import jax
+
+    from ._cli import _parse_sets
+    from ._models import get_model
+    from ._sweep import sweep
+
+    vary = parse_vary(args.vary)
+    params = _parse_sets(args.set, args.scene)
+    _out_dir(args.out)
+    design, n = ("lhs", args.lhs) if args.lhs is not None else ("grid", None)
+    if args.lhs is not None and args.lhs < 1:
+        raise ValueError(f"--lhs needs N >= 1, got {args.lhs}")
+    devices = None
+    if args.devices:
+        avail = jax.local_devices()
+        if args.devices > len(avail):
+            raise ValueError(
+                f"--devices {args.devices}: only {len(avail)} local device(s); on a CPU set "
+                f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices} first")
+        devices = avail[: args.devices]
+    res = sweep(
+        args.scene, params, vary, design=design, n=n, seed=args.seed,
+        model=get_model(args.model, args.elements), torque_model=args.torque_model,
+        t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol, atol=args.atol,
+        max_steps=args.max_steps, chunk_size=args.chunk, devices=devices,
+        checkpoint_dir=os.path.join(args.out, "chunks"), progress=True,
+    )
+    _write_rows(os.path.join(args.out, "sweep.csv"), res.rows, res.columns)
+    written = ["sweep.csv"]
+    if _write_parquet(os.path.join(args.out, "sweep.parquet"), res.rows, res.columns):
+        written.append("sweep.parquet")
+    fcols = ["member", *res.varied, "status", "reason", "result_code"]
+    _write_rows(os.path.join(args.out, "failed.csv"), res.failed, fcols)
+    written.append("failed.csv")
+    with open(os.path.join(args.out, "summary.json"), "w") as f:
+        json.dump({"settings": res.info, "timing": res.timing, "n_members": len(res.rows),
+                   "n_ok": len(res.ok), "n_failed": len(res.failed),
+                   "failed": [{c: r[c] for c in fcols} for r in res.failed]}, f, indent=2)
+    written.append("summary.json")
+    written += [os.path.basename(p) for p in sweep_figures(res, args.out)]
+    print(f"sweep {args.scene} ({res.info['model']}): {len(res.rows)} members, {len(res.ok)} ok, "
+          f"{len(res.failed)} failed")
+    for r in res.failed[:10]:
+        print(f"  member {r['member']} ({', '.join(f'{k}={r[k]:.6g}' for k in res.varied)}): "
+              f"{r['reason']}")
+    if len(res.failed) > 10:
+        print(f"  ... {len(res.failed) - 10} more in failed.csv")
+    t = res.timing
+    if "per_member_ms" in t:
+        print(f"compile {t['compile_s']:.1f} s, {t['per_member_ms']:.2f} ms per member")
+    print(f"wrote {args.out}/: {', '.join(written)}")
+    return 0
+
+
+def cmd_sensitivity(args):
+    from ._cli import _parse_sets
+    from ._models import get_model
+    from ._sensitivity import SENSITIVITY_METRICS, sensitivity
+
+    params = _parse_sets(args.set, args.scene)
+    _out_dir(args.out)
+    names = None
+    if args.params:
+        names = [s.strip() for s in args.params.split(",") if s.strip()]
+    metrics = SENSITIVITY_METRICS
+    if args.metrics:
+        metrics = tuple(s.strip() for s in args.metrics.split(",") if s.strip())
+    # Names checked before the (long) compilation starts.
+    from ._sweep import FLOAT_PARAMS
+
+    for n in names or []:
+        if n not in FLOAT_PARAMS:
+            raise ValueError(f"unknown parameter {n!r}; allowed: {', '.join(FLOAT_PARAMS)}")
+    for m in metrics:
+        if m not in SENSITIVITY_METRICS:
+            raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
+    _log(f"sensitivity {args.scene} ({args.model}, {args.mode} mode): compiling and running ...")
+    s = sensitivity(
+        args.scene, params, mode=args.mode, model=get_model(args.model, args.elements),
+        torque_model=args.torque_model, frequency_model=args.frequency_model,
+        parameters=names, metrics=metrics, t_end=args.t_end, n_out=args.n_out,
+        solver=args.solver, rtol=args.rtol, atol=args.atol, max_steps=args.max_steps,
+    )
+    rows = s.rows()
+    cols = ["metric", "parameter", "metric_value", "parameter_value", "derivative", "normalized"]
+    _write_rows(os.path.join(args.out, "sensitivity.csv"), rows, cols)
+    with open(os.path.join(args.out, "sensitivity.json"), "w") as f:
+        clean = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                  for k, v in r.items()} for r in rows]
+        json.dump({"settings": s.info, "mode": s.mode, "timing": s.timing, "values": s.values,
+                   "parameters": s.param_values, "rows": clean}, f, indent=2)
+    print(f"\nNormalised sensitivities (p / m) dm/dp, scene {args.scene}, model {s.info['model']} "
+          f"(torques of {s.info['torque_model']}; base frequency of {s.info['frequency_model']}, "
+          f"locked), {s.mode} mode")
+    w = max(len(m) for m in s.metrics)
+    short = [m.replace("_", " ")[:14] for m in s.metrics]
+    print(f"{'parameter':>10s} " + " ".join(f"{h:>14s}" for h in short))
+    print(f"{'value':>10s} " + " ".join(f"{s.values[m]:14.6g}" for m in s.metrics))
+    for j, p in enumerate(s.parameters):
+        print(f"{p:>10s} " + " ".join(f"{s.normalized[i, j]:14.4g}" for i in range(len(s.metrics))))
+    del w
+    print(f"compile {s.timing['compile_s']:.1f} s, derivative run {s.timing['run_s'] * 1e3:.1f} ms "
+          f"(metrics alone {s.timing['value_run_s'] * 1e3:.1f} ms)")
+    print(f"wrote {args.out}/sensitivity.csv, sensitivity.json")
+    return 0
+
+
+def add_sweep(sub, parents, fmt):
+    from ._models import MODELS
+    from ._sweep import SWEEP_SCENES
+
+    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
+    s = sub.add_parser(
+        "sweep", formatter_class=fmt,
+        parents=[parents[k] for k in ("params", "model", "solve", "times")],
+        help="run a scene over a grid or Latin hypercube of parameters; tidy table + figures",
+        description="Run a scene over a grid (default) or a Latin hypercube (--lhs N) of parameter "
+                    "values, in chunks of one compiled vmapped program. Writes sweep.csv (and "
+                    "sweep.parquet with pyarrow), failed.csv (members that failed and why), "
+                    "summary.json and metrics_vs_NAME.png. Finished chunks are kept in OUT/chunks "
+                    "and skipped when the same sweep is run again (resume).")
+    s.add_argument("--scene", default="paper-circle", choices=list(SWEEP_SCENES))
+    s.add_argument("--model", default="reduced", choices=list(MODELS))
+    s.add_argument("--torque-model", default="reduced", choices=kinematic,
+                   help="paper-circle: the model whose inverse dynamics gives the torques")
+    s.add_argument("--vary", action="append", metavar="NAME=LO:HI:N",
+                   help="a parameter to vary: N values from LO to HI, or NAME=V1,V2,...; "
+                        "repeatable (the grid is their product)")
+    g = s.add_mutually_exclusive_group()
+    g.add_argument("--grid", action="store_true", help="the full grid of the --vary values")
+    g.add_argument("--lhs", type=int, default=None, metavar="N",
+                   help="a Latin hypercube of N members over each --vary range")
+    s.add_argument("--seed", type=int, default=0, help="seed of the Latin hypercube")
+    s.add_argument("--chunk", type=int, default=64, help="members per compiled batch")
+    s.add_argument("--devices", type=int, default=0,
+                   help="split each chunk over this many local devices (0: one device)")
+    s.add_argument("--out", required=True, help="output directory")
+    s.set_defaults(func=cmd_sweep)
+
+
+def add_sensitivity(sub, parents, fmt):
+    from ._models import MODELS
+    from ._sensitivity import SENSITIVITY_METRICS
+    from ._sweep import SWEEP_SCENES
+
+    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
+    s = sub.add_parser(
+        "sensitivity", formatter_class=fmt,
+        parents=[parents[k] for k in ("params", "model", "solve", "times")],
+        help="normalised sensitivities (p/m) dm/dp of the paper's metrics to every parameter",
+        description="d(metric)/d(parameter) of " + ", ".join(SENSITIVITY_METRICS) + " by "
+                    "automatic differentiation through the scene (forward or reverse mode), "
+                    "printed as normalised sensitivities and written to sensitivity.csv/json.")
+    s.add_argument("--scene", default="paper-circle", choices=list(SWEEP_SCENES))
+    s.add_argument("--model", default="reduced", choices=list(MODELS))
+    s.add_argument("--torque-model", default="reduced", choices=kinematic)
+    s.add_argument("--frequency-model", default="double1r",
+                   choices=[n for n in MODELS if n not in kinematic],
+                   help="the model whose first locked natural frequency is the base frequency")
+    s.add_argument("--mode", default="fwd", choices=["fwd", "rev"],
+                   help="forward (jacfwd) or reverse (jacrev) mode")
+    s.add_argument("--params", default=None, help="comma list of parameters (default: all)")
+    s.add_argument("--metrics", default=None, help="comma list of metrics (default: all)")
+    s.add_argument("--out", required=True, help="output directory")
+    s.set_defaults(func=cmd_sensitivity)

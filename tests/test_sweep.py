@@ -1,0 +1,193 @@
+"""Sweeps: batched members equal single runs, failed members are reported and the rest kept,
+sharded equals unsharded, the CLI writes its files and resumes.
+
+One short scene (L1 driven by L0's torques, so the radial error is millimetres, not zero) and one
+compiled sweep program are shared by the module: the grid mixes equal-links (l3 = l1) and
+unequal-links members, unreachable members (a = 3 m: the chains cannot close) and members that
+need more solver steps than `MAX_STEPS` (the thickest strip), with a padded last chunk.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import ppr_jax as pj
+from ppr_jax._cli import main
+from ppr_jax._sweep import METRICS, design_members
+
+KW = dict(model="reduced", torque_model="rigid", t_end=0.5, n_out=11)
+#: the thickest strip needs 38 steps over 0.5 s, the others 16-28
+MAX_STEPS = 30
+VARY = {"t": [0.25e-3, 0.35e-3, 0.5e-3], "l3": [0.366, 0.40], "a": [0.9, 3.0]}
+CHUNK = 4
+
+
+@pytest.fixture(scope="module")
+def swept():
+    return pj.sweep("paper-circle", vary=VARY, chunk_size=CHUNK, max_steps=MAX_STEPS, **KW)
+
+
+def test_grid_order_and_columns(swept):
+    assert len(swept.rows) == 12
+    assert swept.varied == ["t", "l3", "a"]
+    # the first name varies slowest, the last fastest
+    assert [r["a"] for r in swept.rows[:4]] == [0.9, 3.0, 0.9, 3.0]
+    assert [r["t"] for r in swept.rows[:4]] == [0.25e-3] * 4
+    for r in swept.rows:
+        assert set(swept.columns) == set(r)
+    arr = swept.to_numpy()
+    assert arr.shape == (12,) and arr["member"].tolist() == list(range(12))
+
+
+def test_failed_members_reported_and_rest_kept(swept):
+    by = {r["member"]: r for r in swept.rows}
+    # a = 3 m: every chain out of reach, found before running
+    for i in (1, 3, 5, 7, 9, 11):
+        assert by[i]["status"] == "failed"
+        assert "unreachable" in by[i]["reason"]
+        assert by[i]["result_code"] == -1
+        assert np.isnan(by[i]["radial_error_max_m"])
+    # the thickest equal-links strip needs more steps than allowed: a solver failure, named
+    assert by[8]["status"] == "failed"
+    assert "maximum number of solver steps" in by[8]["reason"]
+    assert np.isnan(by[8]["radial_error_min_m"])
+    ok = [r["member"] for r in swept.ok]
+    assert ok == [0, 2, 4, 6, 10]
+    for i in ok:
+        assert by[i]["reason"] == "" and by[i]["result_code"] == 0
+        assert all(np.isfinite(by[i][m]) for m in METRICS)
+        assert 0 < by[i]["num_steps"] <= MAX_STEPS
+
+
+def test_sweep_members_equal_single_runs(swept):
+    """Each member against its own single run, with the metrics computed by the numpy reduction
+    of `scene_metrics` (an independent path from the traced metrics). Equal- and unequal-links
+    members share the sweep; each group runs the program of its single runs (closed-form or
+    Newton inverse kinematics)."""
+    base = pj.scene_params("paper-circle")
+    for r in swept.ok:
+        p = base.replace(t=r["t"], l3=r["l3"], a=r["a"])
+        single = pj.paper_circle(p, max_steps=MAX_STEPS, **KW)
+        m = pj.scene_metrics(single)
+        for k in ("radial_error_max_m", "radial_error_min_m", "radial_error_mean_m",
+                  "phi_error_max_rad", "constraint_residual_max_m"):
+            np.testing.assert_allclose(r[k], m[k], rtol=1e-7, atol=1e-12, err_msg=k)
+        np.testing.assert_allclose(r["torque_peak_Nm"], np.abs(single.tau).max(), rtol=1e-9)
+        assert r["num_steps"] == m["num_steps"]
+    # the members really differ
+    assert len({round(r["radial_error_min_m"], 9) for r in swept.ok}) == len(swept.ok)
+
+
+def test_latin_hypercube_design():
+    d = design_members({"t": [0.2e-3, 0.6e-3], "gamma": (0.80, 0.86)}, "lhs", n=16, seed=3)
+    again = design_members({"t": [0.2e-3, 0.6e-3], "gamma": (0.80, 0.86)}, "lhs", n=16, seed=3)
+    np.testing.assert_array_equal(d["t"], again["t"])
+    for name, (lo, hi) in {"t": (0.2e-3, 0.6e-3), "gamma": (0.80, 0.86)}.items():
+        u = (d[name] - lo) / (hi - lo)
+        # one member in each of the 16 strata
+        assert sorted(np.floor(u * 16).astype(int).tolist()) == list(range(16))
+    other = design_members({"t": [0.2e-3, 0.6e-3]}, "lhs", n=16, seed=4)
+    assert not np.array_equal(other["t"], d["t"])
+    with pytest.raises(pj.PPRError, match="cannot vary 'sigma'"):
+        design_members({"sigma": [1, -1]})
+
+
+def test_cli_sweep_writes_files_and_resumes(tmp_path, swept, capsys):
+    out = tmp_path / "sw"
+    argv = ["sweep", "--scene", "paper-circle", "--model", "reduced", "--torque-model", "rigid",
+            "--vary", "t=0.25e-3,0.35e-3,0.5e-3", "--vary", "l3=0.366,0.40", "--vary", "a=0.9,3",
+            "--chunk", str(CHUNK), "--t-end", "0.5", "--n-out", "11", "--max-steps",
+            str(MAX_STEPS), "--out", str(out)]
+    assert main(argv) == 0
+    for f in ("sweep.csv", "failed.csv", "summary.json", "metrics_vs_t.png", "metrics_vs_l3.png",
+              "metrics_vs_a.png"):
+        assert (out / f).stat().st_size > 0, f
+    text = capsys.readouterr().out
+    assert "12 members, 5 ok, 7 failed" in text
+    import csv
+
+    with open(out / "sweep.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 12
+    for r, ref in zip(rows, swept.rows):
+        assert r["status"] == ref["status"]
+        if ref["status"] == "ok":
+            np.testing.assert_allclose(float(r["radial_error_min_m"]), ref["radial_error_min_m"],
+                                       rtol=1e-12)
+    with open(out / "failed.csv") as f:
+        failed = list(csv.DictReader(f))
+    assert [int(r["member"]) for r in failed] == [1, 3, 5, 7, 8, 9, 11]
+    # resume: the first chunk is kept as written, the removed second chunk is run again
+    chunks = sorted((out / "chunks").glob("chunk_*.json"))
+    assert len(chunks) == 2
+    t_first = chunks[0].stat().st_mtime_ns
+    chunks[0].write_text(chunks[0].read_text())  # same content, a new mtime to compare against
+    t_first = chunks[0].stat().st_mtime_ns
+    chunks[1].unlink()
+    assert main(argv) == 0
+    assert chunks[0].stat().st_mtime_ns == t_first
+    assert chunks[1].exists()
+    with open(out / "sweep.csv") as f:
+        assert list(csv.DictReader(f)) == rows
+    # another sweep into the same directory is refused, not mixed in
+    argv2 = list(argv)
+    argv2[argv2.index("--n-out") + 1] = "12"
+    assert main(argv2) == 2
+    assert "different sweep" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad, message", [
+    (["--vary", "t=1:2"], "cannot read"),
+    (["--vary", "sigma=1,-1"], "cannot vary 'sigma'"),
+    (["--vary", "t=0.3e-3:0.4e-3:2", "--lhs", "0"], "--lhs needs N >= 1"),
+    ([], "at least one --vary"),
+])
+def test_cli_sweep_user_errors(tmp_path, capsys, bad, message):
+    assert main(["sweep", "--out", str(tmp_path / "x"), *bad]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_cli_sweep_out_is_a_file(tmp_path, capsys):
+    f = tmp_path / "file"
+    f.write_text("")
+    assert main(["sweep", "--vary", "t=0.3e-3,0.4e-3", "--out", str(f)]) == 2
+    assert "is a file" in capsys.readouterr().err
+
+
+SHARDED = textwrap.dedent(
+    """
+    import json, sys
+    import jax
+    import ppr_jax as pj
+    assert len(jax.devices()) == 2, jax.devices()
+    kw, vary, chunk, max_steps = json.loads(sys.argv[1])
+    r = pj.sweep("paper-circle", vary=vary, chunk_size=chunk, max_steps=max_steps,
+                 devices=jax.devices(), **kw)
+    print(json.dumps(r.rows))
+    """
+)
+
+
+def test_sharded_sweep_equals_unsharded(swept):
+    """The same sweep split over two host devices (shard_map, a local vmap on each) in a fresh
+    process, member by member against the unsharded fixture."""
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    proc = subprocess.run(
+        [sys.executable, "-c", SHARDED, json.dumps([KW, VARY, CHUNK, MAX_STEPS])],
+        capture_output=True, text=True, timeout=600, env=env,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert len(rows) == len(swept.rows)
+    for r, ref in zip(rows, swept.rows):
+        assert r["status"] == ref["status"] and r["reason"] == ref["reason"]
+        assert r["num_steps"] == ref["num_steps"]
+        for m in METRICS:
+            if ref["status"] == "ok":
+                np.testing.assert_allclose(r[m], ref[m], rtol=1e-10, atol=1e-12, err_msg=m)
