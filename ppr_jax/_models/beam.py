@@ -256,7 +256,7 @@ class Beam(AbstractModel):
         N = self.n_elements
         sc = strip_constants(robot, N)
         sig = robot.sigma
-        thetas = th_a[:, None] + sig * sc.dtheta * (jnp.arange(N) + 0.5)
+        thetas = th_a[:, None] + sig * sc.dtheta * (jnp.arange(N, dtype=jnp.float64) + 0.5)
         th3 = th_a + sig * robot.theta_c
         return jnp.concatenate([th_a[:, None], thetas, th3[:, None]], axis=1)
 
