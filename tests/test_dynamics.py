@@ -138,7 +138,7 @@ def test_implicit_solver_agrees_with_explicit_on_l0(params):
                     atol=1e-12)
     b = pj.simulate(model, params, act, X0, jnp.zeros(3), ts, solver="kvaerno5", rtol=1e-10,
                     atol=1e-12)
-    assert float(jnp.abs(a.z[-1] - a.z[0]).max()) > 1e-3  # it really moves
+    assert float(jnp.abs(a.z[-1] - a.z[0]).max()) > 1e-4  # it really moves (0.8 mm)
     np.testing.assert_allclose(a.z, b.z, atol=1e-8)
     assert int(b.num_steps) > 0
 
