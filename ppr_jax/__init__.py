@@ -25,6 +25,9 @@ from ._models import (  # noqa: E402
     Rigid as Rigid,
     Reduced as Reduced,
     Double1R as Double1R,
+    AbstractBeam as AbstractBeam,
+    QuasiStaticBeam as QuasiStaticBeam,
+    STRIP_DYNAMICS as STRIP_DYNAMICS,
     get_model as get_model,
 )
 from ._models.beam import (  # noqa: E402

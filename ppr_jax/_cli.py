@@ -86,7 +86,6 @@ def _models(text, default):
 
 def cmd_simulate(args):
     from ._plots import scene_figures
-    from ._models import get_model
     from ._report import run_scene
     from ._scenes import check_scene_args, modes_scene
     from ._trajectory import Circle
@@ -100,7 +99,7 @@ def cmd_simulate(args):
         for m in models:
             for act in ("locked", "free"):
                 _log(f"modes: {m}, actuators {act} ...")
-                res.append(modes_scene(params, model=get_model(m, args.elements),
+                res.append(modes_scene(params, model=model_from_args(args, m),
                                        actuators=act))
         summary = {"scene": scene, "params": _params_dict(params), "modes": res}
         _write_json(os.path.join(args.out, "summary.json"), summary)
@@ -115,7 +114,7 @@ def cmd_simulate(args):
     results, failed = [], {}
     traj = Circle()
     # Every argument checked before the first compilation.
-    objs = [get_model(m, args.elements) for m in models]
+    objs = [model_from_args(args, m) for m in models]
     check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
 
     def write():
@@ -128,6 +127,8 @@ def cmd_simulate(args):
             "params": _params_dict(params),
             "derived": _derived_dict(params),
             "models": {r.model: dict(r.metrics, solver=r.solver) for r in results},
+            "beam": ({"elements": args.elements, "strip_dynamics": args.strip_dynamics}
+                     if "beam" in models else None),
             "failed": failed,
             "paper_reference": PAPER_REFERENCE.get(scene),
         }
@@ -258,9 +259,7 @@ def cmd_modes(args):
 
     params = _parse_sets(args.set, "modes")
     X = None if args.pose is None else [float(v) for v in args.pose.split(",")]
-    from ._models import get_model
-
-    r = modes_scene(params, model=get_model(args.model, args.elements), actuators=args.actuators,
+    r = modes_scene(params, model=model_from_args(args, args.model), actuators=args.actuators,
                     X=X)
     if args.json:
         print(json.dumps(r, indent=2))
@@ -387,6 +386,13 @@ def cmd_prb(args):
     return 0
 
 
+def model_from_args(args, name: str):
+    """The model `name` with the `model` parent parser's options (--elements, --strip-dynamics)."""
+    from ._models import get_model
+
+    return get_model(name, args.elements, args.strip_dynamics)
+
+
 def parent_parsers() -> dict:
     """Options shared by several commands, as argparse parent parsers (one definition each):
     `params` (--set), `model` (--model, --elements), `solve` (solver, tolerances, step limit,
@@ -400,6 +406,10 @@ def parent_parsers() -> dict:
                              + ", ".join(settable_names()))
     model = argparse.ArgumentParser(add_help=False)
     model.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
+    model.add_argument("--strip-dynamics", default="quasi-static", choices=["quasi-static", "full"],
+                       help="L3's strips: in static equilibrium for their clamp poses (9 "
+                            "coordinates, fast) or with their own inertia and kHz modes (3 + 3N "
+                            "coordinates, stiff: hours for a 7.54 s scene at N >= 8)")
     solve = argparse.ArgumentParser(add_help=False)
     solve.add_argument("--solver", default=None, choices=list(SOLVERS),
                        help="ODE solver (default: per model, see README 'Solvers')")
@@ -423,8 +433,8 @@ def _add_simulate(sub, parents, fmt):
     s.add_argument("--scene", default="paper-circle", choices=list(SCENES), help="scene to run")
     s.add_argument("--model", default=None,
                    help="a model (" + ", ".join(MODELS) + ") or a comma list (default: rigid, "
-                        "reduced, double1r). beam (L3) is stiff: it compiles for 1-2 min per N "
-                        "and a 7.54 s paper-circle at N >= 8 takes hundreds of thousands of steps")
+                        "reduced, double1r). beam is L3 with quasi-static strips (see "
+                        "--elements, --strip-dynamics)")
     s.add_argument("--torque-model", default="reduced", choices=kinematic,
                    help="paper-circle: the model whose inverse dynamics gives the torques")
     s.add_argument("--out", default="out", help="output directory")

@@ -49,29 +49,34 @@ def eom_terms(
 ) -> EOM:
     """Mass matrix, velocity terms and passive generalized forces at (z, z')."""
 
-    def kin(z):
-        return model.kinematics(robot, z)
-
     def vel(z):
-        return jax.jvp(kin, (z,), (zdot,))[1]
+        return jax.jvp(lambda z: model.bodies(robot, z)[:2], (z,), (zdot,))[1]
 
-    k, jac = kin(z), jax.jacfwd(kin)(z)
-    acc = jax.jvp(vel, (z,), (zdot,))[1]
+    k, Q, (Jp, Ja, Jth, JX) = _first_order(model, robot, z, zdot)
+    acc_p, acc_a = jax.jvp(vel, (z,), (zdot,))[1]
     m, I = model.masses(robot)
-    Jp, Ja = jac.body_p, jac.body_ang  # (nb, 2, n), (nb, n)
+    # Jp (nb, 2, n), Ja (nb, n)
     M = jnp.einsum("b,bki,bkj->ij", m, Jp, Jp) + jnp.einsum("b,bi,bj->ij", I, Ja, Ja)
-    h = jnp.einsum("b,bki,bk->i", m, Jp, acc.body_p) + jnp.einsum("b,bi,b->i", I, Ja, acc.body_ang)
-    Q = _passive(model, robot, k, jac, zdot)
-    return EOM(M=M, h=h, Q_passive=Q, Jth=jac.th_a, JX=jac.X, kin=k)
+    h = jnp.einsum("b,bki,bk->i", m, Jp, acc_p) + jnp.einsum("b,bi,b->i", I, Ja, acc_a)
+    Q = Q - robot.c_act * (Jth.T @ (Jth @ zdot))
+    return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=JX, kin=k)
 
 
-def _passive(model, robot, k: Kin, jac: Kin, zdot):
-    """Spring, damping and friction forces from the kinematics and its Jacobian."""
-    Jd, Jth = jac.deflection, jac.th_a
+def _first_order(model: AbstractModel, robot: Robot, z, zdot):
+    """(kin, spring forces, (Jp, Ja, Jth, JX)): the kinematics at z, the springs' force with their
+    damping, and the Jacobians of the bodies, actuated angles and pose. The springs' force comes
+    from the model (`spring_force`) or else from the Jacobian of the deflections, which is then
+    taken with the rest."""
+    k = model.kinematics(robot, z)
+    Q = model.spring_force(robot, z, zdot, k)
+    if Q is not None:
+        return k, Q, jax.jacfwd(lambda z: model.bodies(robot, z))(z)
+    jac = jax.jacfwd(lambda z: model.kinematics(robot, z))(z)
     kk = model.stiffness(robot)
     # kk is a scalar or one stiffness per spring (the beam's clamp half-springs differ).
+    Jd = jac.deflection
     Q = -(Jd.T @ (kk * k.deflection)) - robot.c_spring * (Jd.T @ (Jd @ zdot))
-    return Q - robot.c_act * (Jth.T @ (Jth @ zdot))
+    return k, Q, (jac.body_p, jac.body_ang, jac.th_a, jac.X)
 
 
 def passive_force(
@@ -79,11 +84,8 @@ def passive_force(
 ) -> Array:
     """Q of springs, damping, friction, actuators and wrench only (first derivatives of the
     kinematics; no mass matrix): the stiffness part of the static and quasi-static balances."""
-    def kin(z):
-        return model.kinematics(robot, z)
-
-    k, jac = kin(z), jax.jacfwd(kin)(z)
-    return _passive(model, robot, k, jac, zdot) + jac.th_a.T @ tau_a + jac.X.T @ wrench
+    _, Q, (_, _, Jth, JX) = _first_order(model, robot, z, zdot)
+    return Q - robot.c_act * (Jth.T @ (Jth @ zdot)) + Jth.T @ tau_a + JX.T @ wrench
 
 
 def generalized_force(eom: EOM, tau_a, wrench) -> Array:

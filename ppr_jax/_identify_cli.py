@@ -43,7 +43,7 @@ def cmd_identify(args):
     from ._data import load_experiments
     from ._identify import identify
     from ._identify_plots import identification_figures
-    from ._models import get_model
+    from ._cli import model_from_args
     from ._scenes import scene_params
 
     exps = load_experiments(args.data, time_unit=args.time_unit, length_unit=args.length_unit,
@@ -59,7 +59,7 @@ def cmd_identify(args):
     _log(f"identify {', '.join(unknowns)} with {args.model} from {len(exps)} experiment(s), "
          f"{sum(e.n for e in exps)} samples (compiling the simulation and its Jacobian first) ...")
     t0 = time.perf_counter()
-    fit = identify(exps, unknowns, model=get_model(args.model, args.elements), scene=args.scene,
+    fit = identify(exps, unknowns, model=model_from_args(args, args.model), scene=args.scene,
                    params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
                    noise=(args.noise_pos, args.noise_phi), loss=args.loss,
                    loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
@@ -100,13 +100,13 @@ def _write_fitted(path, fit):
 def cmd_synth(args):
     from ._data import write_csv
     from ._identify import synthesize
-    from ._models import get_model
+    from ._cli import model_from_args
     from ._scenes import scene_params
 
     params = scene_params(args.scene, **_name_values(args.set, "--set"))
     _log(f"synth: {args.scene} with {args.model}, {args.t_end} s at {args.rate} Hz (compiling, "
          f"then running) ...")
-    exp = synthesize(args.scene, get_model(args.model, args.elements), params,
+    exp = synthesize(args.scene, model_from_args(args, args.model), params,
                      noise_pos=args.noise_pos, noise_phi=args.noise_phi, rate=args.rate,
                      t_end=args.t_end, seed=args.seed,
                      name=os.path.splitext(os.path.basename(args.out))[0], solver=args.solver,

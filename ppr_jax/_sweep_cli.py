@@ -118,7 +118,7 @@ def cmd_sweep(args):
     import jax
 
     from ._cli import _parse_sets
-    from ._models import get_model
+    from ._cli import model_from_args
     from ._sweep import sweep
 
     vary = parse_vary(args.vary)
@@ -137,7 +137,7 @@ def cmd_sweep(args):
         devices = avail[: args.devices]
     res = sweep(
         args.scene, params, vary, design=design, n=n, seed=args.seed,
-        model=get_model(args.model, args.elements), torque_model=args.torque_model,
+        model=model_from_args(args, args.model), torque_model=args.torque_model,
         t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol, atol=args.atol,
         max_steps=args.max_steps, chunk_size=args.chunk, devices=devices,
         checkpoint_dir=os.path.join(args.out, "chunks"), progress=True,
@@ -171,7 +171,7 @@ def cmd_sweep(args):
 
 def cmd_sensitivity(args):
     from ._cli import _parse_sets
-    from ._models import get_model
+    from ._cli import model_from_args
     from ._sensitivity import SENSITIVITY_METRICS, sensitivity
 
     params = _parse_sets(args.set, args.scene)
@@ -193,7 +193,7 @@ def cmd_sensitivity(args):
             raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
     _log(f"sensitivity {args.scene} ({args.model}, {args.mode} mode): compiling and running ...")
     s = sensitivity(
-        args.scene, params, mode=args.mode, model=get_model(args.model, args.elements),
+        args.scene, params, mode=args.mode, model=model_from_args(args, args.model),
         torque_model=args.torque_model, frequency_model=args.frequency_model,
         parameters=names, metrics=metrics, t_end=args.t_end, n_out=args.n_out,
         solver=args.solver, rtol=args.rtol, atol=args.atol, max_steps=args.max_steps,

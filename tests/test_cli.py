@@ -131,11 +131,20 @@ def test_prb_derived_quantities_do_not_print_the_deprecation_notice(capsys):
 
 
 def test_modes_of_the_beam_model_from_the_cli(capsys):
-    assert main(["modes", "--model", "beam", "--elements", "2", "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
-    assert out["model"] == "beam" and out["n_free_coordinates"] == 3 + 3 * 2 - 3
-    assert all(np.isfinite(out["frequencies_hz"]))
+    """Quasi-static strips by default (9 coordinates, 6 free when locked, for every N); the full
+    strip dynamics on request (3 + 3N coordinates); the robot's modes agree."""
+    assert main(["modes", "--model", "beam", "--elements", "3", "--json"]) == 0
+    qs = json.loads(capsys.readouterr().out)
+    assert qs["model"] == "beam" and qs["n_free_coordinates"] == 9 - 3
+    assert main(["modes", "--model", "beam", "--elements", "3", "--strip-dynamics", "full",
+                 "--json"]) == 0
+    full = json.loads(capsys.readouterr().out)
+    assert full["n_free_coordinates"] == 3 + 3 * 3 - 3
+    assert all(np.isfinite(qs["frequencies_hz"]))
+    np.testing.assert_allclose(qs["frequencies_hz"], full["frequencies_hz"][:6], rtol=3e-3)
     assert main(["modes", "--model", "beam", "--elements", "0"]) == 2
+    with pytest.raises(SystemExit):  # argparse: not one of the choices
+        main(["modes", "--model", "beam", "--strip-dynamics", "implicit"])
 
 
 def test_prb_table_fit(capsys):

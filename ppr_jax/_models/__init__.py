@@ -10,7 +10,8 @@ from typing import Optional, Union
 
 from .._checks import PPRError, check_number
 from .base import AbstractModel as AbstractModel, Kin as Kin
-from .beam import Beam as Beam
+from .beam import AbstractBeam as AbstractBeam, Beam as Beam
+from .beam_qs import QuasiStaticBeam as QuasiStaticBeam
 from .double1r import AbstractDouble1R as AbstractDouble1R, Double1R as Double1R
 from .reduced import Reduced as Reduced
 from .rigid import Rigid as Rigid
@@ -20,27 +21,40 @@ MODELS: dict[str, type[AbstractModel]] = {
     Rigid.name: Rigid,
     Reduced.name: Reduced,
     Double1R.name: Double1R,
-    Beam.name: Beam,
+    QuasiStaticBeam.name: QuasiStaticBeam,
 }
+
+#: how L3's strips move: in static equilibrium for their clamp poses (`QuasiStaticBeam`, the
+#: default) or with their own inertia and modes (`Beam`, stiff)
+STRIP_DYNAMICS = ("quasi-static", "full")
 
 #: beam elements per strip of L3 when none is given, and the most allowed
 DEFAULT_ELEMENTS = 8
 MAX_ELEMENTS = 256
 
 
-def get_model(model: Union[str, AbstractModel], n_elements: Optional[int] = None) -> AbstractModel:
+def get_model(
+    model: Union[str, AbstractModel],
+    n_elements: Optional[int] = None,
+    strip_dynamics: str = "quasi-static",
+) -> AbstractModel:
     """A model from its name (see `MODELS`: rigid, reduced, double1r, beam) or an instance;
-    `n_elements` is the number of beam elements per strip of `beam` (default 8)."""
+    `n_elements` is the number of beam elements per strip of `beam` (default 8) and
+    `strip_dynamics` how its strips move: `quasi-static` (`QuasiStaticBeam`, 9 coordinates, the
+    default) or `full` (`Beam`, 3 + 3N coordinates with the strips' own modes: stiff)."""
     if isinstance(model, AbstractModel):
         return model
     cls = MODELS.get(str(model))
     if cls is None:
         raise PPRError(f"unknown model {model!r}; allowed: {', '.join(MODELS)}")
-    if cls is Beam:
+    if strip_dynamics not in STRIP_DYNAMICS:
+        raise PPRError(f"strip_dynamics must be one of {', '.join(STRIP_DYNAMICS)}, got "
+                       f"{strip_dynamics!r}")
+    if cls is QuasiStaticBeam:
         n = DEFAULT_ELEMENTS if n_elements is None else n_elements
         # The state grows as 3 + 3N and the compiled right-hand side as N^2: above 256 elements
         # (773 coordinates) compilation alone takes hours, and the model has long converged.
         n = check_number("elements (beam elements per strip of L3)", n, 2, MAX_ELEMENTS,
                          integer=True)
-        return Beam(n)
+        return Beam(n) if strip_dynamics == "full" else QuasiStaticBeam(n)
     return cls()

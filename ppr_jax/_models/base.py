@@ -59,6 +59,21 @@ class AbstractModel(eqx.Module):
     def kinematics(self, robot: Robot, z: Float[Array, " n"]) -> Kin:
         """Bodies, deflections and actuated angles at coordinates z."""
 
+    def bodies(self, robot: Robot, z: Float[Array, " n"]) -> tuple[Array, Array, Array, Array]:
+        """(`Kin.body_p`, `Kin.body_ang`, `Kin.th_a`, `Kin.X`) alone: with `spring_force` this is
+        all the equations of motion differentiate, so a model whose springs cost more than its
+        bodies (L3 with quasi-static strips) overrides both to keep the derivatives of its strip
+        shapes out of every right-hand side."""
+        k = self.kinematics(robot, z)
+        return k.body_p, k.body_ang, k.th_a, k.X
+
+    def spring_force(self, robot: Robot, z, zdot, kin: Kin) -> Optional[Array]:
+        """Generalized force (n,) of the springs and their viscous damping at (z, z'), with `kin`
+        the kinematics at z; or None (the default): `_dynamics.py` then takes it from the Jacobian
+        of `Kin.deflection`. A model whose deflections are implicit functions of z (the
+        quasi-static L3) overrides this with something cheaper than that Jacobian."""
+        return None
+
     @abc.abstractmethod
     def masses(self, robot: Robot) -> tuple[Array, Array]:
         """(m (nb,), I (nb,)): body masses (kg) and central moments of inertia (kg m^2),

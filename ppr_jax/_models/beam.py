@@ -83,22 +83,98 @@ def _elbow(robot: Robot):
 # ---------------------------------------------------------------------------------------------
 
 
-class Beam(AbstractModel):
+class AbstractBeam(AbstractModel):
+    """What the two forms of L3 share: N-element Hencky strips clamped to the links' inner sides
+    (module docstring), their springs and the outputs computed from the chain angles
+    th (3, N + 2) = (th_a, theta_1 .. theta_N, th3) of `Kin.th`. `Beam` keeps the strips'
+    inertia and interior angles as coordinates; `QuasiStaticBeam` (`beam_qs.py`) puts every strip
+    in static equilibrium for its clamp poses."""
+
+    n_elements: int = eqx.field(static=True, default=8)
+
+    def __check_init__(self):
+        if not (isinstance(self.n_elements, int) and self.n_elements >= 2):
+            raise PPRError(f"n_elements must be an integer >= 2, got {self.n_elements!r}")
+
+    def stiffness(self, robot):
+        N = self.n_elements
+        sc = strip_constants(robot, N)
+        one_chain = jnp.concatenate(
+            [sc.k_end[None], sc.k_in * jnp.ones(N - 1, dtype=jnp.float64), sc.k_end[None]]
+        )
+        return jnp.tile(one_chain, 3)
+
+    # -- outputs --------------------------------------------------------------------------------
+
+    def chain_points(self, robot, th):
+        """(P1, P2, Q2, E) each (3, 2) (m) from the chain angles th (3, N + 2) of `Kin.th`:
+        strip start and end, start of the connecting link's centre line, the chain's E_i."""
+        sc = strip_constants(robot, self.n_elements)
+        sig = robot.sigma
+        th_a, thetas, th3 = th[:, 0], th[:, 1:-1], th[:, -1]
+        P1 = base_points(robot) + robot.l1 * e(th_a) + (robot.b_r / 2) * sig * e(
+            th_a + jnp.pi / 2
+        )
+        P2 = P1 + sc.h * jnp.sum(e(thetas), axis=1)
+        Q2 = P2 - sig * (robot.b_r / 2) * e(th3 + jnp.pi / 2)
+        return P1, P2, Q2, Q2 + robot.l3 * e(th3)
+
+    def chain_E(self, robot, th):
+        """Chain end E_i (3, 2) (m) from the chain angles th (3, N + 2) of `Kin.th`."""
+        return self.chain_points(robot, th)[3]
+
+    def loop_residual(self, robot, kin):
+        """The chain's E_i minus the platform's E_i (3, 2) (m): zero to rounding."""
+        return self.chain_E(robot, kin.th) - platform_points(robot, kin.X)
+
+    def joint_end_rotations(self, robot, kin):
+        """Rotations (3, 2) (rad) of the strip's two end tangents relative to its chord P1 -> P2,
+        minus their rest values: (chord - th_a) - sigma theta_c/2 and (th3 - chord) -
+        sigma theta_c/2. The unloaded chord is parallel to L2's pseudo-link, so these compare
+        with L2's pivot deflections (d_i1, d_i2) and sum to the same total th3 - th_a -
+        sigma theta_c."""
+        th = kin.th
+        ch = jnp.sum(e(th[:, 1:-1]), axis=1)
+        chord = jnp.arctan2(ch[:, 1], ch[:, 0])
+        half = robot.sigma * robot.theta_c / 2
+        r1 = wrap(chord - th[:, 0] - half)
+        r2 = wrap(th[:, -1] - chord - half)
+        return jnp.stack([r1, r2], axis=-1)
+
+    def corners(self, robot, th):
+        """Where each chain's drive-link and connecting-link centre lines meet (3, 2) (m), from
+        the chain angles th (3, N + 2) of `Kin.th`: the virtual corner C_i of L0 (at
+        R1 = l1 + r_i tan(theta_c/2) from A_i) when the strip is at rest."""
+        _, _, Q2, _ = self.chain_points(robot, th)
+        A = base_points(robot)
+        d1, d3 = e(th[:, 0]), e(th[:, -1])
+        # A + s d1 = Q2 + u d3  ->  [d1, -d3] (s, u) = Q2 - A
+        Mtx = jnp.stack([d1, -d3], axis=-1)  # (3, 2, 2)
+        su = jax.vmap(solve)(Mtx, Q2 - A)
+        return A + su[:, :1] * d1
+
+    def rest_angles(self, robot, th_a):
+        """Chain angles th (3, N + 2) of the unloaded (natural-arc) strips for drive angles
+        th_a (3,): every spring at its rest turn."""
+        N = self.n_elements
+        sc = strip_constants(robot, N)
+        sig = robot.sigma
+        thetas = th_a[:, None] + sig * sc.dtheta * (jnp.arange(N, dtype=jnp.float64) + 0.5)
+        th3 = th_a + sig * robot.theta_c
+        return jnp.concatenate([th_a[:, None], thetas, th3[:, None]], axis=1)
+
+
+
+class Beam(AbstractBeam):
     """L3 `beam`: the compliant strips as N-element Hencky bar chains (module docstring).
 
     `n_elements` (static) is N, the number of rigid segments per strip; n_dof = 3 + 3N.
     z = (x, y, phi, th_a1, th_a2, th_a3, phi_12..phi_1N, phi_22..phi_2N, phi_32..phi_3N)
     (m, m, rad, rad...). Converges to the elastica as O(1/N^2)."""
 
-    n_elements: int = eqx.field(static=True, default=8)
-
     name = "beam"
     level = 3
     actuated_index = (3, 4, 5)
-
-    def __check_init__(self):
-        if not (isinstance(self.n_elements, int) and self.n_elements >= 2):
-            raise PPRError(f"n_elements must be an integer >= 2, got {self.n_elements!r}")
 
     @property
     def n_dof(self) -> int:  # type: ignore[override]
@@ -173,14 +249,6 @@ class Beam(AbstractModel):
         )
         return m, I
 
-    def stiffness(self, robot):
-        N = self.n_elements
-        sc = strip_constants(robot, N)
-        one_chain = jnp.concatenate(
-            [sc.k_end[None], sc.k_in * jnp.ones(N - 1, dtype=jnp.float64), sc.k_end[None]]
-        )
-        return jnp.tile(one_chain, 3)
-
     def coords_from_pose(self, robot, X):
         """A smooth guess on the L1 manifold: th_a from L1's inverse kinematics (eq 29) and every
         interior joint at its rest turn plus an equal share of the L1 joint's total deflection
@@ -197,68 +265,9 @@ class Beam(AbstractModel):
         phi = jnp.broadcast_to(((robot.sigma * robot.theta_c + D) / N)[:, None], (3, N - 1))
         return jnp.concatenate([X, th_a, phi.reshape(-1)])
 
-    # -- outputs --------------------------------------------------------------------------------
-
-    def chain_points(self, robot, th):
-        """(P1, P2, Q2, E) each (3, 2) (m) from the chain angles th (3, N + 2) of `Kin.th`:
-        strip start and end, start of the connecting link's centre line, the chain's E_i."""
-        sc = strip_constants(robot, self.n_elements)
-        sig = robot.sigma
-        th_a, thetas, th3 = th[:, 0], th[:, 1:-1], th[:, -1]
-        P1 = base_points(robot) + robot.l1 * e(th_a) + (robot.b_r / 2) * sig * e(
-            th_a + jnp.pi / 2
-        )
-        P2 = P1 + sc.h * jnp.sum(e(thetas), axis=1)
-        Q2 = P2 - sig * (robot.b_r / 2) * e(th3 + jnp.pi / 2)
-        return P1, P2, Q2, Q2 + robot.l3 * e(th3)
-
-    def chain_E(self, robot, th):
-        """Chain end E_i (3, 2) (m) from the chain angles th (3, N + 2) of `Kin.th`."""
-        return self.chain_points(robot, th)[3]
-
-    def loop_residual(self, robot, kin):
-        """The chain's E_i minus the platform's E_i (3, 2) (m): zero to rounding."""
-        return self.chain_E(robot, kin.th) - platform_points(robot, kin.X)
-
-    def joint_end_rotations(self, robot, kin):
-        """Rotations (3, 2) (rad) of the strip's two end tangents relative to its chord P1 -> P2,
-        minus their rest values: (chord - th_a) - sigma theta_c/2 and (th3 - chord) -
-        sigma theta_c/2. The unloaded chord is parallel to L2's pseudo-link, so these compare
-        with L2's pivot deflections (d_i1, d_i2) and sum to the same total th3 - th_a -
-        sigma theta_c."""
-        th = kin.th
-        ch = jnp.sum(e(th[:, 1:-1]), axis=1)
-        chord = jnp.arctan2(ch[:, 1], ch[:, 0])
-        half = robot.sigma * robot.theta_c / 2
-        r1 = wrap(chord - th[:, 0] - half)
-        r2 = wrap(th[:, -1] - chord - half)
-        return jnp.stack([r1, r2], axis=-1)
-
     def strip_nodes(self, robot, z) -> Float[Array, "3 n 2"]:
         """Strip node positions (3, N + 1, 2) (m) (P1 first, P2 last) at coordinates z."""
         return self._chains(robot, z)["nodes"]
-
-    def corners(self, robot, th):
-        """Where each chain's drive-link and connecting-link centre lines meet (3, 2) (m), from
-        the chain angles th (3, N + 2) of `Kin.th`: the virtual corner C_i of L0 (at
-        R1 = l1 + r_i tan(theta_c/2) from A_i) when the strip is at rest."""
-        _, _, Q2, _ = self.chain_points(robot, th)
-        A = base_points(robot)
-        d1, d3 = e(th[:, 0]), e(th[:, -1])
-        # A + s d1 = Q2 + u d3  ->  [d1, -d3] (s, u) = Q2 - A
-        Mtx = jnp.stack([d1, -d3], axis=-1)  # (3, 2, 2)
-        su = jax.vmap(solve)(Mtx, Q2 - A)
-        return A + su[:, :1] * d1
-
-    def rest_angles(self, robot, th_a):
-        """Chain angles th (3, N + 2) of the unloaded (natural-arc) strips for drive angles
-        th_a (3,): every spring at its rest turn."""
-        N = self.n_elements
-        sc = strip_constants(robot, N)
-        sig = robot.sigma
-        thetas = th_a[:, None] + sig * sc.dtheta * (jnp.arange(N, dtype=jnp.float64) + 0.5)
-        th3 = th_a + sig * robot.theta_c
-        return jnp.concatenate([th_a[:, None], thetas, th3[:, None]], axis=1)
 
 
 # ---------------------------------------------------------------------------------------------

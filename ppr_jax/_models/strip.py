@@ -1,0 +1,138 @@
+"""The clamped-clamped Hencky strip of L3 in static equilibrium for given clamp poses.
+
+Used by the quasi-static L3 (`beam_qs.py`). The strip of N rigid segments of chord length h has
+segment angles theta_k = th_a + u_k, measured from the start clamp's tangent (the drive link's
+direction th_a). Its spring deflections are u_1 - sd/2 (clamp half-spring, k_end = 2 k_in),
+u_{k+1} - u_k - sd (N - 1 interior springs, k_in) and beta - u_N - sd/2 (clamp half-spring at
+the connecting link), with sd = sigma dtheta the signed rest turn of an interior spring and
+beta = th3 - th_a the end clamp's angle. The end position is a constraint,
+
+    c(u) = sum_k e(u_k) - d/h = 0,      d (2,) = R(-th_a) (P2 - P1),
+
+so the equilibrium is a stationary point of U/k_in - mu . c: N + 2 equations in (u, mu), with
+mu = lam h / k_in the nondimensional force through the strip. The shape depends on the geometry
+(h, sd, d, beta) only; the bending stiffness scales the energy and the forces, not the shape.
+
+How it is solved, and why so
+----------------------------
+The equations are solved in every right-hand side evaluation of the quasi-static L3, so they must
+be cheap in XLA on a CPU, where each small operation costs about a microsecond: a few large
+vector operations beat a scalar recursion or a pivoted elimination of N + 2 rows. The Hessian of
+the strip energy is K + diag(q), K the constant tridiagonal stiffness (3, 2, ..., 2, 3 on the
+diagonal, -1 beside it, in units of k_in) and q = mu . e(u) the geometric stiffness of the strip's
+force, small against K for any load the strip survives (|q| / lambda_min(K) ~ F L^2 / (pi^2 EI)).
+So the KKT matrix J is applied exactly and inverted with J0, the same matrix without diag(q):
+K^-1 is a constant (a NumPy array at trace time) and the border is a 2 x 2 Schur complement. The
+solve is Newton's iteration with the approximate Jacobian J0 (linear convergence at that small
+rate, from the unloaded arc), and the implicit derivatives solve J dy = -dF/dp dp by iterative
+refinement with J0; both in a `jax.custom_jvp`, so derivatives of any order are exact and never
+go through the iterations.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._custom_types import Array, Float
+from .._linalg import solve
+
+#: iterations at most of the strip's equilibrium and of its derivatives' refinement
+MAX_ITER = 60
+#: converged when an update is below this, relative to 1 + the largest entry
+TOL = 1e-12
+
+
+def stiffness_matrix(N: int) -> np.ndarray:
+    """K (N, N): Hessian of the strip's spring energy over k_in in the segment angles."""
+    K = 2 * np.eye(N) - np.eye(N, k=1) - np.eye(N, k=-1)
+    K[0, 0] = K[-1, -1] = 3.0
+    return K
+
+
+def kkt_residual(y: Float[Array, " n2"], p: Float[Array, "4"]) -> Float[Array, " n2"]:
+    """KKT residual of the strip, y = (u (N,), mu (2,)), p = (d_x/h, d_y/h, beta, sd): the
+    gradient of U/k_in - mu . c in u, then c (module docstring)."""
+    N = y.shape[0] - 2
+    u, mu = y[:N], y[N:]
+    # dU/du / k_in = K u - b with b = (0, ..., 0, 2 beta): the rest turns cancel (every spring's
+    # k r is k_in sd and the deflections sum to beta - N sd whatever u), which is also why the
+    # shape depends on sd only through beta's rest value
+    b = jnp.zeros(N, y.dtype).at[-1].set(2 * p[2])
+    Ku = jnp.asarray(stiffness_matrix(N)) @ u
+    s, c = jnp.sin(u), jnp.cos(u)
+    g = Ku - b - (-mu[0] * s + mu[1] * c)
+    return jnp.concatenate([g, jnp.stack([jnp.sum(c) - p[0], jnp.sum(s) - p[1]])])
+
+
+def _apply_j0_inv(y, r):
+    """J0^-1 r (module docstring) at y = (u, mu), r = (r_u (N,), r_c (2,))."""
+    N = y.shape[0] - 2
+    u, mu = y[:N], y[N:]
+    lam_K, V = (jnp.asarray(a) for a in np.linalg.eigh(stiffness_matrix(N)))
+    s, c = jnp.sin(u), jnp.cos(u)
+    qbar = jnp.mean(mu[0] * c + mu[1] * s)
+    C = jnp.stack([-s, c])  # dc/du (2, N)
+    # [[K + qbar I, -C^T], [C, 0]] (x, m) = (a, b):  x = H^-1 (a + C^T m),
+    # C H^-1 C^T m = b - C H^-1 a, with H^-1 = V diag(1/(lam_K + qbar)) V^T
+    W = V @ ((V.T @ jnp.concatenate([r[:N, None], C.T], axis=1)) / (lam_K + qbar)[:, None])
+    S = C @ W[:, 1:]
+    rhs = r[N:] - C @ W[:, 0]
+    det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+    m = jnp.stack([S[1, 1] * rhs[0] - S[0, 1] * rhs[1], S[0, 0] * rhs[1] - S[1, 0] * rhs[0]]) / det
+    return jnp.concatenate([W[:, 0] + W[:, 1:] @ m, m])
+
+
+def _iterate(step, y0):
+    """Fixed-point iteration y <- step(y) until the update is below TOL (at most MAX_ITER)."""
+
+    def body(carry):
+        y, _, i = carry
+        y_new = step(y)
+        return y_new, jnp.max(jnp.abs(y_new - y)) / (1 + jnp.max(jnp.abs(y_new))), i + 1
+
+    def cond(carry):
+        _, delta, i = carry
+        return (delta > TOL) & (i < MAX_ITER)
+
+    y, delta, _ = jax.lax.while_loop(cond, body, (y0, jnp.asarray(jnp.inf, y0.dtype), 0))
+    return y
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _root(N: int, p: Array):
+    k = jnp.arange(N, dtype=p.dtype) + 0.5
+    y0 = jnp.concatenate([p[2] * k / N, jnp.zeros(2, p.dtype)])  # constant curvature, no force
+    y = _iterate(lambda y: y - _apply_j0_inv(y, kkt_residual(y, p)), y0)
+    return y, jnp.max(jnp.abs(kkt_residual(y, p)))
+
+
+@_root.defjvp
+def _root_jvp(N, primals, tangents):
+    (p,), (dp,) = primals, tangents
+    y, err = _root(N, p)
+    # F(y(p), p) = 0  ->  J dy = -dF/dp dp, one elimination of J shared by every tangent
+    _, Fp_dp = jax.jvp(lambda p: kkt_residual(y, p), (p,), (dp,))
+    J = jax.jacfwd(kkt_residual)(y, p)
+    dy = -solve(J, Fp_dp)
+    return (y, err), (dy, jnp.zeros_like(err))
+
+
+def strip_equilibrium(
+    n_elements: int, h, sd, d: Float[Array, "2"], beta
+) -> tuple[Float[Array, " N"], Float[Array, "2"], Array]:
+    """Equilibrium shape of one strip (module docstring).
+
+    n_elements N (static); h segment chord (m); sd = sigma dtheta signed rest turn of an interior
+    spring (rad); d (2,) end position P2 - P1 in the start clamp's frame (m); beta end clamp angle
+    relative to the start clamp (rad). Returns (u (N,) segment angles from the start clamp's
+    tangent (rad), lam (2,) the force through the strip over k_in (1/m) in the start clamp's
+    frame, err the final residual (rad, segment lengths): above ~1e-10 the iteration failed and
+    the shape must not be used (the caller reports it). Differentiable in h, sd, d and beta to
+    any order (implicit function theorem)."""
+    p = jnp.stack([d[0] / h, d[1] / h, beta, sd])
+    y, err = _root(n_elements, p)
+    return y[:n_elements], y[n_elements:] / h, err
