@@ -157,3 +157,25 @@ def test_modes_match_full_l3(params):
     f_full = np.asarray(pj.modes(pj.Beam(4), params, actuators="locked").freq_hz)
     assert len(f_qs) == 6 and f_full[6] > 1000
     np.testing.assert_allclose(f_qs, f_full[:6], rtol=2e-3)
+
+
+def test_damping_derivative_in_c_spring_at_zero(params):
+    """The strips' damping is skipped at c_spring = 0 for speed, but its derivative there is
+    still -J_d^T J_d z' (forward and reverse mode), not 0."""
+    m = pj.QuasiStaticBeam(3)
+    z = m.coords_from_pose(pj.Robot(params), pj.home_pose(params)) + 1e-3 * jnp.sin(
+        jnp.arange(9.0))
+    zd = 0.3 * jnp.cos(jnp.arange(9.0))
+
+    def Q(c):
+        robot = pj.Robot(params.replace(c_spring=c))
+        return m.spring_force(robot, z, zd, m.kinematics(robot, z))
+
+    robot = pj.Robot(params)
+    Jd = jax.jacfwd(lambda z: m.kinematics(robot, z).deflection)(z)
+    ref = -(Jd.T @ (Jd @ zd))
+    assert np.abs(np.asarray(ref)).max() > 1e-3
+    np.testing.assert_allclose(jax.jacfwd(Q)(0.0), ref, rtol=1e-9, atol=1e-12)
+    w = jnp.sin(jnp.arange(9.0))
+    np.testing.assert_allclose(jax.grad(lambda c: w @ Q(c))(0.0), w @ ref, rtol=1e-9)
+    np.testing.assert_allclose((Q(1e-3) - Q(0.0)) / 1e-3, ref, rtol=1e-9, atol=1e-12)

@@ -36,6 +36,7 @@ the second derivatives of the implicit shape in every right-hand side evaluation
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -108,7 +109,7 @@ class QuasiStaticBeam(AbstractBeam):
         u* and force lam*, of the Lagrangian U(u, z) - lam . c(u, z) (the clamp wrenches), so only
         closed-form derivatives in z are taken; u* and lam* still depend on z, so derivatives of
         this force (stiffness, sensitivities) see the implicit shape. Damping: c_spring on every
-        spring's deflection rate, -c J_d^T J_d z' (one linearization of the shape)."""
+        spring's deflection rate, -c J_d^T J_d z' (`_strip_damping`)."""
         N = self.n_elements
         sc = strip_constants(robot, N)
         th_a = z[3:6]
@@ -133,11 +134,7 @@ class QuasiStaticBeam(AbstractBeam):
 
         Q = -jax.grad(lagrangian)(z)
 
-        # damping: one linearization of the shape, transposed (computed also when c_spring is
-        # 0, so that its derivative in c_spring is right there too)
-        _, lin = jax.linearize(lambda z: self.kinematics(robot, z).deflection, z)
-        (JdT_Jd_zd,) = jax.linear_transpose(lin, z)(lin(zdot))
-        return Q - robot.c_spring * JdT_Jd_zd
+        return Q + _strip_damping(self, robot, z, zdot)
 
     def _deflections(self, robot, u, th_a, th3):
         """Spring deflections (3 (N + 1),) from shapes u (3, N) and the clamp angles."""
@@ -189,3 +186,28 @@ class QuasiStaticBeam(AbstractBeam):
         P1, _ = self.clamps(robot, z)
         steps = sc.h * e(z[3:6, None] + u)
         return jnp.concatenate([P1[:, None], P1[:, None] + jnp.cumsum(steps, axis=1)], axis=1)
+
+
+def _damping_force(model: QuasiStaticBeam, robot: Robot, z, zdot):
+    """-c_spring J_d^T J_d z': one linearization of the strip shapes, transposed."""
+    _, lin = jax.linearize(lambda z: model.kinematics(robot, z).deflection, z)
+    (JdT_Jd_zd,) = jax.linear_transpose(lin, z)(lin(zdot))
+    return -robot.c_spring * JdT_Jd_zd
+
+
+@eqx.filter_custom_jvp
+def _strip_damping(model, robot, z, zdot):
+    """`_damping_force`, skipped when c_spring is 0 (the default): it doubles the cost of a
+    right-hand side. The skip is a `lax.cond` on data, so its derivative is given here by hand:
+    the derivative of the full expression, which in c_spring is -J_d^T J_d z' also where
+    c_spring is 0 (a sensitivity or a fit of c_spring starting from 0 sees it)."""
+    return jax.lax.cond(robot.c_spring == 0, lambda: jnp.zeros_like(z),
+                        lambda: _damping_force(model, robot, z, zdot))
+
+
+@_strip_damping.def_jvp
+def _strip_damping_jvp(primals, tangents):
+    model, robot, z, zdot = primals
+    _, t_robot, t_z, t_zdot = tangents
+    return eqx.filter_jvp(lambda r, z, zd: _damping_force(model, r, z, zd), (robot, z, zdot),
+                          (t_robot, t_z, t_zdot))
