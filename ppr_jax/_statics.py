@@ -224,7 +224,11 @@ def _quasi_static_state(
     zu = zus[0]
     zu_dot = (zus[1] - 8 * zus[2] + 8 * zus[3] - zus[4]) / (12 * QS_DT)
     z_r, zd_r, _ = derivatives(ref, t)
-    failed = ~(jnp.max(errs) < 1e-10) | jnp.any(results != optx.RESULTS.successful)
+    # Running out of chord steps is no failure when the residual is down to rounding: a residual
+    # computed through an inner solve (L3's quasi-static strips at large N) has a noise floor
+    # that the step criterion (1e-13 relative) may not reach. The residual decides.
+    stalled = results == optx.RESULTS.nonlinear_max_steps_reached
+    failed = ~(jnp.max(errs) < 1e-10) | jnp.any((results != optx.RESULTS.successful) & ~stalled)
     z = _assemble(n, unknown, zu, known, z_r[ik])
     zd = _assemble(n, unknown, zu_dot, known, zd_r[ik])
     return z, zd, failed

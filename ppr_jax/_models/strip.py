@@ -43,7 +43,7 @@ from .._linalg import solve
 #: iterations at most of the strip's equilibrium and of its derivatives' refinement
 MAX_ITER = 60
 #: converged when an update is below this, relative to 1 + the largest entry
-TOL = 1e-12
+TOL = 1e-14
 
 
 def stiffness_matrix(N: int) -> np.ndarray:
@@ -87,18 +87,20 @@ def _apply_j0_inv(y, r):
 
 
 def _iterate(step, y0):
-    """Fixed-point iteration y <- step(y) until the update is below TOL (at most MAX_ITER)."""
+    """Fixed-point iteration y <- step(y) until the update is below TOL relative to 1 + |y|, or
+    stops shrinking (the rounding floor, which grows with N), at most MAX_ITER steps."""
 
     def body(carry):
-        y, _, i = carry
+        y, delta, _, i = carry
         y_new = step(y)
-        return y_new, jnp.max(jnp.abs(y_new - y)) / (1 + jnp.max(jnp.abs(y_new))), i + 1
+        return y_new, jnp.max(jnp.abs(y_new - y)) / (1 + jnp.max(jnp.abs(y_new))), delta, i + 1
 
     def cond(carry):
-        _, delta, i = carry
-        return (delta > TOL) & (i < MAX_ITER)
+        _, delta, delta_old, i = carry
+        return (delta > TOL) & (delta < 0.9 * delta_old) & (i < MAX_ITER)
 
-    y, delta, _ = jax.lax.while_loop(cond, body, (y0, jnp.asarray(jnp.inf, y0.dtype), 0))
+    big, inf = jnp.asarray(1e300, y0.dtype), jnp.asarray(jnp.inf, y0.dtype)
+    y, _, _, _ = jax.lax.while_loop(cond, body, (step(y0), big, inf, 1))
     return y
 
 
