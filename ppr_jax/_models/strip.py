@@ -44,6 +44,8 @@ from .._linalg import solve
 MAX_ITER = 60
 #: converged when an update is below this, relative to 1 + the largest entry
 TOL = 1e-14
+#: below this an update that no longer shrinks is rounding noise
+STALL = 1e-11
 
 
 def stiffness_matrix(N: int) -> np.ndarray:
@@ -88,7 +90,8 @@ def _apply_j0_inv(y, r):
 
 def _iterate(step, y0):
     """Fixed-point iteration y <- step(y) until the update is below TOL relative to 1 + |y|, or
-    stops shrinking (the rounding floor, which grows with N), at most MAX_ITER steps."""
+    below STALL and no longer shrinking (the rounding floor, which grows with N), at most
+    MAX_ITER steps."""
 
     def body(carry):
         y, delta, _, i = carry
@@ -97,7 +100,9 @@ def _iterate(step, y0):
 
     def cond(carry):
         _, delta, delta_old, i = carry
-        return (delta > TOL) & (delta < 0.9 * delta_old) & (i < MAX_ITER)
+        # the stall test only near convergence: far from it an update may grow for a step
+        stalled = (delta < STALL) & (delta >= 0.9 * delta_old)
+        return (delta > TOL) & ~stalled & (i < MAX_ITER)
 
     big, inf = jnp.asarray(1e300, y0.dtype), jnp.asarray(jnp.inf, y0.dtype)
     y, _, _, _ = jax.lax.while_loop(cond, body, (step(y0), big, inf, 1))
