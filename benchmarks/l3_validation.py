@@ -95,8 +95,11 @@ def validation(scene, l3_result, N, t_end, n_out):
     cases = [("L0 rigid", params, "rigid"), ("L1 reduced", params, "reduced"),
              ("L2 double1r", params, "double1r"), ("L1 reduced, strip joint", strip, "reduced"),
              ("L2 double1r, strip joint", strip, "double1r")]
-    if scene == "paper-circle":
-        cases.append((f"L3 (N = {N}) under strip-joint L1 torques", strip, pj.QuasiStaticBeam(N)))
+    # L3 ignores joint_geometry, but the scene's drive does not: under the strip-joint L1's
+    # torques (paper-circle) or inverse-kinematics angles (servo-circle), the reference for the
+    # strip-joint models
+    drive = "torques" if scene == "paper-circle" else "angles"
+    cases.append((f"L3 (N = {N}) under strip-joint L1 {drive}", strip, pj.QuasiStaticBeam(N)))
     X3 = np.asarray(l3_result.result.X)
     rows, series = [], {"t": np.asarray(l3_result.result.ts).tolist(),
                         f"L3 (N = {N})": e_r(l3_result.result).tolist()}
@@ -111,7 +114,19 @@ def validation(scene, l3_result, N, t_end, n_out):
             run_s=tm["run_s"]))
         series[name] = e_r(r.result).tolist()
         print(scene, json.dumps(rows[-1]), flush=True)
-    return dict(l3_metrics=l3m, models=rows), series
+    return dict(l3_metrics=l3m, models=rows, radial_error_series_m=series), series
+
+
+_static = None
+
+
+def _static_eq(model, p, z, w):
+    global _static
+    if _static is None:  # compiled (eager, the Newton iteration costs minutes at N = 32)
+        import equinox as eqx
+        _static = eqx.filter_jit(
+            lambda m, p, z, w: pj.static_equilibrium(m, p, z, locked=True, wrench=w)[0])
+    return _static(model, p, z, w)
 
 
 def statics_and_modes(N):
@@ -123,8 +138,8 @@ def statics_and_modes(N):
                            (f"L3 (N = {N})", params, pj.QuasiStaticBeam(N))):
         robot = pj.Robot(p)
         z0 = model.coords_from_pose(robot, pj.home_pose(p))
-        z_a, _ = pj.static_equilibrium(model, p, z0, locked=True)
-        z_b, _ = pj.static_equilibrium(model, p, z_a, locked=True, wrench=WRENCH)
+        z_a = _static_eq(model, p, z0, jnp.zeros(3))
+        z_b = _static_eq(model, p, z_a, WRENCH)
         row = dict(model=name, platform_displacement_under_wrench=np.asarray(z_b[:3] - z_a[:3]).tolist())
         for act in ("locked", "free"):
             row[f"modes_{act}_hz"] = np.asarray(pj.modes(model, p, actuators=act).freq_hz).tolist()
@@ -145,11 +160,13 @@ def plot(series_by_scene, path_prefix):
     for scene, series in series_by_scene.items():
         fig, ax = plt.subplots(figsize=(8, 4.5))
         t = np.asarray(series["t"])
+        ref = [k for k in series if k != "t"][0]  # converged L3 under the centre-line drive
         for name, e in series.items():
             if name == "t":
                 continue
             ax.plot(t, 1e3 * np.asarray(e), lw=2.2 if name.startswith("L3") else 1.2,
-                    label=name, color="k" if name.startswith("L3 (") else None)
+                    label=name, color="k" if name == ref else None,
+                    ls="--" if name.startswith("L3") and name != ref else "-")
         ax.set_xlabel("t (s)")
         ax.set_ylabel("radial error e_r (mm)")
         ax.set_title(f"{scene}: every model against converged L3 (quasi-static strips)")
@@ -162,8 +179,31 @@ def plot(series_by_scene, path_prefix):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--speed-only", action="store_true",
+                    help="re-measure part 2 only, into the existing JSON (about 2 min)")
+    ap.add_argument("--plot-only", action="store_true", help="redraw the figures from the JSON")
+    ap.add_argument("--statics-only", action="store_true",
+                    help="re-measure part 3's statics and modes only, into the existing JSON")
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
+    if args.speed_only:
+        path = OUT / "l3_validation.json"
+        res = json.loads(path.read_text())
+        ref = res["convergence_paper-circle"][-2]["metrics"]
+        res["speed"] = speed(16, 7.54, 755, ref)
+        path.write_text(json.dumps(res, indent=1))
+        return
+    if args.plot_only:
+        res = json.loads((OUT / "l3_validation.json").read_text())
+        plot({sc: res[f"validation_{sc}"]["radial_error_series_m"]
+              for sc in ("paper-circle", "servo-circle")}, str(OUT / "l3_validation"))
+        return
+    if args.statics_only:
+        path = OUT / "l3_validation.json"
+        res = json.loads(path.read_text())
+        res["statics_and_modes"] = statics_and_modes(32)
+        path.write_text(json.dumps(res, indent=1))
+        return
     Ns = (4, 8) if args.quick else (4, 8, 16, 32)
     t_end = {"paper-circle": 2.0 if args.quick else 7.54, "servo-circle": 2.0 if args.quick else 7.54}
     t0 = time.time()

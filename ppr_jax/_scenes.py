@@ -39,7 +39,7 @@ SCENES = ("paper-circle", "servo-circle", "modes")
 #: strip thickness of each scene (m): the paper's simulation uses 0.3 mm, its experiment 0.5 mm
 SCENE_THICKNESS = {"paper-circle": 0.3e-3, "servo-circle": 0.5e-3, "modes": 0.3e-3}
 #: default solver per model level (see README, "Solvers")
-DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "tsit5"}
+DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "dopri8"}
 
 
 def scene_params(scene: str, **overrides) -> RobotParams:

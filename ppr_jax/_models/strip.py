@@ -43,7 +43,7 @@ from .._linalg import solve
 #: iterations at most of the strip's equilibrium and of its derivatives' refinement
 MAX_ITER = 60
 #: converged when an update is below this, relative to 1 + the largest entry
-TOL = 1e-14
+TOL = 1e-12
 #: below this an update that no longer shrinks is rounding noise
 STALL = 1e-11
 
