@@ -109,16 +109,25 @@ def test_envelope_forces_match_the_deflection_jacobian(params):
     robot = pj.Robot(p)
     z = m.coords_from_pose(robot, pj.home_pose(p)) + 1e-3 * jnp.sin(jnp.arange(9.0))
     zd = 0.3 * jnp.cos(jnp.arange(9.0))
-    k = m.kinematics(robot, z)
-    Jd = jax.jacfwd(lambda z: m.kinematics(robot, z).deflection)(z)
-    ref = -(Jd.T @ (m.stiffness(robot) * k.deflection)) - p.c_spring * (Jd.T @ (Jd @ zd))
-    Q = m.spring_force(robot, z, zd, k)
+
+    @jax.jit  # one compilation instead of op-by-op dispatch through the inner iterations
+    def both(z, zd):
+        k = m.kinematics(robot, z)
+        Jd = jax.jacfwd(lambda z: m.kinematics(robot, z).deflection)(z)
+        ref = -(Jd.T @ (m.stiffness(robot) * k.deflection)) - p.c_spring * (Jd.T @ (Jd @ zd))
+        return m.spring_force(robot, z, zd, k), ref
+
+    Q, ref = both(z, zd)
     np.testing.assert_allclose(Q, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+
     # and its derivative (the stiffness matrix) through the implicit shape
-    K = jax.jacfwd(lambda z: m.spring_force(robot, z, 0 * zd, m.kinematics(robot, z)))(z)
+    def force(z):
+        return m.spring_force(robot, z, 0 * zd, m.kinematics(robot, z))
+
     v = jnp.sin(jnp.arange(9.0) + 1)
-    fd = fd_jvp(lambda z: m.spring_force(robot, z, 0 * zd, m.kinematics(robot, z)), z, v, h=1e-7)
-    np.testing.assert_allclose(K @ v, fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+    Kv = jax.jit(lambda z: jax.jvp(force, (z,), (v,))[1])(z)
+    fd = fd_jvp(jax.jit(force), z, v, h=1e-7)
+    np.testing.assert_allclose(Kv, fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
 
 
 def test_unreachable_strip_is_reported(params):
@@ -171,11 +180,16 @@ def test_damping_derivative_in_c_spring_at_zero(params):
         robot = pj.Robot(params.replace(c_spring=c))
         return m.spring_force(robot, z, zd, m.kinematics(robot, z))
 
-    robot = pj.Robot(params)
-    Jd = jax.jacfwd(lambda z: m.kinematics(robot, z).deflection)(z)
-    ref = -(Jd.T @ (Jd @ zd))
+    @jax.jit
+    def reference():
+        robot = pj.Robot(params)
+        Jd = jax.jacfwd(lambda z: m.kinematics(robot, z).deflection)(z)
+        return -(Jd.T @ (Jd @ zd))
+
+    ref = reference()
     assert np.abs(np.asarray(ref)).max() > 1e-3
-    np.testing.assert_allclose(jax.jacfwd(Q)(0.0), ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(jax.jit(jax.jacfwd(Q))(0.0), ref, rtol=1e-9, atol=1e-12)
     w = jnp.sin(jnp.arange(9.0))
-    np.testing.assert_allclose(jax.grad(lambda c: w @ Q(c))(0.0), w @ ref, rtol=1e-9)
-    np.testing.assert_allclose((Q(1e-3) - Q(0.0)) / 1e-3, ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(jax.jit(jax.grad(lambda c: w @ Q(c)))(0.0), w @ ref, rtol=1e-9)
+    Qj = jax.jit(Q)
+    np.testing.assert_allclose((Qj(1e-3) - Qj(0.0)) / 1e-3, ref, rtol=1e-9, atol=1e-12)
