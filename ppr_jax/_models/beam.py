@@ -104,6 +104,22 @@ class AbstractBeam(AbstractModel):
         )
         return jnp.tile(one_chain, 3)
 
+    def strip_start(self, robot: Robot, th_a) -> Float[Array, "3 2"]:
+        """P1 (3, 2) (m): where each strip leaves its drive link (at l1 along the link, b_r/2 off
+        its centre line on the inner side), for drive angles th_a (3,)."""
+        return (base_points(robot) + robot.l1 * e(th_a)
+                + robot.sigma * (robot.b_r / 2) * e(th_a + jnp.pi / 2))
+
+    def spring_deflections(self, robot: Robot, th_a, u, th3) -> Float[Array, " m"]:
+        """Spring deflections (3 (N + 1),) (rad), chain-major (clamp half-spring, N - 1 interior
+        springs, clamp half-spring), from the drive angles th_a (3,), the segment angles
+        relative to them u (3, N) and the connecting links' angles th3 (3,)."""
+        sd = robot.sigma * strip_constants(robot, self.n_elements).dtheta
+        d_first = wrap(u[:, 0] - sd / 2)
+        d_mid = jnp.diff(u, axis=1) - sd
+        d_last = wrap(th3 - th_a - u[:, -1] - sd / 2)
+        return jnp.concatenate([d_first[:, None], d_mid, d_last[:, None]], axis=1).reshape(-1)
+
     # -- outputs --------------------------------------------------------------------------------
 
     def chain_points(self, robot, th):
@@ -112,9 +128,7 @@ class AbstractBeam(AbstractModel):
         sc = strip_constants(robot, self.n_elements)
         sig = robot.sigma
         th_a, thetas, th3 = th[:, 0], th[:, 1:-1], th[:, -1]
-        P1 = base_points(robot) + robot.l1 * e(th_a) + (robot.b_r / 2) * sig * e(
-            th_a + jnp.pi / 2
-        )
+        P1 = self.strip_start(robot, th_a)
         P2 = P1 + sc.h * jnp.sum(e(thetas), axis=1)
         Q2 = P2 - sig * (robot.b_r / 2) * e(th3 + jnp.pi / 2)
         return P1, P2, Q2, Q2 + robot.l3 * e(th3)
@@ -195,8 +209,7 @@ class Beam(AbstractBeam):
         X, th_a, phi = self.split(z)
         alpha = jnp.concatenate([jnp.zeros((3, 1)), jnp.cumsum(phi, axis=1)], axis=1)  # (3, N)
         c = sc.h * jnp.sum(e(alpha), axis=1)  # chord in the frame of segment 1 (3, 2)
-        A = base_points(robot)
-        P1 = A + robot.l1 * e(th_a) + (robot.b_r / 2) * sig * e(th_a + jnp.pi / 2)
+        P1 = self.strip_start(robot, th_a)
         g = jnp.stack([robot.l3, -sig * robot.b_r / 2])
         arg_g = jnp.arctan2(g[1], g[0])
         E = platform_points(robot, X)
@@ -220,9 +233,9 @@ class Beam(AbstractBeam):
 
     def kinematics(self, robot, z):
         N = self.n_elements
-        X, th_a, phi = self.split(z)
+        X, th_a, _ = self.split(z)
         ch = self._chains(robot, z)
-        sc, th, nodes = ch["sc"], ch["th"], ch["nodes"]
+        th, nodes = ch["th"], ch["nodes"]
         thetas, th3 = th[:, 1:-1], th[:, -1]
         A = base_points(robot)
         p1 = A + (robot.l1 / 2) * e(th_a)
@@ -230,11 +243,7 @@ class Beam(AbstractBeam):
         p3 = ch["Q2"] + (robot.l3 / 2) * e(th3)
         p = jnp.concatenate([p1, pseg.reshape(3 * N, 2), p3, X[None, :2]], axis=0)
         ang = jnp.concatenate([th_a, thetas.reshape(-1), th3, X[2:3]])
-        sig = robot.sigma
-        d_first = wrap(thetas[:, 0] - th_a - sig * sc.dtheta / 2)
-        d_mid = phi - sig * sc.dtheta
-        d_last = wrap(th3 - thetas[:, -1] - sig * sc.dtheta / 2)
-        deflection = jnp.concatenate([d_first[:, None], d_mid, d_last[:, None]], axis=1).reshape(-1)
+        deflection = self.spring_deflections(robot, th_a, thetas - th_a[:, None], th3)
         return Kin(X=X, th=th, body_p=p, body_ang=ang, deflection=deflection, th_a=th_a,
                    margin=ch["margin"])
 

@@ -68,7 +68,7 @@ class QuasiStaticBeam(AbstractBeam):
         """(P1 (3, 2), P2 (3, 2)) the strips' start and end points (m) at coordinates z."""
         X, th_a, th3 = z[:3], z[3:6], z[6:9]
         sig = robot.sigma
-        P1 = base_points(robot) + robot.l1 * e(th_a) + sig * (robot.b_r / 2) * e(th_a + jnp.pi / 2)
+        P1 = self.strip_start(robot, th_a)
         Q2 = platform_points(robot, X) - robot.l3 * e(th3)
         P2 = Q2 + sig * (robot.b_r / 2) * e(th3 + jnp.pi / 2)
         return P1, P2
@@ -96,7 +96,7 @@ class QuasiStaticBeam(AbstractBeam):
         thetas = th_a[:, None] + u
         P1, P2 = self.clamps(robot, z)
         p, ang, _, _ = self.bodies(robot, z)
-        deflection = self._deflections(robot, u, th_a, th3)
+        deflection = self.spring_deflections(robot, th_a, u, th3)
         th = jnp.concatenate([th_a[:, None], thetas, th3[:, None]], axis=1)
         reach = 1 - jnp.linalg.norm(P2 - P1, axis=-1) / (N * sc.h)
         margin = jnp.where(err <= STRIP_TOL, reach, -1.0)
@@ -128,21 +128,13 @@ class QuasiStaticBeam(AbstractBeam):
                         CCt[:, 0, 0] * Cg[:, 1] - CCt[:, 1, 0] * Cg[:, 0]], axis=-1) / det[:, None]
 
         def lagrangian(zz):
-            d = self._deflections(robot, u, zz[3:6], zz[6:9])
+            d = self.spring_deflections(robot, zz[3:6], u, zz[6:9])
             U = 0.5 * jnp.sum(self.stiffness(robot) * d**2)
             return U - sc.k_in * jnp.sum(mu * (-self._strip_gap(robot, zz) / sc.h))
 
         Q = -jax.grad(lagrangian)(z)
 
         return Q + _strip_damping(self, robot, z, zdot)
-
-    def _deflections(self, robot, u, th_a, th3):
-        """Spring deflections (3 (N + 1),) from shapes u (3, N) and the clamp angles."""
-        sd = robot.sigma * strip_constants(robot, self.n_elements).dtheta
-        d_first = u[:, 0] - sd / 2
-        d_mid = jnp.diff(u, axis=1) - sd
-        d_last = wrap(th3 - th_a - u[:, -1] - sd / 2)
-        return jnp.concatenate([d_first[:, None], d_mid, d_last[:, None]], axis=1).reshape(-1)
 
     def _strip_gap(self, robot, z):
         """d (3, 2): the end clamp's position P2 - P1 in the start clamp's frame (m)."""
