@@ -65,6 +65,7 @@ from ._robot import Robot
 from ._scenes import _kinematic_motion, scene_params
 from ._simulate import _simulate_core, get_solver
 from ._statics import _quasi_static_state
+from ._tabulated import scene_input
 from ._trajectory import Circle, Interpolated
 
 LOSSES = ("linear", "huber", "cauchy")
@@ -150,10 +151,12 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau):
             X, _, _, codes = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
             ok = jnp.all(codes == 0)
             return X, ok
-        act = MotionDriven(angles)
+        # As the scenes take their input (tabulated for L2/L3), so that a fit of a scene's
+        # output runs the scene's own program.
+        act = MotionDriven(scene_input(model, angles, ts, 2))
     else:
-        torque = (InverseDynamicsTorque(Reduced(), base_robot, traj) if tau is None
-                  else Interpolated(ts, tau))
+        torque = (scene_input(model, InverseDynamicsTorque(Reduced(), base_robot, traj), ts, 1)
+                  if tau is None else Interpolated(ts, tau))
         act = TorqueDriven(torque)
     # The status-returning form: a failure is a flag of the compiled program, not a callback.
     z0, zd0, qs_failed = _quasi_static_state(model, robot, traj, ts[0], act)
@@ -400,7 +403,7 @@ def identify(
     max_iter: int = 50,
     xtol: float = 1e-8,
     ftol: float = 1e-10,
-    stat_tol: float = 1e-3,
+    stat_tol: float = 1e-2,
     ode_solver=None,
     rtol: float = 1e-8,
     atol: float = 1e-10,

@@ -33,6 +33,7 @@ from ._params import RobotParams, params_invalid
 from ._robot import Robot
 from ._simulate import Solution, _simulate_core, get_solver
 from ._statics import _quasi_static_state
+from ._tabulated import scene_input
 from ._trajectory import Circle, derivatives
 
 SCENES = ("paper-circle", "servo-circle", "modes")
@@ -138,16 +139,26 @@ def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None
     )
 
 
+def _frozen(*flags_and_robot):
+    """A member that failed a precondition (any flag set, or invalid parameters) is frozen."""
+    *flags, robot = flags_and_robot
+    out = params_invalid(robot.params)
+    for f in flags:
+        out = out if f is None else out | f
+    return out
+
+
 def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller, max_steps,
                        adjoint):
-    act = TorqueDriven(InverseDynamicsTorque(torque_model, robot, traj))
+    act = TorqueDriven(scene_input(model, InverseDynamicsTorque(torque_model, robot, traj),
+                                    ts, 1))
     z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
     open0 = _open_at(model, robot, z0)
     ref_open = _reference_open(torque_model, robot, traj, ts)
     sol = _simulate_core(
         model, robot, act, z0, zd0, ts, solver, controller, None, max_steps,
         jnp.zeros(3), False, diffrax.NoProgressMeter(), adjoint,
-        failed | open0 | ref_open | params_invalid(robot.params),
+        _frozen(failed, open0, ref_open, robot),
     )
     return _result("paper-circle", model, robot, traj, sol, failed, open0, ref_open)
 
@@ -188,13 +199,14 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, ad
             num_rejected=zero,
         )
     else:
-        act = MotionDriven(angles)
+        # th, th' and th'' at every stage: quintic Hermite from the table (`_tabulated`).
+        act = MotionDriven(scene_input(model, angles, ts, 2))
         z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
         open0 = _open_at(model, robot, z0)
         sol = _simulate_core(
             model, robot, act, z0, zd0, ts, solver, controller, None, max_steps, jnp.zeros(3),
             False, diffrax.NoProgressMeter(), adjoint,
-            failed | open0 | ref_open | params_invalid(robot.params),
+            _frozen(failed, open0, ref_open, robot),
         )
         return _result("servo-circle", model, robot, traj, sol, failed, open0, ref_open)
     return _result("servo-circle", model, robot, traj, sol, ref_open=ref_open)

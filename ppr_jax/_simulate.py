@@ -110,6 +110,18 @@ def _accel(model, robot, actuation, wrench, t, zf, zfd):
     return z, zd, zdd, tau
 
 
+def _outputs(model, robot, actuation, wrench, t, zf, zfd):
+    """(z, z', tau) at an output time: torque-driven, tau is the actuation's own (kinematics
+    and its rate only: no mass matrix, which at every output time would cost as much as a
+    fifth of the integration); motion-driven, the reaction torques need the dynamics."""
+    free, pres = _split(model, actuation)
+    if pres:
+        z, zd, _, tau = _accel(model, robot, actuation, wrench, t, zf, zfd)
+        return z, zd, tau
+    k, kd = jax.jvp(lambda z: model.kinematics(robot, z), (zf,), (zfd,))
+    return zf, zfd, actuation.torque_at(t, k.th_a, kd.th_a)
+
+
 @eqx.filter_jit
 def _simulate_core(
     model, robot, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0, max_steps, wrench,
@@ -135,8 +147,8 @@ def _simulate_core(
         max_steps=max_steps, throw=throw, progress_meter=progress_meter,
         adjoint=diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
     )
-    z, zd, _, tau = jax.vmap(
-        lambda t, a, b: _accel(model, robot, actuation, wrench, t, a, b)
+    z, zd, tau = jax.vmap(
+        lambda t, a, b: _outputs(model, robot, actuation, wrench, t, a, b)
     )(sol.ts, *sol.ys)
     # A status code, not a host callback: invalid (traced) parameters name themselves.
     result = first_failure((params_invalid(robot.params), RESULTS.invalid_parameter),
