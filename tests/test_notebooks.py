@@ -14,7 +14,7 @@ NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path):
-    env = dict(os.environ, PPR_NOTEBOOK_SMALL="1", MPLBACKEND="Agg")
+    env = dict(os.environ, PPR_NOTEBOOK_SMALL="1", MPLBACKEND="Agg", PPR_REPO=str(ROOT))
     proc = subprocess.run(
         [sys.executable, str(ROOT / "scripts" / "run_notebook.py"), str(path)],
         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900,

@@ -1,0 +1,1 @@
+"""Other simulators running the library's scenes, for the benchmark suite's comparisons."""

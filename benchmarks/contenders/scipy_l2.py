@@ -1,0 +1,475 @@
+"""The L2 (`double1r`) robot on the `paper-circle` scene in plain NumPy and
+`scipy.integrate.solve_ivp`: what a user would write without this library, as a contender for
+the benchmark suite and as an independent second formulation of L2 to check the library against.
+
+Formulation (MODEL.md sections 1-5; written from the model description, not from the library's
+code, which integrates 6 independent coordinates with closed-form loop closure and Kane's
+projection):
+
+- 12 absolute coordinates q = (th_11, th_12, th_13, th_21, ..., th_33, x, y, phi) (eq 38), chain
+  angles from the x axis (rad), platform pose (m, m, rad); state y = (q, q') (24,).
+- Bodies (section 5): drive link (mass m1, central inertia I1 + J_rotor, COM l1/2 along its centre
+  line, which is the chain angle th_i1 less sigma*delta1), pseudo-link (m2, I2 = m2 r2^2/12, COM
+  at r2/2 from B_i), connecting link (m3, I3, COM l3/2 back from E_i along its centre line, at
+  th_i3 + sigma*delta3), platform (m4, I4, COM at (x, y)). delta1 = delta3 = 0 on the centre
+  lines (the default `joint_geometry`); the `strip` geometry (section 3a) only changes r1, r3 and
+  these constant offsets, so it is supported by the same formulas.
+- Mass matrix M(q) from T = sum_b (m_b |p_b'|^2 + I_b a_b'^2)/2 in closed form: block diagonal,
+  one 3x3 block per chain whose entries are mu_jk cos(angle differences), and diag(m4, m4, I4)
+  for the platform; the velocity terms h(q, q') = dM/dt q' - dT/dq follow from the same sums
+  with sin instead of cos (derivation in `L2Model.rhs`).
+- Springs U = (K/2) sum_i (d_i1^2 + d_i2^2) with d_i1 = (th_i2 - th_i1) - sigma (psi0 - delta1),
+  d_i2 = (th_i3 - th_i2) - sigma (psi0 - delta3) (linear in q, no angle wrapping needed since
+  absolute angles are continuous), their viscous damping c_spring, actuator friction c_act and the
+  actuator torque tau_i on th_i1 (all generalized forces are exact gradients, no Jacobian).
+- The 6 loop closures g_i(q) = A_i + r1 e(th_i1) + r2 e(th_i2) + r3 e(th_i3) - (x, y)
+  - rho_E e(beta_i + phi) = 0 (eq 12) by Lagrange multipliers in index-1 form:
+
+      [ M  G^T ] [ q'' ]   [ Q - h                                  ]
+      [ G   0  ] [ lam ] = [ -G' q' - 2 alpha G q' - alpha^2 g(q)   ],
+
+  an 18 x 18 dense solve per right-hand side, with Baumgarte stabilisation (critically damped,
+  rate `alpha`): the constraint error obeys g'' + 2 alpha g' + alpha^2 g = 0, so the drift that
+  integration errors feed into g decays at rate alpha instead of growing linearly/quadratically
+  as it can in the plain index-1 form. On the constraint manifold the added terms vanish, so
+  the solution is L2's exactly. `BAUMGARTE_ALPHA` = 20 1/s: a decay time of 50 ms, short against
+  the 7.54 s scene, and below the fastest physical rate of L2 on this scene (about 88 rad/s, the
+  largest eigenvalue of the right-hand side's Jacobian at t = 0: nearly undamped oscillatory
+  pairs at 66, 77 and 88 rad/s), so it neither limits the explicit solver's step nor stiffens
+  the implicit ones. Measured on paper-circle (DOP853, 7.54 s): the plain index-1 form
+  (alpha = 0) drifts no further (largest residual 4e-9 / 3e-11 / 9e-13 m at rtol 1e-4 / 1e-6 /
+  1e-8, against 6e-9 / 5e-11 / 1e-12 m with alpha = 20): over one turn the drift stays at the
+  tolerance, so the stabilisation is insurance for longer runs rather than a correction this
+  scene needs. A projection onto the manifold is not available inside `solve_ivp` (no step
+  callback), which is why stabilisation, not projection, is used.
+
+Inputs taken from the library (only data, never its dynamics):
+- parameters and derived quantities: `ppr_jax.derived(params)` (PRB joint, masses);
+- the scene's torques: L1 inverse dynamics along eq 55 (`ppr_jax.InverseDynamicsTorque` with the
+  `reduced` model, as the scene builds them), evaluated once in JAX on a uniform grid of step
+  `TORQUE_DT` = 1 ms over [0, t_end + 10 ms] and interpolated by a not-a-knot cubic spline. Its
+  error is measured on every run at the grid's midpoints against the exact torques (about 6e-15
+  N m against torques of 0.11 N m: rounding level) and returned as `torque_spline_max_err`.
+  Evaluating L1's inverse dynamics in NumPy would be a third model to maintain; the torques are
+  the scene's input, not the model under test.
+- the initial state: the library's L2 quasi-static state at t = 0 (positions and velocities,
+  `ppr_jax.quasi_static_state`, the same function the scene calls), or a given (z0, z0') in the
+  library's coordinates (x, y, phi, th_a1..3) such as the first state of a library solution.
+  It is converted to absolute coordinates by closing each chain (two-link (r2, r3) problem on
+  the elbow branch sigma) and solving the loop-closure velocity equations for th_i2', th_i3'.
+
+Jacobian for the implicit methods (Radau, LSODA): forward finite differences, all 24 columns in
+one vectorised right-hand side call (the right-hand side takes y of shape (24,) or (24, k)),
+steps sqrt(eps) max(|y_j|, 1). An analytic Jacobian of the KKT solve is possible but is not what
+a user would write; the finite-difference one is accurate to ~1e-8 relative, which is all a
+Newton iteration needs.
+
+`run(...)` returns the platform pose at the output times, the timing and the solver counts; see
+its docstring for what is timed.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.interpolate import CubicSpline
+
+#: Baumgarte rate (1/s), critically damped: see the module docstring
+BAUMGARTE_ALPHA = 20.0
+#: grid step (s) of the tabulated scene torques (spline error ~ dt^4: 6e-15 N m at 1 ms)
+TORQUE_DT = 1e-3
+#: margin (s) of the torque grid past t_end (the solvers never step past t_end; this is safety)
+TORQUE_PAD = 1e-2
+#: relative finite-difference step of the Jacobian (sqrt of float64 epsilon)
+FD_REL = float(np.sqrt(np.finfo(float).eps))
+#: platform joint directions beta_i (MODEL.md section 2)
+BETA = np.array([7 * np.pi / 6, -np.pi / 6, np.pi / 2])
+#: methods `run` supports and whether they take a Jacobian
+METHODS = {"DOP853": False, "Radau": True, "LSODA": True}
+
+
+# ---------------------------------------------------------------------------------------------
+# Scene input: the torques
+# ---------------------------------------------------------------------------------------------
+
+
+def TorqueSpline(ts, taus):
+    """Not-a-knot cubic spline t -> tau (3,) (N m) of torques taus (m, 3) tabulated at
+    increasing times ts (m,) (s): scipy's `CubicSpline` (about 6 us per scalar call, a few
+    percent of the right-hand side)."""
+    return CubicSpline(np.asarray(ts, float), np.asarray(taus, float), axis=0)
+
+
+_TORQUE_GRID = None
+
+
+def scene_torque(params, t_end, dt=TORQUE_DT):
+    """The paper-circle torques (L1 inverse dynamics along eq 55, as `ppr_jax`'s scene builds
+    them) on a grid of step `dt` over [0, t_end + TORQUE_PAD], as a `TorqueSpline`, and the
+    spline's largest error (N m) at the grid's midpoints against the exact torques. One JAX
+    compilation (grid and midpoints in one array)."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    import ppr_jax as pj
+
+    global _TORQUE_GRID
+    if _TORQUE_GRID is None:  # one jitted function, so repeated calls hit the compilation cache
+        _TORQUE_GRID = eqx.filter_jit(lambda f, t: jax.vmap(f)(t))
+    robot = pj.Robot(params)
+    fn = pj.InverseDynamicsTorque(pj.Reduced(), robot, pj.Circle())
+    n = int(np.ceil((t_end + TORQUE_PAD) / dt))
+    ts = np.arange(n + 1) * dt
+    mid = ts[:-1] + dt / 2
+    taus = np.asarray(_TORQUE_GRID(fn, jnp.asarray(np.concatenate([ts, mid]))))
+    spline = TorqueSpline(ts, taus[: n + 1])
+    err = float(np.max(np.abs(spline(mid) - taus[n + 1:])))
+    return spline, err
+
+
+def library_initial_state(params):
+    """The library's L2 quasi-static initial state (z0, z0') at t = 0 of paper-circle, in its
+    coordinates z = (x, y, phi, th_a1, th_a2, th_a3) (the scene's own function and inputs)."""
+    import ppr_jax as pj
+
+    robot = pj.Robot(params)
+    act = pj.TorqueDriven(pj.InverseDynamicsTorque(pj.Reduced(), robot, pj.Circle()))
+    z0, zd0 = pj.quasi_static_state(pj.Double1R(), robot, pj.Circle(), 0.0, act)
+    return np.asarray(z0, dtype=float), np.asarray(zd0, dtype=float)
+
+
+# ---------------------------------------------------------------------------------------------
+# The model
+# ---------------------------------------------------------------------------------------------
+
+
+class L2Model:
+    """L2 in absolute coordinates with Lagrange multipliers (module docstring).
+
+    `params`: a `ppr_jax.RobotParams` (only its numbers are used); `torque`: a callable t -> (3,)
+    actuator torques (N m); `alpha`: Baumgarte rate (1/s); `with_work`: append the actuators' and
+    dampers' net work W (J) as a 25th state (W' = tau . th_i1' - friction and damping power), for
+    the energy balance T + U - (T + U)(0) = W."""
+
+    def __init__(self, params, torque, alpha=BAUMGARTE_ALPHA, with_work=False):
+        import ppr_jax as pj
+
+        dv = pj.derived(params)
+        f = lambda v: float(np.asarray(v))  # noqa: E731
+        self.torque = torque
+        self.alpha = float(alpha)
+        self.with_work = bool(with_work)
+        self.n = 25 if with_work else 24
+        sig = float(params.sigma)
+        self.sigma = sig
+        a = f(params.a)
+        self.A = np.array([[0.0, 0.0], [a, 0.0], [a / 2, np.sqrt(3.0) * a / 2]])  # (3, 2)
+        self.r1, self.r2, self.r3 = f(dv.r1), f(dv.r2), f(dv.r3)
+        self.rhoE = f(dv.rho_E)
+        self.K = f(dv.K)
+        self.c_s, self.c_a = f(params.c_spring), f(params.c_act)
+        self.delta1, self.delta3 = f(dv.delta1), f(dv.delta3)
+        self.rest1 = sig * (f(dv.psi0) - self.delta1)  # spring rest turns (rad)
+        self.rest2 = sig * (f(dv.psi0) - self.delta3)
+        l1, l3 = f(params.l1), f(params.l3)
+        m1, m2, m3, m4 = f(dv.m1), f(dv.m2), f(dv.m3), f(dv.m4)
+        I1 = f(dv.I1) + f(params.J_rotor)
+        I2, I3, I4 = f(dv.I2), f(dv.I3), f(dv.I4)
+        r1, r2, r3 = self.r1, self.r2, self.r3
+        # The connecting link's COM seen from D_i: r3 e(th3) - (l3/2) e(th3 + d), d = sigma delta3,
+        # = rho3 e(th3) - kap3 n(th3) with rho3 = r3 - (l3/2) cos d, kap3 = (l3/2) sin d
+        # (n(a) = e(a + pi/2)); on the centre lines rho3 = s + l3/2 (MODEL.md's r_dc), kap3 = 0.
+        d = sig * self.delta3
+        self.rho3 = r3 - (l3 / 2) * np.cos(d)
+        self.kap3 = (l3 / 2) * np.sin(d)
+        # Constant entries of each chain's 3x3 mass block (the drive link turns about A_i; its COM
+        # distance l1/2 is unchanged by the offset delta1).
+        self.M11 = m1 * (l1 / 2) ** 2 + I1 + (m2 + m3) * r1**2
+        self.M22 = m2 * (r2 / 2) ** 2 + I2 + m3 * r2**2
+        self.M33 = m3 * (self.rho3**2 + self.kap3**2) + I3
+        self.mu12 = (m2 / 2 + m3) * r1 * r2
+        self.a13, self.b13 = m3 * r1 * self.rho3, m3 * r1 * self.kap3
+        self.a23, self.b23 = m3 * r2 * self.rho3, m3 * r2 * self.kap3
+        # The 18 x 18 KKT template: constants once, the q-dependent entries written per call.
+        T = np.zeros((18, 18))
+        for i in range(3):
+            T[3 * i, 3 * i], T[3 * i + 1, 3 * i + 1], T[3 * i + 2, 3 * i + 2] = (
+                self.M11, self.M22, self.M33)
+            T[12 + 2 * i, 9] = T[9, 12 + 2 * i] = -1.0  # d g_ix / dx
+            T[13 + 2 * i, 10] = T[10, 13 + 2 * i] = -1.0  # d g_iy / dy
+        T[9, 9], T[10, 10], T[11, 11] = m4, m4, I4
+        self.kkt0 = T
+        # (row, column) of the 33 q-dependent entries in `_kkt`'s order: M12, M13, M23 per chain,
+        # d g_ix / d th_ij, d g_iy / d th_ij (chain-major), d g_ix / d phi, d g_iy / d phi
+        ch = np.arange(3)
+        gq = (3 * ch[:, None] + np.arange(3)[None, :]).ravel()
+        gx = np.repeat(12 + 2 * ch, 3)
+        self.kr = np.concatenate([3 * ch, 3 * ch, 3 * ch + 1, gx, gx + 1, 12 + 2 * ch,
+                                  13 + 2 * ch])
+        self.kc = np.concatenate([3 * ch + 1, 3 * ch + 2, 3 * ch + 2, gq, gq, np.full(3, 11),
+                                  np.full(3, 11)])
+        self.rj = np.array([r1, r2, r3])[None, :, None]  # (1, 3 links, 1)
+        self.jac_columns = 0  # right-hand side columns evaluated by `jac` (a counter)
+
+    # -- kinematics -------------------------------------------------------------------------
+
+    def constraints(self, q):
+        """Loop-closure residuals g (3, 2, k) (m) at q (12, k)."""
+        th = q[:9].reshape(3, 3, -1)
+        rj = self.rj
+        ex = self.A[:, 0, None] + np.sum(rj * np.cos(th), axis=1)
+        ey = self.A[:, 1, None] + np.sum(rj * np.sin(th), axis=1)
+        ap = BETA[:, None] + q[11]
+        return np.stack([ex - q[9] - self.rhoE * np.cos(ap), ey - q[10] - self.rhoE * np.sin(ap)],
+                        axis=1)
+
+    def deflections(self, q):
+        """Spring deflections (d_i1, d_i2) (3, 2, k) (rad)."""
+        th = q[:9].reshape(3, 3, -1)
+        return np.stack([th[:, 1] - th[:, 0] - self.rest1, th[:, 2] - th[:, 1] - self.rest2],
+                        axis=1)
+
+    def mass_matrix(self, q):
+        """The 12 x 12 mass matrix M(q) (k, 12, 12) at q (12, k) (the KKT's upper-left block)."""
+        return self._kkt(q[:9].reshape(3, 3, -1), q[11])[0][:, :12, :12]
+
+    def _kkt(self, th, phi):
+        """The KKT matrix (k, 18, 18) at chain angles th (3, 3, k) and platform angle phi (k,),
+        and the trigonometric terms the right-hand side reuses. The 33 entries that depend on q
+        (the chain blocks' off-diagonals, G's angle columns) are written by one indexed
+        assignment per triangle into a copy of the constant template."""
+        k = th.shape[2]
+        c, s = np.cos(th), np.sin(th)
+        c1, c2, c3 = c[:, 0], c[:, 1], c[:, 2]
+        s1, s2, s3 = s[:, 0], s[:, 1], s[:, 2]
+        C12, S12 = c1 * c2 + s1 * s2, s1 * c2 - c1 * s2  # cos, sin (th1 - th2)
+        C13, S13 = c1 * c3 + s1 * s3, s1 * c3 - c1 * s3
+        C23, S23 = c2 * c3 + s2 * s3, s2 * c3 - c2 * s3
+        ap = BETA[:, None] + phi
+        cp, sp = np.cos(ap), np.sin(ap)
+        vals = np.empty((33, k))
+        vals[0:3] = self.mu12 * C12  # M12
+        vals[3:6] = self.a13 * C13 - self.b13 * S13  # M13 = m3 r1 A13
+        vals[6:9] = self.a23 * C23 - self.b23 * S23  # M23 = m3 r2 A23
+        rc, rs = self.rj * c, self.rj * s  # r_j e(th_ij) components
+        vals[9:18] = -rs.reshape(9, k)  # d g_ix / d th_ij
+        vals[18:27] = rc.reshape(9, k)  # d g_iy / d th_ij
+        vals[27:30] = self.rhoE * sp  # d g_ix / d phi
+        vals[30:33] = -self.rhoE * cp  # d g_iy / d phi
+        KKT = np.repeat(self.kkt0[None], k, axis=0)
+        v = vals.T
+        KKT[:, self.kr, self.kc] = v
+        KKT[:, self.kc, self.kr] = v
+        H12 = self.mu12 * S12  # the velocity terms' coefficients (`rhs`)
+        H13 = self.a13 * S13 + self.b13 * C13  # m3 r1 B13
+        H23 = self.a23 * S23 + self.b23 * C23  # m3 r2 B23
+        return KKT, c, s, rc, rs, cp, sp, H12, H13, H23
+
+    def energy(self, y):
+        """(kinetic, spring) energy (J) at states y (n,) or (n, k)."""
+        Y = y.reshape(y.shape[0], -1)
+        q, qd = Y[:12], Y[12:24]
+        M = self.mass_matrix(q)
+        T = 0.5 * np.einsum("ik,kij,jk->k", qd, M, qd)
+        U = 0.5 * self.K * np.sum(self.deflections(q) ** 2, axis=(0, 1))
+        return (T, U) if y.ndim == 2 else (T[0], U[0])
+
+    # -- dynamics ---------------------------------------------------------------------------
+
+    def rhs(self, t, y):
+        """y' = (q', q'') at time t for y (n,) or (n, k) (vectorised over the columns).
+
+        Per chain, with angles th1..th3, rates w1..w3 and the body COMs
+          p1 = A + (l1/2) e(th1 - sigma delta1),  p2 = A + r1 e(th1) + (r2/2) e(th2),
+          p3 = A + r1 e(th1) + r2 e(th2) + rho3 e(th3) - kap3 n(th3),
+        T = sum m |p'|^2/2 + I w^2/2 gives M_jk = sum_b m_b (dp_b/dth_j).(dp_b/dth_k) + I:
+          M11 = m1 (l1/2)^2 + I1 + (m2 + m3) r1^2, M22 = m2 (r2/2)^2 + I2 + m3 r2^2,
+          M33 = m3 (rho3^2 + kap3^2) + I3, M12 = (m2/2 + m3) r1 r2 cos(th1 - th2),
+          M13 = m3 r1 A13, M23 = m3 r2 A23, A_j3 = rho3 cos(th_j - th3) - kap3 sin(th_j - th3),
+        and the velocity terms h_j = sum_b m_b (dp_b/dth_j).(p_b'' at zero q''):
+          h1 = mu12 sin(th1 - th2) w2^2 + m3 r1 B13 w3^2,
+          h2 = -mu12 sin(th1 - th2) w1^2 + m3 r2 B23 w3^2,
+          h3 = -m3 r1 B13 w1^2 - m3 r2 B23 w2^2,  B_j3 = rho3 sin(th_j - th3) + kap3 cos(th_j - th3)
+        (the platform's M = diag(m4, m4, I4), h = 0; its COM is the pose). The constraint rows:
+          G q'' = sum_j r_j w_j^2 e(th_j) - rho_E phi'^2 e(beta + phi) - 2 alpha G q' - alpha^2 g,
+        g = A + sum_j r_j e(th_j) - (x, y) - rho_E e(beta + phi), G q' = sum_j r_j w_j n(th_j)
+        - (x', y') - rho_E phi' n(beta + phi), collected per term below.
+        """
+        vec = y.ndim == 2
+        Y = y if vec else y[:, None]
+        k = Y.shape[1]
+        th = Y[:9].reshape(3, 3, k)
+        w = Y[12:21].reshape(3, 3, k)
+        KKT, c, s, rc, rs, cp, sp, H12, H13, H23 = self._kkt(th, Y[11])
+        w1, w2, w3 = w[:, 0], w[:, 1], w[:, 2]
+        w1s, w2s, w3s = w1 * w1, w2 * w2, w3 * w3
+        # generalized forces Q (springs, their damping, actuator torque and friction) less h
+        f1 = self.K * (th[:, 1] - th[:, 0] - self.rest1)  # spring moment of pivot 1 (N m)
+        f2 = self.K * (th[:, 2] - th[:, 1] - self.rest2)
+        if self.c_s:
+            f1 = f1 + self.c_s * (w2 - w1)
+            f2 = f2 + self.c_s * (w3 - w2)
+        tau = self.torque(t)[:, None]
+        b = np.zeros((18, k))
+        b[0:9:3] = f1 + tau - H12 * w2s - H13 * w3s
+        if self.c_a:
+            b[0:9:3] -= self.c_a * w1
+        b[1:9:3] = f2 - f1 + H12 * w1s - H23 * w3s
+        b[2:9:3] = H13 * w1s + H23 * w2s - f2
+        # constraint rows: sum_j r_j [(w_j^2 - al^2) e(th_j) - 2 al w_j n(th_j)]
+        #   - rho_E [(phi'^2 - al^2) e(beta + phi) - 2 al phi' n(beta + phi)]
+        #   + 2 al (x', y') + al^2 ((x, y) - A)
+        al = self.alpha
+        u, v = w * w - al * al, 2 * al * w
+        px = u * rc + v * rs
+        py = u * rs - v * rc
+        wp = Y[23]
+        up, vp = self.rhoE * (wp * wp - al * al), 2 * al * self.rhoE * wp
+        b[12::2] = (px[:, 0] + px[:, 1] + px[:, 2] - up * cp - vp * sp
+                    + 2 * al * Y[21] + al * al * (Y[9] - self.A[:, 0, None]))
+        b[13::2] = (py[:, 0] + py[:, 1] + py[:, 2] - up * sp + vp * cp
+                    + 2 * al * Y[22] + al * al * (Y[10] - self.A[:, 1, None]))
+        if k == 1:
+            sol = np.linalg.solve(KKT[0], b)
+        else:
+            sol = np.linalg.solve(KKT, b.T[:, :, None])[:, :, 0].T
+        out = np.empty((self.n, k))
+        out[:12] = Y[12:24]
+        out[12:24] = sol[:12]
+        if self.with_work:
+            out[24] = (np.sum(tau * w1, axis=0) - self.c_a * np.sum(w1s, axis=0)
+                       - self.c_s * np.sum((w2 - w1) ** 2 + (w3 - w2) ** 2, axis=0))
+        return out if vec else out[:, 0]
+
+    def jac(self, t, y):
+        """d y'/d y (n, n) by forward differences, all columns in one vectorised call (module
+        docstring)."""
+        n = y.shape[0]
+        hstep = FD_REL * np.maximum(np.abs(y), 1.0)
+        Y = np.empty((n, n + 1))
+        Y[:, 0] = y
+        Y[:, 1:] = y[:, None] + np.diag(hstep)
+        hstep = np.diag(Y[:, 1:]) - y  # the steps as represented
+        F = self.rhs(t, Y)
+        self.jac_columns += n + 1
+        return (F[:, 1:] - F[:, :1]) / hstep[None, :]
+
+    # -- initial state ----------------------------------------------------------------------
+
+    def state_from_library(self, z, zdot):
+        """State y (n,) from the library's coordinates z = (x, y, phi, th_a1..3) and rates:
+        th_i1 = th_ai + sigma delta1; th_i2, th_i3 close each chain from B_i to E_i (two links
+        r2, r3, elbow branch sign(th_i3 - th_i2) = sigma, angles kept within pi of th_i1);
+        th_i2', th_i3' from the closure's velocity equations (2 x 2 per chain)."""
+        z, zdot = np.asarray(z, float), np.asarray(zdot, float)
+        X, Xd = z[:3], zdot[:3]
+        th1 = z[3:] + self.sigma * self.delta1
+        w1 = zdot[3:]
+        e = lambda a: np.stack([np.cos(a), np.sin(a)], axis=-1)  # noqa: E731
+        nrm = lambda a: np.stack([-np.sin(a), np.cos(a)], axis=-1)  # noqa: E731
+        ap = BETA + X[2]
+        E = X[:2] + self.rhoE * e(ap)
+        dvec = E - (self.A + self.r1 * e(th1))
+        dd = np.sum(dvec**2, axis=-1)
+        cosd = (dd - self.r2**2 - self.r3**2) / (2 * self.r2 * self.r3)
+        if np.any(np.abs(cosd) >= 1):
+            raise ValueError("initial pose out of reach of a chain")
+        delta = self.sigma * np.arccos(cosd)
+        th2 = np.arctan2(dvec[:, 1], dvec[:, 0]) - np.arctan2(
+            self.r3 * np.sin(delta), self.r2 + self.r3 * np.cos(delta))
+        th2 = th1 + np.angle(np.exp(1j * (th2 - th1)))
+        th3 = th2 + delta
+        vE = Xd[:2] + self.rhoE * Xd[2] * nrm(ap)
+        w2 = np.empty(3)
+        w3 = np.empty(3)
+        for i in range(3):
+            Mi = np.stack([self.r2 * nrm(th2[i]), self.r3 * nrm(th3[i])], axis=-1)
+            w2[i], w3[i] = np.linalg.solve(Mi, vE[i] - self.r1 * w1[i] * nrm(th1[i]))
+        q = np.concatenate([np.stack([th1, th2, th3], axis=1).ravel(), X])
+        qd = np.concatenate([np.stack([w1, w2, w3], axis=1).ravel(), Xd])
+        y = np.concatenate([q, qd] + ([np.zeros(1)] if self.with_work else []))
+        return y
+
+
+# ---------------------------------------------------------------------------------------------
+# The contender
+# ---------------------------------------------------------------------------------------------
+
+
+def simulate(model, y0, t_eval, method, rtol, atol):
+    """One `solve_ivp` run of `model` from y0 over [0, t_eval[-1]], output at t_eval."""
+    kw = {}
+    if METHODS[method]:
+        kw["jac"] = model.jac
+    model.jac_columns = 0
+    return solve_ivp(model.rhs, (0.0, float(t_eval[-1])), y0, method=method, t_eval=t_eval,
+                     rtol=rtol, atol=atol, **kw)
+
+
+def run(scene_params, *, method="DOP853", rtol=1e-8, atol=1e-10, t_end=7.54, n_out=755,
+        repeats=3, z0=None, zdot0=None, torque=None, alpha=BAUMGARTE_ALPHA):
+    """The `paper-circle` scene of L2 with `scipy.integrate.solve_ivp`.
+
+    `scene_params`: `ppr_jax.scene_params("paper-circle")` or any `RobotParams`; `method`:
+    "DOP853" (explicit, order 8), "Radau" (implicit, order 5) or "LSODA" (Adams/BDF switching),
+    the latter two with the finite-difference Jacobian of `L2Model.jac`; `rtol`, `atol`: scipy's
+    tolerances on the 24 states (angles in rad, positions in m, rates per s; defaults as the
+    library's scene); `z0, zdot0`: the initial state in the library's coordinates (default: the
+    library's L2 quasi-static state, one JAX compilation of ~20 s); `torque`: a callable
+    t -> (3,) torques (N m) to use instead of tabulating the scene's (one JAX compilation of
+    ~7 s), e.g. `TorqueSpline(ts, taus)` of the scene's torques already at hand on a grid;
+    `alpha`: Baumgarte rate.
+
+    Returns {"t": (n_out,) output times t_end k/(n_out - 1) (s), "X": (n_out, 3) platform pose
+    (x, y, phi) (m, m, rad), "run_s": fastest of `repeats` timed runs after one warm-up (s,
+    `time.perf_counter`), "nfev": right-hand side calls counted by scipy (one per state, the
+    Jacobian's finite differences excluded), "nfev_jac": right-hand side columns evaluated by the
+    finite-difference Jacobian (0 for DOP853), "njev": Jacobian evaluations, "includes": what the
+    timed part includes, "residual": largest loop-closure residual at the output times (m),
+    "torque_spline_max_err": largest error of the torque spline (N m; None for a given
+    `torque`), "status", "message", "method", "rtol", "atol", "alpha"}.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    tq_err = None
+    if torque is None:
+        torque, tq_err = scene_torque(scene_params, t_end)
+    if z0 is None or zdot0 is None:
+        z0, zdot0 = library_initial_state(scene_params)
+    model = L2Model(scene_params, torque, alpha=alpha)
+    y0 = model.state_from_library(z0, zdot0)
+    t_eval = t_end * np.arange(n_out) / (n_out - 1)
+    simulate(model, y0, t_eval, method, rtol, atol)  # warm-up
+    times = []
+    for _ in range(max(int(repeats), 1)):
+        t0 = time.perf_counter()
+        sol = simulate(model, y0, t_eval, method, rtol, atol)
+        times.append(time.perf_counter() - t0)
+    Y = sol.y
+    ok = sol.status == 0 and Y.shape[1] == n_out
+    residual = float(np.max(np.linalg.norm(model.constraints(Y[:12]), axis=1))) if ok else np.nan
+    return {
+        "t": t_eval,
+        "X": Y[9:12].T.copy() if ok else np.full((n_out, 3), np.nan),
+        "run_s": min(times),
+        "nfev": int(sol.nfev),
+        "nfev_jac": int(model.jac_columns),
+        "njev": int(sol.njev),
+        "includes": (
+            "one scipy.integrate.solve_ivp call from the consistent initial state in absolute "
+            "coordinates to t_end with output at the n_out times (NumPy right-hand side with the "
+            "torque spline, the finite-difference Jacobian for the implicit methods); not the "
+            "one-time torque tabulation in JAX, the library's initial state or the model setup"
+        ),
+        "residual": residual,
+        "torque_spline_max_err": tq_err,
+        "status": int(sol.status),
+        "message": str(sol.message),
+        "method": method,
+        "rtol": rtol,
+        "atol": atol,
+        "alpha": float(alpha),
+    }
