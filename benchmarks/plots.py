@@ -11,6 +11,7 @@ import numpy as np
 MODEL_LABEL = {"rigid": "L0 rigid", "reduced": "L1 reduced", "double1r": "L2 double-1R",
                "beam": "L3 beam (quasi-static)"}
 SOLVER_STYLE = {"tsit5": "o-", "dopri5": "^-", "dopri8": "s--", "kvaerno5": "d:"}
+SOLVER_COLOUR = {"tsit5": "C3", "dopri5": "C0", "dopri8": "C1", "kvaerno5": "C2"}
 
 
 def _plt():
@@ -54,15 +55,23 @@ def work_precision(data: dict, out_dir=None) -> list:
                                  squeeze=False)
         for ax, model in zip(axes[0], models):
             sel = [r for r in rows if r["scene"] == scene and r["model"] == model]
-            for solver in sorted({r["solver"] for r in sel}):
+            for solver in [s for s in SOLVER_STYLE if any(r["solver"] == s for r in sel)]:
                 pts = sorted((_floor(r["error_m"]), r["run_s"] * 1e3) for r in sel
                              if r["solver"] == solver)
                 e, t = np.array(pts).T
-                ax.loglog(e, t, SOLVER_STYLE.get(solver, "x"), label=solver)
+                ax.loglog(e, t, SOLVER_STYLE.get(solver, "x"), label=solver,
+                          color=SOLVER_COLOUR.get(solver))
+            for r in sel:
+                if r["solver"].startswith("none"):  # L0/L1 motion-driven: no ODE, exact
+                    ax.text(0.5, 0.5, f"no ODE\n{r['run_s'] * 1e3:.1f} ms", ha="center",
+                            va="center", transform=ax.transAxes)
+                    ax.set_xticks([])
+                    ax.set_yticks([])
             ax.set_title(MODEL_LABEL[model], fontsize=10)
             ax.set_xlabel("max position error (m)")
             ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=7)
+            if ax.get_lines():
+                ax.legend(fontsize=7)
         axes[0][0].set_ylabel("run time (ms)")
         fig.suptitle(f"{scene}, {data['t_end_s']:g} s: work-precision "
                      f"({data['machine']['backend']})", fontsize=11)

@@ -297,7 +297,10 @@ print(json.dumps(dict(import_s=t1 - t0, compile_s=r.timing["compile_s"], run_s=r
 
 
 def _compile_probe(model: str, cache_dir: str) -> dict:
-    env = dict(os.environ, JAX_ENABLE_COMPILATION_CACHE="true" if cache_dir else "false")
+    # As the `ppr-jax` console script runs: equinox's runtime errors as NaN (the results are
+    # checked from status codes), so that diffrax's checks add no host callback, which would
+    # keep the program out of the persistent cache.
+    env = dict(os.environ, EQX_ON_ERROR="nan")
     p = subprocess.run([sys.executable, "-c", _COMPILE_SNIPPET, model, cache_dir],
                        capture_output=True, text=True, env=env, timeout=600)
     if p.returncode != 0:
