@@ -58,7 +58,11 @@ from mujoco import rollout as mj_rollout
 
 jax.config.update("jax_enable_x64", True)
 
+import jax.numpy as jnp  # noqa: E402
+
 import ppr_jax as pj  # noqa: E402
+
+from . import library  # noqa: E402
 
 #: MuJoCo's largest constraint impedance (mjMAXIMP): the stiffest the equality can be made
 IMPEDANCE = 0.9999
@@ -175,16 +179,21 @@ def qpos_index(model: mujoco.MjModel) -> dict:
     return {n: int(model.joint(n).qposadr[0]) for n in names}
 
 
-def library_initial_state(params: pj.RobotParams, torque):
+def library_initial_state(params: pj.RobotParams):
     """The library's L2 `paper-circle` initial state: (z0 (6,), zdot0 (6,), th (3, 3) chain
-    angles, thdot (3, 3) their rates). z0, zdot0 are `ppr_jax.quasi_static_state` at t = 0 under
-    the scene's torques (what the scene itself starts from); the chain angles and rates follow
-    from the library's own closure (`Double1R.kinematics`) and its derivative."""
-    model = pj.get_model("double1r")
-    robot = pj.Robot(params)
-    z0, zd0 = pj.quasi_static_state(model, robot, pj.Circle(), 0.0, pj.TorqueDriven(torque))
-    th, thd = jax.jvp(lambda z: model.kinematics(robot, z).th, (z0,), (zd0,))
-    return np.asarray(z0), np.asarray(zd0), np.asarray(th), np.asarray(thd)
+    angles, thdot (3, 3) their rates). z0, zdot0 as the scene starts (`library.initial_state`);
+    the chain angles and rates follow from the library's own closure (`Double1R.kinematics`)
+    and its derivative."""
+    z0, zd0 = library.initial_state(params)
+    return (z0, zd0, *chain_state(params, z0, zd0))
+
+
+def chain_state(params: pj.RobotParams, z0, zd0):
+    """Chain angles th (3, 3) and rates of the library's L2 state (z0, zd0)."""
+    model, robot = pj.get_model("double1r"), pj.Robot(params)
+    th, thd = jax.jvp(lambda z: model.kinematics(robot, z).th, (jnp.asarray(z0),),
+                      (jnp.asarray(zd0),))
+    return np.asarray(th), np.asarray(thd)
 
 
 def mujoco_state(model, th, thd, z, zd):
@@ -201,22 +210,6 @@ def mujoco_state(model, th, thd, z, zd):
     for k, n in enumerate(("x", "y", "phi")):
         qpos[idx[n]], qvel[idx[n]] = z[k], zd[k]
     return qpos, qvel
-
-
-def torques(params: pj.RobotParams, ts, chunk: int = 65536) -> np.ndarray:
-    """The scene's torques tau_a(t) (n, 3) (N m) at times ts (s): the library's
-    `InverseDynamicsTorque` of L1 (`reduced`) along eq 55, the function its `paper-circle`
-    evaluates at every solver stage, evaluated here on the host once (jit + vmap, in chunks)."""
-    tau_fn = pj.InverseDynamicsTorque(pj.get_model("reduced"), pj.Robot(params), pj.Circle())
-    f = jax.jit(jax.vmap(tau_fn))
-    ts = np.asarray(ts, dtype=np.float64)
-    chunk = min(chunk, ts.size)
-    out = np.empty((ts.size, 3))
-    for k in range(0, ts.size, chunk):
-        part = ts[k:k + chunk]
-        pad = np.concatenate([part, np.full(chunk - part.size, part[-1])])  # one compiled shape
-        out[k:k + part.size] = np.asarray(f(pad))[: part.size]
-    return out
 
 
 def radial_error(X) -> np.ndarray:
@@ -271,20 +264,17 @@ def run(scene_params: pj.RobotParams, *, dt: float, t_end: float = 7.54, n_out: 
     n_steps = n_sub * (n_out - 1)
     model = mujoco.MjModel.from_xml_string(mjcf(scene_params, dt=h))
     data = mujoco.MjData(model)
-    robot = pj.Robot(scene_params)
-    torque = pj.InverseDynamicsTorque(pj.get_model("reduced"), robot, pj.Circle())
     if initial_state is None:
-        z0, zd0, th, thd = library_initial_state(scene_params, torque)
+        z0, zd0, th, thd = library_initial_state(scene_params)
     else:
         z0, zd0 = (np.asarray(v, dtype=np.float64) for v in initial_state)
-        l2 = pj.get_model("double1r")
-        th, thd = (np.asarray(v) for v in jax.jvp(lambda z: l2.kinematics(robot, z).th,
-                                                   (z0,), (zd0,)))
+        th, thd = chain_state(scene_params, z0, zd0)
     qpos, qvel = mujoco_state(model, th, thd, z0, zd0)
     if inputs == "midpoint":
-        tau = torques(scene_params, (np.arange(n_steps) + 0.5) * h).reshape(n_out - 1, n_sub, 3)
+        tau = library.scene_torques(scene_params, (np.arange(n_steps) + 0.5) * h)
+        tau = tau.reshape(n_out - 1, n_sub, 3)
     else:
-        half = torques(scene_params, np.arange(2 * n_steps + 1) * (h / 2))
+        half = library.scene_torques(scene_params, np.arange(2 * n_steps + 1) * (h / 2))
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     nstate = mujoco.mj_stateSize(model, spec)
     data.qpos[:], data.qvel[:], data.time = qpos, qvel, 0.0

@@ -102,29 +102,16 @@ def TorqueSpline(ts, taus):
     return CubicSpline(np.asarray(ts, float), np.asarray(taus, float), axis=0)
 
 
-_TORQUE_GRID = None
-
-
 def scene_torque(params, t_end, dt=TORQUE_DT):
     """The paper-circle torques (L1 inverse dynamics along eq 55, as `ppr_jax`'s scene builds
     them) on a grid of step `dt` over [0, t_end + TORQUE_PAD], as a `TorqueSpline`, and the
-    spline's largest error (N m) at the grid's midpoints against the exact torques. One JAX
-    compilation (grid and midpoints in one array)."""
-    import equinox as eqx
-    import jax
-    import jax.numpy as jnp
+    spline's largest error (N m) at the grid's midpoints against the exact torques."""
+    from . import library
 
-    import ppr_jax as pj
-
-    global _TORQUE_GRID
-    if _TORQUE_GRID is None:  # one jitted function, so repeated calls hit the compilation cache
-        _TORQUE_GRID = eqx.filter_jit(lambda f, t: jax.vmap(f)(t))
-    robot = pj.Robot(params)
-    fn = pj.InverseDynamicsTorque(pj.Reduced(), robot, pj.Circle())
     n = int(np.ceil((t_end + TORQUE_PAD) / dt))
     ts = np.arange(n + 1) * dt
     mid = ts[:-1] + dt / 2
-    taus = np.asarray(_TORQUE_GRID(fn, jnp.asarray(np.concatenate([ts, mid]))))
+    taus = library.scene_torques(params, np.concatenate([ts, mid]))
     spline = TorqueSpline(ts, taus[: n + 1])
     err = float(np.max(np.abs(spline(mid) - taus[n + 1:])))
     return spline, err
@@ -133,12 +120,9 @@ def scene_torque(params, t_end, dt=TORQUE_DT):
 def library_initial_state(params):
     """The library's L2 quasi-static initial state (z0, z0') at t = 0 of paper-circle, in its
     coordinates z = (x, y, phi, th_a1, th_a2, th_a3) (the scene's own function and inputs)."""
-    import ppr_jax as pj
+    from . import library
 
-    robot = pj.Robot(params)
-    act = pj.TorqueDriven(pj.InverseDynamicsTorque(pj.Reduced(), robot, pj.Circle()))
-    z0, zd0 = pj.quasi_static_state(pj.Double1R(), robot, pj.Circle(), 0.0, act)
-    return np.asarray(z0, dtype=float), np.asarray(zd0, dtype=float)
+    return library.initial_state(params)
 
 
 # ---------------------------------------------------------------------------------------------
