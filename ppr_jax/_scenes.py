@@ -139,15 +139,6 @@ def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None
     )
 
 
-def _frozen(*flags_and_robot):
-    """A member that failed a precondition (any flag set, or invalid parameters) is frozen."""
-    *flags, robot = flags_and_robot
-    out = params_invalid(robot.params)
-    for f in flags:
-        out = out if f is None else out | f
-    return out
-
-
 def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller, max_steps,
                        adjoint):
     act = TorqueDriven(scene_input(model, InverseDynamicsTorque(torque_model, robot, traj),
@@ -158,7 +149,7 @@ def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller,
     sol = _simulate_core(
         model, robot, act, z0, zd0, ts, solver, controller, None, max_steps,
         jnp.zeros(3), False, diffrax.NoProgressMeter(), adjoint,
-        _frozen(failed, open0, ref_open, robot),
+        failed | open0 | ref_open | params_invalid(robot.params),
     )
     return _result("paper-circle", model, robot, traj, sol, failed, open0, ref_open)
 
@@ -206,7 +197,7 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, ad
         sol = _simulate_core(
             model, robot, act, z0, zd0, ts, solver, controller, None, max_steps, jnp.zeros(3),
             False, diffrax.NoProgressMeter(), adjoint,
-            _frozen(failed, open0, ref_open, robot),
+            failed | open0 | ref_open | params_invalid(robot.params),
         )
         return _result("servo-circle", model, robot, traj, sol, failed, open0, ref_open)
     return _result("servo-circle", model, robot, traj, sol, ref_open=ref_open)
