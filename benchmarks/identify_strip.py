@@ -19,7 +19,7 @@ ns = types.SimpleNamespace(model=pj.get_model("double1r"), rtol=jnp.asarray(1e-8
                            scene="servo-circle", equal_links=Robot(strip).equal_links,
                            solver=pj._simulate.get_solver("tsit5"), max_steps=100_000)
 t0 = time.perf_counter()
-X, ok = jax.jit(lambda: I._pose_one(ns, strip, Robot(cl), ts, None))()
+X, ok = jax.jit(lambda: I._pose_one(ns, strip, Robot(cl), ts, None, None, jnp.zeros(6)))()
 print("data sim", time.perf_counter() - t0, bool(ok), flush=True)
 rng = np.random.default_rng(0)
 noise = (1e-4, 1e-3)

@@ -13,9 +13,22 @@ The experiment (what the motors did) is a scene:
 - ``paper-circle``: torque-driven by the measured torques (columns tau_1..tau_3, cubic Hermite
   interpolation) or, without them, by L1's inverse-dynamics torques of eq 55 for the initial
   parameters (again fixed), from the nominal pose at t = 0.
-Sample times are those of the trajectory (t = 0 at the start of the motion). The initial state is
-taken from the scene (it is not estimated). Measured actuated angles (th_i) are kept with the
-data but not used by the fit.
+Sample times are those of the trajectory (t = 0 at the start of the motion).
+- ``actuation="measured"`` (servo-circle): the measured actuated angles th_1..th_3 drive the
+  model instead of the commands, through a C2 not-a-knot cubic spline of the samples
+  (`spline_pieces`; C2 because its second derivative is the prescribed acceleration). Use it
+  when the servos do not follow their commands exactly: the commands then leave a tracking
+  error the fit would misread as stiffness. Encoders are far finer than a tracker, so the
+  spline interpolates (no smoothing); it is fourth-order accurate (1e-9 rad at 100 Hz on the
+  paper's circle).
+- ``initial_state``: ``"scene"`` (default) starts each experiment from the scene's quasi-static
+  state at t = 0; ``"pose"`` adds each experiment's initial platform pose (x0, y0, phi0) to the
+  unknowns, ``"pose-velocity"`` also its initial platform velocity, as offsets from that state
+  (the platform coordinates z[:3] of every model; the actuated angles stay where the actuation
+  puts them, the chains' other coordinates where the quasi-static state does). They are nuisance
+  parameters: the parameters' covariance is marginal over them (their Jacobian columns projected
+  out), and they are reported per experiment in `Identification.initial_state`. Use it when a
+  recording starts in motion or off equilibrium.
 
 Method, and why:
 - Residuals: simulated minus measured pose at the sample times, each channel divided by its
@@ -66,12 +79,24 @@ from ._scenes import _kinematic_motion, scene_params
 from ._simulate import _simulate_core, get_solver
 from ._statics import _quasi_static_state
 from ._tabulated import scene_input
-from ._trajectory import Circle, Interpolated
+from ._trajectory import Circle, Interpolated, PiecewiseCubic, spline_pieces
 
 LOSSES = ("linear", "huber", "cauchy")
 #: largest step of the Levenberg-Marquardt loop in the reparametrised unknowns z
 MAX_STEP_Z = 1.0
 SOLVERS = ("lm", "optimistix-lm", "optimistix-gn")
+#: what drove the motors of a servo-circle experiment in the model: the scene's commands for the
+#: initial parameters, or the measured actuated angles of the data
+ACTUATIONS = ("commanded", "measured")
+#: what of each experiment's initial state is estimated (number of unknowns per experiment):
+#: nothing (the scene's quasi-static state), the platform pose (x0, y0, phi0), or the pose and
+#: the platform velocity
+INITIAL_STATES = {"scene": 0, "pose": 3, "pose-velocity": 6}
+#: the scale of the initial-state unknowns in the fit (m, m, rad, m/s, m/s, rad/s): the size of
+#: offset a unit step in z makes, so that the trust region of MAX_STEP_Z means 1 mm, 10 mrad
+INIT_SCALE = (1e-3, 1e-3, 1e-2, 1e-2, 1e-2, 1e-1)
+INIT_NAMES = ("x0", "y0", "phi0", "xd0", "yd0", "phid0")
+INIT_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s")
 ID_SCENES = ("servo-circle", "paper-circle")
 #: default noise weights: tracker position (m) and platform angle (rad), Optotrak-like
 DEFAULT_NOISE = (1e-4, 1e-3)
@@ -94,6 +119,7 @@ class _Problem(eqx.Module):
     X: Array  # (E, m, 3) measured pose (padded)
     w: Array  # (E, m, 3) weights 1/noise, 0 on padding
     tau: Optional[Array]  # (E, m, 3) measured torques or None
+    th: Optional[Array]  # (E, m - 1, 4, 3) spline pieces of the measured actuated angles or None
     rtol: Array
     atol: Array
     names: tuple = eqx.field(static=True)
@@ -105,10 +131,14 @@ class _Problem(eqx.Module):
     max_steps: int = eqx.field(static=True)
     loss: Array  # index into LOSSES: traced, so that changing the loss reuses the compilation
     loss_scale: Array
+    #: unknowns of each experiment's initial state (0, 3 or 6: INITIAL_STATES), after the
+    #: parameters in z, as offsets in units of `init_scale` (m, m, rad, m/s, m/s, rad/s)
+    n_init: int = eqx.field(static=True, default=0)
+    init_scale: Optional[Array] = None
 
 
 def _to_p(prob: _Problem, z):
-    s = jax.nn.sigmoid(z)
+    s = jax.nn.sigmoid(z[:len(prob.names)])
     out = []
     for i, lg in enumerate(prob.log):
         lo, hi = prob.lo[i], prob.hi[i]
@@ -125,7 +155,8 @@ def _to_z(prob_log, lo, hi, p):
 
 
 def _dp_dz(prob: _Problem, z):
-    """Diagonal of dp/dz (the reparametrisation is elementwise)."""
+    """Diagonal of dp/dz (the reparametrisation is elementwise) of the parameters."""
+    z = z[:len(prob.names)]
     s = jax.nn.sigmoid(z)
     p = _to_p(prob, z)
     ds = s * (1 - s)
@@ -138,28 +169,43 @@ def _params_at(prob: _Problem, p):
                        tuple(p[i] for i in range(len(prob.names))))
 
 
-def _pose_one(prob: _Problem, params, base_robot, ts, tau):
+def _offsets(prob: _Problem, z):
+    """(E, 6) offsets of each experiment's initial platform pose and velocity (zeros where not
+    estimated) from the unknowns z."""
+    E = prob.ts.shape[0]
+    d = jnp.zeros((E, 6))
+    if prob.n_init:
+        P = len(prob.names)
+        d = d.at[:, :prob.n_init].set(z[P:].reshape(E, prob.n_init) * prob.init_scale)
+    return d
+
+
+def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
     """Simulated pose (m, 3) of one experiment at times ts (ts[0] = 0, the scene's start)."""
     model = prob.model
     robot = Robot(params, equal_links=prob.equal_links)
     traj = Circle()
     ctrl = diffrax.PIDController(rtol=prob.rtol, atol=prob.atol)
     if prob.scene == "servo-circle":
-        # The commands the motors followed: fixed, from the initial parameters.
-        angles = InverseKinematicsAngles(Reduced(), base_robot, traj)
+        # The angles the motors followed: measured (a C2 spline through the samples), or the
+        # commands, fixed, from the initial parameters.
+        angles = (InverseKinematicsAngles(Reduced(), base_robot, traj) if th is None
+                  else PiecewiseCubic(ts, th))
         if model.actuated_index is None:
             X, _, _, codes = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
             ok = jnp.all(codes == 0)
             return X, ok
-        # As the scenes take their input (tabulated for L2/L3), so that a fit of a scene's
-        # output runs the scene's own program.
-        act = MotionDriven(scene_input(model, angles, ts, 2))
+        # The commands as the scenes take them (tabulated for L2/L3), so that a fit of a
+        # scene's output runs the scene's own program.
+        act = MotionDriven(angles if th is not None else scene_input(model, angles, ts, 2))
     else:
         torque = (scene_input(model, InverseDynamicsTorque(Reduced(), base_robot, traj), ts, 1)
                   if tau is None else Interpolated(ts, tau))
         act = TorqueDriven(torque)
     # The status-returning form: a failure is a flag of the compiled program, not a callback.
     z0, zd0, qs_failed = _quasi_static_state(model, robot, traj, ts[0], act)
+    # estimated initial state: the platform pose and velocity are z[:3] in every model
+    z0, zd0 = z0.at[:3].add(d0[:3]), zd0.at[:3].add(d0[3:])
     sol = _simulate_core(model, robot, act, z0, zd0, ts, prob.solver, ctrl, None,
                          prob.max_steps, jnp.zeros(3), False, diffrax.NoProgressMeter(),
                          diffrax.ForwardMode())
@@ -178,21 +224,23 @@ def _robust(r, loss, c):
     return jnp.select([loss == 0, loss == 1], [r, huber], cauchy)
 
 
-def _weighted_residuals(prob: _Problem, p):
+def _weighted_residuals(prob: _Problem, p, d0):
     """(E, m, 3) weighted residuals (simulated - measured) / noise, raw (before the loss), and
-    the success flag of every experiment's simulation."""
+    the success flag of every experiment's simulation; d0 (E, 6) initial-state offsets."""
     params = _params_at(prob, p)
     base_robot = Robot(jax.lax.stop_gradient(prob.base), equal_links=prob.equal_links)
-    tau = prob.tau
-    X, ok = jax.vmap(lambda ts, tau: _pose_one(prob, params, base_robot, ts, tau),
-                     in_axes=(0, None if tau is None else 0))(prob.ts, tau)
+    tau, th = prob.tau, prob.th
+    X, ok = jax.vmap(
+        lambda ts, tau, th, d0: _pose_one(prob, params, base_robot, ts, tau, th, d0),
+        in_axes=(0, None if tau is None else 0, None if th is None else 0, 0),
+    )(prob.ts, tau, th, d0)
     # Padding rows have weight 0; a failed simulation may be NaN there, keep it out of sums.
     r = jnp.where(prob.w > 0, (X - prob.X) * prob.w, 0.0)
     return r, X, jnp.all(ok)
 
 
 def _residual_vector(prob: _Problem, z):
-    r, X, ok = _weighted_residuals(prob, _to_p(prob, z))
+    r, X, ok = _weighted_residuals(prob, _to_p(prob, z), _offsets(prob, z))
     return _robust(r.reshape(-1), prob.loss, prob.loss_scale), (ok, X)
 
 
@@ -252,14 +300,138 @@ class Identification(eqx.Module):
     experiment_names: tuple
     noise: tuple
     problem: _Problem
+    initial_state: Optional[dict] = None
+    z: Optional[Array] = None
 
     def residuals_at(self, values) -> np.ndarray:
         """Weighted residuals (N,) (after the loss) at parameter values (P,) (physical units,
-        order of `names`), through the fit's compiled function: for checks such as a
-        finite-difference Jacobian, or a profile of the cost."""
+        order of `names`), the initial state (when estimated) held at its estimate, through the
+        fit's compiled function: for checks such as a finite-difference Jacobian, or a profile
+        of the cost."""
         prob = self.problem
         z = _to_z(prob.log, np.asarray(prob.lo), np.asarray(prob.hi), values)
+        z = np.concatenate([z, np.asarray(self.z)[len(self.names):]])
         return np.asarray(_residual_and_jacobian(prob, jnp.asarray(z))[0])
+
+    def profile(self, name: str, *, level: float = 0.95, n_max: int = 8,
+                max_iter: int = 20) -> dict:
+        """Profile-likelihood interval of the unknown `name`: walk it away from the estimate in
+        both directions (steps of half its linearised standard error, in log p for a
+        log-bounded unknown), re-fitting every other unknown at each step (warm-started, the
+        fit's own compiled function), until the cost rises by the likelihood-ratio threshold
+        (S - S_min) / s^2 = F(level; 1, N - P) (the square of Student's t: the linearised interval
+        when the model is linear in the unknowns). The end points are interpolated in the
+        signed root of the rise. A side that reaches a bound, or `n_max` steps, without the
+        rise is open (None): the data do not bound the unknown on that side. An end reached
+        only because another unknown ran into its bound while compensating (t against
+        K_theta) names that unknown in `limited_by_bounds_of`: the interval is then the
+        bounds' doing, not the data's.
+
+        Where the model is nonlinear in the unknowns over the interval (the stiffness through
+        t^3 when t is poorly determined) the profile interval is the one to quote: it is
+        invariant under reparametrisation and does not assume a quadratic cost.
+
+        Returns a dict: name, estimate, level, threshold, values and delta (the walked points,
+        sorted, delta = (S - S_min) / s^2), ci (low, high) with None for an open side, open
+        (the open sides: 'low', 'high'), limited_by_bounds_of, linearised (ci95 for
+        comparison), evaluations, run_s."""
+        from scipy import stats
+
+        if name not in self.names:
+            raise IdentificationError(f"{name!r} is not an unknown of this fit "
+                                      f"({', '.join(self.names)})")
+        prob = self.problem
+        i = self.names.index(name)
+        lo, hi = float(prob.lo[i]), float(prob.hi[i])
+        lg = prob.log[i]
+        p_hat = float(self.estimate[i])
+        n_all = self.z.shape[0]
+        dof = max(int(self.mask.sum()) * 3 - n_all, 1)
+        q = float(stats.f.ppf(level, 1, dof))
+        s2 = float(self.sigma2)
+        s_min = float(self.residuals @ self.residuals)
+        std = float(self.std[i])
+        if lg:
+            span = math.log(hi / lo)
+            h = min(0.5 * std / p_hat, span / 8) if math.isfinite(std) else span / 8
+            h = max(h, 1e-6)
+            at = lambda k: p_hat * math.exp(k * h)  # noqa: E731
+        else:
+            span = hi - lo
+            h = min(0.5 * std, span / 8) if math.isfinite(std) else span / 8
+            h = max(h, 1e-9 * span)
+            at = lambda k: p_hat + k * h  # noqa: E731
+        free = np.ones(n_all, bool)
+        free[i] = False
+        t0 = time.perf_counter()
+        pts = [(p_hat, 0.0)]
+        ends, open_, limited = [None, None], [], []
+        n_eval = [0]
+        to_x = (lambda v: math.log(v)) if lg else (lambda v: v)  # noqa: E731
+        from_x = (lambda x: math.exp(x)) if lg else (lambda x: x)  # noqa: E731
+
+        def rise(v, z):
+            """(S(v) - S_min) / s^2 with the other unknowns re-fitted from z, and their z."""
+            z = np.array(z, dtype=np.float64)
+            z[i] = _to_z((lg,), [lo], [hi], [v])[0]
+            if free.any():
+                (z, r, _, _), hist = _levenberg_marquardt(prob, z, max_iter, 1e-8, 1e-10, 1e-2,
+                                                          free=free)
+                n_eval[0] += hist["evaluations"]
+            else:  # a single unknown: nothing to re-fit
+                r, _, ok, _ = _residual_and_jacobian(prob, jnp.asarray(z))
+                _check_ok(ok, z, prob)
+                r = np.asarray(r)
+                n_eval[0] += 1
+            return (float(r @ r) - s_min) / s2, z
+
+        for side, sgn in ((0, -1), (1, 1)):
+            prev = (p_hat, 0.0, np.asarray(self.z))
+            for k in range(1, n_max + 1):
+                v = at(sgn * k)
+                if not (lo < v < hi):
+                    break
+                try:
+                    d, z = rise(v, prev[2])
+                except IdentificationError:
+                    break  # the simulation fails out there: the walk ends
+                pts.append((v, d))
+                if d > q:
+                    # A steep wall (another unknown reaching its bound) is bisected until the
+                    # crossing step is short enough for the interpolation below.
+                    cur = (v, d, z)
+                    for _ in range(8):
+                        if cur[1] <= 3 * q:
+                            break
+                        vm = from_x((to_x(prev[0]) + to_x(cur[0])) / 2)
+                        try:
+                            dm, zm = rise(vm, prev[2])
+                        except IdentificationError:
+                            break
+                        pts.append((vm, dm))
+                        if dm > q:
+                            cur = (vm, dm, zm)
+                        else:
+                            prev = (vm, dm, zm)
+                    # the signed root of the rise is nearly linear in the parameter
+                    a0, a1 = math.sqrt(max(prev[1], 0.0)), math.sqrt(cur[1])
+                    f = (math.sqrt(q) - a0) / (a1 - a0)
+                    x0, x1 = to_x(prev[0]), to_x(cur[0])
+                    ends[side] = from_x(x0 + f * (x1 - x0))
+                    sz = 1 / (1 + np.exp(-cur[2][:len(self.names)]))
+                    limited += [n for j, n in enumerate(self.names)
+                                if j != i and not (1e-3 < sz[j] < 1 - 1e-3) and n not in limited]
+                    break
+                prev = (v, d, z)
+            if ends[side] is None:
+                open_.append(("low", "high")[side])
+        n_eval = n_eval[0]
+        pts.sort()
+        return {"name": name, "estimate": p_hat, "level": level, "threshold": q,
+                "values": [v for v, _ in pts], "delta": [d for _, d in pts],
+                "ci": ends, "open": open_, "limited_by_bounds_of": limited,
+                "linearised": [float(self.ci95[i, 0]), float(self.ci95[i, 1])],
+                "evaluations": n_eval, "run_s": time.perf_counter() - t0}
 
     def table(self) -> str:
         """A text table of the estimates with their intervals."""
@@ -280,6 +452,12 @@ class Identification(eqx.Module):
                          f"({c['status']})")
         if idf.get("note"):
             lines.append(f"  note: {idf['note']}")
+        if self.initial_state:
+            for en, row in self.initial_state["experiments"].items():
+                parts = [(f"{k} = {v['estimate']:.6g}" if "estimate" in v else
+                          f"{k} {v['offset']:+.4g}") + f" +- {v['std']:.2g} {v['unit']}"
+                         for k, v in row.items()]
+                lines.append(f"  initial state of {en}: " + ", ".join(parts))
         for e in self.residual_stats["experiments"]:
             lines.append(f"  {e['name']}: RMS x {e['rms_x_m'] * 1e3:.4g} mm, y "
                          f"{e['rms_y_m'] * 1e3:.4g} mm, phi {e['rms_phi_rad'] * 1e3:.4g} mrad "
@@ -313,6 +491,7 @@ class Identification(eqx.Module):
             "sigma2": float(self.sigma2),
             "identifiability": self.identifiability,
             "residual_stats": self.residual_stats,
+            "initial_state": self.initial_state,
             "history": self.history,
         })
 
@@ -342,9 +521,11 @@ def _fill_prb(params: RobotParams, names) -> RobotParams:
     return params.replace(**kw) if kw else params
 
 
-def _pack(experiments: Sequence[Experiment], w_pos, w_phi, scene):
+def _pack(experiments: Sequence[Experiment], w_pos, w_phi, scene, actuation="commanded"):
     """Pad the experiments to one length: times start at 0 (a leading t = 0 sample of weight 0
-    when the data start later) and continue past the end at the median step (weight 0)."""
+    when the data start later) and continue past the end at the median step (weight 0).
+    With measured actuation, also the spline pieces of each experiment's angles on its padded
+    times (the spline's first piece continued back to 0, a linear continuation after the end)."""
     rows = []
     for e in experiments:
         ts = np.asarray(e.ts, dtype=np.float64)
@@ -359,6 +540,16 @@ def _pack(experiments: Sequence[Experiment], w_pos, w_phi, scene):
     use_tau = scene == "paper-circle" and all(has_tau)
     if scene == "paper-circle" and any(has_tau) and not all(has_tau):
         raise DataError("paper-circle: either every experiment gives torques tau_1..tau_3 or none")
+    if actuation == "measured":
+        lack = [e.name for e in experiments if e.th is None]
+        if lack:
+            raise DataError(f"actuation 'measured' needs the actuated angles th_1, th_2, th_3 in "
+                            f"every experiment; missing in {', '.join(lack)}")
+        short = [e.name for e in experiments if e.n < 4]
+        if short:
+            raise DataError(f"actuation 'measured' needs at least 4 samples of the angles (a "
+                            f"cubic spline); too few in {', '.join(short)}")
+    TH = []
     for e, (ts, lead) in zip(experiments, rows):
         X = np.asarray(e.X)
         mask = np.ones(len(ts), bool)
@@ -377,13 +568,16 @@ def _pack(experiments: Sequence[Experiment], w_pos, w_phi, scene):
             mask = np.concatenate([mask, np.zeros(k, bool)])
             if tau is not None:
                 tau = np.concatenate([tau, np.repeat(tau[-1:], k, 0)])
+        if actuation == "measured":
+            TH.append(spline_pieces(ts, e.ts, e.th))
         TS.append(ts)
         XX.append(X)
         MASK.append(mask)
         WW.append(mask[:, None] * np.array([1 / w_pos, 1 / w_pos, 1 / w_phi]))
         TT.append(tau)
     tau = np.stack(TT) if use_tau else None
-    return np.stack(TS), np.stack(XX), np.stack(WW), tau, np.stack(MASK)
+    th = np.stack(TH) if TH else None
+    return np.stack(TS), np.stack(XX), np.stack(WW), tau, th, np.stack(MASK)
 
 
 def identify(
@@ -392,6 +586,8 @@ def identify(
     *,
     model="double1r",
     scene: str = "servo-circle",
+    actuation: str = "commanded",
+    initial_state: str = "scene",
     params: Optional[RobotParams] = None,
     fixed: Optional[dict] = None,
     initial: Optional[dict] = None,
@@ -415,7 +611,10 @@ def identify(
     experiments: one `Experiment` or several (fitted jointly; `load_csv`, `load_experiments`).
     model: "double1r" (L2, default), "reduced" (L1), "rigid" (L0) or a model instance.
     scene: the experiment's actuation, "servo-circle" (default) or "paper-circle" (module
-    docstring). params: the robot (default `scene_params(scene)`), `fixed` ({name: value})
+    docstring). actuation: "commanded" (default: the scene's commands for the initial
+    parameters) or "measured" (servo-circle: the data's th_1..th_3 drive the model).
+    initial_state: "scene" (default), "pose" or "pose-velocity": what of each experiment's initial
+    state is estimated (module docstring). params: the robot (default `scene_params(scene)`), `fixed` ({name: value})
     overrides applied to it; `initial` ({name: value}) start values of unknowns (default: the
     robot's); `bounds` ({name: (lo, hi)}) default `PARAM_RANGES`. noise: (position m, phi rad),
     the residual weights (their scale is estimated from the fit; the report compares the RMS of
@@ -438,6 +637,18 @@ def identify(
                             f"{type(e).__name__}")
     if scene not in ID_SCENES:
         raise IdentificationError(f"unknown scene {scene!r}; allowed: {', '.join(ID_SCENES)}")
+    if actuation not in ACTUATIONS:
+        raise IdentificationError(f"unknown actuation {actuation!r}; allowed: "
+                                  f"{', '.join(ACTUATIONS)}")
+    if actuation == "measured" and scene != "servo-circle":
+        raise IdentificationError("actuation 'measured' (the measured angles drive the model) "
+                                  "applies to the motion-driven servo-circle scene; "
+                                  "paper-circle is torque-driven (it uses measured torques "
+                                  "tau_1..tau_3 when the data give them)")
+    if initial_state not in INITIAL_STATES:
+        raise IdentificationError(f"unknown initial_state {initial_state!r}; allowed: "
+                                  f"{', '.join(INITIAL_STATES)}")
+    n_init = INITIAL_STATES[initial_state]
     if loss not in LOSSES:
         raise IdentificationError(f"unknown loss {loss!r}; allowed: {', '.join(LOSSES)}")
     if solver not in SOLVERS:
@@ -462,6 +673,10 @@ def identify(
         raise IdentificationError(f"initial values given for {sorted(stray)}, which are not "
                                   f"unknowns (to hold a parameter at a value, use fixed=)")
     mdl = get_model(model, n_elements)
+    if n_init and scene == "servo-circle" and mdl.actuated_index is None:
+        raise IdentificationError(f"initial_state={initial_state!r}: the {mdl.name} model has no "
+                                  f"free initial state in the motion-driven servo-circle scene "
+                                  f"(its pose follows from the angles); use initial_state='scene'")
     base = scene_params(scene) if params is None else params
     try:
         base = base.replace(**fixed) if fixed else base
@@ -489,10 +704,11 @@ def identify(
     if bounds:
         raise IdentificationError(f"bounds given for parameters that are not unknowns: "
                                   f"{sorted(bounds)}")
-    ts, X, W, tau, mask = _pack(exps, float(noise[0]), float(noise[1]), scene)
+    ts, X, W, tau, th, mask = _pack(exps, float(noise[0]), float(noise[1]), scene, actuation)
     n_res = int(mask.sum()) * 3
-    if n_res <= len(names):
-        raise DataError(f"{n_res} residuals cannot determine {len(names)} unknowns")
+    n_unknown = len(names) + n_init * len(exps)
+    if n_res <= n_unknown:
+        raise DataError(f"{n_res} residuals cannot determine {n_unknown} unknowns")
     from ._robot import _equal_links
 
     eq = _equal_links(base) and "l1" not in names and "l3" not in names
@@ -500,18 +716,43 @@ def identify(
     prob = _Problem(
         base=base, lo=jnp.asarray(lo), hi=jnp.asarray(hi), ts=jnp.asarray(ts),
         X=jnp.asarray(X), w=jnp.asarray(W), tau=None if tau is None else jnp.asarray(tau),
+        th=None if th is None else jnp.asarray(th),
         rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64),
         names=names, log=tuple(lg), model=mdl, scene=scene, equal_links=eq, solver=ode,
         max_steps=int(max_steps), loss=jnp.asarray(LOSSES.index(loss)),
         loss_scale=jnp.asarray(float(loss_scale), dtype=jnp.float64),
+        n_init=n_init, init_scale=jnp.asarray(INIT_SCALE[:n_init]) if n_init else None,
     )
     p0 = np.array([float(getattr(base, n)) for n in names])
-    z0 = _to_z(lg, lo, hi, p0)
+    z0 = np.concatenate([_to_z(lg, lo, hi, p0), np.zeros(n_init * len(exps))])
+    if n_init:
+        z0 = _initial_state_guess(prob, z0, mask)
     if solver == "lm":
         z, hist = _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol)
     else:
         z, hist = _optimistix(prob, z0, solver, max_iter, xtol, ftol)
     return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise))
+
+
+def _initial_state_guess(prob, z0, mask):
+    """Start the initial-state unknowns where the data put them: the pose offset as the first
+    measured sample minus the simulated one, the velocity offset as the same difference of the
+    first two samples' finite difference. A released robot oscillates at 10 to 100 Hz, so the
+    cost is far from convex in the initial state; from zero offsets the fit can end in a local
+    minimum."""
+    _, _, ok, X = _residual_and_jacobian(prob, jnp.asarray(z0))
+    _check_ok(ok, z0, prob)
+    X, Xm, ts = np.asarray(X), np.asarray(prob.X), np.asarray(prob.ts)
+    P, k = len(prob.names), prob.n_init
+    d = np.zeros((X.shape[0], 6))
+    for j in range(X.shape[0]):
+        i = np.flatnonzero(mask[j])
+        d[j, :3] = Xm[j, i[0]] - X[j, i[0]]
+        dt = ts[j, i[1]] - ts[j, i[0]]
+        d[j, 3:] = ((Xm[j, i[1]] - Xm[j, i[0]]) - (X[j, i[1]] - X[j, i[0]])) / dt
+    z0 = np.array(z0, dtype=np.float64)
+    z0[P:] = (d[:, :k] / np.asarray(INIT_SCALE[:k])).reshape(-1)
+    return z0
 
 
 def _check_ok(ok, z, prob):
@@ -523,16 +764,19 @@ def _check_ok(ok, z, prob):
                                   f"tolerances or raise max_steps)")
 
 
-def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol):
+def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None):
     """Levenberg-Marquardt (Marquardt's diagonal scaling, Nielsen's damping update) on the host,
-    around the one compiled residual-and-Jacobian function. Each trial point costs one call."""
+    around the one compiled residual-and-Jacobian function. Each trial point costs one call.
+    `free` (bool, like z) the unknowns that move (default all; a profile holds one fixed and
+    reuses the same compiled function)."""
     t0 = time.perf_counter()
     r, J, ok, X = _residual_and_jacobian(prob, jnp.asarray(z0))
     r, J = np.asarray(r), np.asarray(J)
     compile_s = time.perf_counter() - t0
     _check_ok(ok, z0, prob)
     t1 = time.perf_counter()
-    z = np.asarray(z0, dtype=np.float64)
+    z = np.array(z0, dtype=np.float64)
+    sel = np.arange(z.size) if free is None else np.flatnonzero(free)
     cost = float(r @ r)
     A = J.T @ J
     lam = 1e-3  # dimensionless: the damping term is lam * diag(J^T J) (Marquardt's scaling)
@@ -540,8 +784,9 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol):
     costs = [cost]
     n_eval, it, reason = 1, 0, "max_iter"
     for it in range(1, max_iter + 1):
-        g = J.T @ r
-        A = J.T @ J
+        Jf = J[:, sel]
+        g = Jf.T @ r
+        A = Jf.T @ Jf
         if not np.max(np.diag(A)) > 0:
             # e.g. t with a kinematic model (L0/L1 motion-driven): nothing to fit
             reason = "the residuals do not depend on the unknowns"
@@ -559,7 +804,8 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol):
         big = float(np.max(np.abs(dz)))
         if big > MAX_STEP_Z:
             dz = dz * (MAX_STEP_Z / big)
-        z_new = z + dz
+        z_new = z.copy()
+        z_new[sel] += dz
         r_new, J_new, ok_new, X_new = _residual_and_jacobian(prob, jnp.asarray(z_new))
         n_eval += 1
         r_new = np.asarray(r_new)
@@ -581,8 +827,9 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol):
             # The noise scale is the smaller of the stated one (1 in weighted units) and the
             # residuals' estimate: far from the optimum the misfit inflates the latter, which
             # would make every step look negligible.
-            A = J.T @ J
-            s2 = min(cost / max(r.size - z.size, 1), 1.0)
+            Jf = J[:, sel]
+            A = Jf.T @ Jf
+            s2 = min(cost / max(r.size - sel.size, 1), 1.0)
             step_se = math.sqrt(max(float(dz @ A @ dz), 0.0) / max(s2, 1e-300))
             if (np.max(np.abs(dz)) < xtol * (1 + np.max(np.abs(z))) or rel < ftol
                     or step_se < stat_tol):
@@ -671,19 +918,27 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise) -> Identification:
 
     z, r, Jz, X = zrj
     z = jnp.asarray(z)
+    P, E = len(prob.names), len(exps)
     p = np.asarray(_to_p(prob, z))
     dpdz = np.asarray(_dp_dz(prob, z))
-    sz = np.asarray(jax.nn.sigmoid(z))
+    sz = np.asarray(jax.nn.sigmoid(z[:P]))
     # At a bound the reparametrisation is flat (dp/dz -> 0): the chain rule loses the
     # physical Jacobian there, so such unknowns are reported and their columns kept finite.
     at_bound = [n for n, v in zip(prob.names, sz * (1 - sz)) if v < 1e-9]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        J = Jz / np.maximum(dpdz, 1e-300)[None, :]  # d r / d p (physical)
+        J = Jz[:, :P] / np.maximum(dpdz, 1e-300)[None, :]  # d r / d p (physical)
     J = np.where(np.isfinite(J), J, 0.0)
-    N, P = J.shape[0], J.shape[1]
     N = int(mask.sum()) * 3  # padding rows are exact zeros
-    dof = max(N - P, 1)
+    scale = np.tile(np.asarray(INIT_SCALE[:prob.n_init]), E)
+    Ji = Jz[:, P:] / scale[None, :] if prob.n_init else np.zeros((Jz.shape[0], 0))
+    dof = max(N - P - Ji.shape[1], 1)
     s2 = float(r @ r) / dof
+    init = _initial_state_report(prob, z, X, J * p[None, :], Ji, s2, exps) if prob.n_init else None
+    if prob.n_init:
+        # The initial state is a nuisance: the parameters' marginal covariance is that of their
+        # Jacobian with the initial-state directions projected out (the Schur complement).
+        Qi = _range_basis(Ji)
+        J = J - Qi @ (Qi.T @ J)
     # Relative (scaled) normal equations: better conditioned than J^T J in SI units.
     Jr = J * p[None, :]
     U, sv, Vt = np.linalg.svd(Jr, full_matrices=False)
@@ -735,7 +990,47 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise) -> Identification:
         measured=np.asarray(prob.X), ts=np.asarray(prob.ts), mask=mask, identifiability=idf,
         residual_stats=stats_, history=hist, model=prob.model.name, scene=prob.scene,
         experiment_names=tuple(e.name for e in exps), noise=noise, problem=prob,
+        initial_state=init, z=np.asarray(z),
     )
+
+
+def _range_basis(A, rtol=1e-12):
+    """Orthonormal basis (n, k) of the column space of A (n, q), columns scaled first."""
+    nrm = np.linalg.norm(A, axis=0)
+    A = A / np.where(nrm > 0, nrm, 1.0)[None, :]
+    U, sv, _ = np.linalg.svd(A, full_matrices=False)
+    return U[:, sv > rtol * max(float(sv[0]) if sv.size else 0.0, 1e-300)]
+
+
+def _initial_state_report(prob, z, X, Jr, Ji, s2, exps):
+    """Per experiment: the estimated initial platform pose (absolute: the fitted pose at t = 0)
+    and the velocity offset from the scene's quasi-static initial velocity, with standard
+    deviations marginal over the parameters (their directions projected out)."""
+    Qp = _range_basis(Jr)
+    Jie = Ji - Qp @ (Qp.T @ Ji)
+    nrm = np.linalg.norm(Jie, axis=0)
+    nrm = np.where(nrm > 0, nrm, 1.0)
+    A = (Jie / nrm).T @ (Jie / nrm)
+    Ci = np.linalg.pinv(A) / np.outer(nrm, nrm) * s2
+    sd = np.sqrt(np.maximum(np.diag(Ci), 0.0))
+    k = prob.n_init
+    d = np.asarray(z)[len(prob.names):].reshape(len(exps), k) * np.asarray(INIT_SCALE[:k])
+    out = {}
+    for j, e in enumerate(exps):
+        row = {}
+        for i in range(k):
+            name, unit = INIT_NAMES[i], INIT_UNITS[i]
+            if i < 3:
+                row[name] = {"estimate": float(X[j, 0, i]), "offset": float(d[j, i]),
+                             "std": float(sd[j * k + i]), "unit": unit}
+            else:
+                row[name] = {"offset": float(d[j, i]), "std": float(sd[j * k + i]),
+                             "unit": unit}
+        out[e.name] = row
+    return {"estimated": list(INIT_NAMES[:k]), "experiments": out,
+            "note": "x0, y0, phi0: the fitted platform pose at t = 0 and its offset from the "
+                    "scene's quasi-static initial state; xd0, yd0, phid0: offsets from the "
+                    "scene's initial platform velocity; std marginal over the parameters"}
 
 
 # ---------------------------------------------------------------------------------------------

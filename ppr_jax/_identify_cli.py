@@ -60,7 +60,7 @@ def cmd_identify(args):
          f"{sum(e.n for e in exps)} samples (compiling the simulation and its Jacobian first) ...")
     t0 = time.perf_counter()
     fit = identify(exps, unknowns, model=model_from_args(args, args.model), scene=args.scene,
-                   params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
+                   actuation=args.actuation, initial_state=args.initial_state, params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
                    noise=(args.noise_pos, args.noise_phi), loss=args.loss,
                    loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
                    ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
@@ -73,12 +73,27 @@ def cmd_identify(args):
     with open(os.path.join(args.out, "estimates.json"), "w") as f:
         json.dump(summary, f, indent=2)
     table = fit.table()
-    with open(os.path.join(args.out, "estimates.txt"), "w") as f:
-        f.write(table + "\n")
     _write_fitted(os.path.join(args.out, "fitted.csv"), fit)
     figs = identification_figures(fit, args.out)
+    if args.profile:
+        from ._identify_plots import profile_figure
+
+        _log("profile likelihood of " + ", ".join(fit.names) + " ...")
+        profiles = [fit.profile(n) for n in fit.names]
+        with open(os.path.join(args.out, "profiles.json"), "w") as f:
+            json.dump(profiles, f, indent=2)
+        figs.append(profile_figure(profiles, os.path.join(args.out, "profiles.png")))
+        for pr in profiles:
+            ends = ["open" if x is None else f"{x:.6g}" for x in pr["ci"]]
+            extra = (f" (ends where {', '.join(pr['limited_by_bounds_of'])} reaches a bound)"
+                     if pr["limited_by_bounds_of"] else "")
+            table += (f"\n  profile 95% interval of {pr['name']}: [{ends[0]}, {ends[1]}]"
+                      + extra)
+    with open(os.path.join(args.out, "estimates.txt"), "w") as f:
+        f.write(table + "\n")
     print(table)
     print(f"wrote {args.out}/estimates.json, estimates.txt, fitted.csv, "
+          + ("profiles.json, " if args.profile else "")
           + ", ".join(os.path.basename(p) for p in figs))
     return 0
 
@@ -132,7 +147,7 @@ def _units(p):
 
 
 def add_identify(sub, parents, fmt):
-    from ._identify import ID_SCENES, LOSSES, SOLVERS
+    from ._identify import ACTUATIONS, ID_SCENES, INITIAL_STATES, LOSSES, SOLVERS
     from ._models import MODELS
     from ._params import PARAM_RANGES
 
@@ -150,6 +165,12 @@ def add_identify(sub, parents, fmt):
                    help="model to fit (beam/L3 is too slow for time-domain fits)")
     p.add_argument("--scene", default="servo-circle", choices=list(ID_SCENES),
                    help="what the motors did during the experiments")
+    p.add_argument("--actuation", default="commanded", choices=list(ACTUATIONS),
+                   help="servo-circle: drive the model by the scene's commands or by the "
+                        "measured angles th_1..th_3 of the data")
+    p.add_argument("--initial-state", default="scene", choices=list(INITIAL_STATES),
+                   help="estimate each experiment's initial platform pose (and velocity) "
+                        "instead of starting from the scene's quasi-static state")
     p.add_argument("--unknown", action="append", metavar="NAME", choices=list(PARAM_RANGES),
                    help="parameter to identify; repeatable (default: t and K_theta)")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
@@ -170,6 +191,9 @@ def add_identify(sub, parents, fmt):
                    help="least-squares solver")
     p.add_argument("--max-iter", type=int, default=50, help="iteration limit of the fit")
     p.add_argument("--drop-nan", action="store_true", help="drop NaN rows (reported)")
+    p.add_argument("--profile", action="store_true",
+                   help="also profile-likelihood intervals of every unknown (a re-fit of the "
+                        "others per point): profiles.json, profiles.png")
     _units(p)
     p.add_argument("--out", default="identify_out", help="output directory")
     p.set_defaults(func=cmd_identify)

@@ -70,3 +70,30 @@ def _save(fig, out_dir, name):
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def profile_figure(profiles: list, path: str) -> str:
+    """One panel per profile (`Identification.profile`): the cost rise (S - S_min)/s^2 against
+    the unknown, the likelihood-ratio threshold, and the profile and linearised intervals."""
+    n = len(profiles)
+    fig, axs = plt.subplots(1, n, figsize=(4.5 * n, 3.8), squeeze=False)
+    for ax, pr in zip(axs[0], profiles):
+        v, d = np.asarray(pr["values"]), np.asarray(pr["delta"])
+        ax.plot(v, d, "o-", ms=3, label="profile")
+        ax.axhline(pr["threshold"], color="k", lw=0.8, ls=":",
+                   label=f"{pr['level'] * 100:.0f} % threshold")
+        for x in pr["ci"]:
+            if x is not None:
+                ax.axvline(x, color="C0", lw=0.8)
+        for x in pr["linearised"]:
+            ax.axvline(x, color="C3", lw=0.8, ls="--")
+        ax.plot([], [], color="C3", ls="--", lw=0.8, label="linearised interval")
+        ax.set_xlim(v.min(), v.max())
+        ax.set_ylim(-0.05 * 4 * pr["threshold"], 4 * pr["threshold"])
+        ax.set_xlabel(pr["name"])
+        ax.set_ylabel("(S - S_min) / s^2")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

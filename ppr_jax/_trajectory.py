@@ -71,3 +71,44 @@ class Interpolated(eqx.Module):
 
     def __call__(self, t):
         return self.interp.evaluate(t)
+
+
+class PiecewiseCubic(eqx.Module):
+    """A piecewise cubic time function: breakpoints ts (m,) and coefficients c (m - 1, 4, k)
+    in powers of (t - ts[j]) from the highest: f(t) = ((c0 s + c1) s + c2) s + c3 on
+    [ts[j], ts[j + 1]]. Outside the breakpoints the end pieces continue. Built by `spline_pieces`
+    (C2: its second derivative, a prescribed motion's acceleration, is continuous)."""
+
+    ts: Float[Array, " m"]
+    c: Float[Array, "m1 4 k"]
+
+    def __call__(self, t):
+        j = jnp.clip(jnp.searchsorted(self.ts, t, side="right") - 1, 0, self.ts.shape[0] - 2)
+        s = t - self.ts[j]
+        c = self.c[j]
+        return ((c[0] * s + c[1]) * s + c[2]) * s + c[3]
+
+
+def spline_pieces(ts_grid, ts, ys):
+    """Coefficients (len(ts_grid) - 1, 4, k) of `PiecewiseCubic` on the breakpoints `ts_grid`
+    for the not-a-knot cubic spline through samples ys (n, k) at ts (n,) (scipy's
+    `CubicSpline`: C2, fourth-order accurate for smooth data). `ts_grid` holds ts and may add
+    points before ts[0] (the spline's first piece continues there) and after ts[-1] (a linear
+    continuation with the end value and slope: padding, C1). NumPy, on the host."""
+    import numpy as np
+    from scipy.interpolate import CubicSpline
+
+    g = np.asarray(ts_grid, dtype=np.float64)
+    ts = np.asarray(ts, dtype=np.float64)
+    ys = np.asarray(ys, dtype=np.float64)
+    sp = CubicSpline(ts, ys, axis=0)
+    left, right = g[:-1], g[1:]
+    inside = left < ts[-1]
+    mid = np.where(inside, (left + right) / 2, ts[-1])
+    d3 = sp(mid, 3)  # constant on each piece of the spline
+    c = np.stack([d3 / 6, sp(left, 2) / 2, sp(left, 1), sp(left)], axis=1)
+    v_end, y_end = sp(ts[-1], 1), sp(ts[-1])
+    lin = np.stack([np.zeros_like(c[:, 0]), np.zeros_like(c[:, 0]),
+                    np.broadcast_to(v_end, c[:, 0].shape),
+                    y_end + (left - ts[-1])[:, None] * v_end], axis=1)
+    return np.where(inside[:, None, None], c, lin)

@@ -179,6 +179,91 @@ def test_robust_loss_resists_outliers(truth, clean, fits):
     assert errs["cauchy"] < errs["huber"] < err_lin
 
 
+# A servo that does not follow its commands (a smooth 2 mrad wobble on top of them) and a robot
+# released off its quasi-static state: the measured angles must drive the model, and the
+# initial state must be estimated, for the data to be explained.
+D0 = np.array([3e-4, -2e-4, 2e-3, 1e-3, -1e-3, 1e-2])  # m, m, rad, m/s, m/s, rad/s
+
+
+@pytest.fixture(scope="module")
+def lagging(truth):
+    """Noisy L2 data of the lagging servo released off equilibrium, simulated directly with
+    `pj.simulate` (not the identification's program), and the true initial pose."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    robot = pj.Robot(truth)
+    cmd = pj.InverseKinematicsAngles(pj.Reduced(), robot, pj.Circle())
+
+    class Actual(eqx.Module):
+        def __call__(self, t):
+            return cmd(t) + 2e-3 * jnp.sin(2 * jnp.pi * 3.0 * t) * jnp.array([1.0, -0.5, 0.7])
+
+    act = pj.MotionDriven(Actual())
+    L2 = pj.Double1R()
+    z0, zd0 = pj.quasi_static_state(L2, robot, pj.Circle(), 0.0, act)
+    z0, zd0 = z0.at[:3].add(D0[:3]), zd0.at[:3].add(D0[3:])
+    ts = np.linspace(0.0, T_END, N)
+    sol = pj.simulate(L2, robot, act, z0, zd0, jnp.asarray(ts))
+    X, th = np.asarray(sol.z[:, :3]), np.asarray(sol.z[:, 3:6])
+    rng = np.random.default_rng(3)
+    Xn = X.copy()
+    Xn[:, :2] += NOISE[0] * rng.standard_normal((N, 2))
+    Xn[:, 2] += NOISE[1] * rng.standard_normal(N)
+    return pj.experiment(ts, Xn, th=th, name="lagging servo"), X[0]
+
+
+def test_measured_angles_and_initial_state(truth, lagging, fits):
+    """With the measured angles as actuation and the initial pose and velocity estimated, the
+    fit explains the data to the noise, recovers t^3 K_theta and the release offsets within
+    their intervals; with the commands and the scene's initial state it cannot (s >> 1)."""
+    exp, X0 = lagging
+    start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
+    fit = pj.identify(exp, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
+                      actuation="measured", initial_state="pose-velocity")
+    assert fit.history["stop"] == "converged"
+    assert 0.7 < math.sqrt(fit.sigma2) < 1.3, fit.table()
+    c = fit.identifiability["combinations"][0]
+    assert c["expression"] == "t^3.00 * K_theta^1.00"
+    e_t, e_k = c["exponents"]
+    true_c = float(truth.t) ** e_t * float(truth.K_theta) ** e_k
+    assert abs(math.log(c["value"] / true_c)) < 2.5 * c["relative_std"], (c, true_c)
+    row = fit.initial_state["experiments"]["lagging servo"]
+    for i, name in enumerate(("x0", "y0", "phi0", "xd0", "yd0", "phid0")):
+        v = row[name]
+        assert v["std"] > 0
+        assert abs(v["offset"] - D0[i]) < 3 * v["std"], (name, v, D0[i])
+        if i < 3:
+            assert abs(v["estimate"] - X0[i]) < 3 * v["std"], (name, v, X0[i])
+    assert "initial state of lagging servo" in fit.table()
+    # the commanded angles and the scene's initial state (reuses the compiled fit of `fits`)
+    bad = pj.identify(exp, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE)
+    assert math.sqrt(bad.sigma2) > 20 * math.sqrt(fit.sigma2)
+
+
+def test_profile_likelihood(truth, clean, fits):
+    """One determined unknown (K_theta, t fixed at the truth): the profile-likelihood interval
+    agrees with the linearised one to 3 % of its width (the response is nearly linear in
+    K_theta over 6 %) and holds the truth."""
+    exp = _noisy(clean, 1.0, seed=1)
+    fit = pj.identify(exp, ("K_theta",), model="double1r",
+                      initial={"K_theta": 1.2 * float(truth.K_theta)}, noise=NOISE)
+    pr = fit.profile("K_theta")
+    lo, hi = pr["ci"]
+    llo, lhi = pr["linearised"]
+    assert pr["open"] == [] and pr["limited_by_bounds_of"] == []
+    assert abs(lo - llo) < 0.03 * (lhi - llo) and abs(hi - lhi) < 0.03 * (lhi - llo), pr
+    assert lo < float(truth.K_theta) < hi
+    # the walked points: a rise that grows both ways from zero at the estimate
+    d = np.asarray(pr["delta"])
+    k = int(np.argmin(np.abs(np.asarray(pr["values"]) - pr["estimate"])))
+    assert d[k] == 0.0 and np.all(np.diff(d[:k + 1]) < 0) and np.all(np.diff(d[k:]) > 0)
+
+    with pytest.raises(pj.PPRError, match="not an unknown of this fit"):
+        fit.profile("E")
+    # (the two-unknown profiles are checked through the CLI, test_cli_synth_then_identify)
+
+
 def test_bad_requests_raise_clear_errors(truth, clean):
     exp = _noisy(clean, 1.0, seed=0)
     with pytest.raises(pj.PPRError, match="unknown 'colour' is not a float parameter"):
@@ -197,6 +282,16 @@ def test_bad_requests_raise_clear_errors(truth, clean):
         pj.identify(exp, ("t",), scene="modes")
     with pytest.raises(pj.DataError, match="no experiment"):
         pj.identify([], ("t",))
+    with pytest.raises(pj.PPRError, match="unknown actuation"):
+        pj.identify(exp, ("t",), actuation="encoder")
+    with pytest.raises(pj.DataError, match=r"needs the actuated angles th_1, th_2, th_3"):
+        pj.identify(exp, ("t",), actuation="measured")
+    with pytest.raises(pj.PPRError, match="applies to the motion-driven servo-circle"):
+        pj.identify(exp, ("t",), actuation="measured", scene="paper-circle")
+    with pytest.raises(pj.PPRError, match="unknown initial_state"):
+        pj.identify(exp, ("t",), initial_state="all")
+    with pytest.raises(pj.PPRError, match="no free initial state"):
+        pj.identify(exp, ("t",), model="reduced", initial_state="pose")
 
 
 def test_cli_synth_then_identify(tmp_path, truth, capsys):
@@ -218,8 +313,14 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
     rc = main(["identify", "--data", path, "--model", "double1r", "--unknown", "t",
                "--unknown", "K_theta", "--initial", f"t={0.9 * float(truth.t)}",
                "--noise-pos", str(NOISE[0]), "--noise-phi", str(NOISE[1]),
-               "--max-steps", "100000", "--out", out])
+               "--max-steps", "100000", "--profile", "--out", out])
     assert rc == 0
+    # t and K_theta both unknown: K_theta's profile is open on both sides (t compensates), t's
+    # ends only where K_theta meets a bound, and the profile says so
+    prof = {p["name"]: p for p in json.load(open(f"{out}/profiles.json"))}
+    assert prof["K_theta"]["ci"] == [None, None] and prof["K_theta"]["open"] == ["low", "high"]
+    assert prof["t"]["open"] == [] and prof["t"]["limited_by_bounds_of"] == ["K_theta"]
+    assert "profile 95% interval of t" in open(f"{out}/estimates.txt").read()
     summary = json.load(open(f"{out}/estimates.json"))
     c0 = summary["identifiability"]["combinations"][0]
     e = dict(zip(["t", "K_theta"], c0["exponents"]))
@@ -230,7 +331,8 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
         assert lo <= float(getattr(truth, name)) <= hi
     import os
 
-    for f in ("estimates.txt", "fitted.csv", "fit_trajectory.png", "fit_residuals.png"):
+    for f in ("estimates.txt", "fitted.csv", "fit_trajectory.png", "fit_residuals.png",
+              "profiles.png"):
         assert os.path.getsize(f"{out}/{f}") > 0
     lines = open(f"{out}/fitted.csv").read().splitlines()
     assert lines[0].startswith("experiment,time,x_measured") and len(lines) == N + 1
