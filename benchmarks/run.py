@@ -335,6 +335,11 @@ def part_batch(args, out_dir) -> dict:
         rtols, t_end = (1e-6, 1e-8), 7.54
     data = {"machine": machine(args.quick), "scene": "paper-circle", "t_end_s": t_end,
             "members": "strip thickness spread evenly over 0.28-0.40 mm", "rows": []}
+    old = _load(out_dir, "batch")
+    if args.models:
+        plan = {m: b for m, b in plan.items() if m in args.models}
+        if old is not None and old.get("t_end_s") == t_end:
+            data["rows"] = [r for r in old["rows"] if r["model"] not in args.models]
     for model, sizes in plan.items():
         for rtol in rtols:
             for B in sizes:
@@ -364,7 +369,8 @@ def main(argv=None):
     ap.add_argument("--parts", nargs="+", choices=list(PARTS), default=list(PARTS))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--models", nargs="+", choices=list(pj.MODELS), default=None,
-                    help="work-precision: only these models (their rows replace the stored ones)")
+                    help="work-precision, batch: only these models (their rows replace the stored "
+                         "ones)")
     ap.add_argument("--scenes", nargs="+", choices=["paper-circle", "servo-circle"],
                     default=None, help="work-precision: only these scenes")
     ap.add_argument("--skip-l3-implicit", action="store_true",

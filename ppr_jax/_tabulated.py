@@ -86,10 +86,24 @@ class Tabulated(eqx.Module):
         return est / scale
 
 
+@jax.custom_batching.custom_vmap
+def _whole_batch(ok):
+    """`ok` for one member; under `vmap`, whether it holds for every member, unbatched."""
+    return ok
+
+
+@_whole_batch.def_vmap
+def _whole_batch_rule(axis_size, in_batched, ok):
+    (batched,) = in_batched
+    return (jnp.all(ok) if batched else ok), False
+
+
 class TableOrExact(eqx.Module):
     """The input `exact` of time, read from `table` where the table's estimated error is within
-    `TABLE_RTOL` and evaluated exactly otherwise (one `lax.cond` per call: only the chosen
-    branch runs, except under `vmap` with a batched choice, where both do)."""
+    `TABLE_RTOL` and evaluated exactly otherwise, by one `lax.cond` per call so that only the
+    chosen branch runs. Under `vmap` the choice is made once for the whole batch (the table
+    only if every member's is fine: the exact input is right for all): a per-member choice
+    would be batched, and a batched `cond` runs both branches for everyone."""
 
     table: Tabulated
     exact: Callable
@@ -97,7 +111,7 @@ class TableOrExact(eqx.Module):
 
     def __init__(self, table: Tabulated, exact: Callable):
         self.table, self.exact = table, exact
-        self.use_table = table.error_estimate() <= TABLE_RTOL
+        self.use_table = _whole_batch(table.error_estimate() <= TABLE_RTOL)
 
     def __call__(self, t):
         # Closures, not the modules themselves: lax.cond hashes its branch functions.

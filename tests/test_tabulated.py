@@ -125,3 +125,68 @@ def test_coarse_table_falls_back_to_the_exact_input(robot_and_inputs):
     assert float(jnp.max(jnp.abs(table - exact))) > 1e-6 * float(jnp.max(jnp.abs(exact)))
     # L0/L1 are never tabulated
     assert scene_input(pj.Reduced(), tau, ts_ok, 1) is tau
+
+
+def test_batch_decides_once_for_all_members():
+    """Under vmap the table-or-exact choice is one unbatched decision (a batched lax.cond would
+    run both branches): the table when every member's is fine, the exact input for all when any
+    member's table is too coarse; each member's value is still its own."""
+    from ppr_jax._tabulated import TableOrExact
+
+    def member(w, t):
+        fn = lambda t: jnp.sin(w * t)[None]  # noqa: E731
+        tox = TableOrExact(tabulate(fn, 0.0, 2.0, 161, order=1), fn)
+        return tox.use_table, tox(t), tox.table(t), fn(t)
+
+    t = 1.2345
+    use, got, table, exact = jax.vmap(member, (0, None))(jnp.array([1.0, 2.0]), t)
+    assert use.shape == (2,) and bool(use.all())  # the decision came back unbatched, broadcast
+    np.testing.assert_allclose(got, table, rtol=1e-14)
+    assert float(jnp.max(jnp.abs(table - exact))) > 0  # the table is not the exact input
+    use, got, table, exact = jax.vmap(member, (0, None))(jnp.array([1.0, 300.0]), t)
+    assert not bool(use.any())
+    np.testing.assert_allclose(got, exact, rtol=1e-14)
+    # a cond survives in the batched program (a batched predicate turns it into a select)
+    assert "cond[" in str(jax.make_jaxpr(jax.vmap(member, (0, None)))(jnp.array([1.0, 2.0]), t))
+
+
+# ---------------------------------------------------------------------------------------------
+# The spline through measured samples (identification with measured actuated angles)
+# ---------------------------------------------------------------------------------------------
+
+
+def test_spline_pieces_cubic_exact_smooth_fourth_order_and_padding():
+    """`spline_pieces` + `PiecewiseCubic`: a cubic is reproduced with its derivatives
+    (not-a-knot); sin(3 t) sampled at h is within 5 h^4 |f''''| / 384 (the clamped-spline bound,
+    loosened 5 times for not-a-knot's ends) and the error falls about 16 times when h halves;
+    before the samples the first piece continues, after them a C1 linear continuation."""
+    from ppr_jax._trajectory import PiecewiseCubic, spline_pieces
+
+    c = RNG.normal(size=4)
+    ts = np.linspace(0.2, 2.0, 13)
+    grid = np.concatenate([[0.0], ts, 2.0 + 0.15 * np.arange(1, 4)])
+    ys = np.polyval(c, ts)[:, None] * np.array([1.0, -2.0])
+    f = PiecewiseCubic(jnp.asarray(grid), jnp.asarray(spline_pieces(grid, ts, ys)))
+    t = jnp.asarray(RNG.uniform(0.0, 2.0, 50))
+    exact = np.polyval(c, np.asarray(t))[:, None] * np.array([1.0, -2.0])
+    np.testing.assert_allclose(jax.vmap(f)(t), exact, rtol=1e-11, atol=1e-11)
+    dd = jax.vmap(lambda t: pj.derivatives(f, t)[2])(t)
+    np.testing.assert_allclose(dd, np.polyval(np.polyder(c, 2), np.asarray(t))[:, None]
+                               * np.array([1.0, -2.0]), rtol=1e-9, atol=1e-9)
+    # padding: value and slope continue from the end, no curvature
+    y2, v2 = np.polyval(c, 2.0), np.polyval(np.polyder(c), 2.0)
+    x, xd, xdd = pj.derivatives(f, 2.3)
+    np.testing.assert_allclose(x[0], y2 + 0.3 * v2, rtol=1e-11)
+    np.testing.assert_allclose(xd[0], v2, rtol=1e-11)
+    assert float(xdd[0]) == 0.0
+
+    errs = []
+    for n in (41, 81):
+        ts = np.linspace(0.0, 2.0, n)
+        g = PiecewiseCubic(jnp.asarray(ts), jnp.asarray(spline_pieces(ts, ts, np.sin(3 * ts)[:, None])))
+        tt = np.linspace(0.0, 2.0, 2001)
+        errs.append(float(np.max(np.abs(np.asarray(jax.vmap(g)(jnp.asarray(tt)))[:, 0]
+                                        - np.sin(3 * tt)))))
+        h = 2.0 / (n - 1)
+        assert errs[-1] < 5 * h ** 4 * 81 / 384, (n, errs[-1])
+    assert 10 < errs[0] / errs[1] < 24, errs
