@@ -127,7 +127,8 @@ def cmd_simulate(args):
             "params": _params_dict(params),
             "derived": _derived_dict(params),
             "models": {r.model: dict(r.metrics, solver=r.solver) for r in results},
-            "beam": ({"elements": args.elements, "strip_dynamics": args.strip_dynamics}
+            "beam": ({"elements": args.elements, "strip_dynamics": args.strip_dynamics,
+                      "strip_loss_s": args.strip_loss}
                      if "beam" in models else None),
             "failed": failed,
             "paper_reference": PAPER_REFERENCE.get(scene),
@@ -387,10 +388,17 @@ def cmd_prb(args):
 
 
 def model_from_args(args, name: str):
-    """The model `name` with the `model` parent parser's options (--elements, --strip-dynamics)."""
+    """The model `name` with the `model` parent parser's options (--elements, --strip-dynamics,
+    --strip-loss)."""
     from ._models import get_model
 
-    return get_model(name, args.elements, args.strip_dynamics)
+    loss = getattr(args, "strip_loss", 0.0)
+    if name == "beam" and loss != 0 and args.strip_dynamics != "full":
+        raise PPRError(f"--strip-loss {loss:g} needs --strip-dynamics full (quasi-static "
+                       "strips have no strip modes to damp)")
+    # L0-L2 run beside the beam have no strips: --strip-loss is the beam's alone
+    return get_model(name, args.elements, args.strip_dynamics,
+                     strip_loss=loss if name == "beam" else 0.0)
 
 
 def parent_parsers() -> dict:
@@ -410,6 +418,11 @@ def parent_parsers() -> dict:
                        help="L3's strips: in static equilibrium for their clamp poses (9 "
                             "coordinates, fast) or with their own inertia and kHz modes (3 + 3N "
                             "coordinates, stiff: hours for a 7.54 s scene at N >= 8)")
+    model.add_argument("--strip-loss", type=float, default=0.0, metavar="SECONDS",
+                       help="Kelvin-Voigt material loss of L3's strips with --strip-dynamics "
+                            "full: retardation time tau (s), each strip spring damped by "
+                            "tau * its stiffness (damping ratio tau*omega/2; 1e-5 damps the "
+                            "first strip mode by 7.5%%); default 0 (undamped); the beam's alone")
     solve = argparse.ArgumentParser(add_help=False)
     solve.add_argument("--solver", default=None, choices=list(SOLVERS),
                        help="ODE solver (default: per model, see README 'Solvers')")

@@ -72,10 +72,11 @@ def _first_order(model: AbstractModel, robot: Robot, z, zdot):
     if Q is not None:
         return k, Q, jax.jacfwd(lambda z: model.bodies(robot, z))(z)
     jac = jax.jacfwd(lambda z: model.kinematics(robot, z))(z)
-    kk = model.stiffness(robot)
-    # kk is a scalar or one stiffness per spring (the beam's clamp half-springs differ).
+    kk, cc = model.stiffness(robot), model.damping(robot)
+    # kk and cc are scalars or one per spring (the beam's clamp half-springs differ; the full
+    # beam's Kelvin-Voigt loss is proportional to each spring's stiffness).
     Jd = jac.deflection
-    Q = -(Jd.T @ (kk * k.deflection)) - robot.c_spring * (Jd.T @ (Jd @ zdot))
+    Q = -(Jd.T @ (kk * k.deflection)) - Jd.T @ (cc * (Jd @ zdot))
     return k, Q, (jac.body_p, jac.body_ang, jac.th_a, jac.X)
 
 

@@ -37,11 +37,14 @@ def get_model(
     model: Union[str, AbstractModel],
     n_elements: Optional[int] = None,
     strip_dynamics: str = "quasi-static",
+    strip_loss: float = 0.0,
 ) -> AbstractModel:
     """A model from its name (see `MODELS`: rigid, reduced, double1r, beam) or an instance;
     `n_elements` is the number of beam elements per strip of `beam` (default 8) and
     `strip_dynamics` how its strips move: `quasi-static` (`QuasiStaticBeam`, 9 coordinates, the
-    default) or `full` (`Beam`, 3 + 3N coordinates with the strips' own modes: stiff)."""
+    default) or `full` (`Beam`, 3 + 3N coordinates with the strips' own modes: stiff).
+    `strip_loss` (s, default 0) is the full beam's Kelvin-Voigt retardation time (`Beam`); a
+    positive value with quasi-static strips (which have no strip modes to damp) raises."""
     if isinstance(model, AbstractModel):
         return model
     cls = MODELS.get(str(model))
@@ -56,5 +59,10 @@ def get_model(
         # (773 coordinates) compilation alone takes hours, and the model has long converged.
         n = check_number("elements (beam elements per strip of L3)", n, 2, MAX_ELEMENTS,
                          integer=True)
-        return Beam(n) if strip_dynamics == "full" else QuasiStaticBeam(n)
+        if strip_dynamics == "full":
+            return Beam(n, strip_loss=strip_loss)
+        if strip_loss != 0:
+            raise PPRError(f"strip_loss = {strip_loss!r} s needs strip_dynamics 'full' (the "
+                           "quasi-static strips have no strip modes to damp); use 0 or full")
+        return QuasiStaticBeam(n)
     return cls()

@@ -184,11 +184,40 @@ class Beam(AbstractBeam):
 
     `n_elements` (static) is N, the number of rigid segments per strip; n_dof = 3 + 3N.
     z = (x, y, phi, th_a1, th_a2, th_a3, phi_12..phi_1N, phi_22..phi_2N, phi_32..phi_3N)
-    (m, m, rad, rad...). Converges to the elastica as O(1/N^2)."""
+    (m, m, rad, rad...). Converges to the elastica as O(1/N^2).
+
+    `strip_loss` (static, seconds, >= 0; default 0: undamped strips, as in the paper) is the
+    retardation time tau of a Kelvin-Voigt material loss in the strips: each strip spring i gets
+    the viscous damping c_spring + tau k_i (N m s/rad), k_i its entry of `stiffness`, so the
+    damping matrix is c_spring J_d^T J_d + tau K and an undamped mode of angular frequency omega
+    whose energy sits in the strips gets the damping ratio zeta = tau omega / 2. Stiffness-
+    proportional on purpose: it damps the fast strip modes (kHz, what makes the full L3 stiff
+    and rings after every jerk of the drive) and leaves the slow modes of the robot nearly
+    untouched. For tau = 1e-5 s (N = 8, default robot, actuators locked): the first strip mode
+    (2.4 kHz) gets zeta = 0.075, the highest (19.9 kHz; 85 kHz at N = 16) zeta = 0.62, and the
+    robot's first mode (9.6 Hz) zeta = 3e-4. Zero is allowed (the default); a negative value
+    raises `PPRError`. The loss enters through `damping`, which `_dynamics.py` applies to every
+    spring's deflection rate."""
 
     name = "beam"
     level = 3
     actuated_index = (3, 4, 5)
+
+    strip_loss: float = eqx.field(default=0.0, static=True)
+
+    def __check_init__(self):
+        v = self.strip_loss
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0 or v == float("inf"):
+            raise PPRError(f"strip_loss (Kelvin-Voigt retardation time of the strips) must be a "
+                           f"finite number of seconds in [0, inf), got {v!r}")
+
+    def damping(self, robot):
+        """Viscous damping of the springs (N m s/rad), one per entry of `Kin.deflection`:
+        c_spring + strip_loss * `stiffness` (Kelvin-Voigt strips; class docstring); the scalar
+        c_spring when strip_loss is 0."""
+        if self.strip_loss == 0:
+            return robot.c_spring
+        return robot.c_spring + self.strip_loss * self.stiffness(robot)
 
     @property
     def n_dof(self) -> int:  # type: ignore[override]
