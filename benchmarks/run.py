@@ -333,6 +333,11 @@ def part_batch(args, out_dir) -> dict:
     else:
         plan = {"reduced": (1, 8, 64, 256, 1024), "double1r": (1, 8, 64)}
         rtols, t_end = (1e-6, 1e-8), 7.54
+    if args.sizes:
+        plan = {m: tuple(args.sizes) for m in plan}
+        if args.models:
+            plan.update({m: tuple(args.sizes) for m in args.models})
+    rtols = tuple(args.rtols) if args.rtols else rtols
     data = {"machine": machine(args.quick), "scene": "paper-circle", "t_end_s": t_end,
             "members": "strip thickness spread evenly over 0.28-0.40 mm", "rows": []}
     old = _load(out_dir, "batch")
@@ -375,6 +380,11 @@ def main(argv=None):
                     default=None, help="work-precision: only these scenes")
     ap.add_argument("--skip-l3-implicit", action="store_true",
                     help="leave Kvaerno5 out for L3 (its compilation is the longest)")
+    ap.add_argument("--sizes", nargs="+", type=int, default=None,
+                    help="batch: these batch sizes for every model (default 1-1024 for L1, "
+                         "1-64 for L2; a GPU takes 4096)")
+    ap.add_argument("--rtols", nargs="+", type=float, default=None,
+                    help="batch: these tolerances (default 1e-6 1e-8)")
     ap.add_argument("--out", default=None,
                     help="results directory (default benchmarks/results/<backend>)")
     args = ap.parse_args(argv)
