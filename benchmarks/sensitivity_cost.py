@@ -65,6 +65,12 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--checkpoints", type=int, nargs="*", default=[])
     ap.add_argument("--skip-jacfwd", action="store_true")
+    ap.add_argument("--backsolve", action="store_true",
+                    help="also time diffrax.BacksolveAdjoint (continuous adjoint)")
+    ap.add_argument("--out", default="sensitivity_cost.json",
+                    help="file name under benchmarks/results/")
+    ap.add_argument("--only-grad", action="store_true",
+                    help="forward run and reverse-mode variants only (no jvp)")
     args = ap.parse_args()
     os.makedirs(OUT, exist_ok=True)
     f, x0, names = metric_function("paper-circle", model=args.model, t_end=args.t_end,
@@ -75,7 +81,7 @@ def main():
            "backend": jax.default_backend(), "model": args.model, "t_end_s": args.t_end,
            "n_out": args.n_out, "rtol": args.rtol, "n_parameters": len(names),
            "scalar": "radial_error_min_m", "rows": {}}
-    path = os.path.join(OUT, "sensitivity_cost.json")
+    path = os.path.join(OUT, args.out)
 
     def record(name, fn):
         c, compiled = _compile(fn, x0)
@@ -90,13 +96,17 @@ def main():
 
     tangent = jnp.zeros_like(x0).at[names.index("t")].set(x0[names.index("t")])
     record("forward_run", jax.jit(lambda x: f(x)[0]))
-    record("jvp_one_tangent", jax.jit(
-        lambda x: jax.jvp(lambda y: f(y, diffrax.ForwardMode())[0], (x,), (tangent,))[1]))
+    if not args.only_grad:
+        record("jvp_one_tangent", jax.jit(
+            lambda x: jax.jvp(lambda y: f(y, diffrax.ForwardMode())[0], (x,), (tangent,))[1]))
     record("grad_checkpoints_default", jax.jit(jax.grad(lambda x: f(x)[0])))
     for c in args.checkpoints:
         adj = diffrax.RecursiveCheckpointAdjoint(checkpoints=c)
         record(f"grad_checkpoints_{c}", jax.jit(jax.grad(lambda x, adj=adj: f(x, adj)[0])))
-    if not args.skip_jacfwd:
+    if args.backsolve:
+        adj = diffrax.BacksolveAdjoint(solver=diffrax.Tsit5())
+        record("grad_backsolve", jax.jit(jax.grad(lambda x: f(x, adj)[0])))
+    if not args.skip_jacfwd and not args.only_grad:
         record("jacfwd_all_parameters", jax.jit(
             jax.jacfwd(lambda x: f(x, diffrax.ForwardMode())[0])))
     print(f"wrote {path}")
