@@ -185,7 +185,7 @@ def plot(db):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    runs = db["runs"]
+    runs = [r for r in db["runs"] if "run_s" in r]  # not the runs that did not finish
     Ns = sorted({r["N"] for r in runs})
     if not Ns:
         return
