@@ -32,6 +32,7 @@ dv = pj.derived(cl)
 cl = cl.replace(K_theta=float(dv.K_theta), gamma=float(dv.gamma))
 strip = cl.replace(joint_geometry="strip")
 NOISE, RATE = (1e-4, 1e-3), 100.0
+OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "identify_l3.json")
 
 t0 = time.perf_counter()
 exp = pj.synthesize("servo-circle", pj.QuasiStaticBeam(args.elements), cl, noise_pos=NOISE[0],
@@ -58,7 +59,5 @@ for geometry, base in (("centerline", cl), ("strip", strip)):
         if names:
             row.update(estimates=d["unknowns"], identifiability=d["identifiability"])
         out["fits"].append(row)
-        OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
-                           "identify_l3.json")
         json.dump(out, open(OUT, "w"), indent=1, default=str)
 print("wrote", OUT)

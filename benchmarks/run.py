@@ -334,9 +334,7 @@ def part_batch(args, out_dir) -> dict:
         plan = {"reduced": (1, 8, 64, 256, 1024), "double1r": (1, 8, 64)}
         rtols, t_end = (1e-6, 1e-8), 7.54
     if args.sizes:
-        plan = {m: tuple(args.sizes) for m in plan}
-        if args.models:
-            plan.update({m: tuple(args.sizes) for m in args.models})
+        plan = {m: tuple(args.sizes) for m in (args.models or plan)}
     rtols = tuple(args.rtols) if args.rtols else rtols
     data = {"machine": machine(args.quick), "scene": "paper-circle", "t_end_s": t_end,
             "members": "strip thickness spread evenly over 0.28-0.40 mm", "rows": []}
