@@ -1,5 +1,9 @@
 """JAX's persistent compilation cache, so that a second run on the same machine does not compile
-again (the scenes' programs hold no host callbacks, which the cache could not store)."""
+again. The cache does not store programs with host callbacks: the scene programs report failures
+as status codes, but diffrax checks its output times with `eqx.error_if`, a callback unless
+equinox's runtime errors are in NaN mode (`EQX_ON_ERROR=nan`, as the console script sets). The
+exported scene programs (`_programs.py`, `run_scene(program_dir=...)`) are traced in NaN mode
+whatever the session's mode, so their compiled form is always stored."""
 
 from __future__ import annotations
 

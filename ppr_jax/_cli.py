@@ -141,7 +141,8 @@ def cmd_simulate(args):
         _log(f"[{i + 1}/{len(models)}] {scene}: model {m} (compiling, then running) ...")
         t0 = time.perf_counter()
         try:
-            r = run_scene(scene, params, model=objs[i], torque_model=args.torque_model, **kw)
+            r = run_scene(scene, params, model=objs[i], torque_model=args.torque_model,
+                          program_dir=getattr(args, "program_dir", None), **kw)
         except PPRError as err:
             failed[m] = " ".join(str(err).split())
             _log(f"      {m} failed: {failed[m]}")
@@ -565,11 +566,14 @@ def main(argv=None) -> int:
     import jax
 
     args = build_parser().parse_args(argv)
+    args.program_dir = None
     if os.environ.get("PPR_JAX_CACHE", "1") != "0":
         from ._cache import enable_compilation_cache
+        from ._programs import PROGRAM_SUBDIR
 
         try:
-            enable_compilation_cache()
+            # Exported scene programs beside the compiled ones: a second run skips tracing too.
+            args.program_dir = os.path.join(enable_compilation_cache(), PROGRAM_SUBDIR)
         except OSError as err:  # a read-only home: run without the cache, say so once
             _log(f"ppr-jax: note: compilation cache disabled ({err})")
     try:

@@ -71,6 +71,12 @@ class Derived(eqx.Module):
     rho_E: Array
 
 
+def derived_concrete(params: RobotParams) -> Derived:
+    """`derived` for concrete parameters as one compiled program: op by op it would dispatch
+    about fifty small computations, each compiled on its first use (about 1 s per process)."""
+    return _derived_jit(params)
+
+
 def derived(params: RobotParams) -> Derived:
     """All derived quantities of MODEL.md section 3 and the mass properties of section 1."""
     p = params
@@ -125,3 +131,6 @@ def derived(params: RobotParams) -> Derived:
         r3=r3, delta1=delta1, delta3=delta3, psi0=psi0, R1=R1, R3=R3, K0=K0, m1=m1, I1=I1, m2=m2, I2=I2, m3=m3, I3=I3, m4=m4,
         I4=I4, rho_E=rho_E,
     )
+
+
+_derived_jit = eqx.filter_jit(derived)

@@ -17,7 +17,8 @@ import numpy as np
 from ._checks import PPRError
 from ._metrics import metrics
 from ._params import RobotParams
-from ._scenes import SceneResult, _finish, _prepare, scene_params
+from ._programs import compiled_program
+from ._scenes import SceneResult, _finish, _prepare, result_template, scene_params
 from ._trajectory import Circle
 
 #: the scenes `run_scene` runs (`modes` has its own report: `ppr_jax.modes_scene`)
@@ -100,12 +101,18 @@ def run_scene(
     atol: float = 1e-10,
     max_steps: int = 200_000,
     repeats: int = 1,
+    program_dir: Optional[str] = None,
 ) -> SceneReport:
     """Run scene `paper-circle` or `servo-circle` (arguments as `paper_circle`; `torque_model`
     is used by `paper-circle` only) and time it: compilation ahead of time (lowering and
     compiling; a cache hit once a model and shapes have run), then `repeats` runs (at least one),
     each after `block_until_ready`; `timing = {compile_s, run_s: fastest run}`. A failure raises
-    `SimulationError` naming the failed members. Returns a `SceneReport`."""
+    `SimulationError` naming the failed members. Returns a `SceneReport`.
+
+    `program_dir`: a directory of exported scene programs (`_programs.py`; the command line
+    passes one inside its compilation cache): the program is loaded from there, or exported there
+    on first use, so that a later process skips tracing too; `timing["program"]` says which
+    ("loaded", "exported", or "compiled" where the program cannot be stored)."""
     if scene not in RUN_SCENES:
         raise PPRError(f"unknown scene {scene!r}; allowed: {', '.join(RUN_SCENES)}")
     params = scene_params(scene) if params is None else params
@@ -115,7 +122,8 @@ def run_scene(
     # cache), then run `repeats` times; no extra run just to separate compilation from the run.
     # Tolerances are arrays, so changing them does not recompile.
     t0 = time.perf_counter()
-    fn = c.fn.lower(*c.args).compile()
+    fn, how = compiled_program(c.fn, c.args, result_template(c), program_dir,
+                               f"{scene}-{c.args[0].name}")
     compile_s = time.perf_counter() - t0
     runs = []
     for _ in range(max(int(repeats), 1)):
@@ -125,7 +133,7 @@ def run_scene(
         runs.append(time.perf_counter() - t1)
     res = _finish(res)
     m = scene_metrics(res, trajectory)
-    timing = {"compile_s": compile_s, "run_s": min(runs)}
+    timing = {"compile_s": compile_s, "run_s": min(runs), "program": how}
     for mm in m if isinstance(m, list) else [m]:
         mm.update(wall_time_s=timing["run_s"], compile_time_s=timing["compile_s"])
     return SceneReport(

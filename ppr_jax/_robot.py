@@ -35,7 +35,7 @@ import numpy as np
 
 from ._checks import PPRError
 from ._params import RobotParams
-from ._prb import Derived, derived
+from ._prb import Derived, derived, derived_concrete
 
 
 def _concrete(x) -> bool:
@@ -67,7 +67,8 @@ class Robot(eqx.Module):
         if not isinstance(params, RobotParams):
             raise TypeError(f"Robot needs RobotParams, got {type(params).__name__}")
         self.params = params
-        self.dv = derived(params)
+        concrete = all(_concrete(x) for x in jax.tree_util.tree_leaves(params))
+        self.dv = derived_concrete(params) if concrete else derived(params)
         auto = _equal_links(params)
         if equal_links is None:
             equal_links = auto

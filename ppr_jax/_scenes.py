@@ -269,6 +269,17 @@ def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solve
                      solver_name=solver_name)
 
 
+def result_template(call: SceneCall) -> SceneResult:
+    """A `SceneResult` with the tree structure of `call`'s result (zeros as leaves): how a
+    stored program's flat outputs are put back together (`_programs.py`)."""
+    z = np.zeros(())
+    return SceneResult(
+        ts=z, z=z, zdot=z, X=z, X_nominal=z, tau=z, end_rot=z, residual=z, kinetic=z,
+        potential=z, result=RESULTS.successful, num_steps=z, num_accepted=z, num_rejected=z,
+        scene=call.scene, model=call.args[0].name,
+    )
+
+
 def _failure_detail(res: SceneResult):
     """Host-side particulars of a failed member: when its loop opened, how far."""
     resid = np.asarray(res.residual)

@@ -1,0 +1,102 @@
+"""Exported scene programs (`ppr_jax._programs`): a stored program gives the results of the
+usual compile, for any parameter values, its key is the same in a fresh process and changes with
+everything the trace depends on, and a damaged or unstorable program falls back to the usual
+compile."""
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import diffrax
+import jax
+import numpy as np
+import pytest
+
+import ppr_jax as pj
+from ppr_jax._programs import NotExportable, program_key
+from ppr_jax._scenes import _prepare
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+#: a short scene: the program is the full scene's, its run is short
+KW = dict(model="rigid", t_end=0.1, n_out=11)
+
+
+def _call(**over):
+    kw = dict(scene="paper-circle", params=None, model="rigid", torque_model="reduced",
+              trajectory=None, t_end=0.1, n_out=11, solver=None, rtol=1e-8, atol=1e-10,
+              max_steps=200_000)
+    kw.update(over)
+    return _prepare(**kw)
+
+
+def _same(a, b):
+    la = jax.tree_util.tree_leaves(a.result)
+    lb = jax.tree_util.tree_leaves(b.result)
+    assert len(la) == len(lb)
+    for x, y in zip(la, lb):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-13, atol=1e-15)
+
+
+@pytest.fixture(scope="module")
+def direct():
+    """The usual compile, the reference."""
+    return {t: pj.run_scene("paper-circle", pj.scene_params("paper-circle", t=t), **KW)
+            for t in (0.3e-3, 0.35e-3)}
+
+
+def test_stored_program_equals_the_usual_compile(tmp_path, direct):
+    d = str(tmp_path / "programs")
+    first = pj.run_scene("paper-circle", **KW, program_dir=d)
+    assert first.timing["program"] == "exported"
+    assert len(os.listdir(d)) == 1
+    _same(first, direct[0.3e-3])
+    # Another thickness is another input, not another program: loaded, and its own results.
+    second = pj.run_scene("paper-circle", pj.scene_params("paper-circle", t=0.35e-3), **KW,
+                          program_dir=d)
+    assert second.timing["program"] == "loaded"
+    assert len(os.listdir(d)) == 1
+    _same(second, direct[0.35e-3])
+    assert second.metrics["radial_error_max_m"] != first.metrics["radial_error_max_m"]
+
+    # A damaged file is exported afresh over, not trusted.
+    (path,) = pathlib.Path(d).iterdir()
+    path.write_bytes(b"not a program")
+    third = pj.run_scene("paper-circle", **KW, program_dir=d)
+    assert third.timing["program"] == "exported"
+    _same(third, direct[0.3e-3])
+
+
+def test_key_is_the_same_in_a_fresh_process():
+    script = ("from ppr_jax._scenes import _prepare; from ppr_jax._programs import program_key; "
+              "c = _prepare('paper-circle', None, 'rigid', 'reduced', None, 0.1, 11, None, "
+              "1e-8, 1e-10, 200000); print(program_key(c.args, 'x'))")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
+                         text=True, timeout=300, check=True).stdout.split()[-1]
+    assert out == program_key(_call().args, "x")
+
+
+def test_key_follows_what_the_trace_depends_on():
+    base = program_key(_call().args, "x")
+    # numbers are inputs: same program
+    assert program_key(_call(rtol=1e-6, t_end=0.2).args, "x") == base
+    assert program_key(_call(params=pj.scene_params("paper-circle", t=0.4e-3)).args, "x") == base
+    # shapes, structure and static choices are not
+    assert program_key(_call(n_out=12).args, "x") != base
+    assert program_key(_call(solver="dopri5").args, "x") != base
+    assert program_key(_call(model="reduced").args, "x") != base
+    assert program_key(_call(params=pj.scene_params("paper-circle", l3=0.1)).args, "x") != base
+    assert (program_key(_call(model=pj.Beam(8)).args, "x")
+            != program_key(_call(model=pj.Beam(10)).args, "x"))
+    assert program_key(_call().args, "y") != base
+
+
+def test_a_closure_in_the_static_arguments_is_not_stored():
+    c = _call()
+    norm = lambda x: jax.numpy.max(jax.numpy.abs(x))  # noqa: E731
+    args = list(c.args)
+    i = next(k for k, a in enumerate(args) if isinstance(a, diffrax.PIDController))
+    args[i] = diffrax.PIDController(rtol=1e-8, atol=1e-10, norm=norm)
+    with pytest.raises(NotExportable):
+        program_key(tuple(args), "x")
