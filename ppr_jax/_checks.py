@@ -56,6 +56,12 @@ class RESULTS(diffrax.RESULTS):
         f"output time): the pose is out of the chains' reach (check a, h, l1, l3, r and the "
         f"trajectory) or the motion crosses a singularity"
     )
+    input_table_too_coarse = (
+        "the scene's input (torques or prescribed angles), interpolated from a table of its "
+        "values at evenly spaced times, has an estimated relative error above 1e-8: ask for more "
+        "output times (n_out; the table has at least one node per output time) or a shorter "
+        "t_end (with a concrete t_end the table grows with the horizon by itself)"
+    )
     kinematics_failed = (
         "forward kinematics did not converge along the prescribed path: the actuated angles "
         "leave the workspace or cross a singularity"

@@ -75,10 +75,10 @@ from ._models import Reduced, get_model
 from ._params import PARAM_RANGES, RobotParams
 from ._prb import derived
 from ._robot import Robot
-from ._scenes import _kinematic_motion, scene_params
+from ._scenes import _kinematic_motion, input_nodes_at, scene_params
 from ._simulate import _simulate_core, get_solver
 from ._statics import _quasi_static_state
-from ._tabulated import scene_input
+from ._tabulated import input_too_coarse, scene_input
 from ._trajectory import Circle, Interpolated, PiecewiseCubic, spline_pieces
 
 LOSSES = ("linear", "huber", "cauchy")
@@ -197,11 +197,15 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
             return X, ok
         # The commands as the scenes take them (tabulated for L2/L3), so that a fit of a
         # scene's output runs the scene's own program.
-        act = MotionDriven(angles if th is not None else scene_input(model, angles, ts, 2))
+        inp = angles if th is not None else scene_input(model, angles, ts, 2,
+                                                        input_nodes_at(traj, ts))
+        act = MotionDriven(inp)
     else:
-        torque = (scene_input(model, InverseDynamicsTorque(Reduced(), base_robot, traj), ts, 1)
-                  if tau is None else Interpolated(ts, tau))
-        act = TorqueDriven(torque)
+        inp = (scene_input(model, InverseDynamicsTorque(Reduced(), base_robot, traj), ts, 1,
+                           input_nodes_at(traj, ts))
+               if tau is None else Interpolated(ts, tau))
+        act = TorqueDriven(inp)
+    coarse = input_too_coarse(inp)
     # The status-returning form: a failure is a flag of the compiled program, not a callback.
     z0, zd0, qs_failed = _quasi_static_state(model, robot, traj, ts[0], act)
     # estimated initial state: the platform pose and velocity are z[:3] in every model
@@ -211,7 +215,8 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
                          diffrax.ForwardMode())
     X = jax.vmap(lambda z: model.kinematics(robot, z).X)(sol.z)
     # Compared by code (0 = success) so that any RESULTS enumeration built on diffrax's works.
-    return X, (sol.result._value == diffrax.RESULTS.successful._value) & ~qs_failed
+    ok = (sol.result._value == diffrax.RESULTS.successful._value) & ~qs_failed
+    return X, ok if coarse is None else ok & ~coarse
 
 
 def _robust(r, loss, c):

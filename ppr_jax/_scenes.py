@@ -33,7 +33,7 @@ from ._params import RobotParams, params_invalid
 from ._robot import Robot
 from ._simulate import Solution, _simulate_core, get_solver
 from ._statics import _quasi_static_state
-from ._tabulated import scene_input
+from ._tabulated import input_too_coarse, scene_input, scene_nodes
 from ._trajectory import Circle, derivatives
 
 SCENES = ("paper-circle", "servo-circle", "modes")
@@ -117,7 +117,7 @@ def _reference_open(ref_model, robot, traj, ts):
 
 
 def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None,
-            ref_open=None) -> SceneResult:
+            ref_open=None, coarse=None) -> SceneResult:
     out = outputs(model, robot, sol.z, sol.zdot)
     # Every precondition as a status code (most fundamental cause first): invalid parameters
     # (in sol.result), no initial state, the solver's failure, a chain that does not close at
@@ -125,6 +125,7 @@ def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None
     result = first_failure(
         (params_invalid(robot.params), RESULTS.invalid_parameter),
         (ref_open, RESULTS.trajectory_out_of_reach),
+        (coarse, RESULTS.input_table_too_coarse),
         (qs_failed, RESULTS.initial_state_failed),
         (open0, RESULTS.loop_not_closed),
         sol.result,
@@ -140,18 +141,28 @@ def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None
 
 
 def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller, max_steps,
-                       adjoint):
-    act = TorqueDriven(scene_input(model, InverseDynamicsTorque(torque_model, robot, traj),
-                                    ts, 1))
+                       adjoint, nodes):
+    torque = scene_input(model, InverseDynamicsTorque(torque_model, robot, traj), ts, 1, nodes)
+    coarse = input_too_coarse(torque)
+    act = TorqueDriven(torque)
     z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
     open0 = _open_at(model, robot, z0)
     ref_open = _reference_open(torque_model, robot, traj, ts)
     sol = _simulate_core(
         model, robot, act, z0, zd0, ts, solver, controller, None, max_steps,
         jnp.zeros(3), False, diffrax.NoProgressMeter(), adjoint,
-        failed | open0 | ref_open | params_invalid(robot.params),
+        _any(failed, open0, ref_open, coarse, params_invalid(robot.params)),
     )
-    return _result("paper-circle", model, robot, traj, sol, failed, open0, ref_open)
+    return _result("paper-circle", model, robot, traj, sol, failed, open0, ref_open, coarse)
+
+
+def _any(*flags):
+    """Or of the flags that were checked (None: not checked)."""
+    out = False
+    for f in flags:
+        if f is not None:
+            out = out | f
+    return out
 
 
 def _kinematic_motion(model, robot, angles, X0, ts):
@@ -175,7 +186,7 @@ def _kinematic_motion(model, robot, angles, X0, ts):
     return X, Xd, tau, codes
 
 
-def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, adjoint):
+def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, adjoint, nodes):
     angles = InverseKinematicsAngles(Reduced(), robot, traj)
     ref_open = _reference_open(Reduced(), robot, traj, ts)
     if model.actuated_index is None:
@@ -191,15 +202,17 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, ad
         )
     else:
         # th, th' and th'' at every stage: quintic Hermite from the table (`_tabulated`).
-        act = MotionDriven(scene_input(model, angles, ts, 2))
+        angles_in = scene_input(model, angles, ts, 2, nodes)
+        coarse = input_too_coarse(angles_in)
+        act = MotionDriven(angles_in)
         z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
         open0 = _open_at(model, robot, z0)
         sol = _simulate_core(
             model, robot, act, z0, zd0, ts, solver, controller, None, max_steps, jnp.zeros(3),
             False, diffrax.NoProgressMeter(), adjoint,
-            failed | open0 | ref_open | params_invalid(robot.params),
+            _any(failed, open0, ref_open, coarse, params_invalid(robot.params)),
         )
-        return _result("servo-circle", model, robot, traj, sol, failed, open0, ref_open)
+        return _result("servo-circle", model, robot, traj, sol, failed, open0, ref_open, coarse)
     return _result("servo-circle", model, robot, traj, sol, ref_open=ref_open)
 
 
@@ -209,7 +222,7 @@ _JIT = {name: eqx.filter_jit(core) for name, (core, _) in _CORES.items()}
 # Batched cores: vmapped over the robot only, compiled once per (model, batch size).
 _BATCH = {
     name: eqx.filter_jit(
-        eqx.filter_vmap(core, in_axes=tuple(0 if i == k else None for i in range(k + 7)))
+        eqx.filter_vmap(core, in_axes=tuple(0 if i == k else None for i in range(k + 8)))
     )
     for name, (core, k) in _CORES.items()
 }
@@ -262,7 +275,8 @@ def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solve
     robot = Robot(params)
     pre = (model, get_model(torque_model)) if scene == "paper-circle" else (model,)
     adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
-    post = (traj, ts, get_solver(solver), controller, max_steps, adjoint)
+    nodes = input_nodes(traj, t_end, n_out)
+    post = (traj, ts, get_solver(solver), controller, max_steps, adjoint, nodes)
     batched = _batched(params)
     fn = (_BATCH if batched else _JIT)[scene]
     return SceneCall(fn=fn, args=(*pre, robot, *post), scene=scene, batched=batched,
@@ -278,6 +292,22 @@ def result_template(call: SceneCall) -> SceneResult:
         potential=z, result=RESULTS.successful, num_steps=z, num_accepted=z, num_rejected=z,
         scene=call.scene, model=call.args[0].name,
     )
+
+
+def input_nodes(traj, t_end, n_out: int) -> int:
+    """Nodes of the scene's input table (`_tabulated.scene_nodes`). The count is a shape, so it
+    is decided before tracing: more nodes for a longer horizon where t_end and the trajectory's
+    speed (`omega`) are concrete, the minimum otherwise (the scene then reports a table too
+    coarse for its horizon as `RESULTS.input_table_too_coarse`)."""
+    omega = getattr(traj, "omega", None)
+    known = not (is_traced(t_end) or omega is None or is_traced(omega) or np.ndim(omega) != 0)
+    return scene_nodes(n_out, float(t_end) * float(omega) if known else None)
+
+
+def input_nodes_at(traj, ts) -> int:
+    """`input_nodes` for output times `ts` (traced or not)."""
+    t_end = ts[-1] if is_traced(ts) else float(np.asarray(ts)[-1])
+    return input_nodes(traj, t_end, ts.shape[0])
 
 
 def _failure_detail(res: SceneResult):

@@ -11,11 +11,17 @@ h^4/384 max|f^(4)| and h^6/46080 max|f^(6)| on a grid of spacing h. For the pape
 of about 6e-11,
 far below any solver tolerance; the tests check it against the exact input.
 
-The table estimates its own error from the same bound, with the highest derivative taken from
-finite differences of the stored ones (`Tabulated.error_estimate`, no extra evaluations). Where
-it is coarser than `TABLE_RTOL` (a long horizon with few output times, a fast trajectory), the
-scene evaluates the exact input at every stage instead (`TableOrExact`): slower, never less
-accurate.
+The node count is static (`scene_nodes`): at least `MIN_NODES`, one per output time, and, where
+the horizon is known when the scene is prepared, `NODES_PER_RADIAN` per radian of the nominal
+motion (the circle's omega t_end), rounded up to `MIN_NODES` times a power of two so that
+horizons of similar length share a program. The table estimates its own error from the same
+bound, with the highest derivative taken from finite differences of the stored ones
+(`Tabulated.error_estimate`, no extra evaluations); a scene whose table is coarser than
+`TABLE_RTOL` (a horizon or a trajectory speed the node count did not foresee, such as a traced
+t_end) fails with `RESULTS.input_table_too_coarse` instead of integrating an inaccurate input.
+An earlier version evaluated the exact input at every stage in that case, inside a `lax.cond`:
+that branch (the L1 inverse dynamics under nested derivatives) made up a third of L2's program
+and doubled its compile time, for a case the node count now avoids.
 
 Only the models whose right-hand side is expensive tabulate (L2, L3); L0 and L1 take fewer
 steps than the table has nodes at the usual tolerances, so they evaluate the exact input at
@@ -24,11 +30,12 @@ every stage.
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Optional
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 #: Fewest nodes a scene tabulates its input on (more when it asks for more output times).
@@ -36,12 +43,22 @@ MIN_NODES = 512
 #: Largest estimated error of a scene's input table, relative to the input's largest magnitude,
 #: that a scene accepts.
 TABLE_RTOL = 1e-8
+#: Fewest nodes per radian of the nominal motion where the horizon is known: the paper's torques
+#: interpolate to about 1e-9 relative at this spacing (6e-11 at the default 755 nodes over one
+#: turn, 120 per radian; the error falls as the fourth power of the spacing).
+NODES_PER_RADIAN = 60
 
 
-def scene_nodes(n_out: int) -> int:
-    """Nodes of a scene's input grid for `n_out` output times (static): at least `MIN_NODES`,
-    and one per output time beyond that, so that a long horizon can ask for a fine table."""
-    return max(MIN_NODES, int(n_out))
+def scene_nodes(n_out: int, span_radians: Optional[float] = None) -> int:
+    """Nodes of a scene's input grid (static): at least `MIN_NODES`, one per output time, and
+    with `span_radians` (omega t_end of the nominal motion, when known) `NODES_PER_RADIAN` per
+    radian, rounded up to `MIN_NODES` times a power of two."""
+    n = max(MIN_NODES, int(n_out))
+    if span_radians is not None:
+        need = int(np.ceil(NODES_PER_RADIAN * abs(float(span_radians)))) + 1
+        if need > n:
+            n = max(n, MIN_NODES * 2 ** int(np.ceil(np.log2(need / MIN_NODES))))
+    return n
 
 
 class Tabulated(eqx.Module):
@@ -86,38 +103,6 @@ class Tabulated(eqx.Module):
         return est / scale
 
 
-@jax.custom_batching.custom_vmap
-def _whole_batch(ok):
-    """`ok` for one member; under `vmap`, whether it holds for every member, unbatched."""
-    return ok
-
-
-@_whole_batch.def_vmap
-def _whole_batch_rule(axis_size, in_batched, ok):
-    (batched,) = in_batched
-    return (jnp.all(ok) if batched else ok), False
-
-
-class TableOrExact(eqx.Module):
-    """The input `exact` of time, read from `table` where the table's estimated error is within
-    `TABLE_RTOL` and evaluated exactly otherwise, by one `lax.cond` per call so that only the
-    chosen branch runs. Under `vmap` the choice is made once for the whole batch (the table
-    only if every member's is fine: the exact input is right for all): a per-member choice
-    would be batched, and a batched `cond` runs both branches for everyone."""
-
-    table: Tabulated
-    exact: Callable
-    use_table: Array
-
-    def __init__(self, table: Tabulated, exact: Callable):
-        self.table, self.exact = table, exact
-        self.use_table = _whole_batch(table.error_estimate() <= TABLE_RTOL)
-
-    def __call__(self, t):
-        # Closures, not the modules themselves: lax.cond hashes its branch functions.
-        return jax.lax.cond(self.use_table, lambda t: self.table(t), lambda t: self.exact(t), t)
-
-
 def tabulate(fn: Callable, t0, t1, n: int, order: int = 1) -> Tabulated:
     """`Tabulated` of fn (a function of time returning an array) on n uniform nodes over
     [t0, t1], with `order` exact time derivatives (1: cubic, 2: quintic interpolation), all
@@ -142,10 +127,20 @@ def tabulate(fn: Callable, t0, t1, n: int, order: int = 1) -> Tabulated:
                      nodes=nodes)
 
 
-def scene_input(model, fn: Callable, ts, order: int) -> Callable:
+def scene_input(model, fn: Callable, ts, order: int, nodes: Optional[int] = None) -> Callable:
     """A scene's input `fn` of time as its integrator calls it, for output times `ts`: for the
-    models with an expensive right-hand side (level >= 2) a `TableOrExact` on `scene_nodes`
-    nodes over [ts[0], ts[-1]] with `order` derivatives; for L0/L1 `fn` itself."""
+    models with an expensive right-hand side (level >= 2) a `Tabulated` on `nodes` (default
+    `scene_nodes(len(ts))`) nodes over [ts[0], ts[-1]] with `order` derivatives; for L0/L1 `fn`
+    itself. Check the table with `input_too_coarse`."""
     if model.level < 2:
         return fn
-    return TableOrExact(tabulate(fn, ts[0], ts[-1], scene_nodes(ts.shape[0]), order=order), fn)
+    n = scene_nodes(ts.shape[0]) if nodes is None else int(nodes)
+    return tabulate(fn, ts[0], ts[-1], n, order=order)
+
+
+def input_too_coarse(inp: Callable):
+    """Whether a scene input from `scene_input` is a table whose estimated relative error is
+    above `TABLE_RTOL` (a traced bool), or None for an exact input (nothing to check)."""
+    if not isinstance(inp, Tabulated):
+        return None
+    return ~(inp.error_estimate() <= TABLE_RTOL)

@@ -45,6 +45,10 @@ def test_scene_nodes():
     assert scene_nodes(100) == MIN_NODES
     assert scene_nodes(755) == 755
     assert scene_nodes(10_001) == 10_001
+    # 60 per radian where the motion's extent is known, in powers of two times the minimum
+    assert scene_nodes(100, 6.0) == MIN_NODES
+    assert scene_nodes(100, 10.0) == 2 * MIN_NODES
+    assert scene_nodes(3000, 10.0) == 3000
 
 
 @pytest.fixture(scope="module")
@@ -104,50 +108,39 @@ def test_error_estimate_is_the_error(order):
         assert err / 3 <= est <= 3 * err, (n, err, est)
 
 
-def test_coarse_table_falls_back_to_the_exact_input(robot_and_inputs):
-    """400 s of L2 paper-circle with 401 output times would interpolate the torques on a 0.4 s
-    grid (relative error ~1e-4): the scene's input is then the exact torque, not the table; on
-    the scene's usual horizon it is the table."""
-    from ppr_jax._tabulated import scene_input
+def test_long_horizon_gets_more_nodes_and_a_coarse_table_is_flagged(robot_and_inputs):
+    """400 s of L2 paper-circle with 401 output times: on the minimum grid (512 nodes, 0.78 s
+    apart) the torques interpolate to about 1e-4 and the table is flagged as too coarse (the
+    scene then fails with `RESULTS.input_table_too_coarse`); with the horizon known the scene
+    takes enough nodes (60 per radian of the circle, rounded up to 512 times a power of two) and
+    the table is fine and accurate. On the scene's usual horizon the minimum suffices. L0/L1 are
+    never tabulated."""
+    from ppr_jax._scenes import input_nodes
+    from ppr_jax._tabulated import NODES_PER_RADIAN, input_too_coarse, scene_input
 
     _, tau, _ = robot_and_inputs
-    ts_ok, ts_coarse = jnp.linspace(0.0, 7.54, 755), jnp.linspace(0.0, 400.0, 401)
+    circle = pj.Circle()
+    n_long = input_nodes(circle, 400.0, 401)
+    assert n_long >= NODES_PER_RADIAN * 400.0 * 5 / 6 and n_long / MIN_NODES == 64
+    assert input_nodes(circle, 7.54, 755) == 755 and input_nodes(circle, 7.54, 11) == MIN_NODES
+    ts_ok, ts_long = jnp.linspace(0.0, 7.54, 755), jnp.linspace(0.0, 400.0, 401)
+    t = jnp.linspace(100.0, 101.0, 7)
 
     @jax.jit
-    def inputs(t):
+    def inputs():
         ok = scene_input(pj.Double1R(), tau, ts_ok, 1)
-        coarse = scene_input(pj.Double1R(), tau, ts_coarse, 1)
-        return ok.use_table, coarse.use_table, coarse(t), coarse.table(t), tau(t)
+        coarse = scene_input(pj.Double1R(), tau, ts_long, 1)
+        fine = scene_input(pj.Double1R(), tau, ts_long, 1, n_long)
+        return (input_too_coarse(ok), input_too_coarse(coarse), input_too_coarse(fine),
+                jax.vmap(coarse)(t), jax.vmap(fine)(t), jax.vmap(tau)(t))
 
-    use_ok, use_coarse, got, table, exact = inputs(123.456)
-    assert bool(use_ok) and not bool(use_coarse)
-    np.testing.assert_array_equal(got, exact)
-    assert float(jnp.max(jnp.abs(table - exact))) > 1e-6 * float(jnp.max(jnp.abs(exact)))
-    # L0/L1 are never tabulated
+    c_ok, c_coarse, c_fine, coarse, fine, exact = inputs()
+    assert not bool(c_ok) and bool(c_coarse) and not bool(c_fine)
+    scale = float(jnp.max(jnp.abs(exact)))
+    assert float(jnp.max(jnp.abs(coarse - exact))) > 1e-6 * scale
+    assert float(jnp.max(jnp.abs(fine - exact))) < 1e-9 * scale
     assert scene_input(pj.Reduced(), tau, ts_ok, 1) is tau
-
-
-def test_batch_decides_once_for_all_members():
-    """Under vmap the table-or-exact choice is one unbatched decision (a batched lax.cond would
-    run both branches): the table when every member's is fine, the exact input for all when any
-    member's table is too coarse; each member's value is still its own."""
-    from ppr_jax._tabulated import TableOrExact
-
-    def member(w, t):
-        fn = lambda t: jnp.sin(w * t)[None]  # noqa: E731
-        tox = TableOrExact(tabulate(fn, 0.0, 2.0, 161, order=1), fn)
-        return tox.use_table, tox(t), tox.table(t), fn(t)
-
-    t = 1.2345
-    use, got, table, exact = jax.vmap(member, (0, None))(jnp.array([1.0, 2.0]), t)
-    assert use.shape == (2,) and bool(use.all())  # the decision came back unbatched, broadcast
-    np.testing.assert_allclose(got, table, rtol=1e-14)
-    assert float(jnp.max(jnp.abs(table - exact))) > 0  # the table is not the exact input
-    use, got, table, exact = jax.vmap(member, (0, None))(jnp.array([1.0, 300.0]), t)
-    assert not bool(use.any())
-    np.testing.assert_allclose(got, exact, rtol=1e-14)
-    # a cond survives in the batched program (a batched predicate turns it into a select)
-    assert "cond[" in str(jax.make_jaxpr(jax.vmap(member, (0, None)))(jnp.array([1.0, 2.0]), t))
+    assert input_too_coarse(tau) is None
 
 
 # ---------------------------------------------------------------------------------------------
