@@ -15,14 +15,17 @@ RNG = np.random.default_rng(0)
 T = jnp.asarray(RNG.uniform(0.0, 2.0, 200))
 
 
+@pytest.mark.parametrize("D", ["exact", "differences"])
 @pytest.mark.parametrize("order, degree", [(1, 3), (2, 5)])
-def test_reproduces_polynomials_exactly(order, degree):
+def test_reproduces_polynomials_exactly(order, degree, D):
+    """Both ways of taking the nodes' derivatives: forward mode, and central differences (exact
+    up to degree 6)."""
     c = jnp.asarray(RNG.normal(size=degree + 1))
 
     def f(t):
         return jnp.polyval(c, t)[None]
 
-    tab = tabulate(f, 0.0, 2.0, 7, order=order)
+    tab = tabulate(f, 0.0, 2.0, 7, order=order, derivatives=D)
     np.testing.assert_allclose(jax.vmap(tab)(T), jax.vmap(f)(T), rtol=1e-12, atol=1e-12)
     # and the derivatives the integrator takes through it
     d_tab = jax.vmap(lambda t: pj.derivatives(tab, t)[2])(T)
@@ -59,22 +62,25 @@ def robot_and_inputs():
             pj.InverseKinematicsAngles(L1, robot, pj.Circle()))
 
 
-def test_paper_circle_torques(robot_and_inputs):
+@pytest.mark.parametrize("D", ["exact", "differences"])
+def test_paper_circle_torques(robot_and_inputs, D):
     _, tau, _ = robot_and_inputs
     ts = T * 3.77
     tab, exact = jax.jit(
-        lambda ts: (jax.vmap(tabulate(tau, 0.0, 7.54, scene_nodes(755)))(ts), jax.vmap(tau)(ts))
+        lambda ts: (jax.vmap(tabulate(tau, 0.0, 7.54, scene_nodes(755), derivatives=D))(ts),
+                    jax.vmap(tau)(ts))
     )(ts)
     assert float(jnp.max(jnp.abs(tab - exact))) <= 1e-9 * float(jnp.max(jnp.abs(exact)))
 
 
-def test_servo_circle_angles_and_derivatives(robot_and_inputs):
+@pytest.mark.parametrize("D", ["exact", "differences"])
+def test_servo_circle_angles_and_derivatives(robot_and_inputs, D):
     _, _, ang = robot_and_inputs
     ts = T * 3.77
 
     @jax.jit
     def both(ts):
-        tab = tabulate(ang, 0.0, 7.54, scene_nodes(755), order=2)
+        tab = tabulate(ang, 0.0, 7.54, scene_nodes(755), order=2, derivatives=D)
         return (jax.vmap(lambda t: jnp.stack(pj.derivatives(tab, t)))(ts),
                 jax.vmap(lambda t: jnp.stack(pj.derivatives(ang, t)))(ts))
 
