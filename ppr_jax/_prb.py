@@ -71,12 +71,6 @@ class Derived(eqx.Module):
     rho_E: Array
 
 
-def derived_concrete(params: RobotParams) -> Derived:
-    """`derived` for concrete parameters as one compiled program: op by op it would dispatch
-    about fifty small computations, each compiled on its first use (about 1 s per process)."""
-    return _derived_jit(params)
-
-
 def derived(params: RobotParams) -> Derived:
     """All derived quantities of MODEL.md section 3 and the mass properties of section 1."""
     p = params
@@ -133,4 +127,6 @@ def derived(params: RobotParams) -> Derived:
     )
 
 
-_derived_jit = eqx.filter_jit(derived)
+#: `derived` for concrete parameters as one compiled program: op by op it would dispatch about
+#: fifty small computations, each compiled on its first use (about 1 s per process).
+derived_concrete = eqx.filter_jit(derived)

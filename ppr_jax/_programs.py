@@ -39,17 +39,10 @@ import jax
 
 #: bump when the stored layout changes
 FORMAT = 1
-#: the programs' subdirectory of the compilation cache directory
+#: the programs' subdirectory of the compilation cache directory (where the command line keeps
+#: them)
 PROGRAM_SUBDIR = "ppr_jax_programs"
 _PACKAGE = pathlib.Path(__file__).resolve().parent
-
-
-def default_program_dir() -> str:
-    """Where the command line keeps exported scene programs: `ppr_jax_programs` inside the
-    compilation cache directory (`ppr_jax.enable_compilation_cache`'s default)."""
-    from ._cache import default_cache_dir
-
-    return os.path.join(default_cache_dir(), PROGRAM_SUBDIR)
 
 
 @functools.lru_cache(maxsize=None)
@@ -140,7 +133,9 @@ def _export(fn: Callable, args: tuple, out_template):
     with jax.default_matmul_precision("highest"), _errors_as_nan():
         try:
             exported = jax.export.export(jax.jit(flat))(*leaves)
-        except NotImplementedError as err:  # host callbacks, for one
+        except NotImplementedError as err:
+            # jax.export's own refusal of what it cannot serialise ("serialization of
+            # host_callbacks is not yet implemented"): this call is compiled the usual way.
             raise NotExportable(str(err)) from err
     if seen["def"] != out_def:
         raise NotExportable(f"result structure {seen['def']} is not the template's {out_def}")

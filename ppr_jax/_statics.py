@@ -100,7 +100,8 @@ CHORD_FD_STEP = 1e-6
 
 def _difference_jacobian(f, y0):
     """Jacobian of f at y0 by central differences (steps CHORD_FD_STEP (1 + |y0_j|)), all
-    columns in one vectorised evaluation. Error about 1e-12 relative: the chord iteration only
+    columns in one vectorised evaluation. Error about 1e-10 relative (rounding over the step;
+    truncation is 1e-12): the chord iteration only
     needs a matrix close enough to contract, and a forward-mode Jacobian here would trace the
     springs' force (itself built on the kinematics' Jacobian) under a second derivative, a
     third of the quasi-static program."""
@@ -120,7 +121,7 @@ def _chord_solve(resid, resid_stiff, y0, rtol: float = 1e-13, atol: float = 1e-1
     the root, not through the iterations). The inertial part of the residual changes the
     Jacobian by about (motion frequency / internal frequency)^2, so the iteration contracts by
     that factor per step while converging to the root of the full residual (J0 by central
-    differences, `_difference_jacobian`: its 1e-12 error changes nothing of that).
+    differences, `_difference_jacobian`: its 1e-10 error changes nothing of that).
     Returns (y, relative residual, optimistix result)."""
     J0 = _difference_jacobian(resid_stiff, y0)
     lu = lu_factor(J0)

@@ -4,7 +4,8 @@ The scenes' inputs (the `paper-circle` torques: L1 inverse dynamics along eq 55;
 `servo-circle` angles: L1 inverse kinematics) cost about a third of L2's right-hand side when
 evaluated at every stage of the integrator. They are smooth functions of time alone, so the
 scene evaluates them once, vectorised, on a uniform grid with their time derivatives (by
-sixth-order central differences of the values, `tabulate`), and interpolates by Hermite polynomials that match those derivatives at the
+sixth-order central differences of the values, `tabulate`), and interpolates by Hermite
+polynomials that match those derivatives at the
 nodes: cubic from (f, f') and quintic from (f, f', f''), whose errors are at most
 h^4/384 max|f^(4)| and h^6/46080 max|f^(6)| on a grid of spacing h. For the paper's circle
 (omega = 5/6 rad/s, 755 nodes over 7.54 s: one per output time) that is a relative torque error
@@ -115,11 +116,11 @@ def tabulate(fn: Callable, t0, t1, n: int, order: int = 1,
     [t0, t1], with `order` time derivatives (1: cubic, 2: quintic interpolation), all nodes in
     one vectorised evaluation. `derivatives="exact"`: by forward mode (nested JVPs of fn);
     `"differences"`: sixth-order central differences of the values, on three extra nodes each
-    side of [t0, t1] (fn must be defined there), errors h^6 |f^(7)|/140 and h^6 |f^(8)|/560 (about
-    1e-15 relative for the paper's circle at the scenes' spacing), exact for polynomials of
-    degree <= 6. The scenes use differences: fn (an inverse dynamics built on derivatives of the
-    kinematics) is then traced once instead of under one or two more levels of JVP, which was a
-    quarter of L2's compiled program."""
+    side of [t0, t1] (fn must be defined there), truncation errors h^6 |f^(7)|/140 and
+    h^6 |f^(8)|/560 (about 1e-15 relative for the paper's circle at the scenes' spacing; rounding
+    adds about 1e-14), exact for polynomials of degree <= 6. The scenes use differences: fn (an
+    inverse dynamics built on derivatives of the kinematics) is then traced once instead of under
+    one or two more levels of JVP, which was a quarter of L2's compiled program."""
     if order not in (1, 2):
         raise ValueError(f"order must be 1 or 2, got {order}")
     if derivatives not in ("exact", "differences"):
