@@ -128,6 +128,30 @@ def solve(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, " n"]:
     return _solve(A, b)
 
 
+def solve_blocks(A: Float[Array, "b k k"], B: Float[Array, "b k m"]) -> Float[Array, "b k m"]:
+    """X with A[i] X[i] = B[i] for a stack of small blocks: Cramer's rule (the adjugate) for
+    k <= 3, every index static so XLA fuses it; `solve` per block above that. For the loop
+    closures' 2 x 2 and 3 x 3 blocks, which are well conditioned wherever the kinematics are
+    (a singular block is a singular configuration, which the margins report)."""
+    k = A.shape[-1]
+    if k == 1:
+        return B / A
+    if k == 2:
+        det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+        adj = jnp.stack(
+            [jnp.stack([A[:, 1, 1], -A[:, 0, 1]], -1), jnp.stack([-A[:, 1, 0], A[:, 0, 0]], -1)], 1
+        )
+        return (adj @ B) / det[:, None, None]
+    if k == 3:
+        c0 = jnp.cross(A[:, :, 1], A[:, :, 2])
+        c1 = jnp.cross(A[:, :, 2], A[:, :, 0])
+        c2 = jnp.cross(A[:, :, 0], A[:, :, 1])
+        adj = jnp.stack([c0, c1, c2], axis=1)  # rows: the adjugate's rows
+        det = jnp.sum(A[:, :, 0] * c0, axis=-1)
+        return (adj @ B) / det[:, None, None]
+    return jax.vmap(jax.vmap(solve, in_axes=(None, 1), out_axes=1))(A, B)
+
+
 class SmallLU(lx.AbstractLinearSolver):
     """`lineax.LU` with the factorization above instead of LAPACK (module docstring): for
     square nonsingular operators, e.g. `optimistix.Newton(..., linear_solver=SmallLU())`."""

@@ -182,3 +182,30 @@ def test_quasi_static_state_balances_and_its_velocity_is_its_time_derivative(par
     assert float(jnp.abs(r[rows]).max()) < 1e-12
     # it differs from the L1 state: the L2 model is not bound by eq 29
     assert float(jnp.abs(z - ref(1.0)).max()) > 1e-6
+
+
+@pytest.mark.parametrize("geometry", ["centerline", "strip"])
+@pytest.mark.parametrize("unequal", [False, True])
+@pytest.mark.parametrize("model", [pj.Rigid(), pj.Reduced(), pj.Double1R()])
+def test_implicit_closure_derivatives_equal_autodiff_of_closed_form(params, model, geometry,
+                                                                     unequal):
+    """A second formulation: the equations of motion from implicit differentiation of the loop
+    closures (the library's) against forward-mode derivatives of the closed-form closure, at a
+    state off home with every velocity nonzero, for equal and unequal links (L1's Newton path)."""
+    from ppr_jax._dynamics import _eom_terms
+
+    p = params.replace(joint_geometry=geometry)
+    if unequal:
+        p = p.replace(l3=1.1 * p.l3)
+    robot = pj.Robot(p)
+    X = pj.home_pose(robot) + jnp.array([0.01, -0.02, 0.05])
+    rng = np.random.default_rng(1)
+    z = model.coords_from_pose(robot, X)
+    z = z + 1e-2 * rng.standard_normal(z.shape) * (np.arange(z.shape[0]) >= 3)
+    zd = jnp.asarray(rng.standard_normal(z.shape))
+    a = _eom_terms(model, robot, z, zd, implicit=True)
+    b = _eom_terms(model, robot, z, zd, implicit=False)
+    for name in ("M", "h", "Q_passive", "Jth", "JX"):
+        x, y = getattr(a, name), getattr(b, name)
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-13 * float(jnp.max(jnp.abs(y))),
+                                   err_msg=name)

@@ -9,7 +9,12 @@ from __future__ import annotations
 from typing import Optional, Union
 
 from .._checks import PPRError, check_number
-from .base import AbstractModel as AbstractModel, Kin as Kin
+from .base import (
+    AbstractClosedLoop as AbstractClosedLoop,
+    AbstractModel as AbstractModel,
+    Kin as Kin,
+    Motion as Motion,
+)
 from .beam import AbstractBeam as AbstractBeam, Beam as Beam
 from .beam_qs import QuasiStaticBeam as QuasiStaticBeam
 from .double1r import AbstractDouble1R as AbstractDouble1R, Double1R as Double1R

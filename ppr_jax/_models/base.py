@@ -19,8 +19,11 @@ import abc
 from typing import Optional
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
 
 from .._custom_types import Array, Float
+from .._linalg import solve_blocks
 from .._robot import Robot
 
 
@@ -101,6 +104,88 @@ class AbstractModel(eqx.Module):
         """Rotations (rad) of the two ends of each compliant joint relative to its chord (the
         pseudo-link BD), from their rest values; eq 28 says they are equal under the
         quasi-static assumption."""
+
+
+class Motion(eqx.Module):
+    """First- and second-order kinematics at (z, z'): `kin` at z; `jac`, a `Kin` whose fields
+    are the Jacobians d(field)/dz (trailing axis n; `margin`'s is meaningless); `acc_p` (nb, 2)
+    and `acc_a` (nb,), the bodies' convective accelerations (their second derivative along z'
+    with z'' = 0), or None when not asked for."""
+
+    kin: Kin
+    jac: Kin
+    acc_p: Optional[Array]
+    acc_a: Optional[Array]
+
+
+class AbstractClosedLoop(AbstractModel):
+    """A model whose chains close in closed form: besides the independent coordinates z (n,) it
+    has dependent chain coordinates u (3, k), found from z by `dependent`, with the loop
+    closures Phi(z, u) = 0 (3, k) (`closure_residual`; chain i's rows depend on u[i] alone).
+
+    Its velocity and acceleration kinematics (`motion`) come from implicit differentiation of the
+    closures instead of derivatives of the closed form (whose arccos, atan2 and square roots under
+    two nested forward-mode derivatives made most of a right-hand side): with Phi_u the 3 k x k
+    blocks d Phi_i / d u_i,
+
+        u_z = -Phi_u^-1 Phi_z,     u''_conv = -Phi_u^-1 D2 Phi[(z', u'), (z', u')],
+
+    and every body, spring and actuated angle is a plain trigonometric function `kin_at` of
+    (z, u), differentiated along (e_j, u_z e_j) and twice along (z', u'). Both need only the
+    simple functions Phi and `kin_at`; `tests/test_dynamics.py` checks the result against
+    autodiff of the closed form. Derivatives with respect to the parameters are unaffected: u
+    carries them through `dependent`, and u_z through Phi_u and Phi_z."""
+
+    @abc.abstractmethod
+    def dependent(self, robot: Robot, z: Float[Array, " n"]) -> tuple[Array, Array]:
+        """(u (3, k), margin (3,)): the dependent chain coordinates at z and the reach margin of
+        each chain's closure (<= 0: out of reach or singular)."""
+
+    @abc.abstractmethod
+    def closure_residual(self, robot: Robot, z, u) -> Float[Array, "3 k"]:
+        """Phi(z, u): chain i's k closure equations in row i, zero on the closed loop."""
+
+    @abc.abstractmethod
+    def kin_at(self, robot: Robot, z, u, margin) -> Kin:
+        """`Kin` from (z, u) on the closed loop (plain trigonometry, no closure solve)."""
+
+    def kinematics(self, robot, z):
+        u, margin = self.dependent(robot, z)
+        return self.kin_at(robot, z, u, margin)
+
+    def motion(self, robot: Robot, z, zdot, convective: bool = True) -> Motion:
+        """`Motion` at (z, z') by implicit differentiation of the closures (class docstring)."""
+        u, margin = self.dependent(robot, z)
+        n, k = z.shape[0], u.shape[-1]
+        res = lambda z, u: self.closure_residual(robot, z, u)  # noqa: E731
+        # Chain i's residual depends on u[i] only: one JVP along column j of every chain's u at
+        # once gives column j of all three k x k blocks.
+        Phi_u = jax.vmap(
+            lambda d: jax.jvp(lambda u: res(z, u), (u,), (jnp.broadcast_to(d, u.shape),))[1],
+            out_axes=-1,
+        )(jnp.eye(k))  # (3, k, k)
+        Phi_z = jax.vmap(
+            lambda d: jax.jvp(lambda z: res(z, u), (z,), (d,))[1], out_axes=-1
+        )(jnp.eye(n))  # (3, k, n)
+        u_z = -solve_blocks(Phi_u, Phi_z)  # (3, k, n)
+        kin_of = lambda z, u: self.kin_at(robot, z, u, margin)  # noqa: E731
+        kin = kin_of(z, u)
+        jac = jax.vmap(
+            lambda dz, du: jax.jvp(kin_of, (z, u), (dz, du))[1], in_axes=(1, 2), out_axes=-1
+        )(jnp.eye(n), u_z)
+        if not convective:
+            return Motion(kin=kin, jac=jac, acc_p=None, acc_a=None)
+        ud = u_z @ zdot
+
+        def second(f):
+            # second derivative of f along (z', u') with u'' = 0
+            return jax.jvp(lambda z, u: jax.jvp(f, (z, u), (zdot, ud))[1], (z, u), (zdot, ud))[1]
+
+        udd = -solve_blocks(Phi_u, second(res)[..., None])[..., 0]
+        bodies = lambda z, u: (lambda k: (k.body_p, k.body_ang))(kin_of(z, u))  # noqa: E731
+        acc2 = second(bodies)
+        acc1 = jax.jvp(bodies, (z, u), (jnp.zeros_like(z), udd))[1]
+        return Motion(kin=kin, jac=jac, acc_p=acc2[0] + acc1[0], acc_a=acc2[1] + acc1[1])
 
 
 def rotor_inertia(robot: Robot):

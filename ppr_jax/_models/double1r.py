@@ -27,10 +27,10 @@ from .._geometry import (
     loop_residual,
 )
 from .._robot import Robot
-from .base import AbstractModel, Kin, rotor_inertia
+from .base import AbstractClosedLoop, Kin, rotor_inertia
 
 
-class AbstractDouble1R(AbstractModel):
+class AbstractDouble1R(AbstractClosedLoop):
     """The double-1R chains of L1 and L2 (module docstring): bodies, masses, springs, closure.
     Subclasses say how the chain angles follow from their coordinates (`chain_angles`)."""
 
@@ -88,10 +88,22 @@ class Double1R(AbstractDouble1R):
     n_dof = 6
     actuated_index = (3, 4, 5)
 
-    def kinematics(self, robot, z):
-        X, th_a = z[:3], z[3:]
-        th, margin = chain_closure_double1r(robot, X, th_a)
-        return self.kin_from_angles(robot, X, th, margin)
+    # The dependent coordinates u (3, 2) are each chain's (th_i2, th_i3); th_i1 is th_a (+ the
+    # strip geometry's fixed offset), a coordinate.
+
+    def _angles(self, robot, z, u):
+        t1 = z[3:] + robot.sigma * robot.delta1
+        return jnp.concatenate([t1[:, None], u], axis=1)
+
+    def dependent(self, robot, z):
+        th, margin = chain_closure_double1r(robot, z[:3], z[3:])
+        return th[:, 1:], margin
+
+    def closure_residual(self, robot, z, u):
+        return loop_residual(robot, self._angles(robot, z, u), z[:3])
+
+    def kin_at(self, robot, z, u, margin):
+        return self.kin_from_angles(robot, z[:3], self._angles(robot, z, u), margin)
 
     def coords_from_pose(self, robot, X):
         th, _ = ik_reduced(robot, X)

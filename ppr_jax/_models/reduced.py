@@ -9,7 +9,9 @@ X determines every joint angle (inverse kinematics, closed form when r1 = r3). C
 
 from __future__ import annotations
 
-from .._geometry import ik_reduced
+import jax.numpy as jnp
+
+from .._geometry import ik_reduced, loop_residual
 from .double1r import AbstractDouble1R
 
 
@@ -22,9 +24,22 @@ class Reduced(AbstractDouble1R):
     n_dof = 3
     actuated_index = None
 
-    def kinematics(self, robot, z):
+    # The dependent coordinates u (3, 2) are each chain's (th_i1, th_i3); eq 29 puts th_i2 at
+    # (th_i1 + th_i3)/2 + c (c = 0 on the centre lines), and the loop closes.
+
+    def _angles(self, robot, u):
+        c2 = robot.sigma * (robot.delta3 - robot.delta1) / 2
+        return jnp.stack([u[:, 0], (u[:, 0] + u[:, 1]) / 2 + c2, u[:, 1]], axis=-1)
+
+    def dependent(self, robot, z):
         th, margin = ik_reduced(robot, z)
-        return self.kin_from_angles(robot, z, th, margin)
+        return th[:, ::2], margin
+
+    def closure_residual(self, robot, z, u):
+        return loop_residual(robot, self._angles(robot, u), z)
+
+    def kin_at(self, robot, z, u, margin):
+        return self.kin_from_angles(robot, z, self._angles(robot, u), margin)
 
     def coords_from_pose(self, robot, X):
         return X

@@ -19,10 +19,10 @@ from .._geometry import (
     loop_residual_rigid,
     platform_points,
 )
-from .base import AbstractModel, Kin, rotor_inertia
+from .base import AbstractClosedLoop, Kin, rotor_inertia
 
 
-class Rigid(AbstractModel):
+class Rigid(AbstractClosedLoop):
     """L0 `rigid`, the paper's "simplified model" (module docstring): z = X = (x, y, phi)
     (m, m, rad), 3 DOF; one pin per compliant joint at the virtual corner."""
 
@@ -31,9 +31,16 @@ class Rigid(AbstractModel):
     n_dof = 3
     actuated_index = None
 
-    def kinematics(self, robot, z):
-        X = z
-        th, margin = ik_rigid(robot, X)
+    # The dependent coordinates u (3, 2) are each chain's (th_i1, th_i3).
+
+    def dependent(self, robot, z):
+        return ik_rigid(robot, z)
+
+    def closure_residual(self, robot, z, u):
+        return loop_residual_rigid(robot, u, z)
+
+    def kin_at(self, robot, z, u, margin):
+        X, th = z, u
         A = base_points(robot)
         E = platform_points(robot, X)
         p1 = A + (robot.l1 / 2) * e(th[:, 0])
