@@ -197,11 +197,11 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
             return X, ok
         # The commands as the scenes take them (tabulated for L2/L3), so that a fit of a
         # scene's output runs the scene's own program.
-        inp = angles if th is not None else scene_input(model, angles, ts, 2,
+        inp = angles if th is not None else scene_input(angles, ts, 2,
                                                         input_nodes_at(traj, ts))
         act = MotionDriven(inp)
     else:
-        inp = (scene_input(model, InverseDynamicsTorque(Reduced(), base_robot, traj), ts, 1,
+        inp = (scene_input(InverseDynamicsTorque(Reduced(), base_robot, traj), ts, 1,
                            input_nodes_at(traj, ts))
                if tau is None else Interpolated(ts, tau))
         act = TorqueDriven(inp)

@@ -142,7 +142,7 @@ def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None
 
 def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller, max_steps,
                        adjoint, nodes):
-    torque = scene_input(model, InverseDynamicsTorque(torque_model, robot, traj), ts, 1, nodes)
+    torque = scene_input(InverseDynamicsTorque(torque_model, robot, traj), ts, 1, nodes)
     coarse = input_too_coarse(torque)
     act = TorqueDriven(torque)
     z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
@@ -202,7 +202,7 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, ad
         )
     else:
         # th, th' and th'' at every stage: quintic Hermite from the table (`_tabulated`).
-        angles_in = scene_input(model, angles, ts, 2, nodes)
+        angles_in = scene_input(angles, ts, 2, nodes)
         coarse = input_too_coarse(angles_in)
         act = MotionDriven(angles_in)
         z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)

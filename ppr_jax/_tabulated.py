@@ -24,9 +24,10 @@ An earlier version evaluated the exact input at every stage in that case, inside
 that branch (the L1 inverse dynamics under nested derivatives) made up a third of L2's program
 and doubled its compile time, for a case the node count now avoids.
 
-Only the models whose right-hand side is expensive tabulate (L2, L3); L0 and L1 take fewer
-steps than the table has nodes at the usual tolerances, so they evaluate the exact input at
-every stage.
+Every level tabulates. L0 and L1 take fewer solver stages (about 500 for L1 at rtol 1e-6) than
+the table has nodes, but the table's nodes are one vectorised evaluation while the stages run
+one after another: L1 `paper-circle` took 8.7 ms with the exact torque at every stage and 6.6 ms
+with the table (a batch of 256: 173 -> 234 trajectories/s), and compiles 1 s faster.
 """
 
 from __future__ import annotations
@@ -153,13 +154,10 @@ def tabulate(fn: Callable, t0, t1, n: int, order: int = 1,
     return Tabulated(t0=jnp.asarray(t0, float), h=h, nodes=nodes)
 
 
-def scene_input(model, fn: Callable, ts, order: int, nodes: Optional[int] = None) -> Callable:
-    """A scene's input `fn` of time as its integrator calls it, for output times `ts`: for the
-    models with an expensive right-hand side (level >= 2) a `Tabulated` on `nodes` (default
-    `scene_nodes(len(ts))`) nodes over [ts[0], ts[-1]] with `order` derivatives; for L0/L1 `fn`
-    itself. Check the table with `input_too_coarse`."""
-    if model.level < 2:
-        return fn
+def scene_input(fn: Callable, ts, order: int, nodes: Optional[int] = None) -> Tabulated:
+    """A scene's input `fn` of time as its integrator calls it, for output times `ts`: a
+    `Tabulated` on `nodes` (default `scene_nodes(len(ts))`) nodes over [ts[0], ts[-1]] with
+    `order` derivatives. Check the table with `input_too_coarse`."""
     n = scene_nodes(ts.shape[0]) if nodes is None else int(nodes)
     return tabulate(fn, ts[0], ts[-1], n, order=order, derivatives="differences")
 
