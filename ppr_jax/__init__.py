@@ -20,8 +20,10 @@ from ._robot import Robot as Robot, RobotLike as RobotLike  # noqa: E402
 from ._models import (  # noqa: E402
     MODELS as MODELS,
     AbstractModel as AbstractModel,
+    AbstractClosedLoop as AbstractClosedLoop,
     AbstractDouble1R as AbstractDouble1R,
     Kin as Kin,
+    Motion as Motion,
     Rigid as Rigid,
     Reduced as Reduced,
     Double1R as Double1R,
