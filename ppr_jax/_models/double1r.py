@@ -32,7 +32,8 @@ from .base import AbstractClosedLoop, Kin, rotor_inertia
 
 class AbstractDouble1R(AbstractClosedLoop):
     """The double-1R chains of L1 and L2 (module docstring): bodies, masses, springs, closure.
-    Subclasses say how the chain angles follow from their coordinates (`chain_angles`)."""
+    Subclasses say which chain angles are their dependent coordinates u and how u closes the
+    loops (`dependent`, `closure_residual`, `kin_at` of `AbstractClosedLoop`)."""
 
     def chain_bodies(self, robot: Robot, th, X):
         """Bodies of the chains and the platform: (p (10, 2), ang (10,)), chain-major by body
