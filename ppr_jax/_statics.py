@@ -250,6 +250,10 @@ def _quasi_static_state(
     failed = ~(jnp.max(errs) < 1e-10) | jnp.any((results != optx.RESULTS.successful) & ~stalled)
     z = _assemble(n, unknown, zu, known, z_r[ik])
     zd = _assemble(n, unknown, zu_dot, known, zd_r[ik])
+    # A balance found outside the chains' reach is no state: there the closed-form closure works
+    # on clipped values, is locally flat, and the balance equations can hold spuriously (a strip
+    # too thin to carry the loads collapses the chain).
+    failed = failed | ~(jnp.min(model.kinematics(robot, z).margin) > 0)
     return z, zd, failed
 
 
