@@ -1,8 +1,9 @@
 """Actuation modes (MODEL.md section 5): torque-driven, motion-driven and PD servo.
 
 An actuation holds time functions (see `_trajectory.py`); the inverse-dynamics torque and the
-inverse-kinematics angles of a model along a platform trajectory are time functions too, evaluated
-exactly at every solver stage instead of being tabulated.
+inverse-kinematics angles of a model along a platform trajectory are time functions too, exact at
+any t. The scenes tabulate them once per run (`_tabulated.py`); passed to `simulate` directly they
+are evaluated at every solver stage.
 """
 
 import abc
