@@ -99,9 +99,14 @@ class InverseDynamicsTorque(eqx.Module):
         self.model, self.robot, self.trajectory = model, as_robot(robot), trajectory
 
     def __call__(self, t):
+        return self.with_residual(t)[0]
+
+    def with_residual(self, t):
+        """(tau_a (3,), the largest loop-closure residual (m) of the inverse kinematics at t):
+        the scenes check the nominal path's reach from the same evaluation."""
         X, Xd, Xdd = derivatives(self.trajectory, t)
-        tau, _ = inverse_dynamics(self.model, self.robot, X, Xd, Xdd)
-        return tau
+        tau, eom = inverse_dynamics(self.model, self.robot, X, Xd, Xdd)
+        return tau, _max_residual(self.model, self.robot, eom.kin)
 
 
 class InverseKinematicsAngles(eqx.Module):
@@ -115,5 +120,14 @@ class InverseKinematicsAngles(eqx.Module):
         self.model, self.robot, self.trajectory = model, as_robot(robot), trajectory
 
     def __call__(self, t):
+        return self.with_residual(t)[0]
+
+    def with_residual(self, t):
+        """(th_a (3,), the largest loop-closure residual (m) of the inverse kinematics at t)."""
         z = self.model.coords_from_pose(self.robot, self.trajectory(t))
-        return self.model.kinematics(self.robot, z).th_a
+        k = self.model.kinematics(self.robot, z)
+        return k.th_a, _max_residual(self.model, self.robot, k)
+
+
+def _max_residual(model, robot, k):
+    return jnp.max(jnp.linalg.norm(model.loop_residual(robot, k), axis=-1))

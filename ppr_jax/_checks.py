@@ -47,7 +47,7 @@ class RESULTS(diffrax.RESULTS):
         "what the joints hold near the nominal pose, or the pose is out of reach"
     )
     trajectory_out_of_reach = (
-        "the nominal trajectory leaves the chains' reach at an output time (its inverse "
+        "the nominal trajectory leaves the chains' reach (its inverse "
         "kinematics, which gives the scene's torques or prescribed angles, has an open loop): "
         "shrink the trajectory or check a, h, l1, l3, r"
     )
@@ -58,9 +58,9 @@ class RESULTS(diffrax.RESULTS):
     )
     input_table_too_coarse = (
         "the scene's input (torques or prescribed angles), interpolated from a table of its "
-        "values at evenly spaced times, has an estimated relative error above 1e-8: ask for more "
-        "output times (n_out; the table has at least one node per output time) or a shorter "
-        "t_end (with a concrete t_end the table grows with the horizon by itself)"
+        "values on panels of the horizon, has an estimated relative error above 1e-8: ask for "
+        "more output times (n_out; the table has at least one node per output time) or a "
+        "shorter t_end (with a concrete t_end the table grows with the horizon by itself)"
     )
     kinematics_failed = (
         "forward kinematics did not converge along the prescribed path: the actuated angles "

@@ -128,6 +128,12 @@ def accelerations(eom: EOM, tau_a, wrench) -> Array:
 def energy(model: AbstractModel, robot: Robot, z, zdot):
     """(kinetic, potential) energy (J)."""
     k, kd = jax.jvp(lambda z: model.kinematics(robot, z), (z,), (zdot,))
+    return energy_of(model, robot, k, kd)
+
+
+def energy_of(model: AbstractModel, robot: Robot, k, kd):
+    """(kinetic, potential) energy (J) from the kinematics k and their rates kd (a JVP of
+    `model.kinematics`): for callers that already hold them."""
     m, I = model.masses(robot)
     T = 0.5 * (jnp.sum(m * jnp.sum(kd.body_p**2, axis=-1)) + jnp.sum(I * kd.body_ang**2))
     U = 0.5 * jnp.sum(model.stiffness(robot) * k.deflection**2)

@@ -75,7 +75,7 @@ from ._models import Reduced, get_model
 from ._params import PARAM_RANGES, RobotParams
 from ._prb import derived
 from ._robot import Robot
-from ._scenes import _kinematic_motion, input_nodes_at, scene_params
+from ._scenes import _kinematic_motion, input_panels_at, scene_params
 from ._simulate import _simulate_core, get_solver
 from ._statics import _quasi_static_state
 from ._tabulated import input_too_coarse, scene_input
@@ -197,12 +197,12 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
             return X, ok
         # The commands as the scenes take them (tabulated for L2/L3), so that a fit of a
         # scene's output runs the scene's own program.
-        inp = angles if th is not None else scene_input(angles, ts, 2,
-                                                        input_nodes_at(traj, ts))
+        inp = angles if th is not None else scene_input(angles, ts,
+                                                        input_panels_at(traj, ts))
         act = MotionDriven(inp)
     else:
-        inp = (scene_input(InverseDynamicsTorque(Reduced(), base_robot, traj), ts, 1,
-                           input_nodes_at(traj, ts))
+        inp = (scene_input(InverseDynamicsTorque(Reduced(), base_robot, traj), ts,
+                           input_panels_at(traj, ts))
                if tau is None else Interpolated(ts, tau))
         act = TorqueDriven(inp)
     coarse = input_too_coarse(inp)

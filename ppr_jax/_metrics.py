@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array
-from ._dynamics import energy
+from ._dynamics import energy_of
 from ._models import AbstractModel
 from ._robot import Robot, as_robot
 
@@ -34,9 +34,10 @@ def outputs(model: AbstractModel, robot: Robot, z, zdot) -> Outputs:
     robot = as_robot(robot)
 
     def one(z, zd):
-        k = model.kinematics(robot, z)
+        # one evaluation of the kinematics serves the pose, residual and both energies
+        k, kd = jax.jvp(lambda z: model.kinematics(robot, z), (z,), (zd,))
         res = jnp.max(jnp.linalg.norm(model.loop_residual(robot, k), axis=-1))
-        T, U = energy(model, robot, z, zd)
+        T, U = energy_of(model, robot, k, kd)
         return k.X, model.joint_end_rotations(robot, k)[0], res, T, U
 
     X, er, res, T, U = jax.vmap(one)(z, zdot)

@@ -33,7 +33,7 @@ from ._params import RobotParams, params_invalid
 from ._robot import Robot
 from ._simulate import Solution, _simulate_core, get_solver
 from ._statics import _quasi_static_state
-from ._tabulated import input_too_coarse, scene_input, scene_nodes
+from ._tabulated import input_too_coarse, scene_input, scene_panels
 from ._trajectory import Circle, derivatives
 
 SCENES = ("paper-circle", "servo-circle", "modes")
@@ -140,14 +140,21 @@ def _result(scene, model, robot, traj, sol: Solution, qs_failed=None, open0=None
     )
 
 
+def _tabulated_input(fn, ts, panels):
+    """(table, coarse, ref_open): the scene input `fn` (an `InverseDynamicsTorque` or
+    `InverseKinematicsAngles`) tabulated, whether the table is too coarse, and whether the
+    nominal path leaves the chains' reach at a node, from the table's own evaluations."""
+    table, resid = scene_input(fn.with_residual, ts, panels, aux=True)
+    return table, input_too_coarse(table), ~(jnp.max(resid) <= RESIDUAL_TOL)
+
+
 def _paper_circle_core(model, torque_model, robot, traj, ts, solver, controller, max_steps,
-                       adjoint, nodes):
-    torque = scene_input(InverseDynamicsTorque(torque_model, robot, traj), ts, 1, nodes)
-    coarse = input_too_coarse(torque)
+                       adjoint, panels):
+    torque, coarse, ref_open = _tabulated_input(
+        InverseDynamicsTorque(torque_model, robot, traj), ts, panels)
     act = TorqueDriven(torque)
     z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
     open0 = _open_at(model, robot, z0)
-    ref_open = _reference_open(torque_model, robot, traj, ts)
     sol = _simulate_core(
         model, robot, act, z0, zd0, ts, solver, controller, None, max_steps,
         jnp.zeros(3), False, diffrax.NoProgressMeter(), adjoint,
@@ -186,10 +193,10 @@ def _kinematic_motion(model, robot, angles, X0, ts):
     return X, Xd, tau, codes
 
 
-def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, adjoint, nodes):
+def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, adjoint, panels):
     angles = InverseKinematicsAngles(Reduced(), robot, traj)
-    ref_open = _reference_open(Reduced(), robot, traj, ts)
     if model.actuated_index is None:
+        ref_open = _reference_open(Reduced(), robot, traj, ts)
         X, Xd, tau, codes = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
         # A status code, not a callback: forward kinematics failing along the path is reported
         # like a solver failure (and the compiled program stays free of host callbacks).
@@ -201,9 +208,8 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, ad
             num_rejected=zero,
         )
     else:
-        # th, th' and th'' at every stage: quintic Hermite from the table (`_tabulated`).
-        angles_in = scene_input(angles, ts, 2, nodes)
-        coarse = input_too_coarse(angles_in)
+        # th, th' and th'' at every stage: derivatives of the table's polynomials (`_tabulated`).
+        angles_in, coarse, ref_open = _tabulated_input(angles, ts, panels)
         act = MotionDriven(angles_in)
         z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
         open0 = _open_at(model, robot, z0)
@@ -275,8 +281,8 @@ def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solve
     robot = Robot(params)
     pre = (model, get_model(torque_model)) if scene == "paper-circle" else (model,)
     adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
-    nodes = input_nodes(traj, t_end, n_out)
-    post = (traj, ts, get_solver(solver), controller, max_steps, adjoint, nodes)
+    panels = input_panels(traj, t_end, n_out)
+    post = (traj, ts, get_solver(solver), controller, max_steps, adjoint, panels)
     batched = _batched(params)
     fn = (_BATCH if batched else _JIT)[scene]
     return SceneCall(fn=fn, args=(*pre, robot, *post), scene=scene, batched=batched,
@@ -294,20 +300,20 @@ def result_template(call: SceneCall) -> SceneResult:
     )
 
 
-def input_nodes(traj, t_end, n_out: int) -> int:
-    """Nodes of the scene's input table (`_tabulated.scene_nodes`). The count is a shape, so it
-    is decided before tracing: more nodes for a longer horizon where t_end and the trajectory's
+def input_panels(traj, t_end, n_out: int) -> int:
+    """Panels of the scene's input table (`_tabulated.scene_panels`). The count is a shape, so it
+    is decided before tracing: more panels for a longer horizon where t_end and the trajectory's
     speed (`omega`) are concrete, the minimum otherwise (the scene then reports a table too
     coarse for its horizon as `RESULTS.input_table_too_coarse`)."""
     omega = getattr(traj, "omega", None)
     known = not (is_traced(t_end) or omega is None or is_traced(omega) or np.ndim(omega) != 0)
-    return scene_nodes(n_out, float(t_end) * float(omega) if known else None)
+    return scene_panels(n_out, float(t_end) * float(omega) if known else None)
 
 
-def input_nodes_at(traj, ts) -> int:
-    """`input_nodes` for output times `ts` (traced or not)."""
+def input_panels_at(traj, ts) -> int:
+    """`input_panels` for output times `ts` (traced or not)."""
     t_end = ts[-1] if is_traced(ts) else float(np.asarray(ts)[-1])
-    return input_nodes(traj, t_end, ts.shape[0])
+    return input_panels(traj, t_end, ts.shape[0])
 
 
 def _failure_detail(res: SceneResult):

@@ -39,7 +39,7 @@ from ._metrics import radial_error
 from ._models import Reduced, get_model
 from ._params import PARAM_RANGES, RobotParams, stack_params
 from ._robot import Robot
-from ._scenes import _CORES, DEFAULT_SOLVER, input_nodes_at, scene_params
+from ._scenes import _CORES, DEFAULT_SOLVER, input_panels_at, scene_params
 from ._simulate import get_solver
 from ._trajectory import Circle
 
@@ -89,13 +89,13 @@ def traced_metrics(res, trajectory: Circle) -> dict:
 
 
 def run_member(scene, model, torque_model, robot, trajectory, ts, solver, controller, max_steps,
-               adjoint, nodes: Optional[int] = None):
-    """One member's scene, traced: its `SceneResult` (the scene cores of `_scenes`). `nodes`:
-    the input table's node count (static; default from `ts`, as the scenes decide it)."""
+               adjoint, panels: Optional[int] = None):
+    """One member's scene, traced: its `SceneResult` (the scene cores of `_scenes`). `panels`:
+    the input table's panel count (static; default from `ts`, as the scenes decide it)."""
     core, _ = _CORES[scene]
     pre = (model, torque_model) if scene == "paper-circle" else (model,)
-    nodes = input_nodes_at(trajectory, ts) if nodes is None else nodes
-    return core(*pre, robot, trajectory, ts, solver, controller, max_steps, adjoint, nodes)
+    panels = input_panels_at(trajectory, ts) if panels is None else panels
+    return core(*pre, robot, trajectory, ts, solver, controller, max_steps, adjoint, panels)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,33 +1,35 @@
 """A smooth input evaluated once on a grid, then interpolated: what a scene does with its input.
 
 The scenes' inputs (the `paper-circle` torques: L1 inverse dynamics along eq 55; the
-`servo-circle` angles: L1 inverse kinematics) cost about a third of L2's right-hand side when
-evaluated at every stage of the integrator. They are smooth functions of time alone, so the
-scene evaluates them once, vectorised, on a uniform grid with their time derivatives (by
-sixth-order central differences of the values, `tabulate`), and interpolates by Hermite
-polynomials that match those derivatives at the
-nodes: cubic from (f, f') and quintic from (f, f', f''), whose errors are at most
-h^4/384 max|f^(4)| and h^6/46080 max|f^(6)| on a grid of spacing h. For the paper's circle
-(omega = 5/6 rad/s, 512 nodes over 7.54 s) that is a relative torque error of about 3e-10
-(6e-11 at 755 nodes),
-far below any solver tolerance; the tests check it against the exact input.
+`servo-circle` angles: L1 inverse kinematics) are smooth (analytic) functions of time alone, and
+evaluating them at every solver stage cost about a third of L2's right-hand side. So a scene
+evaluates its input once, vectorised, and the integrator interpolates.
 
-The node count is static (`scene_nodes`): where the horizon is known when the scene is prepared,
-`NODES_PER_RADIAN` per radian of the nominal motion (the circle's omega t_end), at least
-`MIN_NODES`, rounded up to `MIN_NODES` times a power of two so that horizons of similar length
-share a program; otherwise at least `MIN_NODES` and one per output time. The table estimates its own error from the same
-bound, with the highest derivative taken from finite differences of the stored ones
-(`Tabulated.error_estimate`, no extra evaluations); a scene whose table is coarser than
-`TABLE_RTOL` (a horizon or a trajectory speed the node count did not foresee, such as a traced
-t_end) fails with `RESULTS.input_table_too_coarse` instead of integrating an inaccurate input.
-An earlier version evaluated the exact input at every stage in that case, inside a `lax.cond`:
-that branch (the L1 inverse dynamics under nested derivatives) made up a third of L2's program
-and doubled its compile time, for a case the node count now avoids.
+The interpolant is piecewise Chebyshev: the horizon is cut into P equal panels, each holding the
+degree m - 1 polynomial through the input's values at the m Chebyshev-Lobatto points of the panel
+(`PANEL_NODES` = 16), stored as Chebyshev coefficients and evaluated by Clenshaw's recurrence.
+For an analytic input the error falls geometrically with m, so few nodes give near machine
+precision: on the paper's circle (one turn, 7.54 s) the torques interpolate to 4e-14 relative and
+the angles to 1e-15 on panels of one radian of the motion (P = 7, 112 nodes). The previous table
+(cubic Hermite on 512 uniform nodes, derivatives by central differences) gave 3e-10 with 4.6
+times as many evaluations of the input, which in a batch of L1 robots was two fifths of the
+whole run. Values alone are sampled (no derivatives, no nodes outside the horizon); the
+integrator's time derivatives (the servo's th' and th'') are exact derivatives of the polynomial.
 
-Every level tabulates. L0 and L1 take fewer solver stages (about 500 for L1 at rtol 1e-6) than
-the table has nodes, but the table's nodes are one vectorised evaluation while the stages run
-one after another: L1 `paper-circle` took 8.7 ms with the exact torque at every stage and 6.6 ms
-with the table (a batch of 256: 173 -> 234 trajectories/s), and compiles 1 s faster.
+The panel count is static (`scene_panels`): where the horizon is known when the scene is
+prepared, one panel per `PANEL_RADIANS` of the nominal motion (the circle's omega t_end), at least
+`MIN_PANELS`, rounded up to `MIN_PANELS` times a power of two so that horizons of similar length
+share a program; otherwise at least `MIN_PANELS` and one node per output time. The table
+estimates its own error from its highest two Chebyshev coefficients in each panel
+(`Chebyshev.error_estimate`: no extra evaluations; it overestimates the measured error by 3 to
+30 times on the scenes' inputs); a scene whose table is coarser than `TABLE_RTOL` (a horizon or
+a trajectory speed the panel count did not foresee, such as a traced t_end) fails with
+`RESULTS.input_table_too_coarse` instead of integrating an inaccurate input.
+
+The input may return an auxiliary value at each node (`scene_input(..., aux=True)`): the scenes
+take their reach check of the nominal path (the loop-closure residual of the inverse kinematics
+that makes the input) from the table's own evaluations instead of evaluating the kinematics again
+at every output time.
 """
 
 from __future__ import annotations
@@ -40,133 +42,111 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-#: Fewest nodes a scene tabulates its input on (more when it asks for more output times).
-MIN_NODES = 512
+#: Chebyshev-Lobatto nodes per panel (the panel's polynomial has degree PANEL_NODES - 1).
+PANEL_NODES = 16
+#: Panel length in radians of the nominal motion where the horizon is known: the paper's torques
+#: interpolate to 4e-14 relative at this length (2e-10 at twice the length).
+PANEL_RADIANS = 1.0
+#: Fewest panels a scene tabulates its input on.
+MIN_PANELS = 8
 #: Largest estimated error of a scene's input table, relative to the input's largest magnitude,
 #: that a scene accepts.
 TABLE_RTOL = 1e-8
-#: Fewest nodes per radian of the nominal motion where the horizon is known: the paper's torques
-#: interpolate to about 1e-9 relative at this spacing (6e-11 at the default 755 nodes over one
-#: turn, 120 per radian; the error falls as the fourth power of the spacing).
-NODES_PER_RADIAN = 60
 
 
-def scene_nodes(n_out: int, span_radians: Optional[float] = None) -> int:
-    """Nodes of a scene's input grid (static). With `span_radians` (omega t_end of the nominal
-    motion, when known): `NODES_PER_RADIAN` per radian, at least `MIN_NODES`, rounded up to
-    `MIN_NODES` times a power of two, whatever the number of output times (the table's work is
-    per node and vectorised: in a batch it was a fifth of an L1 run at one node per output time).
-    Without it: at least `MIN_NODES` and one per output time, the best guess at the horizon."""
+def scene_panels(n_out: int, span_radians: Optional[float] = None) -> int:
+    """Panels of a scene's input table (static). With `span_radians` (omega t_end of the nominal
+    motion, when known): one per `PANEL_RADIANS`, at least `MIN_PANELS`, rounded up to
+    `MIN_PANELS` times a power of two, whatever the number of output times (the table's work is
+    per node and vectorised). Without it: at least `MIN_PANELS` and about one node per output
+    time, the best guess at the horizon."""
     if span_radians is None:
-        return max(MIN_NODES, int(n_out))
-    need = int(np.ceil(NODES_PER_RADIAN * abs(float(span_radians)))) + 1
-    if need <= MIN_NODES:
-        return MIN_NODES
-    return MIN_NODES * 2 ** int(np.ceil(np.log2(need / MIN_NODES)))
+        return max(MIN_PANELS, -(-int(n_out) // PANEL_NODES))
+    need = int(np.ceil(abs(float(span_radians)) / PANEL_RADIANS))
+    if need <= MIN_PANELS:
+        return MIN_PANELS
+    return MIN_PANELS * 2 ** int(np.ceil(np.log2(need / MIN_PANELS)))
 
 
-class Tabulated(eqx.Module):
-    """f(t) (any shape) from its values and derivatives on a uniform grid: Hermite
-    interpolation, cubic (f and f' stored) or quintic (f, f', f''). Differentiable in t (so
-    `derivatives` works through it) and in the tabulated values (so gradients reach the
-    parameters that made them). Outside [t0, t0 + (n - 1) h] the end polynomials extrapolate."""
+def _lobatto(m: int) -> np.ndarray:
+    """The m Chebyshev-Lobatto points of [-1, 1], increasing."""
+    return -np.cos(np.pi * np.arange(m) / (m - 1))
+
+
+def _values_to_coeffs(m: int) -> np.ndarray:
+    """(m, m) matrix taking values at `_lobatto(m)` to Chebyshev coefficients (the inverse of
+    T_k(x_j); Chebyshev points keep it well conditioned)."""
+    x = _lobatto(m)
+    V = np.cos(np.arange(m)[None, :] * np.arccos(np.clip(x, -1.0, 1.0))[:, None])
+    return np.linalg.inv(V)
+
+
+class Chebyshev(eqx.Module):
+    """f(t) (any shape) on [t0, t0 + P H]: P panels of length H, each a Chebyshev series of
+    degree m - 1 (`coeffs` (P, m, ...)). Differentiable in t (so `derivatives` works through it)
+    and in the coefficients (so gradients reach the parameters that made them). Outside the
+    horizon the end panels' polynomials extrapolate."""
 
     t0: Float[Array, ""]
-    h: Float[Array, ""]
-    nodes: Float[Array, "order_plus_1 n ..."]
+    H: Float[Array, ""]
+    coeffs: Float[Array, "P m ..."]
 
     def __call__(self, t):
-        n = self.nodes.shape[1]
-        s = (t - self.t0) / self.h
-        i = jnp.clip(jnp.floor(s), 0, n - 2).astype(jnp.int32)
-        u = s - i
-        f, g = self.nodes[:, i], self.nodes[:, i + 1]
-        h = self.h
-        if self.nodes.shape[0] == 2:
-            u2, u3 = u * u, u * u * u
-            return ((2 * u3 - 3 * u2 + 1) * f[0] + (u3 - 2 * u2 + u) * h * f[1]
-                    + (-2 * u3 + 3 * u2) * g[0] + (u3 - u2) * h * g[1])
-        u2 = u * u
-        u3, u4, u5 = u2 * u, u2 * u2, u2 * u2 * u
-        return ((1 - 10 * u3 + 15 * u4 - 6 * u5) * f[0]
-                + (u - 6 * u3 + 8 * u4 - 3 * u5) * h * f[1]
-                + (0.5 * u2 - 1.5 * u3 + 1.5 * u4 - 0.5 * u5) * h * h * f[2]
-                + (0.5 * u3 - u4 + 0.5 * u5) * h * h * g[2]
-                + (-4 * u3 + 7 * u4 - 3 * u5) * h * g[1]
-                + (10 * u3 - 15 * u4 + 6 * u5) * g[0])
+        P, m = self.coeffs.shape[:2]
+        s = (t - self.t0) / self.H
+        i = jnp.clip(jnp.floor(s), 0, P - 1).astype(jnp.int32)
+        x = 2.0 * (s - i) - 1.0
+        c = self.coeffs[i]
+        x = jnp.reshape(x, x.shape + (1,) * (c.ndim - 1))
+        # Clenshaw: sum_k c_k T_k(x) without evaluating the T_k
+        b1, b2 = jnp.zeros_like(c[0]), jnp.zeros_like(c[0])
+        for k in range(m - 1, 0, -1):
+            b1, b2 = 2.0 * x * b1 - b2 + c[k], b1
+        return x * b1 - b2 + c[0]
 
     def error_estimate(self) -> Float[Array, ""]:
-        """Estimated largest interpolation error relative to the largest tabulated value: the
-        Hermite bound of the module docstring with f^(4) from third differences of f' / h^3
-        (cubic) or f^(6) from fourth differences of f'' / h^4 (quintic)."""
-        scale = jnp.max(jnp.abs(self.nodes[0])) + jnp.finfo(self.nodes.dtype).tiny
-        if self.nodes.shape[0] == 2:
-            est = self.h * jnp.max(jnp.abs(jnp.diff(self.nodes[1], n=3, axis=0))) / 384
-        else:
-            est = self.h**2 * jnp.max(jnp.abs(jnp.diff(self.nodes[2], n=4, axis=0))) / 46080
-        return est / scale
+        """Estimated largest interpolation error relative to the largest value: the magnitude of
+        the two highest Chebyshev coefficients, in the worst panel (for a series that converges
+        geometrically the neglected tail is smaller than its last terms)."""
+        c = jnp.abs(self.coeffs)
+        scale = jnp.max(jnp.sum(c, axis=1))  # bounds |f| in each panel, and is close to it
+        tail = jnp.max(c[:, -1] + c[:, -2])
+        return tail / (scale + jnp.finfo(self.coeffs.dtype).tiny)
 
 
-#: weights of the sixth-order central differences over offsets -3..3: first derivative (times
-#: h) and second derivative (times h^2); errors h^6 |f^(7)|/140 and h^6 |f^(8)|/560
-_D1 = np.array([-1.0, 9.0, -45.0, 0.0, 45.0, -9.0, 1.0]) / 60
-_D2 = np.array([2.0, -27.0, 270.0, -490.0, 270.0, -27.0, 2.0]) / 180
+def tabulate(fn: Callable, t0, t1, panels: int, nodes_per_panel: int = PANEL_NODES,
+             aux: bool = False):
+    """`Chebyshev` table of fn (a function of time returning an array) on `panels` equal panels
+    of [t0, t1] with `nodes_per_panel` Chebyshev-Lobatto nodes each, all nodes in one vectorised
+    evaluation. `aux=True`: fn returns (value, aux) and this returns (table, aux at every node
+    (panels * nodes_per_panel, ...))."""
+    m = int(nodes_per_panel)
+    if m < 2 or int(panels) < 1:
+        raise ValueError(f"need at least 1 panel and 2 nodes per panel, got {panels}, {m}")
+    t0 = jnp.asarray(t0, float)
+    H = (jnp.asarray(t1, float) - t0) / panels
+    local = jnp.asarray((_lobatto(m) + 1.0) / 2.0)
+    tn = t0 + H * (jnp.arange(panels, dtype=float)[:, None] + local[None, :])
+    out = jax.vmap(fn)(tn.reshape(-1))
+    vals, extra = out if aux else (out, None)
+    vals = vals.reshape((panels, m) + vals.shape[1:])
+    coeffs = jnp.einsum("kj,pj...->pk...", jnp.asarray(_values_to_coeffs(m)), vals)
+    table = Chebyshev(t0=t0, H=H, coeffs=coeffs)
+    return (table, extra) if aux else table
 
 
-def tabulate(fn: Callable, t0, t1, n: int, order: int = 1,
-             derivatives: str = "exact") -> Tabulated:
-    """`Tabulated` of fn (a function of time returning an array) on n uniform nodes over
-    [t0, t1], with `order` time derivatives (1: cubic, 2: quintic interpolation), all nodes in
-    one vectorised evaluation. `derivatives="exact"`: by forward mode (nested JVPs of fn);
-    `"differences"`: sixth-order central differences of the values, on three extra nodes each
-    side of [t0, t1] (fn must be defined there), truncation errors h^6 |f^(7)|/140 and
-    h^6 |f^(8)|/560 (about 1e-15 relative for the paper's circle at the scenes' spacing; rounding
-    adds about 1e-14), exact for polynomials of degree <= 6. The scenes use differences: fn (an
-    inverse dynamics built on derivatives of the kinematics) is then traced once instead of under
-    one or two more levels of JVP, which was a quarter of L2's compiled program."""
-    if order not in (1, 2):
-        raise ValueError(f"order must be 1 or 2, got {order}")
-    if derivatives not in ("exact", "differences"):
-        raise ValueError(f"derivatives must be 'exact' or 'differences', got {derivatives!r}")
-    h = (jnp.asarray(t1, float) - t0) / (n - 1)
-    if derivatives == "differences":
-        f = jax.vmap(fn)(t0 + h * jnp.arange(-3, n + 3))
-
-        def stencil(w):
-            return sum(w[k] * f[k:k + n] for k in range(7))
-
-        rows = [f[3:n + 3], stencil(_D1) / h]
-        if order == 2:
-            rows.append(stencil(_D2) / h**2)
-        return Tabulated(t0=jnp.asarray(t0, float), h=h, nodes=jnp.stack(rows))
-    ts = jnp.linspace(t0, t1, n)
-
-    def derivs(t):
-        if order == 1:
-            f, df = jax.jvp(fn, (t,), (jnp.ones_like(t),))
-            return jnp.stack([f, df])
-
-        def d1(t):
-            return jax.jvp(fn, (t,), (jnp.ones_like(t),))
-
-        (f, df), (_, ddf) = jax.jvp(d1, (t,), (jnp.ones_like(t),))
-        return jnp.stack([f, df, ddf])
-
-    nodes = jnp.moveaxis(jax.vmap(derivs)(ts), 0, 1)
-    return Tabulated(t0=jnp.asarray(t0, float), h=h, nodes=nodes)
-
-
-def scene_input(fn: Callable, ts, order: int, nodes: Optional[int] = None) -> Tabulated:
+def scene_input(fn: Callable, ts, panels: Optional[int] = None, aux: bool = False):
     """A scene's input `fn` of time as its integrator calls it, for output times `ts`: a
-    `Tabulated` on `nodes` (default `scene_nodes(len(ts))`) nodes over [ts[0], ts[-1]] with
-    `order` derivatives. Check the table with `input_too_coarse`."""
-    n = scene_nodes(ts.shape[0]) if nodes is None else int(nodes)
-    return tabulate(fn, ts[0], ts[-1], n, order=order, derivatives="differences")
+    `Chebyshev` table on `panels` (default `scene_panels(len(ts))`) panels over
+    [ts[0], ts[-1]] (with `aux`, also fn's auxiliary output at the nodes). Check the table with
+    `input_too_coarse`."""
+    P = scene_panels(ts.shape[0]) if panels is None else int(panels)
+    return tabulate(fn, ts[0], ts[-1], P, aux=aux)
 
 
 def input_too_coarse(inp: Callable):
     """Whether a scene input from `scene_input` is a table whose estimated relative error is
     above `TABLE_RTOL` (a traced bool), or None for an exact input (nothing to check)."""
-    if not isinstance(inp, Tabulated):
+    if not isinstance(inp, Chebyshev):
         return None
     return ~(inp.error_estimate() <= TABLE_RTOL)
