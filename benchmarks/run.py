@@ -74,6 +74,7 @@ def machine(quick: bool) -> dict:
                      "diffrax": diffrax.__version__, "equinox": equinox.__version__,
                      "numpy": np.__version__},
         "quick": quick,
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
     }
 
 
@@ -388,7 +389,12 @@ def main(argv=None):
                     help="batch: these tolerances (default 1e-6 1e-8)")
     ap.add_argument("--out", default=None,
                     help="results directory (default benchmarks/results/<backend>)")
+    ap.add_argument("--no-cpu-config", action="store_true",
+                    help="leave XLA's CPU settings alone (default: ppr_jax.configure_cpu(): one "
+                         "host device per core, batches split over them, no YNNPACK fusions)")
     args = ap.parse_args(argv)
+    if not args.no_cpu_config:
+        pj.configure_cpu()  # before JAX's first computation
     out_dir = args.out or os.path.join(HERE, "results", jax.default_backend())
     os.makedirs(out_dir, exist_ok=True)
     for part in args.parts:

@@ -95,6 +95,7 @@ from ._report import (  # noqa: E402
 )
 
 from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
+from ._devices import configure_cpu as configure_cpu, cpu_flags as cpu_flags  # noqa: E402
 from ._sweep import (  # noqa: E402
     SweepResult as SweepResult,
     sweep as sweep,

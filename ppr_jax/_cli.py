@@ -567,6 +567,13 @@ def main(argv=None) -> int:
 
     args = build_parser().parse_args(argv)
     args.program_dir = None
+    if args.cmd == "sweep" and os.environ.get("PPR_JAX_CPU_DEFAULTS", "1") != "0":
+        from ._devices import configure_cpu
+
+        try:
+            configure_cpu()  # one host device per core: a sweep's chunks split over them
+        except PPRError:  # JAX started already (the command called from Python): keep it
+            pass
     if os.environ.get("PPR_JAX_CACHE", "1") != "0":
         from ._cache import enable_compilation_cache
         from ._programs import PROGRAM_SUBDIR

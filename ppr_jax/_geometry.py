@@ -15,12 +15,15 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._custom_types import Array, Float
 from ._linalg import solve
 from ._robot import Robot
 
-BETA = jnp.array([7 * jnp.pi / 6, -jnp.pi / 6, jnp.pi / 2])  # platform joint directions
+# platform joint directions (NumPy: a module-level jnp array would start the JAX backend at
+# import, before a user could choose its devices with `ppr_jax.configure_cpu`)
+BETA = np.array([7 * np.pi / 6, -np.pi / 6, np.pi / 2])
 
 
 def e(alpha):

@@ -122,7 +122,9 @@ def run_scene(
     # cache), then run `repeats` times; no extra run just to separate compilation from the run.
     # Tolerances are arrays, so changing them does not recompile.
     t0 = time.perf_counter()
-    fn, how = compiled_program(c.fn, c.args, result_template(c), program_dir,
+    # A batch split over devices is compiled as usual (stored programs are single-device).
+    directory = None if c.devices else program_dir
+    fn, how = compiled_program(c.fn, c.args, result_template(c), directory,
                                f"{scene}-{c.args[0].name}")
     compile_s = time.perf_counter() - t0
     runs = []

@@ -238,6 +238,54 @@ def _batched(params: RobotParams) -> bool:
     return jnp.ndim(params.a) == 1
 
 
+_SHARDED: dict = {}
+
+
+def _sharded_batch(scene: str, devices: tuple):
+    """The batched core of `scene` split over `devices` along the batch (compiled once per
+    scene and device set): `shard_map` over a 1-D mesh, a local vmap on each device, so that
+    adaptive steps never synchronise across devices (`_devices.py`). Only the robot is split;
+    every other argument is replicated."""
+    key = (scene, devices)
+    if key in _SHARDED:
+        return _SHARDED[key]
+    from jax.sharding import Mesh, PartitionSpec as P
+
+    core, k = _CORES[scene]
+    mesh = Mesh(np.asarray(devices), ("batch",))
+
+    @eqx.filter_jit
+    def fn(*args):
+        robot_dyn, robot_static = eqx.partition(args[k], eqx.is_array)
+        rest_dyn, rest_static = eqx.partition(args[:k] + (None,) + args[k + 1:], eqx.is_array)
+
+        def local(robot_dyn, rest_dyn):
+            rest = eqx.combine(rest_dyn, rest_static)
+
+            def member(r):
+                return core(*rest[:k], eqx.combine(r, robot_static), *rest[k + 1:])
+
+            return jax.vmap(member)(robot_dyn)
+
+        # check_vma=False: diffrax's loops carry values that are replicated at entry and vary
+        # per device after one step, which the varying-axes check rejects; each device's body
+        # is a plain local vmap, with no collective to get wrong.
+        return jax.shard_map(local, mesh=mesh, in_specs=(P("batch"), P()),
+                             out_specs=P("batch"), check_vma=False)(robot_dyn, rest_dyn)
+
+    _SHARDED[key] = fn
+    return fn
+
+
+def batch_devices(batch: int) -> tuple:
+    """The local devices a batch of `batch` robots is split over: all of them when there are
+    several and they divide the batch, else none (one device, a plain vmap)."""
+    devices = jax.local_devices()
+    if len(devices) > 1 and batch % len(devices) == 0:
+        return tuple(devices)
+    return ()
+
+
 def check_scene_args(t_end, n_out, rtol, atol, max_steps) -> None:
     """Validate a scene's arguments before anything is compiled (`PPRError` naming the argument
     and its allowed range). The tolerance bounds: below 1e-14 the error control chases round-off;
@@ -260,6 +308,8 @@ class SceneCall(eqx.Module):
     scene: str = eqx.field(static=True)
     batched: bool = eqx.field(static=True)
     solver_name: str = eqx.field(static=True)
+    #: devices a batch is split over (0: not split)
+    devices: int = eqx.field(static=True, default=0)
 
 
 def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solver, rtol, atol,
@@ -285,8 +335,11 @@ def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solve
     post = (traj, ts, get_solver(solver), controller, max_steps, adjoint, panels)
     batched = _batched(params)
     fn = (_BATCH if batched else _JIT)[scene]
+    devices = batch_devices(int(jnp.shape(params.a)[0])) if batched else ()
+    if devices:
+        fn = _sharded_batch(scene, devices)
     return SceneCall(fn=fn, args=(*pre, robot, *post), scene=scene, batched=batched,
-                     solver_name=solver_name)
+                     solver_name=solver_name, devices=len(devices))
 
 
 def result_template(call: SceneCall) -> SceneResult:

@@ -128,7 +128,12 @@ def cmd_sweep(args):
     if args.lhs is not None and args.lhs < 1:
         raise ValueError(f"--lhs needs N >= 1, got {args.lhs}")
     devices = None
-    if args.devices:
+    if args.devices is None:
+        # every local device that divides the chunk (the command asked XLA for one host device
+        # per core, `configure_cpu`)
+        avail = jax.local_devices()
+        devices = avail if len(avail) > 1 and args.chunk % len(avail) == 0 else None
+    elif args.devices:
         avail = jax.local_devices()
         if args.devices > len(avail):
             raise ValueError(
@@ -249,8 +254,10 @@ def add_sweep(sub, parents, fmt):
                    help="a Latin hypercube of N members over each --vary range")
     s.add_argument("--seed", type=int, default=0, help="seed of the Latin hypercube")
     s.add_argument("--chunk", type=int, default=64, help="members per compiled batch")
-    s.add_argument("--devices", type=int, default=0,
-                   help="split each chunk over this many local devices (0: one device)")
+    s.add_argument("--devices", type=int, default=None,
+                   help="split each chunk over this many local devices (0: one device; default: "
+                        "all local devices, one per CPU core unless PPR_JAX_CPU_DEFAULTS=0, "
+                        "where they divide --chunk)")
     s.add_argument("--out", required=True, help="output directory")
     s.set_defaults(func=cmd_sweep)
 

@@ -1,0 +1,78 @@
+"""Batches over every core: `configure_cpu` asks XLA for host devices before JAX starts, and a
+batched scene split over them (shard_map, a local vmap on each device) equals the same batch on
+one device member by member, failures included."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import ppr_jax as pj
+from ppr_jax._devices import cpu_flags
+
+SHORT = dict(t_end=0.3, n_out=31, rtol=1e-8, atol=1e-10)
+
+TWO_DEVICES = textwrap.dedent(
+    """
+    import json, sys
+    import ppr_jax as pj
+    print(pj.configure_cpu(2), file=sys.stderr)  # before the first computation
+    import jax
+    import numpy as np
+    assert len(jax.devices()) == 2, jax.devices()
+    from ppr_jax._scenes import _prepare
+    kw, ts = json.loads(sys.argv[1])
+    p = pj.scene_params("paper-circle")
+    batch = pj.stack_params([p.replace(t=t) if t > 0 else p.replace(a=3.0) for t in ts])
+    c = _prepare("paper-circle", batch, "reduced", "reduced", None, kw["t_end"], kw["n_out"],
+                 None, kw["rtol"], kw["atol"], 200_000)
+    assert c.devices == 2
+    r = pj.paper_circle(batch, model="reduced", throw=False, **kw)
+    print(json.dumps({"X": np.asarray(r.X).tolist(), "ok": np.asarray(r.ok).tolist(),
+                      "steps": np.asarray(r.num_steps).tolist(),
+                      "failures": {str(k): v for k, v in r.failures().items()}}))
+    """
+)
+
+
+def test_split_batch_equals_one_device():
+    """Four robots, one of them out of reach (a = 3 m), on two host devices in a fresh process
+    against the same batch here on one device: the same trajectories to rounding, the same step
+    counts, the same failure."""
+    ts = [0.3e-3, 0.35e-3, -1.0, 0.4e-3]  # -1: the member with a = 3 m
+    p = pj.scene_params("paper-circle")
+    batch = pj.stack_params([p.replace(t=t) if t > 0 else p.replace(a=3.0) for t in ts])
+    ref = pj.paper_circle(batch, model="reduced", throw=False, **SHORT)
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    proc = subprocess.run([sys.executable, "-c", TWO_DEVICES, json.dumps([SHORT, ts])],
+                          capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["ok"] == [True, True, False, True]
+    assert list(out["failures"]) == ["2"] and "reach" in out["failures"]["2"]
+    assert out["steps"] == np.asarray(ref.num_steps).tolist()
+    for i in (0, 1, 3):
+        np.testing.assert_allclose(out["X"][i], np.asarray(ref.X[i]), rtol=0, atol=1e-12)
+
+
+def test_configure_cpu_after_the_backend_started_is_a_clear_error():
+    """In this process JAX has computed already: flags that are not in force cannot be set."""
+    import jax.numpy as jnp
+
+    jnp.zeros(1).block_until_ready()
+    if "--xla_force_host_platform_device_count=7" in os.environ.get("XLA_FLAGS", ""):
+        pytest.skip("XLA_FLAGS already asks for 7 devices")
+    with pytest.raises(pj.PPRError, match="before JAX's first computation"):
+        pj.configure_cpu(7)
+
+
+def test_cpu_flags():
+    f = cpu_flags(3)
+    assert f[0] == "--xla_force_host_platform_device_count=3"
+    assert cpu_flags(1, small_dots=False) == ["--xla_force_host_platform_device_count=1"]
+    with pytest.raises(pj.PPRError, match="devices must be at least 1"):
+        cpu_flags(0)
