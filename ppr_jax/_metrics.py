@@ -30,6 +30,10 @@ class Outputs(eqx.Module):
     potential: Array
 
 
+#: the output times are evaluated in this many vectorised chunks (`outputs`)
+OUTPUT_CHUNKS = 5
+
+
 def outputs(model: AbstractModel, robot: Robot, z, zdot) -> Outputs:
     robot = as_robot(robot)
 
@@ -40,7 +44,11 @@ def outputs(model: AbstractModel, robot: Robot, z, zdot) -> Outputs:
         T, U = energy_of(model, robot, k, kd)
         return k.X, model.joint_end_rotations(robot, k)[0], res, T, U
 
-    X, er, res, T, U = jax.vmap(one)(z, zdot)
+    # Five chunks of output times, each vectorised: under a batch's vmap one chunk's
+    # temporaries stay in cache (L1, 1,024 robots x 755 times: 20 % faster than one vmap)
+    X, er, res, T, U = jax.lax.map(
+        lambda a: one(*a), (z, zdot), batch_size=-(-z.shape[0] // OUTPUT_CHUNKS)
+    )
     return Outputs(X=X, end_rot=er, residual=res, kinetic=T, potential=U)
 
 
@@ -49,35 +57,42 @@ def radial_error(X, center, radius):
     return jnp.linalg.norm(X[..., :2] - center, axis=-1) - radius
 
 
-def metrics(out: Outputs, X_nominal, center, radius) -> dict:
-    """The scene metrics (floats) from `outputs` and the nominal pose samples (m, 3)."""
+def metric_arrays(out: Outputs, X_nominal, center, radius) -> dict:
+    """The scene metrics as NumPy arrays over any leading batch axes of `out` (time is the
+    last axis of the scalar outputs): one vectorised pass for a whole batch, where a loop of
+    `metrics` per member cost more than the batch's simulation (1,024 L1 robots: 0.8 s)."""
     X = np.asarray(out.X)
     Xn = np.asarray(X_nominal)
-    er = np.asarray(radial_error(X, np.asarray(center), float(radius)))
-    dphi = X[:, 2] - Xn[:, 2]
+    er = np.linalg.norm(X[..., :2] - np.asarray(center), axis=-1) - float(radius)
+    dphi = X[..., 2] - Xn[..., 2]
     rot = np.degrees(np.asarray(out.end_rot))
-    diff = rot[:, 0] - rot[:, 1]
-    scale = max(float(np.max(np.abs(rot))), 1e-300)
+    diff = rot[..., 0] - rot[..., 1]
+    scale = np.maximum(np.abs(rot).max(axis=(-2, -1)), 1e-300)
     E = np.asarray(out.kinetic) + np.asarray(out.potential)
     return {
-        "radial_error_max_m": float(er.max()),
-        "radial_error_min_m": float(er.min()),
-        "radial_error_mean_m": float(er.mean()),
-        "radial_error_max_relative_percent": float(np.abs(er).max() / float(radius) * 100),
-        "position_error_max_m": float(np.linalg.norm(X[:, :2] - Xn[:, :2], axis=-1).max()),
-        "phi_error_max_rad": float(np.abs(dphi).max()),
-        "phi_error_rms_rad": float(np.sqrt(np.mean(dphi**2))),
-        "end_rotation_1_max_deg": float(rot[:, 0].max()),
-        "end_rotation_1_min_deg": float(rot[:, 0].min()),
-        "end_rotation_2_max_deg": float(rot[:, 1].max()),
-        "end_rotation_2_min_deg": float(rot[:, 1].min()),
-        "end_rotation_diff_max_deg": float(diff.max()),
-        "end_rotation_diff_min_deg": float(diff.min()),
-        "end_rotation_diff_mean_deg": float(diff.mean()),
-        "end_rotation_diff_max_relative_percent": float(np.abs(diff).max() / scale * 100),
-        "constraint_residual_max_m": float(np.asarray(out.residual).max()),
-        "energy_initial_J": float(E[0]),
-        "energy_final_J": float(E[-1]),
-        "energy_min_J": float(E.min()),
-        "energy_max_J": float(E.max()),
+        "radial_error_max_m": er.max(-1),
+        "radial_error_min_m": er.min(-1),
+        "radial_error_mean_m": er.mean(-1),
+        "radial_error_max_relative_percent": np.abs(er).max(-1) / float(radius) * 100,
+        "position_error_max_m": np.linalg.norm(X[..., :2] - Xn[..., :2], axis=-1).max(-1),
+        "phi_error_max_rad": np.abs(dphi).max(-1),
+        "phi_error_rms_rad": np.sqrt(np.mean(dphi**2, axis=-1)),
+        "end_rotation_1_max_deg": rot[..., 0].max(-1),
+        "end_rotation_1_min_deg": rot[..., 0].min(-1),
+        "end_rotation_2_max_deg": rot[..., 1].max(-1),
+        "end_rotation_2_min_deg": rot[..., 1].min(-1),
+        "end_rotation_diff_max_deg": diff.max(-1),
+        "end_rotation_diff_min_deg": diff.min(-1),
+        "end_rotation_diff_mean_deg": diff.mean(-1),
+        "end_rotation_diff_max_relative_percent": np.abs(diff).max(-1) / scale * 100,
+        "constraint_residual_max_m": np.asarray(out.residual).max(-1),
+        "energy_initial_J": E[..., 0],
+        "energy_final_J": E[..., -1],
+        "energy_min_J": E.min(-1),
+        "energy_max_J": E.max(-1),
     }
+
+
+def metrics(out: Outputs, X_nominal, center, radius) -> dict:
+    """The scene metrics (floats) from `outputs` and the nominal pose samples (m, 3)."""
+    return {k: float(v) for k, v in metric_arrays(out, X_nominal, center, radius).items()}

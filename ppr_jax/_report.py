@@ -15,7 +15,7 @@ import jax
 import numpy as np
 
 from ._checks import PPRError
-from ._metrics import metrics
+from ._metrics import metric_arrays
 from ._params import RobotParams
 from ._programs import compiled_program
 from ._scenes import SceneResult, _finish, _prepare, result_template, scene_params
@@ -74,17 +74,13 @@ def scene_metrics(res: SceneResult, trajectory: Optional[Circle] = None) -> Unio
     traj = Circle() if trajectory is None else trajectory
     center, radius = np.asarray(traj.center), float(traj.radius)
     res = jax.tree_util.tree_map(np.asarray, res)
+    arrays = metric_arrays(res, res.X_nominal, center, radius)
+    arrays.update(num_steps=res.num_steps, num_accepted=res.num_accepted,
+                  num_rejected=res.num_rejected)
+    kinds = {k: (int if k.startswith("num_") else float) for k in arrays}
     if res.X.ndim == 3:
-        return [
-            scene_metrics(jax.tree_util.tree_map(lambda x: x[i], res), traj)
-            for i in range(res.X.shape[0])
-        ]
-    m = metrics(res, res.X_nominal, center, radius)
-    m.update(
-        num_steps=int(res.num_steps), num_accepted=int(res.num_accepted),
-        num_rejected=int(res.num_rejected),
-    )
-    return m
+        return [{k: kinds[k](v[i]) for k, v in arrays.items()} for i in range(res.X.shape[0])]
+    return {k: kinds[k](v) for k, v in arrays.items()}
 
 
 def run_scene(
