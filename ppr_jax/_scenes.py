@@ -225,12 +225,23 @@ def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, ad
 #: scene name -> (core, index of the robot among the core's arguments)
 _CORES = {"paper-circle": (_paper_circle_core, 2), "servo-circle": (_servo_circle_core, 1)}
 _JIT = {name: eqx.filter_jit(core) for name, (core, _) in _CORES.items()}
-# Batched cores: vmapped over the robot only, compiled once per (model, batch size).
+
+
+def _member_map(scene: str, args: tuple):
+    """The core of `scene` over the batched robot `args[k]` (every other argument shared), as
+    `_chunked_vmap`: traceable, for one device or inside each device's shard."""
+    core, k = _CORES[scene]
+    robot_dyn, robot_static = eqx.partition(args[k], eqx.is_array)
+
+    def member(r):
+        return core(*args[:k], eqx.combine(r, robot_static), *args[k + 1:])
+
+    return _chunked_vmap(member, robot_dyn)
+
+
+# Batched cores: mapped over the robot only, compiled once per (model, batch size).
 _BATCH = {
-    name: eqx.filter_jit(
-        eqx.filter_vmap(core, in_axes=tuple(0 if i == k else None for i in range(k + 8)))
-    )
-    for name, (core, k) in _CORES.items()
+    name: eqx.filter_jit(lambda *args, _name=name: _member_map(_name, args)) for name in _CORES
 }
 
 
@@ -240,10 +251,24 @@ def _batched(params: RobotParams) -> bool:
 
 _SHARDED: dict = {}
 
+#: members vectorised together on one device at most: a larger local batch runs as a loop over
+#: chunks of this size (`_chunked_vmap`)
+MEMBER_CHUNK = 64
+
+
+def _chunked_vmap(f, xs):
+    """`jax.vmap(f)(xs)` in sequential chunks of at most `MEMBER_CHUNK` members
+    (`jax.lax.map` with `batch_size`): the same values, but a chunk's members wait only for the
+    slowest of their chunk and its temporaries stay in cache."""
+    n = jax.tree_util.tree_leaves(xs)[0].shape[0]
+    if n <= MEMBER_CHUNK:
+        return jax.vmap(f)(xs)
+    return jax.lax.map(f, xs, batch_size=MEMBER_CHUNK)
+
 
 def _sharded_batch(scene: str, devices: tuple):
     """The batched core of `scene` split over `devices` along the batch (compiled once per
-    scene and device set): `shard_map` over a 1-D mesh, a local vmap on each device, so that
+    scene and device set): `shard_map` over a 1-D mesh, a local (chunked) vmap on each device, so that
     adaptive steps never synchronise across devices (`_devices.py`). Only the robot is split;
     every other argument is replicated."""
     key = (scene, devices)
@@ -251,7 +276,7 @@ def _sharded_batch(scene: str, devices: tuple):
         return _SHARDED[key]
     from jax.sharding import Mesh, PartitionSpec as P
 
-    core, k = _CORES[scene]
+    k = _CORES[scene][1]
     mesh = Mesh(np.asarray(devices), ("batch",))
 
     @eqx.filter_jit
@@ -261,11 +286,8 @@ def _sharded_batch(scene: str, devices: tuple):
 
         def local(robot_dyn, rest_dyn):
             rest = eqx.combine(rest_dyn, rest_static)
-
-            def member(r):
-                return core(*rest[:k], eqx.combine(r, robot_static), *rest[k + 1:])
-
-            return jax.vmap(member)(robot_dyn)
+            robot = eqx.combine(robot_dyn, robot_static)
+            return _member_map(scene, rest[:k] + (robot,) + rest[k + 1:])
 
         # check_vma=False: diffrax's loops carry values that are replicated at entry and vary
         # per device after one step, which the varying-axes check rejects; each device's body

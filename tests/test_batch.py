@@ -67,3 +67,23 @@ def test_raise_if_traced_uses_equinox_runtime_error():
     assert float(f(1.0)) == 1.0
     with pytest.raises(Exception, match="x must be >= 0"):
         jax.block_until_ready(f(-1.0))
+
+
+def test_chunked_batch_equals_single_runs(params, monkeypatch):
+    """A batch larger than `MEMBER_CHUNK` runs as a loop over chunks of vmapped members
+    (here chunks of 2, 2 and a remainder of 1): every member equals its own single run, an
+    unreachable member fails alone."""
+    import ppr_jax._scenes as scenes
+
+    monkeypatch.setattr(scenes, "MEMBER_CHUNK", 2)
+    ts = [0.3e-3, 0.32e-3, 0.34e-3, 0.36e-3]
+    robots = [params.replace(t=t) for t in ts] + [params.replace(a=3.0)]
+    # a fresh batch size (5), so the patched chunk is traced rather than taken from a cache
+    res = pj.paper_circle(pj.stack_params(robots), model="reduced", t_end=0.4, n_out=9,
+                          throw=False)
+    assert list(res.failures()) == [4]
+    for i, t in enumerate(ts):
+        single = pj.paper_circle(params.replace(t=t), model="reduced", t_end=0.4, n_out=9)
+        np.testing.assert_allclose(res.X[i], single.X, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(res.tau[i], single.tau, rtol=1e-12, atol=1e-14)
+        assert int(res.num_steps[i]) == int(single.num_steps)
