@@ -11,12 +11,12 @@ no more than 2.
 
 XLA's YNNPACK fusions (jaxlib 0.10) turn the batched 2 x 2 to 6 x 6 products of the equations of
 motion into library calls that are slower than XLA's own loops: switching them off
-(`--xla_cpu_experimental_ynn_fusion_type=`) made the batch above 13 % faster (731 -> 829
+(`--xla_cpu_experimental_ynn_fusion_type=`) made the batch above 15 % faster (731 -> 843
 trajectories/s) and a single L2 run no slower (32.0 against 31.9 ms).
 
 Both are process settings that XLA reads once, when JAX starts its backend, so `configure_cpu`
 must run before the first computation; the library itself starts nothing at import. The command
-line calls it for the commands that run batches (`sweep`, `sensitivity`). The library does not
+line calls it for `sweep`, the command that runs batches. The library does not
 call it on import, because the number of devices is visible to everything else in the process.
 """
 
@@ -72,15 +72,15 @@ def configure_cpu(devices: Optional[int] = None, small_dots: bool = True) -> lis
     the flags differ from what it started with."""
     wanted = cpu_flags(devices, small_dots)
     current = os.environ.get("XLA_FLAGS", "").split()
-    names = {f.split("=")[0] for f in current}
-    add = [f for f in wanted if f.split("=")[0] not in names]
+    name = lambda f: f.split("=")[0]  # noqa: E731
+    wanted_names = {name(f) for f in wanted}
+    add = [f for f in wanted if name(f) not in {name(c) for c in current}]
     if not add:
-        return [f for f in current if f.split("=")[0] in {w.split("=")[0] for w in wanted}]
+        return [f for f in current if name(f) in wanted_names]
     if _backend_started():
         raise PPRError(
             "configure_cpu must run before JAX's first computation (XLA reads its flags once); "
             f"call it right after import, or start Python with XLA_FLAGS='{' '.join(wanted)}'"
         )
     os.environ["XLA_FLAGS"] = " ".join(current + add)
-    return [f for f in os.environ["XLA_FLAGS"].split()
-            if f.split("=")[0] in {w.split("=")[0] for w in wanted}]
+    return [f for f in current + add if name(f) in wanted_names]

@@ -301,7 +301,7 @@ def _sharded_batch(scene: str, devices: tuple):
 
 def batch_devices(batch: int) -> tuple:
     """The local devices a batch of `batch` robots is split over: all of them when there are
-    several and they divide the batch, else none (one device, a plain vmap)."""
+    several and they divide the batch, else none (one device)."""
     devices = jax.local_devices()
     if len(devices) > 1 and batch % len(devices) == 0:
         return tuple(devices)

@@ -120,6 +120,7 @@ def cmd_sweep(args):
     from ._cli import _parse_sets
     from ._cli import model_from_args
     from ._sweep import sweep
+    from ._scenes import batch_devices
 
     vary = parse_vary(args.vary)
     params = _parse_sets(args.set, args.scene)
@@ -131,8 +132,7 @@ def cmd_sweep(args):
     if args.devices is None:
         # every local device that divides the chunk (the command asked XLA for one host device
         # per core, `configure_cpu`)
-        avail = jax.local_devices()
-        devices = avail if len(avail) > 1 and args.chunk % len(avail) == 0 else None
+        devices = list(batch_devices(args.chunk)) or None
     elif args.devices:
         avail = jax.local_devices()
         if args.devices > len(avail):
