@@ -123,6 +123,23 @@ def _outputs(model, robot, actuation, wrench, t, zf, zfd):
 
 
 @eqx.filter_jit
+def _vector_field(model, robot, actuation, wrench, skip, t, y):
+    """(z_f', z_f'') of the free state y = (z_f, z_f'). A jitted function of its own, although
+    it is only ever called inside other traces: the solver's loop traces it several times (its
+    stages, and reverse mode's forward, residual and backward passes), and one cached jaxpr
+    means JAX linearises and transposes it once instead of once per trace (the L1 gradient of
+    `paper-circle` traced in 16 s before, mostly re-linearising this function)."""
+    free, _ = _split(model, actuation)
+    _, _, zdd, _ = _accel(model, robot, actuation, wrench, t, *y)
+    dy = (y[1], zdd[jnp.array(free)])
+    if skip is not None:
+        # A member already known to have failed (for example an open chain at t = 0) is
+        # frozen, so it finishes in a few steps instead of running a batch to max_steps.
+        dy = jax.tree_util.tree_map(lambda a: jnp.where(skip, 0.0, a), dy)
+    return dy
+
+
+@eqx.filter_jit
 def _simulate_core(
     model, robot, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0, max_steps, wrench,
     throw, progress_meter, adjoint=None, skip=None,
@@ -133,13 +150,7 @@ def _simulate_core(
     y0 = (z0[f], zdot0[f])
 
     def vf(t, y, args):
-        _, _, zdd, _ = _accel(model, robot, actuation, wrench, t, *y)
-        dy = (y[1], zdd[f])
-        if skip is not None:
-            # A member already known to have failed (for example an open chain at t = 0) is
-            # frozen, so it finishes in a few steps instead of running a batch to max_steps.
-            dy = jax.tree_util.tree_map(lambda a: jnp.where(skip, 0.0, a), dy)
-        return dy
+        return _vector_field(model, robot, actuation, wrench, skip, t, y)
 
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(vf), solver, ts[0], ts[-1], dt0, y0,
