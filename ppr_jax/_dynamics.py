@@ -45,13 +45,18 @@ class EOM(eqx.Module):
     kin: Kin
 
 
+@eqx.filter_jit
 def eom_terms(
     model: AbstractModel,
     robot: Robot,
     z: Float[Array, " n"],
     zdot: Float[Array, " n"],
 ) -> EOM:
-    """Mass matrix, velocity terms and passive generalized forces at (z, z')."""
+    """Mass matrix, velocity terms and passive generalized forces at (z, z').
+
+    Jitted although mostly called inside other traces: a scene traces it several times (the
+    quasi-static solve's shape probe and loop, the right-hand side), and a cached jaxpr is traced
+    once (tracing is a third of a scene's compilation)."""
     return _eom_terms(model, robot, z, zdot, implicit=True)
 
 
