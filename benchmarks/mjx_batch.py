@@ -20,8 +20,8 @@ batch (L2 `double1r`, the scene's default solver Tsit5 at each `--rtols`, atol =
 whose timed program includes torque tables, initial states, the adaptive integration and every
 output; its error is member 0's against the same reference.
 
-Run: python benchmarks/mjx_batch.py [--sizes 1 8 64] [--dt 1e-3] [--t-end 1.0]
-(about 5 minutes with the defaults on 2 CPU cores, compilation included)
+Run: python benchmarks/mjx_batch.py [--sizes 1 8 64] [--dt 1e-3 1e-4] [--t-end 1.0]
+(about 9 minutes with the defaults on 2 CPU cores, compilation included)
 Writes benchmarks/results/cpu/mjx_batch.json and .png (or results/<backend>/); `--plot-only`
 redraws the figure from the JSON.
 """
@@ -82,6 +82,37 @@ def batch_program(model: mujoco.MjModel, ix):
     return jax.jit(jax.vmap(run))
 
 
+def _mjx_row(base, ts, dt, args, n_out, X_ref) -> dict:
+    """One MJX batch (members at strip thicknesses ts) at step dt: timing and member 0's
+    error against X_ref."""
+    B = len(ts)
+    t0 = time.perf_counter()
+    members = [member_inputs(base.replace(t=float(t)), dt, args.t_end, n_out) for t in ts]
+    model, _, _, _, h, n_sub = members[0]
+    ix = np.array([mujoco_l2.qpos_index(model)[n] for n in ("x", "y", "phi")])
+    mxs = [mjx.put_model(m[0]) for m in members]
+    mx = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *mxs)
+    qpos = jnp.asarray(np.stack([m[1] for m in members]))
+    qvel = jnp.asarray(np.stack([m[2] for m in members]))
+    tau = jnp.asarray(np.stack([m[3] for m in members]))
+    setup_s = time.perf_counter() - t0
+    fn = batch_program(model, ix)
+    t1 = time.perf_counter()
+    compiled = fn.lower(mx, qpos, qvel, tau).compile()
+    compile_s = time.perf_counter() - t1
+    X = np.asarray(jax.block_until_ready(compiled(mx, qpos, qvel, tau)))
+    runs = []
+    for _ in range(args.repeats):
+        t2 = time.perf_counter()
+        jax.block_until_ready(compiled(mx, qpos, qvel, tau))
+        runs.append(time.perf_counter() - t2)
+    err = float(np.max(np.linalg.norm(X[0, :, :2] - X_ref[:, :2], axis=-1)))
+    return {"tool": "mjx", "batch": B, "dt_s": h, "steps": n_sub * (n_out - 1),
+            "setup_s": setup_s, "compile_s": compile_s, "run_s": min(runs),
+            "per_robot_ms": min(runs) / B * 1e3, "trajectories_per_s": B / min(runs),
+            "member0_position_error_m": err, "finite": bool(np.all(np.isfinite(X)))}
+
+
 def plot(res: dict, path: str) -> None:
     """Trajectories per second against batch size, one line per tool and setting, labelled with
     member 0's position error."""
@@ -114,7 +145,8 @@ def plot(res: dict, path: str) -> None:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 8, 64])
-    ap.add_argument("--dt", type=float, default=1e-3)
+    ap.add_argument("--dt", type=float, nargs="+", default=[1e-3, 1e-4],
+                    help="MJX step sizes (s), one set of rows each")
     ap.add_argument("--t-end", type=float, default=1.0)
     ap.add_argument("--rtols", type=float, nargs="*", default=[1e-6, 1e-8])
     ap.add_argument("--repeats", type=int, default=2)
@@ -134,7 +166,7 @@ def main():
     res = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
            "backend": jax.default_backend(), "jax": jax.__version__,
            "mujoco": mujoco.__version__, "scene": "paper-circle", "t_end_s": args.t_end,
-           "n_out": n_out, "dt_requested_s": args.dt,
+           "n_out": n_out, "dt_requested_s": list(args.dt),
            "members": "strip thickness spread evenly over 0.28-0.40 mm",
            "includes": "MJX rollout only (vmap over members, scan over RK4 steps); MJCF "
                        "compilation, initial states and torques (at each step's midpoint) "
@@ -142,42 +174,16 @@ def main():
            "rows": []}
 
     # the reference for member 0's error: the library's L2 run at tight tolerance
-    t_ref = np.linspace(0.0, args.t_end, n_out)
     ref = pj.run_scene("paper-circle", base.replace(t=0.28e-3), model="double1r",
                        solver="dopri8", rtol=1e-11, atol=1e-13, t_end=args.t_end, n_out=n_out)
     X_ref = np.asarray(ref.X)
 
     for B in args.sizes:
         ts = np.linspace(0.28e-3, 0.40e-3, B)
-        t0 = time.perf_counter()
-        members = [member_inputs(base.replace(t=float(t)), args.dt, args.t_end, n_out)
-                   for t in ts]
-        model, _, _, _, h, n_sub = members[0]
-        ix = np.array([mujoco_l2.qpos_index(model)[n] for n in ("x", "y", "phi")])
-        mxs = [mjx.put_model(m[0]) for m in members]
-        mx = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *mxs)
-        qpos = jnp.asarray(np.stack([m[1] for m in members]))
-        qvel = jnp.asarray(np.stack([m[2] for m in members]))
-        tau = jnp.asarray(np.stack([m[3] for m in members]))
-        setup_s = time.perf_counter() - t0
-        fn = batch_program(model, ix)
-        t1 = time.perf_counter()
-        compiled = fn.lower(mx, qpos, qvel, tau).compile()
-        compile_s = time.perf_counter() - t1
-        X = np.asarray(jax.block_until_ready(compiled(mx, qpos, qvel, tau)))
-        runs = []
-        for _ in range(args.repeats):
-            t2 = time.perf_counter()
-            jax.block_until_ready(compiled(mx, qpos, qvel, tau))
-            runs.append(time.perf_counter() - t2)
-        err = float(np.max(np.linalg.norm(X[0, :, :2] - X_ref[:, :2], axis=-1)))
-        row = {"batch": B, "dt_s": h, "steps": n_sub * (n_out - 1), "setup_s": setup_s,
-               "compile_s": compile_s, "run_s": min(runs), "per_robot_ms": min(runs) / B * 1e3,
-               "trajectories_per_s": B / min(runs), "member0_position_error_m": err,
-               "finite": bool(np.all(np.isfinite(X)))}
-        row = {"tool": "mjx", **row}
-        res["rows"].append(row)
-        print(json.dumps(row), flush=True)
+        for dt in args.dt:
+            row = _mjx_row(base, ts, dt, args, n_out, X_ref)
+            res["rows"].append(row)
+            print(json.dumps(row), flush=True)
         params = (base.replace(t=float(ts[0])) if B == 1 else
                   pj.stack_params([base.replace(t=float(t)) for t in ts]))
         for rtol in args.rtols:
@@ -196,8 +202,6 @@ def main():
         with open(out_path, "w") as fh:
             json.dump(res, fh, indent=2)
         plot(res, out_path[:-5] + ".png")
-        with open(out_path, "w") as fh:
-            json.dump(res, fh, indent=2)
 
 
 if __name__ == "__main__":
