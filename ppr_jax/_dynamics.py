@@ -31,7 +31,7 @@ from ._checks import PPRError
 from ._custom_types import Array, Float
 from ._linalg import solve
 from ._models import AbstractClosedLoop, AbstractModel, Kin
-from ._robot import Robot
+from ._robot import Robot, RobotLike, as_robot
 
 
 class EOM(eqx.Module):
@@ -45,18 +45,22 @@ class EOM(eqx.Module):
     kin: Kin
 
 
-@eqx.filter_jit
 def eom_terms(
     model: AbstractModel,
-    robot: Robot,
+    robot: RobotLike,
     z: Float[Array, " n"],
     zdot: Float[Array, " n"],
 ) -> EOM:
-    """Mass matrix, velocity terms and passive generalized forces at (z, z').
+    """Mass matrix, velocity terms and passive generalized forces at (z, z') (`robot`: a `Robot`
+    or `RobotParams`)."""
+    return _eom_terms_jit(model, as_robot(robot), z, zdot)
 
-    Jitted although mostly called inside other traces: a scene traces it several times (the
-    quasi-static solve's shape probe and loop, the right-hand side), and a cached jaxpr is traced
-    once (tracing is a third of a scene's compilation)."""
+
+@eqx.filter_jit
+def _eom_terms_jit(model, robot, z, zdot) -> EOM:
+    # Jitted although mostly called inside other traces: a scene traces the equations of motion
+    # several times (the quasi-static solve's shape probe and loop, the right-hand side), and a
+    # cached jaxpr is traced once (tracing is a third of a scene's compilation).
     return _eom_terms(model, robot, z, zdot, implicit=True)
 
 

@@ -209,3 +209,17 @@ def test_implicit_closure_derivatives_equal_autodiff_of_closed_form(params, mode
         x, y = getattr(a, name), getattr(b, name)
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-13 * float(jnp.max(jnp.abs(y))),
                                    err_msg=name)
+
+
+def test_eom_terms_takes_params_or_robot(params):
+    """The public `eom_terms` takes `RobotParams` as every public function does: the same terms
+    as from the `Robot` built from them."""
+    model = pj.Double1R()
+    robot = pj.Robot(params)
+    z = model.coords_from_pose(robot, jnp.array([0.45, 0.26, 0.01]))
+    zd = jnp.array([0.01, -0.02, 0.05, 0.1, -0.2, 0.3])
+    a, b = pj.eom_terms(model, robot, z, zd), pj.eom_terms(model, params, z, zd)
+    for x, y in ((a.M, b.M), (a.h, b.h), (a.Q_passive, b.Q_passive)):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=0, atol=0)
+    with pytest.raises(TypeError, match="expected Robot or RobotParams"):
+        pj.eom_terms(model, {"t": 3e-4}, z, zd)
