@@ -39,7 +39,7 @@ from ._metrics import radial_error
 from ._models import Reduced, get_model
 from ._params import PARAM_RANGES, RobotParams, stack_params
 from ._robot import Robot
-from ._scenes import _CORES, DEFAULT_SOLVER, input_panels_at, scene_params
+from ._scenes import _CORES, DEFAULT_SOLVER, _chunked_vmap, input_panels_at, scene_params
 from ._simulate import get_solver
 from ._trajectory import Circle
 
@@ -222,9 +222,11 @@ def _program(scene, model, torque_model, trajectory, ts, solver, max_steps, robo
              devices):
     """jit(f)(robot_arrays, rtol, atol) -> ({metric: (B,)}, result codes (B,), num_steps (B,)).
 
-    With `devices` (more than one), the batch axis is split over a 1-D mesh with `shard_map` and
-    each device runs a local vmap over its members: adaptive steps never synchronise across
-    devices (a member only waits for the slowest member of its own shard)."""
+    Members run as the scenes' batches do (`_scenes._chunked_vmap`: vmapped chunks of at most
+    `MEMBER_CHUNK`, one after the other). With `devices` (more than one), the batch axis is
+    split over a 1-D mesh with `shard_map` and each device runs that over its members: adaptive
+    steps never synchronise across devices (a member only waits for the slowest member of its
+    own chunk on its own device)."""
     adjoint = diffrax.RecursiveCheckpointAdjoint()
 
     def member(robot_dyn, rtol, atol):
@@ -234,7 +236,9 @@ def _program(scene, model, torque_model, trajectory, ts, solver, max_steps, robo
                          max_steps, adjoint)
         return traced_metrics(res, trajectory), res.result._value, res.num_steps
 
-    local = jax.vmap(member, in_axes=(0, None, None))
+    def local(robot_dyn, rtol, atol):
+        return _chunked_vmap(lambda r: member(r, rtol, atol), robot_dyn)
+
     if devices is None or len(devices) <= 1:
         return jax.jit(local)
     from jax.sharding import Mesh, PartitionSpec as P
