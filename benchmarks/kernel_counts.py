@@ -1,7 +1,7 @@
 """Where reverse mode's cost goes on a CPU: XLA kernels launched, forward run against `jax.grad`.
 
-The L1 `paper-circle` sensitivity (`benchmarks/sensitivity_cost.py`: 7.54 s, rtol 1e-8, the
-scalar `radial_error_min_m` of all 19 parameters) is made of kernels of a few dozen numbers
+The L1 `paper-circle` sensitivity (`benchmarks/sensitivity_cost.py`: 7.54 s, rtol 1e-8, L1 under
+the rigid model's torques, the scalar `radial_error_min_m` of all 19 parameters) is made of kernels of a few dozen numbers
 each, so its time is set by how many kernels XLA's CPU runtime launches, not by arithmetic.
 This script counts them two ways and writes benchmarks/results/kernel_counts.json:
 
@@ -107,11 +107,12 @@ def main():
     os.makedirs(OUT, exist_ok=True)
     out = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
            "jax": jax.__version__, "diffrax": diffrax.__version__,
-           "backend": jax.default_backend(), "model": args.model,
+           "backend": jax.default_backend(), "model": args.model, "torque_model": "rigid",
            "xla_flags": os.environ.get("XLA_FLAGS", "")}
 
     # Whole programs.
-    f, x0, _ = metric_function("paper-circle", model=args.model, rtol=1e-8, atol=1e-10,
+    f, x0, _ = metric_function("paper-circle", model=args.model, torque_model="rigid",
+                               rtol=1e-8, atol=1e-10,
                                metrics=("radial_error_min_m",))
     progs = {"forward_run": jax.jit(lambda x: f(x)[0]),
              "grad": jax.jit(jax.grad(lambda x: f(x)[0]))}
@@ -127,7 +128,7 @@ def main():
     print(json.dumps(out["programs"], indent=1), flush=True)
 
     # One right-hand side, at the scene's initial state.
-    model, torque_model = get_model(args.model), get_model("reduced")
+    model, torque_model = get_model(args.model), get_model("rigid")
     robot = Robot(explicit_params(scene_params("paper-circle")))
     traj, t_end = Circle(), 7.54
     ts = jnp.linspace(0.0, t_end, 755)

@@ -47,7 +47,7 @@ from ._robot import Robot
 from ._scenes import DEFAULT_SOLVER, scene_params
 from ._simulate import get_solver
 from ._statics import _assemble, static_equilibrium
-from ._sweep import FLOAT_PARAMS, _plain, run_member, traced_metrics
+from ._sweep import FLOAT_PARAMS, _plain, follows_its_input, run_member, traced_metrics
 from ._trajectory import Circle
 
 #: the metrics a sensitivity table reports (rows), SI units
@@ -60,6 +60,8 @@ SENSITIVITY_METRICS = (
 )
 #: eigenvalues within this relative distance of the lowest are one (repeated) cluster
 CLUSTER_RTOL = 1e-6
+#: the metrics that measure how far the platform leaves the nominal circle
+TRACKING_METRICS = ("radial_error_max_m", "radial_error_min_m")
 
 
 def explicit_params(params: RobotParams) -> RobotParams:
@@ -143,7 +145,7 @@ class Sensitivity:
 
 
 def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] = None, *,
-                    model="reduced", torque_model="reduced", frequency_model="double1r",
+                    model="double1r", torque_model="reduced", frequency_model="double1r",
                     parameters: Optional[Sequence[str]] = None, t_end: float = 7.54,
                     n_out: int = 755, solver=None, rtol: float = 1e-8, atol: float = 1e-10,
                     max_steps: int = 200_000, metrics: Sequence[str] = SENSITIVITY_METRICS):
@@ -162,6 +164,15 @@ def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] =
             raise PPRError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
     x0 = jnp.array([float(getattr(base, n)) for n in names])
     model_, tmodel = get_model(model), get_model(torque_model)
+    follows = follows_its_input(scene, model_, tmodel)
+    tracking = [m for m in metrics if m in TRACKING_METRICS]
+    if follows and tracking:
+        raise PPRError(
+            f"{', '.join(tracking)} of model {model_.name!r} in {scene!r} measure the "
+            f"integrator's error, not the robot: {follows}. Ask for the response of another "
+            f"model (model='double1r' or 'beam', the paper's question; or "
+            f"torque_model='rigid' for L1 under the rigid model's torques), or leave these "
+            f"metrics out")
     fmodel = get_model(frequency_model)
     # The structural choice of the nominal robot, as its single run makes it: with l1 == l3 the
     # closed-form inverse kinematics, whose one Newton step carries the implicit-function
@@ -196,7 +207,7 @@ _JIT_CACHE: dict = {}
 
 
 def sensitivity(scene: str = "paper-circle", params: Optional[RobotParams] = None, *,
-                mode: str = "fwd", model="reduced", torque_model="reduced",
+                mode: str = "fwd", model="double1r", torque_model="reduced",
                 frequency_model="double1r", parameters: Optional[Sequence[str]] = None,
                 metrics: Sequence[str] = SENSITIVITY_METRICS, t_end: float = 7.54,
                 n_out: int = 755, solver=None, rtol: float = 1e-8, atol: float = 1e-10,
@@ -208,7 +219,10 @@ def sensitivity(scene: str = "paper-circle", params: Optional[RobotParams] = Non
     parameters); 'rev': `jax.jacrev` with `diffrax.RecursiveCheckpointAdjoint(checkpoints)`
     (cost grows with the number of metrics; `checkpoints` None = diffrax's default, about
     log(steps) memory). The base frequency is that of `frequency_model` (locked actuators,
-    home pose; L1 has no mode). Scene settings as `paper_circle`. Returns `Sensitivity`."""
+    home pose; L1 has no mode). Scene settings as `paper_circle`; the default `model` is L2
+    under L1's torques (the paper's question). The radial error of a model that follows its own
+    input (`follows_its_input`: L0 or L1 under its own torques, L1 in servo-circle) is refused
+    with a `PPRError`: it is the integrator's error. Returns `Sensitivity`."""
     if mode not in ("fwd", "rev"):
         raise PPRError(f"mode must be 'fwd' or 'rev', got {mode!r}")
     f, x0, names = metric_function(

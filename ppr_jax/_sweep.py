@@ -25,6 +25,7 @@ import json
 import os
 import sys
 import time
+import warnings
 from typing import Callable, Optional, Sequence, Union
 
 import diffrax
@@ -96,6 +97,21 @@ def run_member(scene, model, torque_model, robot, trajectory, ts, solver, contro
     pre = (model, torque_model) if scene == "paper-circle" else (model,)
     panels = input_panels_at(trajectory, ts) if panels is None else panels
     return core(*pre, robot, trajectory, ts, solver, controller, max_steps, adjoint, panels)
+
+
+def follows_its_input(scene: str, model, torque_model) -> str:
+    """Why `model` follows the scene's nominal circle exactly (to the integrator's tolerance),
+    or "" when it does not. A model driven by its own inverse dynamics (`paper-circle` with
+    model == torque_model, L0 or L1) or by its own inverse kinematics (`servo-circle` with L1,
+    whose angles are L1's) reproduces the circle: its radial error is the solver's error
+    (about 1e-11 m at rtol 1e-8), and derivatives of it say nothing about the robot."""
+    model, torque_model = get_model(model), get_model(torque_model)
+    if scene == "paper-circle" and model.name == torque_model.name:
+        return (f"it is driven by its own inverse-dynamics torques (torque_model="
+                f"{torque_model.name!r}), so it follows the circle exactly")
+    if scene == "servo-circle" and model.name == "reduced":
+        return "its angles are its own inverse kinematics of the circle, so it follows it exactly"
+    return ""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -440,6 +456,12 @@ def sweep(
     N = len(members[names[0]])
     model_ = get_model(model)
     tmodel = get_model(torque_model)
+    follows = follows_its_input(scene, model_, tmodel)
+    if follows:
+        warnings.warn(
+            f"model {model_.name!r} in {scene!r}: {follows}; the radial-error columns of this "
+            f"sweep are the solver's error, not the robot's (sweep double1r or beam, or use "
+            f"torque_model='rigid', for a physical one)", UserWarning, stacklevel=2)
     traj = Circle() if trajectory is None else trajectory
     info = dict(scene=scene, model=model_.name, torque_model=tmodel.name, design=design, n=N,
                 seed=seed, vary={k: [float(x) for x in np.atleast_1d(v)] for k, v in

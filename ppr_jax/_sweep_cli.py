@@ -276,7 +276,10 @@ def add_sensitivity(sub, parents, fmt):
                     "automatic differentiation through the scene (forward or reverse mode), "
                     "printed as normalised sensitivities and written to sensitivity.csv/json.")
     s.add_argument("--scene", default="paper-circle", choices=list(SWEEP_SCENES))
-    s.add_argument("--model", default="reduced", choices=list(MODELS))
+    s.add_argument("--model", default="double1r", choices=list(MODELS),
+                   help="the model whose response is measured (L0 or L1 under its own "
+                        "torques follows the circle exactly: its radial error is the "
+                        "solver's, and is refused)")
     s.add_argument("--torque-model", default="reduced", choices=kinematic)
     s.add_argument("--frequency-model", default="double1r",
                    choices=[n for n in MODELS if n not in kinematic],

@@ -16,6 +16,7 @@ import pytest
 
 import ppr_jax as pj
 from ppr_jax._cli import main
+from ppr_jax._sensitivity import metric_function
 
 SCENE = dict(model="reduced", torque_model="rigid", t_end=0.3, n_out=7, rtol=1e-11, atol=1e-13)
 PARAMS = ["t", "l3", "gamma", "w", "E"]
@@ -100,6 +101,33 @@ def test_cli_sensitivity_user_errors(tmp_path, capsys, bad, message):
     assert main(["sensitivity", *bad, "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("scene, model, torque_model", [
+    ("paper-circle", "reduced", "reduced"),
+    ("paper-circle", "rigid", "rigid"),
+    ("servo-circle", "reduced", "reduced"),
+])
+def test_radial_error_of_a_model_that_follows_its_input_is_refused(scene, model, torque_model):
+    # Independent check first: L1 under its own inverse-dynamics torques tracks the circle to
+    # the integrator's tolerance, so its radial error is the solver's error, not the robot's.
+    if (scene, model) == ("paper-circle", "reduced"):
+        res = pj.paper_circle(model=model, torque_model=torque_model, t_end=0.3, n_out=7,
+                              rtol=1e-8, atol=1e-10)
+        assert np.abs(pj.scene_metrics(res)["radial_error_max_m"]) < 1e-9
+    with pytest.raises(pj.PPRError, match="integrator's error"):
+        pj.sensitivity(scene, model=model, torque_model=torque_model,
+                       metrics=("radial_error_min_m", "torque_peak_Nm"))
+    # the other metrics of the same scene are still physics, and accepted
+    metric_function(scene, model=model, torque_model=torque_model, metrics=("torque_peak_Nm",))
+
+
+def test_cli_sensitivity_refuses_a_model_that_follows_its_input(tmp_path, capsys):
+    argv = ["sensitivity", "--model", "reduced", "--torque-model", "reduced",
+            "--out", str(tmp_path / "x")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "integrator's error" in err and "double1r" in err
 
 
 @pytest.mark.slow

@@ -211,3 +211,13 @@ def test_chunked_members_equal_the_plain_vmap(swept, monkeypatch):
             # rounding differences only: a chunk of 3 is vectorised differently from one of 4
             for m in METRICS:
                 np.testing.assert_allclose(r[m], ref[m], rtol=1e-10, atol=1e-12, err_msg=m)
+
+
+def test_sweep_of_a_model_that_follows_its_input_warns():
+    # L1 under its own torques follows the circle to the solver's tolerance: its radial error
+    # columns are the integrator's error, and the sweep says so. (A member with an invalid
+    # thickness is reported before anything is compiled, so nothing runs here.)
+    with pytest.warns(UserWarning, match="solver's error"):
+        r = pj.sweep("paper-circle", vary={"t": [-1e-3]}, model="reduced",
+                     torque_model="reduced", t_end=0.1, n_out=3)
+    assert len(r.failed) == 1 and not r.ok
