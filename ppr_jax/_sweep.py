@@ -408,7 +408,7 @@ def sweep(
     design: str = "grid",
     n: Optional[int] = None,
     seed: int = 0,
-    model="reduced",
+    model="double1r",
     torque_model="reduced",
     trajectory: Optional[Circle] = None,
     t_end: float = 7.54,
@@ -428,7 +428,9 @@ def sweep(
     Cartesian product, `design="lhs"` a seeded Latin hypercube of `n` members over each entry's
     [min, max], `design="list"` the members as listed (`design_members`). Other parameters
     are `base_params` (default: the scene's). Scene settings (`model`, `torque_model`, times,
-    solver, tolerances, `max_steps`) as `paper_circle`. Members are validated first
+    solver, tolerances, `max_steps`) as `paper_circle`; the default `model` is L2 under L1's
+    torques, as in `sensitivity` (L1 under its own torques follows the circle to the solver's
+    tolerance, and such a sweep warns that its radial errors are the solver's). Members are validated first
     (`validate_members`; the invalid ones are reported, not run), then run `chunk_size` at a
     time in one compiled program (the last chunk padded to the same shape). `devices`: a list
     of devices to split each chunk over (`chunk_size` must be divisible by their number);

@@ -242,7 +242,9 @@ def add_sweep(sub, parents, fmt):
                     "summary.json and metrics_vs_NAME.png. Finished chunks are kept in OUT/chunks "
                     "and skipped when the same sweep is run again (resume).")
     s.add_argument("--scene", default="paper-circle", choices=list(SWEEP_SCENES))
-    s.add_argument("--model", default="reduced", choices=list(MODELS))
+    s.add_argument("--model", default="double1r", choices=list(MODELS),
+                   help="the model swept (L0 or L1 under its own torques follows the circle "
+                        "exactly: the sweep warns that its radial errors are the solver's)")
     s.add_argument("--torque-model", default="reduced", choices=kinematic,
                    help="paper-circle: the model whose inverse dynamics gives the torques")
     s.add_argument("--vary", action="append", metavar="NAME=LO:HI:N",

@@ -108,13 +108,13 @@ def test_cli_sensitivity_user_errors(tmp_path, capsys, bad, message):
     ("paper-circle", "rigid", "rigid"),
     ("servo-circle", "reduced", "reduced"),
 ])
-def test_radial_error_of_a_model_that_follows_its_input_is_refused(scene, model, torque_model):
-    # Independent check first: L1 under its own inverse-dynamics torques tracks the circle to
-    # the integrator's tolerance, so its radial error is the solver's error, not the robot's.
-    if (scene, model) == ("paper-circle", "reduced"):
-        res = pj.paper_circle(model=model, torque_model=torque_model, t_end=0.3, n_out=7,
-                              rtol=1e-8, atol=1e-10)
-        assert np.abs(pj.scene_metrics(res)["radial_error_max_m"]) < 1e-9
+def test_radial_error_of_a_model_that_follows_its_input_is_refused(scene, model, torque_model,
+                                                                   paper_circle_L1):
+    # Independent check first (the session's compiled L1 scene): L1 under its own
+    # inverse-dynamics torques tracks the circle to the integrator's tolerance, so its radial
+    # error is the solver's error, not the robot's.
+    for m in ("radial_error_max_m", "radial_error_min_m"):
+        assert abs(paper_circle_L1.metrics[m]) < 1e-9, m
     with pytest.raises(pj.PPRError, match="integrator's error"):
         pj.sensitivity(scene, model=model, torque_model=torque_model,
                        metrics=("radial_error_min_m", "torque_peak_Nm"))
