@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from ppr_jax._models.strip import kkt_residual, strip_equilibrium
+from ppr_jax._models import strip
+from ppr_jax._models.strip import kkt_residual, solve_kkt, strip_equilibrium
 
 from helpers import fd_jvp
 
@@ -80,6 +81,21 @@ def test_strip_solution_is_the_constrained_equilibrium():
     y = jnp.concatenate([u, lam * Q0[3]])
     p = jnp.stack([Q0[0] / Q0[3], Q0[1] / Q0[3], Q0[2], -0.1])
     assert np.abs(np.asarray(kkt_residual(y, p))).max() < 1e-12
+
+
+@pytest.mark.parametrize("N", [3, 8, strip.UNROLL_MAX + 4])
+def test_kkt_solve_against_dense_elimination(N):
+    """`solve_kkt` (Thomas's sweeps on the tridiagonal block and a 2 x 2 Schur complement;
+    unrolled, and a scan above UNROLL_MAX) and its transpose against NumPy's LAPACK solve of the
+    KKT matrix from forward-mode differentiation of the residual."""
+    rng = np.random.default_rng(N)
+    y = jnp.asarray(np.concatenate([0.1 * rng.standard_normal(N), 0.3 * rng.standard_normal(2)]))
+    p = jnp.asarray([0.9 * N, 0.2, 0.3, 0.05])
+    J = np.asarray(jax.jacfwd(kkt_residual)(y, p))
+    R, W = (jnp.asarray(rng.standard_normal((N + 2, 3))) for _ in range(2))
+    np.testing.assert_allclose(solve_kkt(y, R), np.linalg.solve(J, R), rtol=1e-10, atol=1e-11)
+    (JtW,) = jax.linear_transpose(lambda R: solve_kkt(y, R), R)(W)
+    np.testing.assert_allclose(JtW, np.linalg.solve(J.T, W), rtol=1e-10, atol=1e-11)
 
 
 @pytest.mark.parametrize("j", range(4))

@@ -45,7 +45,7 @@ from .._geometry import base_points, e, ik_reduced, platform_points, wrap
 from .._robot import Robot
 from .base import Kin, rotor_inertia
 from .beam import AbstractBeam, strip_constants
-from .strip import stiffness_matrix, strip_equilibrium
+from .strip import shape_sensitivity, stiffness_matrix, strip_equilibrium
 
 
 #: above this nondimensional residual of the strip's equilibrium equations the shape is not used:
@@ -134,7 +134,7 @@ class QuasiStaticBeam(AbstractBeam):
 
         Q = -jax.grad(lagrangian)(z)
 
-        return Q + _strip_damping(self, robot, z, zdot)
+        return Q + _strip_damping(self, robot, z, zdot, u, mu)
 
     def _strip_gap(self, robot, z):
         """d (3, 2): the end clamp's position P2 - P1 in the start clamp's frame (m)."""
@@ -180,26 +180,53 @@ class QuasiStaticBeam(AbstractBeam):
         return jnp.concatenate([P1[:, None], P1[:, None] + jnp.cumsum(steps, axis=1)], axis=1)
 
 
-def _damping_force(model: QuasiStaticBeam, robot: Robot, z, zdot):
-    """-c_spring J_d^T J_d z': one linearization of the strip shapes, transposed."""
-    _, lin = jax.linearize(lambda z: model.kinematics(robot, z).deflection, z)
+def _damping_force(model: QuasiStaticBeam, robot: Robot, z, zdot, u, mu):
+    """-c_spring J_d^T J_d z' at the solved shapes u (3, N) and forces mu (3, 2) (the KKT
+    multipliers of `strip.kkt_residual`) at z.
+
+    J_d is the Jacobian of the deflections d(z, u*(z)). The shapes' part, du*/dz, is the implicit
+    function theorem's -J^-1 F_p dp/dz at the known solution (J, F_p the KKT residual's Jacobians
+    in (u, mu) and in p = (d/h, beta, sd), `strip.shape_sensitivity`), so J_d is an explicit
+    formula: no second strip solve and no transposed solve, which took the compilation of L3's
+    programs to twice what they cost without damping. Differentiable to any order in (robot, z,
+    z'), as the shapes' own implicit derivatives are."""
+    N = model.n_elements
+    sc = strip_constants(robot, N)
+    sd = robot.sigma * sc.dtheta
+    rest = robot.sigma * robot.theta_c
+
+    def params_of(zz):
+        """(3, 4) each strip's p = (d_x/h, d_y/h, beta, sd) at coordinates zz."""
+        d = model._strip_gap(robot, zz)
+        beta = rest + wrap(zz[6:9] - zz[3:6] - rest)
+        return jnp.concatenate([d / sc.h, beta[:, None], jnp.broadcast_to(sd, (3, 1))], axis=1)
+
+    p0 = params_of(z)
+    u_p = shape_sensitivity(jnp.concatenate([u, mu], axis=1), p0)[:, :N]  # (3, N, 4)
+
+    def deflections(zz):
+        # the shapes to first order about z: exact value and exact first derivative at zz = z
+        u_lin = u + jnp.einsum("cnk,ck->cn", u_p, params_of(zz) - p0)
+        return model.spring_deflections(robot, zz[3:6], u_lin, zz[6:9])
+
+    _, lin = jax.linearize(deflections, z)
     (JdT_Jd_zd,) = jax.linear_transpose(lin, z)(lin(zdot))
     return -robot.c_spring * JdT_Jd_zd
 
 
 @eqx.filter_custom_jvp
-def _strip_damping(model, robot, z, zdot):
-    """`_damping_force`, skipped when c_spring is 0 (the default): it doubles the cost of a
-    right-hand side. The skip is a `lax.cond` on data, so its derivative is given here by hand:
-    the derivative of the full expression, which in c_spring is -J_d^T J_d z' also where
+def _strip_damping(model, robot, z, zdot, u, mu):
+    """`_damping_force`, skipped when c_spring is 0 (the default): it adds a third to the cost
+    of a right-hand side. The skip is a `lax.cond` on data, so its derivative is given here by
+    hand: the derivative of the full expression, which in c_spring is -J_d^T J_d z' also where
     c_spring is 0 (a sensitivity or a fit of c_spring starting from 0 sees it)."""
     return jax.lax.cond(robot.c_spring == 0, lambda: jnp.zeros_like(z),
-                        lambda: _damping_force(model, robot, z, zdot))
+                        lambda: _damping_force(model, robot, z, zdot, u, mu))
 
 
 @_strip_damping.def_jvp
 def _strip_damping_jvp(primals, tangents):
-    model, robot, z, zdot = primals
-    _, t_robot, t_z, t_zdot = tangents
-    return eqx.filter_jvp(lambda r, z, zd: _damping_force(model, r, z, zd), (robot, z, zdot),
-                          (t_robot, t_z, t_zdot))
+    model, robot, z, zdot, u, mu = primals
+    _, t_robot, t_z, t_zdot, t_u, t_mu = tangents
+    return eqx.filter_jvp(lambda r, z, zd, u, mu: _damping_force(model, r, z, zd, u, mu),
+                          (robot, z, zdot, u, mu), (t_robot, t_z, t_zdot, t_u, t_mu))

@@ -24,9 +24,10 @@ force, small against K for any load the strip survives (|q| / lambda_min(K) ~ F 
 So the KKT matrix J is applied exactly and inverted with J0, the same matrix without diag(q):
 K^-1 is a constant (a NumPy array at trace time) and the border is a 2 x 2 Schur complement. The
 solve is Newton's iteration with the approximate Jacobian J0 (linear convergence at that small
-rate, from the unloaded arc), and the implicit derivatives solve J dy = -dF/dp dp by iterative
-refinement with J0; both in a `jax.custom_jvp`, so derivatives of any order are exact and never
-go through the iterations.
+rate, from the unloaded arc), in a `jax.custom_jvp`: the implicit derivatives solve J dy = -dF/dp dp
+exactly (`solve_kkt`: K + diag(q) is tridiagonal, so a Thomas sweep and the same 2 x 2 Schur
+complement, a tenth of the program of a pivoted elimination of N + 2 rows), so derivatives of
+any order are exact and never go through the iterations.
 """
 
 from __future__ import annotations
@@ -38,7 +39,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._custom_types import Array, Float
-from .._linalg import solve
 
 #: iterations at most of the strip's equilibrium and of its derivatives' refinement
 MAX_ITER = 60
@@ -88,6 +88,76 @@ def _apply_j0_inv(y, r):
     return jnp.concatenate([W[:, 0] + W[:, 1:] @ m, m])
 
 
+#: up to this N the Thomas sweeps are unrolled in Python; above it a `lax.scan`
+UNROLL_MAX = 16
+
+
+def _pivots(diag):
+    """g (N,) the inverse pivots of Thomas's elimination (no pivoting) of the symmetric
+    tridiagonal A with diagonal `diag` (N,) and -1 beside it (K + diag(q)). Stable where A is
+    positive definite, which the strip's Newton iteration (`_apply_j0_inv`, the same matrix with
+    q averaged) needs as well: a strip loaded to the edge of buckling fails there first."""
+    N = diag.shape[0]
+    if N <= UNROLL_MAX:
+        g = [1 / diag[0]]
+        for i in range(1, N):
+            g.append(1 / (diag[i] - g[-1]))
+        return jnp.stack(g)
+
+    def step(g_prev, d):
+        g = 1 / (d - g_prev)
+        return g, g
+
+    return jax.lax.scan(step, jnp.zeros((), diag.dtype), diag)[1]
+
+
+def _sweeps(g, R):
+    """A^-1 R (N, k) for the inverse pivots g of `_pivots`: linear in R (transposable)."""
+    N = g.shape[0]
+    if N <= UNROLL_MAX:
+        r = [R[0]]
+        for i in range(1, N):
+            r.append(R[i] + r[-1] * g[i - 1])
+        x = [r[-1] * g[-1]]
+        for i in range(N - 2, -1, -1):
+            x.append((r[i] + x[-1]) * g[i])
+        return jnp.stack(x[::-1])
+
+    def fwd(r_prev, gR):
+        g_prev, Ri = gR
+        r = Ri + r_prev * g_prev
+        return r, r
+
+    g_prev = jnp.concatenate([jnp.zeros(1, g.dtype), g[:-1]])
+    _, r = jax.lax.scan(fwd, jnp.zeros_like(R[0]), (g_prev, R))
+
+    def back(x_next, gr):
+        g_i, r_i = gr
+        x = (r_i + x_next) * g_i
+        return x, x
+
+    return jax.lax.scan(back, jnp.zeros_like(R[0]), (g, r), reverse=True)[1]
+
+
+def solve_kkt(y: Float[Array, " n2"], R: Float[Array, "n2 k"]) -> Float[Array, "n2 k"]:
+    """J^-1 R, J = dF/dy the KKT matrix of `kkt_residual` at y = (u, mu), R (N + 2, k):
+    J = [[K + diag(q), -C^T], [C, 0]] with q = mu . e(u) and C = dc/du (2, N); the tridiagonal
+    block by Thomas's elimination (`_pivots`, `_sweeps`), the border by its 2 x 2 Schur complement."""
+    N = y.shape[0] - 2
+    u, mu = y[:N], y[N:]
+    s, c = jnp.sin(u), jnp.cos(u)
+    C = jnp.stack([-s, c])
+    diag = jnp.asarray(np.diag(stiffness_matrix(N)).copy()) + mu[0] * c + mu[1] * s
+    g = _pivots(diag)
+    # apart, not as one right-hand side: W_R is linear in R (transposed in reverse mode), W_C not
+    W_R, W_C = _sweeps(g, R[:N]), _sweeps(g, C.T)
+    S = C @ W_C
+    rhs = R[N:] - C @ W_R
+    det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+    m = jnp.stack([S[1, 1] * rhs[0] - S[0, 1] * rhs[1], S[0, 0] * rhs[1] - S[1, 0] * rhs[0]]) / det
+    return jnp.concatenate([W_R + W_C @ m, m])
+
+
 def _iterate(step, y0):
     """Fixed-point iteration y <- step(y) until the update is below TOL relative to 1 + |y|, or
     below STALL and no longer shrinking (the rounding floor, which grows with N), at most
@@ -121,11 +191,18 @@ def _root(N: int, p: Array):
 def _root_jvp(N, primals, tangents):
     (p,), (dp,) = primals, tangents
     y, err = _root(N, p)
-    # F(y(p), p) = 0  ->  J dy = -dF/dp dp, one elimination of J shared by every tangent
+    # F(y(p), p) = 0  ->  J dy = -dF/dp dp
     _, Fp_dp = jax.jvp(lambda p: kkt_residual(y, p), (p,), (dp,))
-    J = jax.jacfwd(kkt_residual)(y, p)
-    dy = -solve(J, Fp_dp)
+    dy = -solve_kkt(y, Fp_dp[:, None])[:, 0]
     return (y, err), (dy, jnp.zeros_like(err))
+
+
+def shape_sensitivity(y: Float[Array, "c n2"], p: Float[Array, "c 4"]) -> Float[Array, "c n2 4"]:
+    """dy/dp (c, N + 2, 4) of c strips' equilibria y = (u, mu) at their solutions for p =
+    (d_x/h, d_y/h, beta, sd) (`kkt_residual`): -J^-1 F_p (`solve_kkt`), the implicit function
+    theorem. Exact only where y solves the equations."""
+    F_p = jax.vmap(jax.jacfwd(kkt_residual, argnums=1))(y, p)
+    return -jax.vmap(solve_kkt)(y, F_p)
 
 
 def strip_equilibrium(
