@@ -15,8 +15,8 @@ import optimistix as optx
 
 from ._checks import PPRError, raise_if
 from ._actuation import AbstractActuation, TorqueDriven
-from ._dynamics import eom_terms, generalized_force, passive_force
-from ._linalg import SmallLU, lu_factor, lu_solve
+from ._dynamics import eom_terms, generalized_force
+from ._linalg import SmallLU, solve
 from ._models import AbstractModel
 from ._robot import RobotLike, as_robot
 from ._trajectory import derivatives
@@ -94,54 +94,40 @@ def static_equilibrium(
 QS_DT = 1e-3
 
 
-#: relative step of the central differences that give the chord iteration's matrix
-CHORD_FD_STEP = 1e-6
+#: relative step of the central differences that give the quasi-static Newton iteration's
+#: Jacobian (error about 1e-10 relative: rounding over the step; truncation is 1e-12)
+FD_STEP = 1e-6
 
 
-def _difference_jacobian(f, y0):
-    """Jacobian of f at y0 by central differences (steps CHORD_FD_STEP (1 + |y0_j|)), all
-    columns in one vectorised evaluation. Error about 1e-10 relative (rounding over the step;
-    truncation is 1e-12): the chord iteration only
-    needs a matrix close enough to contract, and a forward-mode Jacobian here would trace the
-    springs' force (itself built on the kinematics' Jacobian) under a second derivative, a
-    third of the quasi-static program."""
+def _fd_newton_solve(resid, y0, rtol: float = 1e-13, atol: float = 1e-13, max_steps: int = 100):
+    """Solve resid(y) = 0 near y0 by Newton's iteration with the Jacobian by central
+    differences (steps FD_STEP (1 + |y_j|), 1e-10 relative error, so the convergence is
+    quadratic down to rounding), the residual and its 2n neighbours in one vmapped evaluation:
+    the equations of motion appear once in the program. (A chord iteration with the springs'
+    Jacobian from a separate evaluation of the passive forces, the previous form, put a second
+    copy of the springs into the program: for L3's strips, 0.25 M of its 0.92 M characters and
+    a third of its compilation.) `resid` returns (residual, aux). Found by optimistix
+    (`FixedPointIteration` on y -> y - J(y)^-1 resid(y), stopping when a step is below
+    atol + rtol |y|, with a result code) and differentiated implicitly (J under stop_gradient: at the root only resid's own
+    derivatives enter, so the derivatives are exact whatever J's error).
+    Returns (y, relative residual at the last iterate, optimistix result, aux of that iterate)."""
     n = y0.shape[0]
-    d = CHORD_FD_STEP * (1 + jnp.abs(y0))
-    steps = jnp.concatenate([jnp.diag(d), -jnp.diag(d)])
-    F = jax.vmap(f)(y0 + steps)
-    return ((F[:n] - F[n:]) / (2 * d)[:, None]).T
 
+    def newton(y, _):
+        d = FD_STEP * (1 + jnp.abs(y))
+        pts = jnp.concatenate([y[None], y + jnp.diag(d), y - jnp.diag(d)])
+        F, aux = jax.vmap(resid)(pts)
+        J = jax.lax.stop_gradient(((F[1:n + 1] - F[n + 1:]) / (2 * d)[:, None]).T)
+        scale = jnp.maximum(jnp.max(jnp.abs(J)) * jnp.max(jnp.abs(y)), 1e-300)
+        r = F[0]
+        return y - solve(J, r), (jnp.max(jnp.abs(r)) / scale, jax.tree.map(lambda a: a[0], aux))
 
-def _chord_solve(resid, resid_stiff, y0, rtol: float = 1e-13, atol: float = 1e-13,
-                 max_steps: int = 100):
-    """Solve resid(y) = 0 near y0 by chord iterations with the Jacobian J0 of `resid_stiff` (the
-    residual's spring/actuator part) at y0, factorised once: the fixed point of
-    y -> y - J0^-1 resid(y), found by optimistix (`FixedPointIteration`, stopping when a step is
-    below atol + rtol |y|, with a result code) and differentiated implicitly (a small solve at
-    the root, not through the iterations). The inertial part of the residual changes the
-    Jacobian by about (motion frequency / internal frequency)^2, so the iteration contracts by
-    that factor per step while converging to the root of the full residual (J0 by central
-    differences, `_difference_jacobian`: its 1e-10 error changes nothing of that).
-    Returns (y, relative residual, optimistix result)."""
-    J0 = _difference_jacobian(resid_stiff, y0)
-    lu = lu_factor(J0)
-
-    def chord(y, _):
-        r = resid(y)
-        return y - lu_solve(lu, r), r
-
-    # The residual is the iteration's aux: taken at the last iterate y_k, while the value
-    # returned is y_k+1, a step below the tolerance further on (a residual up to one contraction
-    # factor larger: the conservative side). Evaluating resid once more at y_k+1 instead put a
-    # second copy of the full equations of motion into the program, a third of the compilation
-    # of L2's and L3's scenes.
     sol = optx.fixed_point(
-        chord, optx.FixedPointIteration(rtol=rtol, atol=atol), y0, has_aux=True,
+        newton, optx.FixedPointIteration(rtol=rtol, atol=atol), y0, has_aux=True,
         max_steps=max_steps, throw=False, adjoint=optx.ImplicitAdjoint(SmallLU()),
     )
-    y = sol.value
-    scale = jnp.maximum(jnp.max(jnp.abs(J0)) * jnp.max(jnp.abs(y)), 1e-300)
-    return y, jnp.max(jnp.abs(sol.aux)) / scale, sol.result
+    err, aux = sol.aux
+    return sol.value, err, sol.result, aux
 
 
 def quasi_static_state(
@@ -177,7 +163,7 @@ def quasi_static_state(
     )
     z = raise_if(
         z, failed,
-        "quasi-static initial state not found (the chord iteration did not converge): the "
+        "quasi-static initial state not found (the Newton iteration did not converge): the "
         "scene's initial loads are beyond what the joints hold near the nominal pose",
     )
     return z, zd
@@ -235,26 +221,24 @@ def _quasi_static_state(
             tau = actuation.torque_at(t, z_r[ia], zd_r[ia])
 
         def full(zu):
+            # the balance, and the chains' reach (which the balance needs: below)
             z = _assemble(n, unknown, zu, known, z_r[ik])
             eom = eom_terms(model, robot, z, zd_r)
-            return (eom.M @ zdd_r + eom.h - generalized_force(eom, tau, w))[iu]
+            r = (eom.M @ zdd_r + eom.h - generalized_force(eom, tau, w))[iu]
+            return r, jnp.min(eom.kin.margin)
 
-        def stiff(zu):
-            z = _assemble(n, unknown, zu, known, z_r[ik])
-            return -passive_force(model, robot, z, zd_r, tau, w)[iu]
-
-        return (*_chord_solve(full, stiff, z_r[iu]), z_r, zd_r)
+        return (*_fd_newton_solve(full, z_r[iu]), z_r, zd_r)
 
     # The solution at t and at t +- dt, t +- 2 dt in one vmapped solve; the velocity is the
     # 5-point central difference (exact derivatives would need third derivatives of the
     # kinematics, whose compilation cost more than the whole simulation).
     offsets = jnp.array([0.0, -2.0, -1.0, 1.0, 2.0]) * QS_DT
-    zus, errs, results, z_rs, zd_rs = jax.vmap(solve_at)(t + offsets)
+    zus, errs, results, margins, z_rs, zd_rs = jax.vmap(solve_at)(t + offsets)
     zu = zus[0]
     zu_dot = (zus[1] - 8 * zus[2] + 8 * zus[3] - zus[4]) / (12 * QS_DT)
     # the reference at t is the first solve's (offset 0): no second trace of its derivatives
     z_r, zd_r = z_rs[0], zd_rs[0]
-    # Running out of chord steps is no failure when the residual is down to rounding: a residual
+    # Running out of Newton steps is no failure when the residual is down to rounding: a residual
     # computed through an inner solve (L3's quasi-static strips at large N) has a noise floor
     # that the step criterion (1e-13 relative) may not reach. The residual decides.
     stalled = results == optx.RESULTS.nonlinear_max_steps_reached
@@ -264,10 +248,12 @@ def _quasi_static_state(
     # A balance found outside the chains' reach is no state: there the closed-form closure works
     # on clipped values, is locally flat, and the balance equations can hold spuriously (a strip
     # too thin to carry the loads collapses the chain).
-    failed = failed | ~(jnp.min(model.kinematics(robot, z).margin) > 0)
+    # (The margin is the last iterate's, a step below the tolerance from z: no further
+    # evaluation of the kinematics.)
+    failed = failed | ~(margins[0] > 0)
     return z, zd, failed
 
 
-# Compiled once per (model, actuation type, shapes): run op by op, the chord iteration's many
+# Compiled once per (model, actuation type, shapes): run op by op, the Newton iteration's many
 # small operations cost minutes.
 _quasi_static_state_jit = eqx.filter_jit(_quasi_static_state)
