@@ -45,7 +45,7 @@ from .._geometry import base_points, e, ik_reduced, platform_points, wrap
 from .._robot import Robot
 from .base import Kin, rotor_inertia
 from .beam import AbstractBeam, strip_constants
-from .strip import shape_sensitivity, stiffness_matrix, strip_equilibrium
+from .strip import apply_K, shape_sensitivity, strip_equilibrium
 
 
 #: above this nondimensional residual of the strip's equilibrium equations the shape is not used:
@@ -118,11 +118,11 @@ class QuasiStaticBeam(AbstractBeam):
         beta = rest + wrap(kin.th[:, -1] - th_a - rest)
         # the force through each strip from its shape: least squares of the KKT rows (exact at
         # the solution), mu = (C C^T)^-1 C (K u - b)
-        K = jnp.asarray(stiffness_matrix(N))
-        g = u @ K.T - jnp.zeros_like(u).at[:, -1].set(2 * beta)
+        # (products as broadcast sums: small dots are library calls on a CPU, `strip.py`)
+        g = apply_K(u) - jnp.zeros_like(u).at[:, -1].set(2 * beta)
         C = jnp.stack([-jnp.sin(u), jnp.cos(u)], axis=1)  # (3, 2, N)
-        CCt = jnp.einsum("cin,cjn->cij", C, C)
-        Cg = jnp.einsum("cin,cn->ci", C, g)
+        CCt = jnp.sum(C[:, :, None] * C[:, None], axis=-1)
+        Cg = jnp.sum(C * g[:, None], axis=-1)
         det = CCt[:, 0, 0] * CCt[:, 1, 1] - CCt[:, 0, 1] * CCt[:, 1, 0]
         mu = jnp.stack([CCt[:, 1, 1] * Cg[:, 0] - CCt[:, 0, 1] * Cg[:, 1],
                         CCt[:, 0, 0] * Cg[:, 1] - CCt[:, 1, 0] * Cg[:, 0]], axis=-1) / det[:, None]

@@ -15,19 +15,22 @@ mu = lam h / k_in the nondimensional force through the strip. The shape depends 
 
 How it is solved, and why so
 ----------------------------
-The equations are solved in every right-hand side evaluation of the quasi-static L3, so they must
-be cheap in XLA on a CPU, where each small operation costs about a microsecond: a few large
-vector operations beat a scalar recursion or a pivoted elimination of N + 2 rows. The Hessian of
-the strip energy is K + diag(q), K the constant tridiagonal stiffness (3, 2, ..., 2, 3 on the
-diagonal, -1 beside it, in units of k_in) and q = mu . e(u) the geometric stiffness of the strip's
-force, small against K for any load the strip survives (|q| / lambda_min(K) ~ F L^2 / (pi^2 EI)).
-So the KKT matrix J is applied exactly and inverted with J0, the same matrix without diag(q):
-K^-1 is a constant (a NumPy array at trace time) and the border is a 2 x 2 Schur complement. The
-solve is Newton's iteration with the approximate Jacobian J0 (linear convergence at that small
-rate, from the unloaded arc), in a `jax.custom_jvp`: the implicit derivatives solve J dy = -dF/dp dp
-exactly (`solve_kkt`: K + diag(q) is tridiagonal, so a Thomas sweep and the same 2 x 2 Schur
-complement, a tenth of the program of a pivoted elimination of N + 2 rows), so derivatives of
-any order are exact and never go through the iterations.
+The equations are solved in every right-hand side evaluation of the quasi-static L3 (most of its
+cost), so they must be cheap in XLA on a CPU, where every kernel launch and every small matrix
+product (a library call) costs more than its arithmetic. The Hessian of the strip energy is
+K + diag(q), K the constant tridiagonal stiffness (3, 2, ..., 2, 3 on the diagonal, -1 beside it,
+in units of k_in) and q = mu . e(u) the geometric stiffness of the strip's force, small against K
+for any load the strip survives (|q| / lambda_min(K) ~ F L^2 / (pi^2 EI)). The KKT matrix J is
+therefore solved exactly by Thomas's elimination of the tridiagonal block and a 2 x 2 Schur
+complement for the border (`solve_kkt`), with K u by shifts: no matrix products at all. The solve
+starts from the unloaded arc with chord steps, q replaced by its mean (pure Newton diverges from
+there for a strip loaded near its reach: the full q of an early iterate makes K + diag(q)
+indefinite), and takes Newton's steps once the residual is below NEWTON_SWITCH: 4-5 iterations
+to 1e-13 at the robot's states, where the chord iteration alone, through K's eigenvectors with
+six small matrix products each, took 5-7 (one quasi-static L3 right-hand side 31 -> 20-28 us, a
+`paper-circle` run 1.78 -> 1.2-1.5 s on this noisy machine), in a
+`jax.custom_jvp`: the implicit derivatives solve J dy = -dF/dp dp with the same `solve_kkt`, so
+derivatives of any order are exact and never go through the iterations.
 """
 
 from __future__ import annotations
@@ -55,6 +58,16 @@ def stiffness_matrix(N: int) -> np.ndarray:
     return K
 
 
+def apply_K(u):
+    """K u for the tridiagonal K of `stiffness_matrix` by shifts (no dot: on a CPU a small
+    matrix product is a library call costing more than its arithmetic)."""
+    z = jnp.zeros_like(u[..., :1])
+    left = jnp.concatenate([z, u[..., :-1]], axis=-1)
+    right = jnp.concatenate([u[..., 1:], z], axis=-1)
+    ends = jnp.zeros(u.shape[-1], u.dtype).at[0].set(1.0).at[-1].set(1.0)
+    return (2 + ends) * u - left - right
+
+
 def kkt_residual(y: Float[Array, " n2"], p: Float[Array, "4"]) -> Float[Array, " n2"]:
     """KKT residual of the strip, y = (u (N,), mu (2,)), p = (d_x/h, d_y/h, beta, sd): the
     gradient of U/k_in - mu . c in u, then c (module docstring)."""
@@ -64,29 +77,14 @@ def kkt_residual(y: Float[Array, " n2"], p: Float[Array, "4"]) -> Float[Array, "
     # k r is k_in sd and the deflections sum to beta - N sd whatever u), which is also why the
     # shape depends on sd only through beta's rest value
     b = jnp.zeros(N, y.dtype).at[-1].set(2 * p[2])
-    Ku = jnp.asarray(stiffness_matrix(N)) @ u
+    Ku = apply_K(u)
     s, c = jnp.sin(u), jnp.cos(u)
     g = Ku - b - (-mu[0] * s + mu[1] * c)
     return jnp.concatenate([g, jnp.stack([jnp.sum(c) - p[0], jnp.sum(s) - p[1]])])
 
 
-def _apply_j0_inv(y, r):
-    """J0^-1 r (module docstring) at y = (u, mu), r = (r_u (N,), r_c (2,))."""
-    N = y.shape[0] - 2
-    u, mu = y[:N], y[N:]
-    lam_K, V = (jnp.asarray(a) for a in np.linalg.eigh(stiffness_matrix(N)))
-    s, c = jnp.sin(u), jnp.cos(u)
-    qbar = jnp.mean(mu[0] * c + mu[1] * s)
-    C = jnp.stack([-s, c])  # dc/du (2, N)
-    # [[K + qbar I, -C^T], [C, 0]] (x, m) = (a, b):  x = H^-1 (a + C^T m),
-    # C H^-1 C^T m = b - C H^-1 a, with H^-1 = V diag(1/(lam_K + qbar)) V^T
-    W = V @ ((V.T @ jnp.concatenate([r[:N, None], C.T], axis=1)) / (lam_K + qbar)[:, None])
-    S = C @ W[:, 1:]
-    rhs = r[N:] - C @ W[:, 0]
-    det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
-    m = jnp.stack([S[1, 1] * rhs[0] - S[0, 1] * rhs[1], S[0, 0] * rhs[1] - S[1, 0] * rhs[0]]) / det
-    return jnp.concatenate([W[:, 0] + W[:, 1:] @ m, m])
-
+#: below this residual the strip's iteration uses the exact Jacobian (Newton), above it the chord's
+NEWTON_SWITCH = 1e-2
 
 #: up to this N the Thomas sweeps are unrolled in Python; above it a `lax.scan`
 UNROLL_MAX = 16
@@ -95,8 +93,8 @@ UNROLL_MAX = 16
 def _pivots(diag):
     """g (N,) the inverse pivots of Thomas's elimination (no pivoting) of the symmetric
     tridiagonal A with diagonal `diag` (N,) and -1 beside it (K + diag(q)). Stable where A is
-    positive definite, which the strip's Newton iteration (`_apply_j0_inv`, the same matrix with
-    q averaged) needs as well: a strip loaded to the edge of buckling fails there first."""
+    positive definite: a strip loaded to the edge of buckling (|q| near lambda_min(K)) fails its
+    Newton iteration, which the scenes report as a loop-closure failure."""
     N = diag.shape[0]
     if N <= UNROLL_MAX:
         g = [1 / diag[0]]
@@ -142,20 +140,34 @@ def _sweeps(g, R):
 def solve_kkt(y: Float[Array, " n2"], R: Float[Array, "n2 k"]) -> Float[Array, "n2 k"]:
     """J^-1 R, J = dF/dy the KKT matrix of `kkt_residual` at y = (u, mu), R (N + 2, k):
     J = [[K + diag(q), -C^T], [C, 0]] with q = mu . e(u) and C = dc/du (2, N); the tridiagonal
-    block by Thomas's elimination (`_pivots`, `_sweeps`), the border by its 2 x 2 Schur complement."""
+    block by Thomas's elimination (`_pivots`, `_sweeps`), the border by its 2 x 2 Schur
+    complement."""
+    return _solve_kkt_q(y, _geometric_stiffness(y), R)
+
+
+def _geometric_stiffness(y):
+    """q (N,) = mu . e(u): the force's contribution to the diagonal of the KKT matrix."""
     N = y.shape[0] - 2
     u, mu = y[:N], y[N:]
-    s, c = jnp.sin(u), jnp.cos(u)
-    C = jnp.stack([-s, c])
-    diag = jnp.asarray(np.diag(stiffness_matrix(N)).copy()) + mu[0] * c + mu[1] * s
+    return mu[0] * jnp.cos(u) + mu[1] * jnp.sin(u)
+
+
+def _solve_kkt_q(y, q, R):
+    """`solve_kkt` with the tridiagonal block's diagonal K + q for a given q (N,)."""
+    N = y.shape[0] - 2
+    u = y[:N]
+    C = jnp.stack([-jnp.sin(u), jnp.cos(u)])
+    diag = jnp.asarray(np.diag(stiffness_matrix(N)).copy()) + q
+    k = R.shape[1]
     g = _pivots(diag)
     # apart, not as one right-hand side: W_R is linear in R (transposed in reverse mode), W_C not
     W_R, W_C = _sweeps(g, R[:N]), _sweeps(g, C.T)
-    S = C @ W_C
-    rhs = R[N:] - C @ W_R
+    # products as broadcast sums, not dots (module docstring)
+    S = jnp.sum(C[:, :, None] * W_C[None], axis=1)
+    rhs = R[N:] - jnp.sum(C[:, :, None] * W_R[None], axis=1)
     det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
     m = jnp.stack([S[1, 1] * rhs[0] - S[0, 1] * rhs[1], S[0, 0] * rhs[1] - S[1, 0] * rhs[0]]) / det
-    return jnp.concatenate([W_R + W_C @ m, m])
+    return jnp.concatenate([W_R + jnp.sum(W_C[:, :, None] * m[None], axis=1), m])
 
 
 def _iterate(step, y0):
@@ -183,7 +195,16 @@ def _iterate(step, y0):
 def _root(N: int, p: Array):
     k = jnp.arange(N, dtype=p.dtype) + 0.5
     y0 = jnp.concatenate([p[2] * k / N, jnp.zeros(2, p.dtype)])  # constant curvature, no force
-    y = _iterate(lambda y: y - _apply_j0_inv(y, kkt_residual(y, p)), y0)
+    def step(y):
+        r = kkt_residual(y, p)
+        q = _geometric_stiffness(y)
+        # Far from the root the chord's averaged q: from the unloaded arc, the full q of an early
+        # iterate can make K + diag(q) indefinite and Newton diverge (a strip loaded near its
+        # reach, `tests/test_beam_qs.py`); near it the exact q, so the last steps are Newton's.
+        q = jnp.where(jnp.max(jnp.abs(r)) < NEWTON_SWITCH, q, jnp.mean(q))
+        return y - _solve_kkt_q(y, q, r[:, None])[:, 0]
+
+    y = _iterate(step, y0)
     return y, jnp.max(jnp.abs(kkt_residual(y, p)))
 
 
