@@ -119,7 +119,8 @@ def test_strip_derivatives_vs_finite_differences(j):
 
 def test_envelope_forces_match_the_deflection_jacobian(params):
     """`spring_force` (envelope theorem, no Jacobian of the shape) against -J_d^T (k d) - c J_d^T
-    J_d z' from the Jacobian of the deflections through the implicit solve."""
+    J_d z' from the Jacobian of the deflections through the implicit solve; its derivatives in z
+    (elastic and damping parts) against central differences."""
     m = pj.QuasiStaticBeam(5)
     p = params.replace(c_spring=2e-3)
     robot = pj.Robot(p)
@@ -144,6 +145,21 @@ def test_envelope_forces_match_the_deflection_jacobian(params):
     Kv = jax.jit(lambda z: jax.jvp(force, (z,), (v,))[1])(z)
     fd = fd_jvp(jax.jit(force), z, v, h=1e-7)
     np.testing.assert_allclose(Kv, fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+
+    # and the strips' damping force alone (the moving state's force less the resting one's), whose
+    # Jacobian of the deflections comes from the implicit function theorem at the solved shapes:
+    # its derivative in z, forward mode against central differences, reverse against forward
+    def damping(z):
+        k = m.kinematics(robot, z)
+        return m.spring_force(robot, z, zd, k) - m.spring_force(robot, z, 0 * zd, k)
+
+    Dv = jax.jit(lambda z: jax.jvp(damping, (z,), (v,))[1])(z)
+    fd = fd_jvp(jax.jit(damping), z, v, h=1e-6)
+    assert np.abs(np.asarray(fd)).max() > 1e-6
+    np.testing.assert_allclose(Dv, fd, rtol=1e-5, atol=1e-5 * np.abs(fd).max())
+    w = jnp.cos(jnp.arange(9.0))
+    wD = jax.jit(lambda z: jax.vjp(damping, z)[1](w)[0])(z)
+    np.testing.assert_allclose(wD @ v, w @ Dv, rtol=1e-10)
 
 
 def test_unreachable_strip_is_reported(params):
