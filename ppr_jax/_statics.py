@@ -33,7 +33,8 @@ def _assemble(n, idx_u, zu, idx_k, zk):
 
 def _newton(resid, y0, args, rtol=1e-12, atol=1e-12, max_steps=100):
     sol = optx.root_find(
-        resid, optx.Newton(rtol=rtol, atol=atol, linear_solver=SmallLU()), y0, args=args, max_steps=max_steps, throw=False
+        resid, optx.Newton(rtol=rtol, atol=atol, linear_solver=SmallLU()), y0, args=args,
+        max_steps=max_steps, throw=False,
     )
     return sol.value, sol.result
 
@@ -108,8 +109,9 @@ def _fd_newton_solve(resid, y0, rtol: float = 1e-13, atol: float = 1e-13, max_st
     copy of the springs into the program: for L3's strips, 0.25 M of its 0.92 M characters and
     a third of its compilation.) `resid` returns (residual, aux). Found by optimistix
     (`FixedPointIteration` on y -> y - J(y)^-1 resid(y), stopping when a step is below
-    atol + rtol |y|, with a result code) and differentiated implicitly (J under stop_gradient: at the root only resid's own
-    derivatives enter, so the derivatives are exact whatever J's error).
+    atol + rtol |y|, with a result code) and differentiated implicitly (J under stop_gradient:
+    at the root only resid's own derivatives enter, so the derivatives are exact whatever J's
+    error).
     Returns (y, relative residual at the last iterate, optimistix result, aux of that iterate)."""
     n = y0.shape[0]
 

@@ -58,14 +58,18 @@ def stiffness_matrix(N: int) -> np.ndarray:
     return K
 
 
+def _K_diag(N: int) -> np.ndarray:
+    """The diagonal (N,) of K (`stiffness_matrix`); -1 beside it."""
+    return np.diag(stiffness_matrix(N)).copy()
+
+
 def apply_K(u):
     """K u for the tridiagonal K of `stiffness_matrix` by shifts (no dot: on a CPU a small
     matrix product is a library call costing more than its arithmetic)."""
     z = jnp.zeros_like(u[..., :1])
     left = jnp.concatenate([z, u[..., :-1]], axis=-1)
     right = jnp.concatenate([u[..., 1:], z], axis=-1)
-    ends = jnp.zeros(u.shape[-1], u.dtype).at[0].set(1.0).at[-1].set(1.0)
-    return (2 + ends) * u - left - right
+    return jnp.asarray(_K_diag(u.shape[-1]), u.dtype) * u - left - right
 
 
 def kkt_residual(y: Float[Array, " n2"], p: Float[Array, "4"]) -> Float[Array, " n2"]:
@@ -157,7 +161,7 @@ def _solve_kkt_q(y, q, R):
     N = y.shape[0] - 2
     u = y[:N]
     C = jnp.stack([-jnp.sin(u), jnp.cos(u)])
-    diag = jnp.asarray(np.diag(stiffness_matrix(N)).copy()) + q
+    diag = jnp.asarray(_K_diag(N)) + q
     k = R.shape[1]
     g = _pivots(diag)
     # apart, not as one right-hand side: W_R is linear in R (transposed in reverse mode), W_C not
