@@ -432,9 +432,9 @@ def sweep(
     torques, as in `sensitivity` (L1 under its own torques follows the circle to the solver's
     tolerance, and such a sweep warns that its radial errors are the solver's). Members are
     validated first (`validate_members`; the invalid ones are reported, not run), then run
-    `chunk_size` at a time in one compiled program (the last chunk padded to the same shape). `devices`: a list
-    of devices to split each chunk over (`chunk_size` must be divisible by their number);
-    default one device.
+    `chunk_size` at a time in one compiled program (the last chunk padded to the same shape).
+    `devices`: a list of devices to split each chunk over (`chunk_size` must be divisible by
+    their number); default one device.
     `checkpoint_dir`: each finished chunk's rows are written there, and a rerun with the same
     settings loads them instead of running them again (resume). `progress`: True for a bar on
     stderr, or a callable `f(done, total)`.
