@@ -11,14 +11,18 @@ from typing import Callable, Optional
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 
 from ._checks import PPRError, raise_if
-from ._actuation import AbstractActuation, TorqueDriven
+from ._actuation import (
+    AbstractActuation, InverseKinematicsAngles, MotionDriven, TorqueDriven,
+)
 from ._dynamics import eom_terms, generalized_force
 from ._linalg import SmallLU, solve
-from ._models import AbstractModel
+from ._models import AbstractModel, Reduced
 from ._robot import RobotLike, as_robot
+from ._kinematics import _fk
 from ._trajectory import derivatives
 
 
@@ -95,6 +99,24 @@ def static_equilibrium(
 QS_DT = 1e-3
 
 
+#: the quasi-static solves' times, in steps of QS_DT about t
+STENCIL = np.arange(-2.0, 3.0)
+
+
+def _differentiation_matrices(s):
+    """(D1, D2): the first and second derivatives at the nodes `s` of the polynomial that
+    interpolates values there (unit spacing; divide by the step and its square)."""
+    k = np.arange(s.shape[0])
+    V = s[:, None] ** k
+    V1 = np.where(k > 0, k * s[:, None] ** np.maximum(k - 1, 0), 0.0)
+    V2 = np.where(k > 1, k * (k - 1) * s[:, None] ** np.maximum(k - 2, 0), 0.0)
+    Vi = np.linalg.inv(V)
+    return jnp.asarray(V1 @ Vi), jnp.asarray(V2 @ Vi)
+
+
+D1, D2 = _differentiation_matrices(STENCIL)
+
+
 #: relative step of the central differences that give the quasi-static Newton iteration's
 #: Jacobian (error about 1e-10 relative: rounding over the step; truncation is 1e-12)
 FD_STEP = 1e-6
@@ -143,21 +165,33 @@ def quasi_static_state(
     torque: Optional[Callable] = None,
     wrench=None,
 ):
-    """Initial state (z, z') of `model` consistent with the L1 motion along `trajectory` at t
-    under `actuation` (an `AbstractActuation`; the older flags `motion_driven` and `torque`
-    (a time function) say the same: one or the other). Raises `PPRError` if it is not found.
+    """Initial state (z, z') of `model` at time t, in balance under `actuation`.
 
-    The reference is the model's coordinates on the L1 manifold, z_ref(t) =
-    coords_from_pose(X(t)), with its velocity and acceleration. Models without internal degrees of
-    freedom (L0, L1) return it as is. For L2 the coordinates not fixed by the scene are put at the
-    quasi-static state: their rows of M z'' + h = Q balance with the reference velocities and
-    accelerations
-    (torque-driven: the pose is the nominal one and every other coordinate (L2: the actuated
-    angles) balances under the applied torque; motion-driven: the actuated angles are prescribed
-    and the pose and any other internal coordinate balance). Models order z as (X, th_a, rest).
-    Their velocity is the time derivative of that quasi-static solution (a 5-point central
-    difference of step `QS_DT`, error ~1e-13), so no fast internal vibration is excited at t = 0
-    beyond what the model mismatch implies.
+    The known coordinates come from the scene: torque-driven (and PD servo), the platform pose
+    and its rates are the trajectory's; motion-driven, the actuated angles, their rates and
+    accelerations are the actuation's own at t (MODEL.md section 6), never the robot's inverse
+    kinematics of `trajectory`: commands computed by another model, or measured angles, differ
+    from it, and a start there is off balance and rings through the run. Every other
+    coordinate (L2: the actuated angles, or the pose; L3: also the connecting links) sits at
+    the quasi-static state: its rows of M z'' + h = Q balance, with the reference velocities
+    and accelerations of the L1 manifold along `trajectory` (so `trajectory` is the guess of
+    the pose under prescribed angles). Their velocity is the time derivative of that
+    quasi-static solution (a 5-point central difference of step `QS_DT`, error ~1e-13), so no
+    fast internal vibration is excited at t = 0 beyond what the model mismatch implies.
+    L0 and L1 have no internal coordinates: torque-driven they start on the trajectory;
+    motion-driven at the forward kinematics of the prescribed angles (`kinematic_state`).
+
+    **Arguments:**
+
+    - `model`: a model (L0-L3); `robot`: a `Robot` or `RobotParams`.
+    - `trajectory`: the platform's reference pose, t -> (3,) (m, m, rad).
+    - `t`: time (s).
+    - `actuation`: an `AbstractActuation`. The older flags say the same: `motion_driven=True`
+      is `MotionDriven` with the robot's own L1 inverse-kinematics angles of `trajectory`,
+      `motion_driven=False` with `torque` (a time function) is `TorqueDriven`; one or the other.
+    - `wrench`: (3,) constant platform load (N, N, N m).
+
+    **Returns:** (z, z'), (n,) each. Raises `PPRError` if no balance is found.
     """
     z, zd, failed = _quasi_static_state_jit(
         model, as_robot(robot), trajectory, t, actuation, motion_driven=motion_driven,
@@ -187,8 +221,11 @@ def _quasi_static_state(
     if actuation is None:
         if motion_driven is None:
             raise PPRError("quasi_static_state needs an actuation (or motion_driven=True/False)")
-        actuation = None if motion_driven else TorqueDriven(
-            (lambda t: jnp.zeros(3)) if torque is None else torque
+        # motion_driven=True: the angles of the robot's own L1 inverse kinematics of the
+        # trajectory (what the flag always meant); other angles need an explicit MotionDriven.
+        actuation = (
+            MotionDriven(InverseKinematicsAngles(Reduced(), robot, trajectory)) if motion_driven
+            else TorqueDriven((lambda t: jnp.zeros(3)) if torque is None else torque)
         )
         prescribed = bool(motion_driven)
     else:
@@ -203,6 +240,12 @@ def _quasi_static_state(
 
     t = jnp.asarray(t, dtype=jnp.float64)
     if model.actuated_index is None:
+        if prescribed:
+            # L0/L1 under prescribed angles: the pose is their forward kinematics (started at
+            # the trajectory's pose), not the trajectory's own pose.
+            X, Xd, _, code = kinematic_state(model, robot, actuation.angles_at(t),
+                                             trajectory(t))
+            return X, Xd, code != 0
         z, zd, _ = derivatives(ref, t)
         return z, zd, jnp.asarray(False)
     act = tuple(model.actuated_index)
@@ -212,34 +255,61 @@ def _quasi_static_state(
     known = tuple(i for i in range(n) if i not in unknown)
     iu, ik = jnp.array(unknown), jnp.array(known)
 
-    def solve_at(t):
+    def solve_at(t, zu_guess, zud, zudd, own):
+        """The balance at time t; with `own`, at the velocities and accelerations (zud, zudd)
+        of the unknowns' own quasi-static path instead of the reference's."""
         z_r, zd_r, zdd_r = derivatives(ref, t)
         if prescribed:
+            # The actuated angles, rates and accelerations are the actuation's own (MODEL.md
+            # section 6): commands computed by another model, or measured angles, differ from
+            # this robot's inverse kinematics of the trajectory, and a start on the latter is off
+            # balance and rings through the whole run.
+            ia = jnp.array(act)
+            tha, thad, thadd = actuation.angles_at(t)
+            z_r, zd_r, zdd_r = z_r.at[ia].set(tha), zd_r.at[ia].set(thad), zdd_r.at[ia].set(thadd)
             tau = jnp.zeros(3)
         else:
             # The torque at the reference motion (a servo's feedforward; a PD term is zero there);
             # the actuated angles are coordinates of the models that reach this line.
             ia = jnp.array(act)
             tau = actuation.torque_at(t, z_r[ia], zd_r[ia])
+        zd_b = jnp.where(own, zd_r.at[iu].set(zud), zd_r)
+        zdd_b = jnp.where(own, zdd_r.at[iu].set(zudd), zdd_r)
 
         def full(zu):
             # the balance, and the chains' reach (which the balance needs: below)
             z = _assemble(n, unknown, zu, known, z_r[ik])
-            eom = eom_terms(model, robot, z, zd_r)
-            r = (eom.M @ zdd_r + eom.h - generalized_force(eom, tau, w))[iu]
+            eom = eom_terms(model, robot, z, zd_b)
+            r = (eom.M @ zdd_b + eom.h - generalized_force(eom, tau, w))[iu]
             return r, jnp.min(eom.kin.margin)
 
-        return (*_fd_newton_solve(full, z_r[iu]), z_r, zd_r)
+        guess = jnp.where(own, zu_guess, z_r[iu])
+        return (*_fd_newton_solve(full, guess), z_r, zd_r)
 
-    # The solution at t and at t +- dt, t +- 2 dt in one vmapped solve; the velocity is the
-    # 5-point central difference (exact derivatives would need third derivatives of the
-    # kinematics, whose compilation cost more than the whole simulation).
-    offsets = jnp.array([0.0, -2.0, -1.0, 1.0, 2.0]) * QS_DT
-    zus, errs, results, margins, z_rs, zd_rs = jax.vmap(solve_at)(t + offsets)
-    zu = zus[0]
-    zu_dot = (zus[1] - 8 * zus[2] + 8 * zus[3] - zus[4]) / (12 * QS_DT)
-    # the reference at t is the first solve's (offset 0): no second trace of its derivatives
-    z_r, zd_r = z_rs[0], zd_rs[0]
+    # The solutions at t - 2 dt ... t + 2 dt in one vmapped solve; their rates and accelerations
+    # by differentiating the interpolating quartic (exact derivatives would need third
+    # derivatives of the kinematics, whose compilation cost more than the whole simulation).
+    # Two passes of one traced body (a scan): the first balances at the reference's velocities
+    # and accelerations, the second at the first pass's own. The reference's differ from the
+    # quasi-static path's wherever the robot is not the reference (another model's commands:
+    # phi'' 4e-3 rad/s^2 off, 12 % of its scale); one pass more leaves (omega/omega_mode)^2,
+    # about 1e-4, of that.
+    ts = t + STENCIL * QS_DT
+    nu = len(unknown)
+
+    def one_pass(carry, own):
+        zus_prev, zud, zudd = carry
+        out = jax.vmap(solve_at, in_axes=(0, 0, 0, 0, None))(ts, zus_prev, zud, zudd, own)
+        zus = out[0]
+        return (zus, D1 @ zus / QS_DT, D2 @ zus / QS_DT**2), out
+
+    zero = jnp.zeros((STENCIL.shape[0], nu))
+    (zus, zud, _), outs = jax.lax.scan(one_pass, (zero, zero, zero),
+                                       jnp.array([False, True]))
+    _, errs, results, margins, z_rs, zd_rs = jax.tree.map(lambda a: a[-1], outs)
+    c = STENCIL.shape[0] // 2
+    zu, zu_dot = zus[c], zud[c]
+    z_r, zd_r = z_rs[c], zd_rs[c]
     # Running out of Newton steps is no failure when the residual is down to rounding: a residual
     # computed through an inner solve (L3's quasi-static strips at large N) has a noise floor
     # that the step criterion (1e-13 relative) may not reach. The residual decides.
@@ -252,10 +322,36 @@ def _quasi_static_state(
     # too thin to carry the loads collapses the chain).
     # (The margin is the last iterate's, a step below the tolerance from z: no further
     # evaluation of the kinematics.)
-    failed = failed | ~(margins[0] > 0)
+    failed = failed | ~(margins[c] > 0)
     return z, zd, failed
 
 
 # Compiled once per (model, actuation type, shapes): run op by op, the Newton iteration's many
 # small operations cost minutes.
 _quasi_static_state_jit = eqx.filter_jit(_quasi_static_state)
+
+
+def kinematic_state(model: AbstractModel, robot, angles, X_guess, rtol=1e-13, atol=1e-13,
+                    max_steps=50):
+    """The pose of a model without internal coordinates (L0, L1) under prescribed actuated
+    angles: X by forward kinematics (Newton from `X_guess`), X' and X'' from th_a(X) = th_a(t)
+    differentiated once and twice.
+
+    **Arguments:**
+
+    - `angles`: (th_a, th_a', th_a'') (3,) each (rad, rad/s, rad/s^2).
+    - `X_guess`: (3,) the pose Newton starts from (m, m, rad).
+
+    **Returns:** (X, X', X'', code): (3,) each, and the forward kinematics' optimistix result
+    code (0 when it converged)."""
+    th, thd, thdd = angles
+
+    def tha_of_X(X):
+        return model.kinematics(robot, model.coords_from_pose(robot, X)).th_a
+
+    X, res = _fk(model, robot, th, X_guess, rtol, atol, max_steps)
+    S = jax.jacfwd(tha_of_X)(X)
+    Xd = solve(S, thd)
+    conv = jax.jvp(lambda X: jax.jvp(tha_of_X, (X,), (Xd,))[1], (X,), (Xd,))[1]
+    Xdd = solve(S, thdd - conv)
+    return X, Xd, Xdd, res._value

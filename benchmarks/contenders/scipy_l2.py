@@ -102,6 +102,18 @@ def TorqueSpline(ts, taus):
     return CubicSpline(np.asarray(ts, float), np.asarray(taus, float), axis=0)
 
 
+def AnglesSpline(ts, ths):
+    """Prescribed actuated angles t -> (th_a, th_a', th_a'') (3,) each (rad, rad/s, rad/s^2)
+    from samples ths (m, 3) at increasing times ts (m,) (s): a quintic interpolating B-spline
+    (scipy's `make_interp_spline`), so the accelerations are smooth (error ~ dt^4 in the angles,
+    ~ dt^2 in their accelerations: 1e-14 rad and 1e-8 rad/s^2 at 1 ms for the scenes' motions)."""
+    from scipy.interpolate import make_interp_spline
+
+    spl = make_interp_spline(np.asarray(ts, float), np.asarray(ths, float), k=5, axis=0)
+    d1, d2 = spl.derivative(1), spl.derivative(2)
+    return lambda t: (spl(t), d1(t), d2(t))
+
+
 def scene_torque(params, t_end, dt=TORQUE_DT):
     """The paper-circle torques (L1 inverse dynamics along eq 55, as `ppr_jax`'s scene builds
     them) on a grid of step `dt` over [0, t_end + TORQUE_PAD], as a `TorqueSpline`, and the
@@ -136,14 +148,21 @@ class L2Model:
     `params`: a `ppr_jax.RobotParams` (only its numbers are used); `torque`: a callable t -> (3,)
     actuator torques (N m); `alpha`: Baumgarte rate (1/s); `with_work`: append the actuators' and
     dampers' net work W (J) as a 25th state (W' = tau . th_i1' - friction and damping power), for
-    the energy balance T + U - (T + U)(0) = W."""
+    the energy balance T + U - (T + U)(0) = W; `angles`: motion-driven instead (MODEL.md
+    section 5): a callable t -> (th_a, th_a', th_a'') (3,) each (rad, rad/s, rad/s^2), the
+    actuated angles prescribed by three more constraints th_i1 - sigma delta1 - th_a(t) = 0
+    (rheonomic, Baumgarte-stabilised like the loop closures: a 21 x 21 KKT system), whose
+    multipliers are the actuators' reaction torques (`torque` is then ignored and may be None).
+    """
 
-    def __init__(self, params, torque, alpha=BAUMGARTE_ALPHA, with_work=False):
+    def __init__(self, params, torque, alpha=BAUMGARTE_ALPHA, with_work=False, angles=None):
         import ppr_jax as pj
 
         dv = pj.derived(params)
         f = lambda v: float(np.asarray(v))  # noqa: E731
         self.torque = torque
+        self.angles = angles
+        self.nk = 18 if angles is None else 21  # KKT size: 12 coordinates, 6 or 9 constraints
         self.alpha = float(alpha)
         self.with_work = bool(with_work)
         self.n = 25 if with_work else 24
@@ -178,13 +197,16 @@ class L2Model:
         self.a13, self.b13 = m3 * r1 * self.rho3, m3 * r1 * self.kap3
         self.a23, self.b23 = m3 * r2 * self.rho3, m3 * r2 * self.kap3
         # The 18 x 18 KKT template: constants once, the q-dependent entries written per call.
-        T = np.zeros((18, 18))
+        T = np.zeros((self.nk, self.nk))
         for i in range(3):
             T[3 * i, 3 * i], T[3 * i + 1, 3 * i + 1], T[3 * i + 2, 3 * i + 2] = (
                 self.M11, self.M22, self.M33)
             T[12 + 2 * i, 9] = T[9, 12 + 2 * i] = -1.0  # d g_ix / dx
             T[13 + 2 * i, 10] = T[10, 13 + 2 * i] = -1.0  # d g_iy / dy
         T[9, 9], T[10, 10], T[11, 11] = m4, m4, I4
+        if angles is not None:
+            for i in range(3):
+                T[18 + i, 3 * i] = T[3 * i, 18 + i] = 1.0  # d (th_i1 - th_ai(t)) / d th_i1
         self.kkt0 = T
         # (row, column) of the 33 q-dependent entries in `_kkt`'s order: M12, M13, M23 per chain,
         # d g_ix / d th_ij, d g_iy / d th_ij (chain-major), d g_ix / d phi, d g_iy / d phi
@@ -263,8 +285,9 @@ class L2Model:
 
     # -- dynamics ---------------------------------------------------------------------------
 
-    def rhs(self, t, y):
-        """y' = (q', q'') at time t for y (n,) or (n, k) (vectorised over the columns).
+    def rhs(self, t, y, return_tau=False):
+        """y' = (q', q'') at time t for y (n,) or (n, k) (vectorised over the columns); with
+        `return_tau`, also the actuator torques (3,) or (3, k) (N m).
 
         Per chain, with angles th1..th3, rates w1..w3 and the body COMs
           p1 = A + (l1/2) e(th1 - sigma delta1),  p2 = A + r1 e(th1) + (r2/2) e(th2),
@@ -296,8 +319,8 @@ class L2Model:
         if self.c_s:
             f1 = f1 + self.c_s * (w2 - w1)
             f2 = f2 + self.c_s * (w3 - w2)
-        tau = self.torque(t)[:, None]
-        b = np.zeros((18, k))
+        tau = np.zeros((3, 1)) if self.angles is not None else self.torque(t)[:, None]
+        b = np.zeros((self.nk, k))
         b[0:9:3] = f1 + tau - H12 * w2s - H13 * w3s
         if self.c_a:
             b[0:9:3] -= self.c_a * w1
@@ -312,10 +335,15 @@ class L2Model:
         py = u * rs - v * rc
         wp = Y[23]
         up, vp = self.rhoE * (wp * wp - al * al), 2 * al * self.rhoE * wp
-        b[12::2] = (px[:, 0] + px[:, 1] + px[:, 2] - up * cp - vp * sp
+        b[12:18:2] = (px[:, 0] + px[:, 1] + px[:, 2] - up * cp - vp * sp
                     + 2 * al * Y[21] + al * al * (Y[9] - self.A[:, 0, None]))
-        b[13::2] = (py[:, 0] + py[:, 1] + py[:, 2] - up * sp + vp * cp
+        b[13:18:2] = (py[:, 0] + py[:, 1] + py[:, 2] - up * sp + vp * cp
                     + 2 * al * Y[22] + al * al * (Y[10] - self.A[:, 1, None]))
+        if self.angles is not None:
+            # th_i1'' = th_a'' - 2 al (th_i1' - th_a') - al^2 (th_i1 - sigma delta1 - th_a)
+            tha, thad, thadd = (np.asarray(v, float)[:, None] for v in self.angles(t))
+            b[18:21] = (thadd - 2 * al * (w1 - thad)
+                        - al * al * (th[:, 0] - self.sigma * self.delta1 - tha))
         if k == 1:
             sol = np.linalg.solve(KKT[0], b)
         else:
@@ -323,9 +351,14 @@ class L2Model:
         out = np.empty((self.n, k))
         out[:12] = Y[12:24]
         out[12:24] = sol[:12]
+        if self.angles is not None:
+            tau = -sol[18:21]  # the reaction torques: M q'' = Q - h - G^T lambda
         if self.with_work:
             out[24] = (np.sum(tau * w1, axis=0) - self.c_a * np.sum(w1s, axis=0)
                        - self.c_s * np.sum((w2 - w1) ** 2 + (w3 - w2) ** 2, axis=0))
+        if return_tau:  # the actuator torques too (applied, or the reactions)
+            tau = np.broadcast_to(tau, (3, k))
+            return (out, tau) if vec else (out[:, 0], tau[:, 0])
         return out if vec else out[:, 0]
 
     def jac(self, t, y):
