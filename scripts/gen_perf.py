@@ -245,7 +245,7 @@ def l3() -> str:
 
 
 def headline() -> dict:
-    """The few numbers the README quotes (for checking it by hand)."""
+    """The contenders' matched times, which the README's headline table quotes (to check it)."""
     d = _load("cpu", "contenders.json")
     return {r["tool"] + "@" + f"{r['error_m']:g}": r["run_s"] for r in d["matched"]} if d else {}
 
