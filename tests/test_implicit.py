@@ -7,7 +7,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-import pytest
 
 import ppr_jax as pj
 from ppr_jax._simulate import StageChord, default_controller, get_solver
