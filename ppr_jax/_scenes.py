@@ -31,7 +31,7 @@ from ._models import Reduced, get_model
 from ._modes import modes as _modes
 from ._params import RobotParams, params_invalid
 from ._robot import Robot
-from ._simulate import Solution, _simulate_core, get_solver
+from ._simulate import Solution, _simulate_core, default_controller, get_solver
 from ._statics import _quasi_static_state
 from ._tabulated import input_too_coarse, scene_input, scene_panels
 from ._trajectory import Circle, derivatives
@@ -345,16 +345,15 @@ def _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solve
     solver_name = str(solver) if isinstance(solver, str) else type(solver).__name__
     if scene == "servo-circle" and model.actuated_index is None:
         solver_name = "none (kinematics + inverse dynamics)"
-    controller = diffrax.PIDController(
-        rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64)
-    )
+    solver = get_solver(solver)
+    controller = default_controller(solver, rtol, atol)
     # Built here, outside any trace when params are concrete: the derived quantities once and
     # the structural choices (equal links, elbow) static, so a batch is branch-free.
     robot = Robot(params)
     pre = (model, get_model(torque_model)) if scene == "paper-circle" else (model,)
     adjoint = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
     panels = input_panels(traj, t_end, n_out)
-    post = (traj, ts, get_solver(solver), controller, max_steps, adjoint, panels)
+    post = (traj, ts, solver, controller, max_steps, adjoint, panels)
     batched = _batched(params)
     fn = (_BATCH if batched else _JIT)[scene]
     devices = batch_devices(int(jnp.shape(params.a)[0])) if batched else ()

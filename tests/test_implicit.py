@@ -1,0 +1,133 @@
+"""The implicit integration path (issue 31): the stage root finder, the PI controller and
+Kvaerno5 on a stiff problem, through the same solver machinery as the scenes (`get_solver`,
+`default_controller`)."""
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+import ppr_jax as pj
+from ppr_jax._simulate import StageChord, default_controller, get_solver
+
+
+class _Recorder(diffrax.PIDController):
+    """A PID controller that reports, for every attempted step, whether the solver's error
+    estimate was infinite (a failed stage solve) and whether the step was kept."""
+
+    def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, state):
+        out = super().adapt_step_size(t0, t1, y0, y1_candidate, args, y_error, error_order,
+                                      state)
+        failed = jnp.any(jnp.stack([jnp.any(~jnp.isfinite(e))
+                                    for e in jax.tree_util.tree_leaves(y_error)]))
+        jax.debug.callback(_LOG.append_step, failed, out[0], ordered=True)
+        return out
+
+
+class _Log:
+    def __init__(self):
+        self.steps = []
+
+    def append_step(self, failed, kept):
+        self.steps.append((bool(failed), bool(kept)))
+
+
+_LOG = _Log()
+
+
+def _solve(vf, y0, t1, solver, controller, dt0=None, ts=None):
+    return diffrax.diffeqsolve(
+        diffrax.ODETerm(vf), solver, 0.0, t1, dt0, y0,
+        saveat=diffrax.SaveAt(ts=ts) if ts is not None else diffrax.SaveAt(t1=True),
+        stepsize_controller=controller, max_steps=100_000,
+    )
+
+
+def test_kvaerno5_on_a_stiff_forced_oscillator_matches_the_closed_form():
+    """x'' = -w^2 (x - sin t), w = 2 pi 300 Hz, started on the forced response
+    x = w^2 / (w^2 - 1) sin t (no free vibration): the implicit path takes steps set by the
+    slow forcing, far beyond the explicit stability limit (about 3 / w = 1.6 ms), rejects few,
+    and matches the closed form."""
+    w = 2 * np.pi * 300.0
+    a = w**2 / (w**2 - 1)
+
+    def vf(t, y, args):
+        x, v = y
+        return v, -(w**2) * (x - jnp.sin(t))
+
+    ts = jnp.linspace(0.0, 1.0, 11)
+    solver = get_solver("kvaerno5")
+    sol = _solve(vf, (jnp.asarray(0.0), jnp.asarray(a)), 1.0, solver,
+                 default_controller(solver, 1e-6, 1e-9), ts=ts)
+    steps, rejected = int(sol.stats["num_steps"]), int(sol.stats["num_rejected_steps"])
+    np.testing.assert_allclose(sol.ys[0], a * np.sin(ts), atol=2e-6)
+    assert steps < 300, steps  # Tsit5 needs about 2,000 here (stability-bound)
+    assert rejected <= 0.15 * steps, (steps, rejected)
+
+
+def test_stage_root_finder_iterates_on_while_the_chord_converges():
+    """A chord iteration that contracts by about 0.05 per iterate from a first correction 1e6
+    tolerances long: diffrax 0.7.2's VeryChord (and optimistix 0.1.0's Chord) report
+    divergence after the second iterate here; StageChord converges to the root."""
+
+    def fn(y, args):
+        return y - 0.05 * jnp.sin(y) - 1000.0
+
+    rf = StageChord(rtol=1e-8, atol=1e-8, norm=optx.max_norm, max_steps=20)
+    sol = optx.root_find(fn, rf, jnp.asarray(0.0), max_steps=20, throw=False)
+    assert sol.result == optx.RESULTS.successful
+    assert abs(float(fn(sol.value, None))) < 1e-6  # kappa (atol + rtol |y|) = 1e-7
+    assert int(sol.stats["num_steps"]) > 2
+
+
+def test_stage_root_finder_reports_a_stalled_iteration():
+    """arctan(y) = 1.5 from y = 0 with the Jacobian frozen there: the chord crawls (rate near 1)
+    and cannot converge in the iterations allowed, which must be reported, not returned as
+    a root."""
+
+    def fn(y, args):
+        return jnp.arctan(y) - 1.5
+
+    rf = StageChord(rtol=1e-8, atol=1e-8, norm=optx.max_norm, max_steps=10)
+    sol = optx.root_find(fn, rf, jnp.asarray(0.0), max_steps=10, throw=False)
+    assert sol.result != optx.RESULTS.successful
+
+
+def test_a_failed_implicit_step_is_rejected_never_accepted():
+    """diffrax #752 class: a step whose stage solve fails must be retried shorter, never kept.
+    A stiff pendulum-like oscillator, x'' = -w^2 sin(x - sin t) (strongly nonlinear at the
+    amplitudes a too-long first step reaches), with a first step of 0.5 s, at most 3
+    iterations per stage: the first attempts fail their stage solves. Every such step must be
+    rejected, and the run must still succeed and agree with Tsit5."""
+    w = 2 * np.pi * 20.0
+
+    def vf(t, y, args):
+        x, v = y
+        return v, -(w**2) * jnp.sin(x - jnp.sin(t)) - 5.0 * v
+
+    y0 = (jnp.asarray(1.0), jnp.asarray(0.0))
+    solver = diffrax.Kvaerno5(
+        root_finder=diffrax.with_stepsize_controller_tols(StageChord)(max_steps=3),
+        root_find_max_steps=3,
+    )
+    _LOG.steps = []
+    ctrl = _Recorder(rtol=1e-6, atol=1e-9, pcoeff=0.2, icoeff=0.4)
+    sol = _solve(vf, y0, 1.0, solver, ctrl, dt0=0.5)
+    ref = _solve(vf, y0, 1.0, diffrax.Tsit5(), diffrax.PIDController(rtol=1e-10, atol=1e-12))
+    failed = [kept for f, kept in _LOG.steps if f]
+    assert len(failed) > 0, "the test must exercise a failed stage solve"
+    assert not any(failed), "a step with a failed stage solve was accepted"
+    assert sol.result == diffrax.RESULTS.successful
+    np.testing.assert_allclose(sol.ys[0][-1], ref.ys[0][-1], atol=1e-4)
+
+
+def test_kvaerno5_rejects_few_steps_on_l2_servo_circle():
+    """L2 `double1r` on `servo-circle`, t = 4 mm (modes up to 355 Hz) over 0.2 s, rtol 1e-6:
+    with diffrax's own root finder and I controller half of Kvaerno5's steps were rejected
+    (every one a failed stage solve); the library's path must reject at most 15 %."""
+    p = pj.scene_params("servo-circle", t=4e-3)
+    r = pj.servo_circle(p, model="double1r", solver="kvaerno5", rtol=1e-6, t_end=0.2, n_out=21)
+    steps, rejected = int(r.num_steps), int(r.num_rejected)
+    assert steps > 10, steps
+    assert rejected <= 0.15 * steps, (steps, rejected)
