@@ -31,6 +31,14 @@ class SimulationError(PPRError, RuntimeError):
     result = None
 
 
+class RepairWarning(UserWarning):
+    """A stored file this library wrote (an exported scene program, a persistent-cache entry, a
+    sweep's chunk) failed its check (checksum, deserialisation, compilation, or settings digest):
+    it was deleted and its content computed afresh. The run's results are not affected; the
+    warning names the file once. A recurring warning points at a failing disk or at two
+    versions of the library sharing one cache directory."""
+
+
 #: loop-closure residual (m) above which a chain counts as open at an output time
 RESIDUAL_TOL = 1e-9
 
