@@ -154,8 +154,12 @@ def cmd_sweep(args):
     fcols = ["member", *res.varied, "status", "reason", "result_code"]
     _write_rows(os.path.join(args.out, "failed.csv"), res.failed, fcols)
     written.append("failed.csv")
+    from ._sweep import library_digest
+
     with open(os.path.join(args.out, "summary.json"), "w") as f:
-        json.dump({"settings": res.info, "timing": res.timing, "n_members": len(res.rows),
+        # what the numbers depend on beyond the settings (the chunks' digests hold it too)
+        json.dump({"settings": res.info, "library": library_digest(), "timing": res.timing,
+                   "n_members": len(res.rows),
                    "n_ok": len(res.ok), "n_failed": len(res.failed),
                    "failed": [{c: r[c] for c in fcols} for r in res.failed]}, f, indent=2)
     written.append("summary.json")
