@@ -74,6 +74,14 @@ class RESULTS(diffrax.RESULTS):
         "forward kinematics did not converge along the prescribed path: the actuated angles "
         "leave the workspace or cross a singularity"
     )
+    singular_path = (
+        "the prescribed motion passes through (or within one output step of) a type-II "
+        "singularity: det S (S = d th_a/dX) extrapolated from the output times before changes "
+        "sign and the solved pose's does not, so forward kinematics folded back in its assembly "
+        "mode instead of following the motion (the pose would be wrong); keep the trajectory "
+        "away from the singularity (smaller radius or phi amplitude), or ask for more output "
+        "times (n_out) if it only passes near one"
+    )
 
 
 def first_failure(*checks):
