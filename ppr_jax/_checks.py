@@ -10,6 +10,8 @@ a trace it falls back to `eqx.error_if`.
 
 from __future__ import annotations
 
+from typing import Optional
+
 import diffrax
 import equinox as eqx
 import jax
@@ -156,12 +158,39 @@ def check_number(name: str, value, lo: float, hi: float, unit: str = "", *,
     except (TypeError, ValueError):
         raise PPRError(f"{name} must be {kind}, got {value!r} (allowed range {rng})") from None
     if not np.isfinite(v):
-        raise PPRError(f"{name} must be finite, got {value!r} (allowed range {rng})")
+        raise PPRError(f"{name} must be finite: {value!r} is not finite (allowed range {rng})")
     if integer and v != int(v):
         raise PPRError(f"{name} must be an integer, got {value!r} (allowed range {rng})")
     if v < lo or v > hi or (open_lo and v == lo):
         raise PPRError(f"{name} = {value!r} is out of its allowed range {rng}")
     return int(v) if integer else v
+
+
+def check_array(name: str, value, shape: Optional[tuple] = None):
+    """Validate an array argument before any computation: numbers, of `shape` (None: any; None
+    entries: any size), every entry finite. Returns it as a float64 array; raises `PPRError`
+    naming the argument ("is not finite" with the first bad entries, or the shape expected).
+    A traced value (under jit, vmap, grad) is checked for its shape only."""
+    try:
+        a = jnp.asarray(value, dtype=jnp.float64)
+    except (TypeError, ValueError):
+        text = repr(value)
+        text = text if len(text) <= 60 else text[:57] + "..."
+        raise PPRError(f"{name} must be an array of numbers, got {text}") from None
+    if shape is not None and (a.ndim != len(shape) or any(
+            want is not None and want != got for want, got in zip(shape, a.shape))):
+        want = "(" + ", ".join("n" if w is None else str(w) for w in shape) + \
+            ("," if len(shape) == 1 else "") + ")"
+        raise PPRError(f"{name} must have shape {want}, got {tuple(a.shape)}")
+    if not is_traced(a):
+        bad = ~np.isfinite(np.asarray(a))
+        if bad.any():
+            where = [tuple(int(i) for i in ix) for ix in np.argwhere(bad)[:5]]
+            where = [w[0] if len(w) == 1 else w for w in where]
+            more = ", ..." if bad.sum() > 5 else ""
+            at = f" at entries {', '.join(map(str, where))}{more}" if a.ndim else ""
+            raise PPRError(f"{name} is not finite (NaN or inf{at})")
+    return a
 
 
 def is_traced(tree) -> bool:

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from ._checks import PPRError, raise_if
+from ._checks import PPRError, check_array, raise_if
 from ._custom_types import Array, Float
 from ._linalg import SmallLU
 from ._geometry import home_pose, singularity_measure
@@ -96,7 +96,7 @@ def inverse_kinematics(
             f"inverse_kinematics is defined for models whose pose fixes every joint (rigid, "
             f"reduced), not {model.name!r}"
         )
-    X = jnp.asarray(X, dtype=jnp.float64)
+    X = check_array("X", X)
     if X.ndim == 2:  # a batch of poses: one vmapped call; errors name the failing members
         res = _ik_path_jit(model, robot, X)
         return check_pose(res, X)
@@ -147,12 +147,13 @@ def _fk(model, robot, th_a, X_guess, rtol, atol, max_steps):
 _fk_jit = eqx.filter_jit(_fk)
 
 
-def _fk_inputs(robot, th_a, X_guess, model):
-    """Defaults shared by the forward-kinematics wrappers: L1 model, home pose as the guess."""
+def _fk_inputs(robot, th_a, X_guess, model, names=("th_a", "X_guess")):
+    """Defaults shared by the forward-kinematics wrappers: L1 model, home pose as the guess;
+    the arrays checked finite (`check_array`)."""
     robot = as_robot(robot)
     model = Reduced() if model is None else model
-    th_a = jnp.asarray(th_a, dtype=jnp.float64)
-    X_guess = home_pose(robot) if X_guess is None else jnp.asarray(X_guess, dtype=jnp.float64)
+    th_a = check_array(names[0], th_a)
+    X_guess = home_pose(robot) if X_guess is None else check_array(names[1], X_guess, (3,))
     return robot, model, th_a, X_guess
 
 
@@ -266,7 +267,7 @@ def forward_kinematics_path(
     otherwise reveal (sample the path more finely if the jump is only too large a step); and no
     fold: angles that pass through a type-II singularity, where the solution turns back in its
     own assembly mode with det S's sign unchanged (`fold_flags`)."""
-    robot, model, th_a_path, X0 = _fk_inputs(robot, th_a_path, X0, model)
+    robot, model, th_a_path, X0 = _fk_inputs(robot, th_a_path, X0, model, ("th_a_path", "X0"))
     if th_a_path.ndim != 2 or th_a_path.shape[-1] != 3:
         raise PPRError(f"th_a_path must have shape (m, 3), got {th_a_path.shape}")
     Xs, codes = _fk_path_jit(model, robot, th_a_path, X0, rtol, atol, max_steps)

@@ -34,13 +34,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import RESULTS, PPRError, RepairWarning
+from ._checks import RESULTS, PPRError, RepairWarning, check_number
 from ._kinematics import REACH_TOL, SINGULAR_TOL, _ik
 from ._metrics import radial_error
 from ._models import Reduced, get_model
 from ._params import PARAM_RANGES, RobotParams, stack_params
 from ._robot import Robot
-from ._scenes import _CORES, DEFAULT_SOLVER, _chunked_vmap, input_panels_at, scene_params
+from ._scenes import (_CORES, DEFAULT_SOLVER, _chunked_vmap, check_scene_args, input_panels_at,
+                      scene_params)
 from ._simulate import get_solver
 from ._trajectory import Circle
 
@@ -444,15 +445,14 @@ def sweep(
     base = scene_params(scene) if base_params is None else base_params
     if np.ndim(base.a) != 0:
         raise PPRError("base_params must be one robot, not a batch")
-    chunk_size = int(chunk_size)
-    if chunk_size < 1:
-        raise PPRError(f"chunk_size must be >= 1, got {chunk_size}")
+    chunk_size = check_number("chunk_size", chunk_size, 1, 10**6, integer=True)
     devices = None if devices is None else list(devices)
     if devices is not None and chunk_size % len(devices):
         raise PPRError(f"chunk_size {chunk_size} must be divisible by the number of devices "
                        f"({len(devices)})")
-    if not (np.isfinite(t_end) and t_end > 0) or int(n_out) < 2:
-        raise PPRError("t_end must be finite and positive and n_out >= 2")
+    # The scenes' checks (argument named, its allowed range): a NaN rtol would run every member
+    # to max_steps, max_steps 0 fail every member inside diffrax.
+    check_scene_args(t_end, n_out, rtol, atol, max_steps)
     members = design_members(vary or {}, design, n, seed)
     names = list(members)
     N = len(members[names[0]])

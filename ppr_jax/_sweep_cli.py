@@ -200,6 +200,9 @@ def cmd_sensitivity(args):
     for m in metrics:
         if m not in SENSITIVITY_METRICS:
             raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
+    from ._scenes import check_scene_args
+
+    check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
     _log(f"sensitivity {args.scene} ({args.model}, {args.mode} mode): compiling and running ...")
     s = sensitivity(
         args.scene, params, mode=args.mode, model=model_from_args(args, args.model),
