@@ -151,7 +151,7 @@ def check_number(name: str, value, lo: float, hi: float, unit: str = "", *,
     `PPRError` naming the argument and the allowed range."""
     rng = f"{'(' if open_lo else '['}{lo:g}, {hi:g}] {unit}".rstrip()
     kind = "an integer" if integer else "a number"
-    if isinstance(value, bool):
+    if isinstance(value, (bool, str, bytes)):  # "0.5" would pass float() and reach JAX
         raise PPRError(f"{name} must be {kind}, got {value!r} (allowed range {rng})")
     try:
         v = float(value)

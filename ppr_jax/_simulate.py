@@ -218,12 +218,14 @@ def simulate(
         raise PPRError("ts must be strictly increasing")
     max_steps = check_number("max_steps", max_steps, 1, 10**9, integer=True)
     if stepsize_controller is None:
-        # The scenes' bounds (`_scenes.check_scene_args`): below 1e-14 the error control chases
-        # round-off; above 1e-2 the result is not worth a number.
+        # Finite, not negative, at most the scenes' 1e-2 (above it the result is not worth a
+        # number); tiny values stay allowed here (a pure relative or absolute control).
         if not _is_traced(rtol):
-            check_number("rtol", rtol, 1e-14, 1e-2)
+            rtol = check_number("rtol", rtol, 0.0, 1e-2)
         if not _is_traced(atol):
-            check_number("atol", atol, 1e-16, 1e-2)
+            atol = check_number("atol", atol, 0.0, 1e-2)
+        if not _is_traced((rtol, atol)) and rtol == 0 and atol == 0:
+            raise PPRError("rtol and atol are both 0: the step-size control needs one of them > 0")
         # Array tolerances: changing them does not recompile.
         stepsize_controller = diffrax.PIDController(
             rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64)

@@ -118,6 +118,7 @@ def _simulate_args():
 @pytest.mark.parametrize("kw,msg", [
     (dict(rtol=-1), r"rtol = -1 is out of its allowed range"),
     (dict(rtol=1), r"rtol = 1 is out of its allowed range"),
+    (dict(rtol=0.0, atol=0.0), r"rtol and atol are both 0"),
     (dict(rtol=math.nan), r"rtol must be finite: nan is not finite"),
     (dict(atol=math.inf), r"atol must be finite: inf is not finite"),
     (dict(max_steps=0), r"max_steps = 0 is out of its allowed range"),
@@ -179,6 +180,19 @@ def test_sweep_and_sensitivity_check_the_scene_arguments(kw, msg):
         pj.sensitivity("paper-circle", **kw)
 
 
+def test_strings_poses_and_noise_are_checked_at_the_door():
+    """Before: t_end "0.5" ended in a raw JAX TypeError; a two-number pose gave the home modes
+    (or blamed the load); a NaN noise wrote a file whose x and y were all NaN."""
+    with pytest.raises(pj.PPRError, match=r"t_end must be a number, got '0.5'"):
+        pj.paper_circle(t_end="0.5")
+    with pytest.raises(pj.PPRError, match=r"X must have shape \(3,\), got \(2,\)"):
+        pj.modes(pj.Double1R(), pj.RobotParams(), [0.45, 0.26], actuators="free")
+    with pytest.raises(pj.PPRError, match=r"X is not finite"):
+        pj.modes(pj.Double1R(), pj.RobotParams(), [0.45, math.nan, 0.0])
+    with pytest.raises(pj.DataError, match=r"noise_pos must be finite: nan is not finite"):
+        pj.synthesize(noise_pos=math.nan)
+
+
 # ---------------------------------------------------------------------------------------------
 # The command line: one line on stderr, exit status 2
 # ---------------------------------------------------------------------------------------------
@@ -203,6 +217,8 @@ BAD_CLI = [
     (["sweep", "--vary", "t=0.3e-3,0.4e-3", "--rtol", "1", "--out", "OUT"], "rtol"),
     (["sweep", "--vary", "t=0.3e-3,0.4e-3", "--max-steps", "0", "--out", "OUT"], "max_steps"),
     (["sensitivity", "--rtol", "1", "--out", "OUT"], "rtol"),
+    (["modes", "--pose", "0.45,0.26"], "X must have shape (3,)"),
+    (["synth", "--noise-pos", "nan", "--out", "OUT"], "noise_pos must be finite"),
 ]
 
 
