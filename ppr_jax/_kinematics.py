@@ -8,6 +8,7 @@ from typing import Optional
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 
 from ._checks import PPRError, check_array, raise_if
@@ -79,6 +80,15 @@ def check_pose(res: IKResult, X):
     return eqx.tree_at(lambda r: r.th, res, th)
 
 
+def _one_robot(robot: Robot, what: str) -> Robot:
+    """Refuse a batch of robots where one is expected (a raw broadcasting error otherwise)."""
+    n = np.shape(robot.params.a)
+    if n:
+        raise PPRError(f"{what} takes one robot, got a batch of {n[0]} (stacked RobotParams): "
+                       f"call it per member, or jax.vmap it over the parameters")
+    return robot
+
+
 def inverse_kinematics(
     robot: RobotLike, X: Float[Array, "3"], model: Optional[AbstractModel] = None
 ) -> IKResult:
@@ -89,7 +99,7 @@ def inverse_kinematics(
     when r1 = r3 (Newton otherwise); L0 is the rigid two-link closure. Raises `PPRError` for an
     unreachable pose or a singular configuration (under jit: an equinox runtime error).
     """
-    robot = as_robot(robot)
+    robot = _one_robot(as_robot(robot), "inverse_kinematics")
     model = Reduced() if model is None else model
     if model.actuated_index is not None:
         raise PPRError(
@@ -150,7 +160,7 @@ _fk_jit = eqx.filter_jit(_fk)
 def _fk_inputs(robot, th_a, X_guess, model, names=("th_a", "X_guess")):
     """Defaults shared by the forward-kinematics wrappers: L1 model, home pose as the guess;
     the arrays checked finite (`check_array`)."""
-    robot = as_robot(robot)
+    robot = _one_robot(as_robot(robot), "forward kinematics")
     model = Reduced() if model is None else model
     th_a = check_array(names[0], th_a)
     X_guess = home_pose(robot) if X_guess is None else check_array(names[1], X_guess, (3,))

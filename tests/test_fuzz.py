@@ -157,6 +157,11 @@ def test_kinematics_of_nan_inputs_are_named():
         pj.forward_kinematics_path(p, [[0.1, 0.1, 0.2], [0.1, math.nan, 0.2]])
     with pytest.raises(pj.PPRError, match=r"X must be an array of numbers"):
         pj.inverse_kinematics(p, "0.45, 0.26, 0")
+    batch = pj.stack_params([p, pj.RobotParams(t=0.4e-3)])
+    with pytest.raises(pj.PPRError, match=r"inverse_kinematics takes one robot, got a batch of 2"):
+        pj.inverse_kinematics(batch, [0.45, 0.26, 0.0])
+    with pytest.raises(pj.PPRError, match=r"forward kinematics takes one robot"):
+        pj.forward_kinematics(batch, [0.1, 0.1, 0.2])
 
 
 @pytest.mark.parametrize("n", [0, 1, 2.5, 10_000, "eight"])
