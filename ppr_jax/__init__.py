@@ -41,6 +41,7 @@ from ._models.beam import (  # noqa: E402
 from ._checks import (  # noqa: E402
     PPRError as PPRError,
     RESULTS as RESULTS,
+    RepairWarning as RepairWarning,
     SimulationError as SimulationError,
 )
 from ._geometry import home_pose as home_pose  # noqa: E402

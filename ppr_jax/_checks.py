@@ -10,6 +10,8 @@ a trace it falls back to `eqx.error_if`.
 
 from __future__ import annotations
 
+from typing import Optional
+
 import diffrax
 import equinox as eqx
 import jax
@@ -29,6 +31,14 @@ class SimulationError(PPRError, RuntimeError):
     the failed ones included (their `result` codes say why), so a batch loses nothing."""
 
     result = None
+
+
+class RepairWarning(UserWarning):
+    """A stored file this library wrote (an exported scene program, a persistent-cache entry, a
+    sweep's chunk) failed its check (checksum, deserialisation, compilation, or settings digest):
+    it was deleted and its content computed afresh. The run's results are not affected; the
+    warning names the file once. A recurring warning points at a failing disk or at two
+    versions of the library sharing one cache directory."""
 
 
 #: loop-closure residual (m) above which a chain counts as open at an output time
@@ -65,6 +75,14 @@ class RESULTS(diffrax.RESULTS):
     kinematics_failed = (
         "forward kinematics did not converge along the prescribed path: the actuated angles "
         "leave the workspace or cross a singularity"
+    )
+    singular_path = (
+        "the prescribed motion passes through (or within one output step of) a type-II "
+        "singularity: det S (S = d th_a/dX) extrapolated from the output times before changes "
+        "sign and the solved pose's does not, so forward kinematics folded back in its assembly "
+        "mode instead of following the motion (the pose would be wrong); keep the trajectory "
+        "away from the singularity (smaller radius or phi amplitude), or ask for more output "
+        "times (n_out) if it only passes near one"
     )
 
 
@@ -133,19 +151,46 @@ def check_number(name: str, value, lo: float, hi: float, unit: str = "", *,
     `PPRError` naming the argument and the allowed range."""
     rng = f"{'(' if open_lo else '['}{lo:g}, {hi:g}] {unit}".rstrip()
     kind = "an integer" if integer else "a number"
-    if isinstance(value, bool):
+    if isinstance(value, (bool, str, bytes)):  # "0.5" would pass float() and reach JAX
         raise PPRError(f"{name} must be {kind}, got {value!r} (allowed range {rng})")
     try:
         v = float(value)
     except (TypeError, ValueError):
         raise PPRError(f"{name} must be {kind}, got {value!r} (allowed range {rng})") from None
     if not np.isfinite(v):
-        raise PPRError(f"{name} must be finite, got {value!r} (allowed range {rng})")
+        raise PPRError(f"{name} must be finite: {value!r} is not finite (allowed range {rng})")
     if integer and v != int(v):
         raise PPRError(f"{name} must be an integer, got {value!r} (allowed range {rng})")
     if v < lo or v > hi or (open_lo and v == lo):
         raise PPRError(f"{name} = {value!r} is out of its allowed range {rng}")
     return int(v) if integer else v
+
+
+def check_array(name: str, value, shape: Optional[tuple] = None):
+    """Validate an array argument before any computation: numbers, of `shape` (None: any; None
+    entries: any size), every entry finite. Returns it as a float64 array; raises `PPRError`
+    naming the argument ("is not finite" with the first bad entries, or the shape expected).
+    A traced value (under jit, vmap, grad) is checked for its shape only."""
+    try:
+        a = jnp.asarray(value, dtype=jnp.float64)
+    except (TypeError, ValueError):
+        text = repr(value)
+        text = text if len(text) <= 60 else text[:57] + "..."
+        raise PPRError(f"{name} must be an array of numbers, got {text}") from None
+    if shape is not None and (a.ndim != len(shape) or any(
+            want is not None and want != got for want, got in zip(shape, a.shape))):
+        want = "(" + ", ".join("n" if w is None else str(w) for w in shape) + \
+            ("," if len(shape) == 1 else "") + ")"
+        raise PPRError(f"{name} must have shape {want}, got {tuple(a.shape)}")
+    if not is_traced(a):
+        bad = ~np.isfinite(np.asarray(a))
+        if bad.any():
+            where = [tuple(int(i) for i in ix) for ix in np.argwhere(bad)[:5]]
+            where = [w[0] if len(w) == 1 else w for w in where]
+            more = ", ..." if bad.sum() > 5 else ""
+            at = f" at entries {', '.join(map(str, where))}{more}" if a.ndim else ""
+            raise PPRError(f"{name} is not finite (NaN or inf{at})")
+    return a
 
 
 def is_traced(tree) -> bool:

@@ -13,6 +13,12 @@ Units are SI (s, m, rad, N m) unless declared, in this order of precedence:
 A declared unit that contradicts the caller's raises, rather than picking one silently.
 Lines starting with ``#`` are comments; blank lines are skipped. ``t`` is accepted for ``time``.
 
+Encodings: UTF-8 (with or without a byte-order mark), UTF-16 and UTF-32 with a byte-order mark
+(what Windows tools write as "Unicode"); comment lines may also hold Latin-1 (cp1252) bytes, such
+as a degree sign. Anything else (a binary file, UTF-16 without a byte-order mark, non-UTF-8
+bytes outside comments) is refused. Files larger than `MAX_FILE_BYTES` (512 MiB) are refused
+before reading, lines longer than `MAX_LINE_CHARS` when met; memory stays bounded by a line.
+
 Everything the loader rejects raises `DataError` (a `PPRError`, hence a `ValueError`) naming the
 file, the column or the (1-based, as an editor shows them) line numbers.
 """
@@ -51,6 +57,13 @@ ALIASES = {"t": "time"}
 WORKSPACE_SCALE = 0.9
 #: fewest samples an experiment may have
 MIN_SAMPLES = 5
+#: largest tracker file read (bytes): 512 MiB, some 5 million rows of ten columns
+MAX_FILE_BYTES = 512 * 2**20
+#: longest line read (characters): a row of ten numbers is under 300
+MAX_LINE_CHARS = 100_000
+#: byte-order marks and the encodings they announce, longest first
+_BOMS = ((b"\xff\xfe\x00\x00", "utf-32"), (b"\x00\x00\xfe\xff", "utf-32"),
+         (b"\xef\xbb\xbf", "utf-8-sig"), (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16"))
 
 
 class DataError(PPRError):
@@ -162,6 +175,51 @@ def _unit_factor(source, kind, unit, where):
     return UNITS[kind][u]
 
 
+def _lines(path: str, source: str):
+    """(line number, text) of the file's lines, decoded (module docstring), with the size and
+    line-length limits; raises `DataError` naming the file, the line and the encoding tried."""
+    size = os.path.getsize(path)
+    if size > MAX_FILE_BYTES:
+        raise DataError(f"{source}: {size / 2**20:.0f} MiB, above the limit of "
+                        f"{MAX_FILE_BYTES / 2**20:.0f} MiB for a tracker file "
+                        f"(ppr_jax._data.MAX_FILE_BYTES); split it into several experiments")
+    with open(path, "rb") as f:
+        head = f.read(4)
+    encoding = next((enc for bom, enc in _BOMS if head.startswith(bom)), "utf-8")
+    shown = {"utf-8-sig": "UTF-8", "utf-8": "UTF-8", "utf-16": "UTF-16", "utf-32": "UTF-32"}
+    tried = shown[encoding] + (" (byte-order mark)" if encoding != "utf-8" else
+                               ", or Latin-1 in comment lines")
+    # Without a byte-order mark: UTF-8, its undecodable bytes kept as surrogates to be decoded
+    # as Latin-1 in comment lines and refused elsewhere.
+    errors = "surrogateescape" if encoding == "utf-8" else "strict"
+    lineno = 0
+    try:
+        with open(path, encoding=encoding, errors=errors, newline="") as f:
+            while True:
+                line = f.readline(MAX_LINE_CHARS + 1)
+                if not line:
+                    return
+                lineno += 1
+                if len(line) > MAX_LINE_CHARS:
+                    raise DataError(f"{source}: line {lineno} is longer than {MAX_LINE_CHARS} "
+                                    f"characters (ppr_jax._data.MAX_LINE_CHARS): not a tracker "
+                                    f"table (a binary file, or one without line breaks?)")
+                if "\x00" in line:
+                    raise DataError(f"{source}: line {lineno} holds NUL characters: a binary "
+                                    f"file or UTF-16 without a byte-order mark, not {tried} "
+                                    f"text; save it as UTF-8")
+                if errors == "surrogateescape" and any("\udc80" <= ch <= "\udcff" for ch in line):
+                    if not line.lstrip().startswith("#"):
+                        raise DataError(f"{source}: line {lineno} is not {tried} text (bytes "
+                                        f"that UTF-8 cannot decode outside a comment line); "
+                                        f"save it as UTF-8")
+                    line = line.encode("utf-8", "surrogateescape").decode("cp1252", "replace")
+                yield lineno, line
+    except UnicodeDecodeError as err:
+        raise DataError(f"{source}: after line {lineno}, bytes that {tried} cannot decode "
+                        f"({err.reason}); save it as UTF-8") from None
+
+
 def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optional[str] = None,
              angle_unit: Optional[str] = None, torque_unit: Optional[str] = None,
              drop_nan: bool = False, min_samples: int = MIN_SAMPLES,
@@ -188,34 +246,36 @@ def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optiona
     rows: list[tuple[int, list[str]]] = []
     header: Optional[list[str]] = None
     header_line = 0
-    with open(path, newline="") as f:
-        for lineno, line in enumerate(f, start=1):
-            s = line.strip()
-            if not s:
-                continue
-            if s.startswith("#"):
-                m = _HEADER_UNITS.match(s)
-                if m:
-                    for item in m.group(1).split(","):
-                        if not item.strip():
-                            continue
-                        if "=" not in item:
-                            raise DataError(f"{source}: line {lineno}: units header expects "
-                                            f"kind=unit items (kinds: {', '.join(UNITS)}), got "
-                                            f"{item.strip()!r}")
-                        k, u = (v.strip() for v in item.split("=", 1))
-                        k = k.lower()
-                        if k not in UNITS:
-                            raise DataError(f"{source}: line {lineno}: unknown kind {k!r} in the "
-                                            f"units header; allowed: {', '.join(UNITS)}")
-                        _unit_factor(source, k, u, f"line {lineno}")
-                        header_units[k] = u
-                continue
+    for lineno, line in _lines(path, source):
+        s = line.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            m = _HEADER_UNITS.match(s)
+            if m:
+                for item in m.group(1).split(","):
+                    if not item.strip():
+                        continue
+                    if "=" not in item:
+                        raise DataError(f"{source}: line {lineno}: units header expects "
+                                        f"kind=unit items (kinds: {', '.join(UNITS)}), got "
+                                        f"{item.strip()!r}")
+                    k, u = (v.strip() for v in item.split("=", 1))
+                    k = k.lower()
+                    if k not in UNITS:
+                        raise DataError(f"{source}: line {lineno}: unknown kind {k!r} in the "
+                                        f"units header; allowed: {', '.join(UNITS)}")
+                    _unit_factor(source, k, u, f"line {lineno}")
+                    header_units[k] = u
+            continue
+        try:
             cells = next(csv.reader([line]))
-            if header is None:
-                header, header_line = cells, lineno
-            else:
-                rows.append((lineno, cells))
+        except csv.Error as err:
+            raise DataError(f"{source}: line {lineno}: cannot read it as CSV ({err})") from None
+        if header is None:
+            header, header_line = cells, lineno
+        else:
+            rows.append((lineno, cells))
     if header is None:
         raise DataError(f"{source}: no header row (expected columns {', '.join(REQUIRED)})")
     cols: list[str] = []

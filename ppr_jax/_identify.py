@@ -1048,6 +1048,18 @@ def _actuated_angles(model, robot, z):
     return jax.vmap(lambda z: model.kinematics(robot, z).th_a)(z)
 
 
+def check_synth_args(noise_pos, noise_phi, rate, t_end) -> None:
+    """`synthesize`'s numbers, checked before anything is compiled (`DataError` naming them)."""
+    for what, v in (("noise_pos", noise_pos), ("noise_phi", noise_phi), ("rate", rate),
+                    ("t_end", t_end)):
+        if not math.isfinite(v):  # a NaN noise wrote a file of NaN poses
+            raise DataError(f"{what} must be finite: {v!r} is not finite")
+    if not (rate > 0 and t_end > 0):
+        raise DataError(f"rate and t_end must be > 0, got rate={rate}, t_end={t_end}")
+    if noise_pos < 0 or noise_phi < 0:
+        raise DataError(f"noise must be >= 0, got noise_pos={noise_pos}, noise_phi={noise_phi}")
+
+
 def synthesize(
     scene: str = "servo-circle",
     model="double1r",
@@ -1072,10 +1084,7 @@ def synthesize(
 
     if scene not in ID_SCENES:
         raise DataError(f"unknown scene {scene!r}; allowed: {', '.join(ID_SCENES)}")
-    if not (rate > 0 and t_end > 0):
-        raise DataError(f"rate and t_end must be > 0, got rate={rate}, t_end={t_end}")
-    if noise_pos < 0 or noise_phi < 0:
-        raise DataError(f"noise must be >= 0, got noise_pos={noise_pos}, noise_phi={noise_phi}")
+    check_synth_args(noise_pos, noise_phi, rate, t_end)
     n = int(math.floor(t_end * rate + 1e-9)) + 1
     if n < 2:
         raise DataError(f"t_end = {t_end} s at {rate} Hz gives fewer than 2 samples")

@@ -114,11 +114,12 @@ def _write_fitted(path, fit):
 
 def cmd_synth(args):
     from ._data import write_csv
-    from ._identify import synthesize
+    from ._identify import check_synth_args, synthesize
     from ._cli import model_from_args
     from ._scenes import scene_params
 
     params = scene_params(args.scene, **_name_values(args.set, "--set"))
+    check_synth_args(args.noise_pos, args.noise_phi, args.rate, args.t_end)
     _log(f"synth: {args.scene} with {args.model}, {args.t_end} s at {args.rate} Hz (compiling, "
          f"then running) ...")
     exp = synthesize(args.scene, model_from_args(args, args.model), params,

@@ -8,9 +8,10 @@ from typing import Optional
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 
-from ._checks import PPRError, raise_if
+from ._checks import PPRError, check_array, raise_if
 from ._custom_types import Array, Float
 from ._linalg import SmallLU
 from ._geometry import home_pose, singularity_measure
@@ -79,6 +80,15 @@ def check_pose(res: IKResult, X):
     return eqx.tree_at(lambda r: r.th, res, th)
 
 
+def _one_robot(robot: Robot, what: str) -> Robot:
+    """Refuse a batch of robots where one is expected (a raw broadcasting error otherwise)."""
+    n = np.shape(robot.params.a)
+    if n:
+        raise PPRError(f"{what} takes one robot, got a batch of {n[0]} (stacked RobotParams): "
+                       f"call it per member, or jax.vmap it over the parameters")
+    return robot
+
+
 def inverse_kinematics(
     robot: RobotLike, X: Float[Array, "3"], model: Optional[AbstractModel] = None
 ) -> IKResult:
@@ -89,14 +99,14 @@ def inverse_kinematics(
     when r1 = r3 (Newton otherwise); L0 is the rigid two-link closure. Raises `PPRError` for an
     unreachable pose or a singular configuration (under jit: an equinox runtime error).
     """
-    robot = as_robot(robot)
+    robot = _one_robot(as_robot(robot), "inverse_kinematics")
     model = Reduced() if model is None else model
     if model.actuated_index is not None:
         raise PPRError(
             f"inverse_kinematics is defined for models whose pose fixes every joint (rigid, "
             f"reduced), not {model.name!r}"
         )
-    X = jnp.asarray(X, dtype=jnp.float64)
+    X = check_array("X", X)
     if X.ndim == 2:  # a batch of poses: one vmapped call; errors name the failing members
         res = _ik_path_jit(model, robot, X)
         return check_pose(res, X)
@@ -147,12 +157,13 @@ def _fk(model, robot, th_a, X_guess, rtol, atol, max_steps):
 _fk_jit = eqx.filter_jit(_fk)
 
 
-def _fk_inputs(robot, th_a, X_guess, model):
-    """Defaults shared by the forward-kinematics wrappers: L1 model, home pose as the guess."""
-    robot = as_robot(robot)
+def _fk_inputs(robot, th_a, X_guess, model, names=("th_a", "X_guess")):
+    """Defaults shared by the forward-kinematics wrappers: L1 model, home pose as the guess;
+    the arrays checked finite (`check_array`)."""
+    robot = _one_robot(as_robot(robot), "forward kinematics")
     model = Reduced() if model is None else model
-    th_a = jnp.asarray(th_a, dtype=jnp.float64)
-    X_guess = home_pose(robot) if X_guess is None else jnp.asarray(X_guess, dtype=jnp.float64)
+    th_a = check_array(names[0], th_a)
+    X_guess = home_pose(robot) if X_guess is None else check_array(names[1], X_guess, (3,))
     return robot, model, th_a, X_guess
 
 
@@ -183,6 +194,57 @@ def forward_kinematics(
     return X
 
 
+#: why a path is refused by `fold_flags`
+FOLD_MESSAGE = (
+    "the path passes through (or within one sample of) a type-II singularity: det S, "
+    "extrapolated from the samples before, changes sign and the solution's does not, so "
+    "forward kinematics folded back onto its own assembly mode instead of following the "
+    "motion (a wrong pose, not a result); keep the motion away from the singularity, or sample "
+    "it more finely if it only passes near one"
+)
+
+
+def det3(S):
+    """det of 3x3 matrices (..., 3, 3) by cofactors (no second LAPACK call beside the SVD; see
+    README, Batches)."""
+    return (S[..., 0, 0] * (S[..., 1, 1] * S[..., 2, 2] - S[..., 1, 2] * S[..., 2, 1])
+            - S[..., 0, 1] * (S[..., 1, 0] * S[..., 2, 2] - S[..., 1, 2] * S[..., 2, 0])
+            + S[..., 0, 2] * (S[..., 1, 0] * S[..., 2, 1] - S[..., 1, 1] * S[..., 2, 0]))
+
+
+def fold_flags(det, ts=None):
+    """(m,) bool: the samples of a path just past a fold (the first one past it, and possibly
+    the next), from det S at the path's solved poses (`det3`) and the sample times `ts`
+    (default: equally spaced).
+
+    Along a motion through a type-II singularity det S changes sign, about linearly. A warm-
+    started forward kinematics cannot follow it: the angles past the singularity have a
+    solution in the same assembly mode as well (the mirror pose), Newton finds that one, and the
+    returned pose turns back while |det S| turns up again, its sign unchanged: every check of
+    the solved poses (convergence, reach, conditioning, sign of det S) passes. The fold shows in
+    det S itself: extrapolated linearly from the two samples on one side of the interval, it
+    changes sign across the interval, and the solved sample on the other side has not. A
+    regular motion trips this only where det S changes by more than its own size in one
+    sample, that is within about one sample of a singularity, where which pose follows is
+    undecidable from the samples anyway. Traceable."""
+    m = det.shape[0]
+    if m < 3:
+        return jnp.zeros(m, bool)
+    ts = jnp.arange(m, dtype=det.dtype) if ts is None else jnp.asarray(ts, det.dtype)
+    dt = jnp.diff(ts)
+    sign = jnp.sign(det)
+    mid = det[1:-1]
+    # Forward: from samples k-2, k-1 onto k (k = 2 .. m-1).
+    ahead = mid + (mid - det[:-2]) / dt[:-1] * dt[1:]
+    fwd = (jnp.sign(ahead) != sign[1:-1]) & (sign[2:] == sign[1:-1])
+    # Backward: from samples k+1, k onto k-1 (k = 1 .. m-2).
+    behind = mid - (det[2:] - mid) / dt[1:] * dt[:-1]
+    bwd = (jnp.sign(behind) != sign[1:-1]) & (sign[:-2] == sign[1:-1])
+    flags = jnp.zeros(m, bool)
+    flags = flags.at[2:].set(fwd)
+    return flags.at[1:-1].set(flags[1:-1] | bwd)
+
+
 def _fk_path(model, robot, th_a_path, X0, rtol, atol, max_steps):
     def step(X, th_a):
         Xn, res = _fk(model, robot, th_a, X, rtol, atol, max_steps)
@@ -209,11 +271,13 @@ def forward_kinematics_path(
     from the previous pose (one `lax.scan`, compiled once per shape).
 
     Checked sample by sample (a `PPRError` names the samples): Newton converged; every chain
-    closes (reach margin); no singular configuration; and no silent change of assembly mode
+    closes (reach margin); no singular configuration; no silent change of assembly mode
     between consecutive samples: the sign of det S (S = d th_a/dX) flips exactly when the path
     crosses a singularity or Newton jumped to another branch, which a warm start does not
-    otherwise reveal (sample the path more finely if the jump is only too large a step)."""
-    robot, model, th_a_path, X0 = _fk_inputs(robot, th_a_path, X0, model)
+    otherwise reveal (sample the path more finely if the jump is only too large a step); and no
+    fold: angles that pass through a type-II singularity, where the solution turns back in its
+    own assembly mode with det S's sign unchanged (`fold_flags`)."""
+    robot, model, th_a_path, X0 = _fk_inputs(robot, th_a_path, X0, model, ("th_a_path", "X0"))
     if th_a_path.ndim != 2 or th_a_path.shape[-1] != 3:
         raise PPRError(f"th_a_path must have shape (m, 3), got {th_a_path.shape}")
     Xs, codes = _fk_path_jit(model, robot, th_a_path, X0, rtol, atol, max_steps)
@@ -228,16 +292,14 @@ def forward_kinematics_path(
     Xs = raise_if(Xs, res.singularity < SINGULAR_TOL,
                   f"singular configuration along the path (inverse condition number of S < "
                   f"{SINGULAR_TOL:g})", what="samples")
-    S = res.S  # det by cofactors: no second LAPACK call beside the SVD (see README, Batches)
-    det = (S[:, 0, 0] * (S[:, 1, 1] * S[:, 2, 2] - S[:, 1, 2] * S[:, 2, 1])
-           - S[:, 0, 1] * (S[:, 1, 0] * S[:, 2, 2] - S[:, 1, 2] * S[:, 2, 0])
-           + S[:, 0, 2] * (S[:, 1, 0] * S[:, 2, 1] - S[:, 1, 1] * S[:, 2, 0]))
+    det = det3(res.S)
     sign = jnp.sign(det)
     flips = jnp.concatenate([jnp.zeros(1, bool), sign[1:] != sign[:-1]])
     Xs = raise_if(Xs, flips,
                   "the path changes assembly mode between consecutive samples (det S changes "
                   "sign: a singularity is crossed, or Newton jumped to another branch)",
                   what="samples")
+    Xs = raise_if(Xs, fold_flags(det), FOLD_MESSAGE, what="samples")
     return Xs
 
 

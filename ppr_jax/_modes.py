@@ -13,7 +13,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._checks import PPRError, raise_if
+from ._checks import PPRError, check_array, raise_if
 from ._custom_types import Array
 from ._dynamics import eom_terms, generalized_force
 from ._geometry import home_pose
@@ -54,8 +54,8 @@ def modes(
     """
     if actuators not in ("locked", "free"):
         raise PPRError(f"actuators must be 'locked' or 'free', got {actuators!r}")
-    X = home_pose(robot) if X is None else jnp.asarray(X, dtype=jnp.float64)
-    w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
+    X = home_pose(robot) if X is None else check_array("X", X, (3,))
+    w = jnp.zeros(3) if wrench is None else check_array("wrench", wrench, (3,))
     res, failed = _modes_jit(model, as_robot(robot), X, actuators, w)
     # The check outside the compiled program: a status, not a host callback inside it.
     return raise_if(

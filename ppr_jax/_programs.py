@@ -8,10 +8,15 @@ input and output shapes), so a later process deserialises it and compiles it, an
 cache answers that compilation. A program is stored under a key of everything the trace
 depended on that is not an input array: the static part of the scene's arguments (model, solver,
 structural choices such as `equal_links`), the shapes and dtypes of the inputs, the backend, the
-versions of JAX, jaxlib, diffrax and equinox, and a hash of this package's source and data
-files, so that editing the library or upgrading a dependency exports afresh instead of loading a
-stale program. The numbers (parameters, tolerances, t_end) are inputs: changing them reuses the
-program.
+versions of ppr_jax and its numerical dependencies (`DEPENDENCIES`: jax, jaxlib, diffrax,
+equinox, optimistix, lineax), and a hash of this package's source and data files, so that
+editing the library or upgrading a dependency exports afresh instead of loading a stale program.
+The numbers (parameters, tolerances, t_end) are inputs: changing them reuses the program.
+
+Each stored file starts with a header holding the sha256 of the serialised program. A file
+whose header or checksum does not match, that does not deserialise, or whose program does not
+compile is named once in a `RepairWarning`, deleted and exported afresh: a damaged store repairs
+itself and never breaks a run.
 
 A program must hold no host callbacks, which `jax.export` cannot store. The scene programs
 report failures as status codes; diffrax adds `eqx.error_if` checks of the output times (which
@@ -32,13 +37,20 @@ import pathlib
 import re
 import tempfile
 import types
+import warnings
 from typing import Callable, Optional
 
 import equinox as eqx
 import jax
 
+from ._checks import RepairWarning
+
 #: bump when the stored layout changes
-FORMAT = 1
+FORMAT = 2
+#: the first bytes of a stored program; then the sha256 of the rest (64 hex digits) and a newline
+MAGIC = b"ppr_jax program 2\n"
+#: the distributions whose versions key the stored programs and the sweeps' settings digests
+DEPENDENCIES = ("ppr_jax", "jax", "jaxlib", "diffrax", "equinox", "optimistix", "lineax")
 #: the programs' subdirectory of the compilation cache directory (where the command line keeps
 #: them)
 PROGRAM_SUBDIR = "ppr_jax_programs"
@@ -55,9 +67,11 @@ def _source_hash() -> str:
     return h.hexdigest()
 
 
+@functools.lru_cache(maxsize=None)
 def _versions() -> str:
+    """"name=version,..." of `DEPENDENCIES` ("?" for one not installed as a distribution)."""
     out = []
-    for name in ("jax", "jaxlib", "diffrax", "equinox"):
+    for name in DEPENDENCIES:
         try:
             out.append(f"{name}={importlib.metadata.version(name)}")
         except importlib.metadata.PackageNotFoundError:
@@ -142,34 +156,77 @@ def _export(fn: Callable, args: tuple, out_template):
     return exported
 
 
+class _Damaged(Exception):
+    """A stored program that failed a check (the message says which)."""
+
+
+def _pack(payload: bytes) -> bytes:
+    return MAGIC + hashlib.sha256(payload).hexdigest().encode() + b"\n" + bytes(payload)
+
+
+def _unpack(data: bytes) -> bytes:
+    """The serialised program of a stored file, after its header and checksum are checked."""
+    n = len(MAGIC)
+    if data[:n] != MAGIC or data[n + 64:n + 65] != b"\n":
+        raise _Damaged("no ppr_jax program header")
+    payload = data[n + 65:]
+    if hashlib.sha256(payload).hexdigest().encode() != data[n:n + 64]:
+        raise _Damaged("checksum mismatch")
+    return payload
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {text[0] if text else ''}".rstrip(": ")
+
+
+def _load(path: str, n_in: int, n_out: int, leaves):
+    """The stored program at `path`, compiled for `leaves`; raises `_Damaged` naming what
+    failed."""
+    with open(path, "rb") as f:
+        payload = _unpack(f.read())
+    try:
+        exported = jax.export.deserialize(bytearray(payload))
+    except Exception as err:
+        raise _Damaged(f"does not deserialise ({_first_line(err)})") from err
+    if len(exported.in_avals) != n_in or len(exported.out_avals) != n_out:
+        raise _Damaged("its inputs or outputs do not match this call")
+    try:
+        return jax.jit(exported.call).lower(*leaves).compile()
+    except Exception as err:
+        raise _Damaged(f"does not compile ({_first_line(err)})") from err
+
+
 def load_or_export(fn: Callable, args: tuple, out_template, directory: str, label: str):
     """A compiled callable `run(*args)` equivalent to `fn(*args)` (whose result has the tree
     structure of `out_template`), from the program stored in `directory` under `program_key`,
     exported and stored there first if absent. Returns (run, how): how is "loaded" or
-    "exported". Raises `NotExportable` where the program cannot be stored (the caller compiles
-    `fn` as usual)."""
+    "exported". A stored file that fails a check (module docstring) is deleted and exported
+    afresh, with one `RepairWarning` naming it. Raises `NotExportable` where the program cannot
+    be stored (the caller compiles `fn` as usual)."""
     key = program_key(args, label)
     path = os.path.join(directory, f"{label}-{key}.jaxexport")
-    exported, how = None, "loaded"
+    out_def = jax.tree_util.tree_structure(out_template)
+    leaves = jax.tree_util.tree_leaves(eqx.filter(args, eqx.is_array))
+    compiled, how = None, "loaded"
     if os.path.exists(path):
         try:
-            with open(path, "rb") as f:
-                exported = jax.export.deserialize(bytearray(f.read()))
-        except Exception:  # a truncated or foreign file: export afresh over it
-            exported = None
-    if exported is None:
+            compiled = _load(path, len(leaves), out_def.num_leaves, leaves)
+        except _Damaged as err:
+            warnings.warn(f"stored program {path} is damaged ({err}): deleted and exported "
+                          f"afresh", RepairWarning, stacklevel=3)
+            with contextlib.suppress(FileNotFoundError):  # a concurrent process removed it
+                os.remove(path)
+    if compiled is None:
         exported, how = _export(fn, args, out_template), "exported"
         os.makedirs(directory, exist_ok=True)
         # Atomic: a concurrent process sees the whole file or none.
         with tempfile.NamedTemporaryFile(dir=directory, delete=False, suffix=".tmp") as f:
-            f.write(exported.serialize())
+            f.write(_pack(exported.serialize()))
         os.replace(f.name, path)
-    out_def = jax.tree_util.tree_structure(out_template)
-    dyn = eqx.filter(args, eqx.is_array)
-    leaves = jax.tree_util.tree_leaves(dyn)
-    if len(exported.in_avals) != len(leaves) or len(exported.out_avals) != out_def.num_leaves:
-        raise NotExportable(f"stored program {path} does not match this call")
-    compiled = jax.jit(exported.call).lower(*leaves).compile()
+        if len(exported.in_avals) != len(leaves) or len(exported.out_avals) != out_def.num_leaves:
+            raise NotExportable(f"exported program {path} does not match this call")
+        compiled = jax.jit(exported.call).lower(*leaves).compile()
 
     def run(*call_args):
         lv = jax.tree_util.tree_leaves(eqx.filter(call_args, eqx.is_array))

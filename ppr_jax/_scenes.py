@@ -24,7 +24,7 @@ from ._checks import (
 )
 from ._custom_types import Array
 from ._dynamics import inverse_dynamics
-from ._kinematics import _fk
+from ._kinematics import _fk, det3, fold_flags
 from ._linalg import solve
 from ._metrics import outputs
 from ._models import Reduced, get_model
@@ -187,21 +187,23 @@ def _kinematic_motion(model, robot, angles, X0, ts):
         conv = jax.jvp(lambda X: jax.jvp(tha_of_X, (X,), (Xd,))[1], (X,), (Xd,))[1]
         Xdd = solve(S, thdd - conv)
         tau, _ = inverse_dynamics(model, robot, X, Xd, Xdd)
-        return X, (X, Xd, tau, res._value)
+        return X, (X, Xd, tau, res._value, det3(S))
 
-    _, (X, Xd, tau, codes) = jax.lax.scan(step, X0, ts)
-    return X, Xd, tau, codes
+    _, (X, Xd, tau, codes, det) = jax.lax.scan(step, X0, ts)
+    # A motion through a type-II singularity: the warm start folds back in its assembly mode
+    # and every solve converges; det S along the solved poses shows it (`fold_flags`).
+    return X, Xd, tau, codes, fold_flags(det, ts)
 
 
 def _servo_circle_core(model, robot, traj, ts, solver, controller, max_steps, adjoint, panels):
     angles = InverseKinematicsAngles(Reduced(), robot, traj)
     if model.actuated_index is None:
         ref_open = _reference_open(Reduced(), robot, traj, ts)
-        X, Xd, tau, codes = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
+        X, Xd, tau, codes, folds = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
         # A status code, not a callback: forward kinematics failing along the path is reported
         # like a solver failure (and the compiled program stays free of host callbacks).
-        result = RESULTS.where(jnp.any(codes != 0), RESULTS.kinematics_failed,
-                               RESULTS.successful)
+        result = first_failure((jnp.any(folds), RESULTS.singular_path),
+                               (jnp.any(codes != 0), RESULTS.kinematics_failed))
         zero = jnp.asarray(0)
         sol = Solution(
             ts=ts, z=X, zdot=Xd, tau=tau, result=result, num_steps=zero, num_accepted=zero,

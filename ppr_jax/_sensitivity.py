@@ -44,7 +44,7 @@ from ._models import get_model
 from ._params import RobotParams
 from ._prb import derived
 from ._robot import Robot
-from ._scenes import DEFAULT_SOLVER, scene_params
+from ._scenes import DEFAULT_SOLVER, check_scene_args, scene_params
 from ._simulate import get_solver
 from ._statics import _assemble, static_equilibrium
 from ._sweep import FLOAT_PARAMS, _plain, follows_its_input, run_member, traced_metrics
@@ -225,6 +225,7 @@ def sensitivity(scene: str = "paper-circle", params: Optional[RobotParams] = Non
     with a `PPRError`: it is the integrator's error. Returns `Sensitivity`."""
     if mode not in ("fwd", "rev"):
         raise PPRError(f"mode must be 'fwd' or 'rev', got {mode!r}")
+    check_scene_args(t_end, n_out, rtol, atol, max_steps)
     f, x0, names = metric_function(
         scene, params, model=model, torque_model=torque_model, frequency_model=frequency_model,
         parameters=parameters, t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,

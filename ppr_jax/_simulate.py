@@ -19,7 +19,7 @@ import numpy as np
 import optimistix as optx
 
 from ._actuation import AbstractActuation
-from ._checks import PPRError, RESULTS, check_result, first_failure
+from ._checks import PPRError, RESULTS, check_array, check_number, check_result, first_failure
 from ._custom_types import Array, Float
 from ._dynamics import eom_terms, generalized_force
 from ._linalg import solve_spd
@@ -340,9 +340,9 @@ def simulate(
     `diffrax.ForwardMode()` for `jax.jvp` / `jax.jacfwd`.
     """
     robot = as_robot(robot)
-    ts = jnp.asarray(ts, dtype=jnp.float64)
-    z0 = jnp.asarray(z0, dtype=jnp.float64)
-    zdot0 = jnp.asarray(zdot0, dtype=jnp.float64)
+    ts = check_array("ts", ts)
+    z0 = check_array("z0", z0)
+    zdot0 = check_array("zdot0", zdot0)
     if z0.shape != (model.n_dof,) or zdot0.shape != (model.n_dof,):
         raise PPRError(
             f"z0 and zdot0 must have shape ({model.n_dof},) for model {model.name!r}; got "
@@ -352,10 +352,19 @@ def simulate(
         raise PPRError("ts must be a 1-D array of at least two increasing output times")
     if not _is_traced(ts) and not bool(np.all(np.diff(np.asarray(ts)) > 0)):
         raise PPRError("ts must be strictly increasing")
+    max_steps = check_number("max_steps", max_steps, 1, 10**9, integer=True)
     solver = get_solver(solver)
     if stepsize_controller is None:
+        # Finite, not negative, at most the scenes' 1e-2 (above it the result is not worth a
+        # number); tiny values stay allowed here (a pure relative or absolute control).
+        if not _is_traced(rtol):
+            rtol = check_number("rtol", rtol, 0.0, 1e-2)
+        if not _is_traced(atol):
+            atol = check_number("atol", atol, 0.0, 1e-2)
+        if not _is_traced((rtol, atol)) and rtol == 0 and atol == 0:
+            raise PPRError("rtol and atol are both 0: the step-size control needs one of them > 0")
         stepsize_controller = default_controller(solver, rtol, atol)
-    w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
+    w = jnp.zeros(3) if wrench is None else check_array("wrench", wrench, (3,))
     traced = _is_traced((robot, actuation, z0, zdot0, ts, w))
     meter = diffrax.TextProgressMeter() if progress else diffrax.NoProgressMeter()
     sol = _simulate_core(

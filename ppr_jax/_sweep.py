@@ -34,13 +34,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import RESULTS, PPRError
+from ._checks import RESULTS, PPRError, RepairWarning, check_number
 from ._kinematics import REACH_TOL, SINGULAR_TOL, _ik
 from ._metrics import radial_error
 from ._models import Reduced, get_model
 from ._params import PARAM_RANGES, RobotParams, stack_params
 from ._robot import Robot
-from ._scenes import _CORES, DEFAULT_SOLVER, _chunked_vmap, input_panels_at, scene_params
+from ._scenes import (_CORES, DEFAULT_SOLVER, _chunked_vmap, check_scene_args, input_panels_at,
+                      scene_params)
 from ._simulate import get_solver
 from ._trajectory import Circle
 
@@ -444,15 +445,14 @@ def sweep(
     base = scene_params(scene) if base_params is None else base_params
     if np.ndim(base.a) != 0:
         raise PPRError("base_params must be one robot, not a batch")
-    chunk_size = int(chunk_size)
-    if chunk_size < 1:
-        raise PPRError(f"chunk_size must be >= 1, got {chunk_size}")
+    chunk_size = check_number("chunk_size", chunk_size, 1, 10**6, integer=True)
     devices = None if devices is None else list(devices)
     if devices is not None and chunk_size % len(devices):
         raise PPRError(f"chunk_size {chunk_size} must be divisible by the number of devices "
                        f"({len(devices)})")
-    if not (np.isfinite(t_end) and t_end > 0) or int(n_out) < 2:
-        raise PPRError("t_end must be finite and positive and n_out >= 2")
+    # The scenes' checks (argument named, its allowed range): a NaN rtol would run every member
+    # to max_steps, max_steps 0 fail every member inside diffrax.
+    check_scene_args(t_end, n_out, rtol, atol, max_steps)
     members = design_members(vary or {}, design, n, seed)
     names = list(members)
     N = len(members[names[0]])
@@ -572,47 +572,89 @@ def sweep(
                        timing=timing, info=info)
 
 
+def library_digest() -> dict:
+    """What a sweep's numbers depend on beyond its settings: the versions of ppr_jax and its
+    numerical dependencies (`_programs.DEPENDENCIES`) and a hash of this package's source and
+    data files. Part of each chunk's digest, so chunks of another library are recomputed."""
+    from ._programs import _source_hash, _versions
+
+    return {"versions": _versions(), "source": _source_hash()}
+
+
+def _rows_checksum(rows) -> str:
+    return hashlib.sha256(json.dumps(rows, sort_keys=True).encode()).hexdigest()
+
+
 class _ChunkStore:
     """Finished chunks on disk (`chunk_00000.json`, ...) next to the sweep's settings
-    (`sweep_settings.json`): a rerun with the same settings skips the chunks found there."""
+    (`sweep_settings.json`): a rerun with the same settings skips the chunks found there.
+
+    Nothing is trusted unchecked: each chunk file holds its rows with the sweep's digest (the
+    settings and `library_digest`) and the sha256 of its rows. A chunk whose checksum fails,
+    whose digest differs (another ppr_jax, its source edited, another dependency version) or
+    whose members are not the chunk's is named once in a `RepairWarning` and computed afresh.
+    Other settings in the same directory are refused (`PPRError`), not mixed in."""
 
     def __init__(self, path, info):
         self.path = path
         os.makedirs(path, exist_ok=True)
         spec = json.dumps(info, sort_keys=True)
-        self.digest = hashlib.sha256(spec.encode()).hexdigest()[:16]
+        self.settings_digest = hashlib.sha256(spec.encode()).hexdigest()[:16]
+        library = library_digest()
+        self.digest = hashlib.sha256(
+            (spec + json.dumps(library, sort_keys=True)).encode()).hexdigest()[:16]
         settings = os.path.join(path, "sweep_settings.json")
         if os.path.exists(settings):
             with open(settings) as f:
                 old = json.load(f)
-            if old.get("digest") != self.digest:
+            if old.get("digest") != self.settings_digest:
                 raise PPRError(f"{path} holds the chunks of a different sweep (other settings); "
                                f"use another output directory or remove it")
-        else:
-            with open(settings, "w") as f:
-                json.dump({"digest": self.digest, "settings": info}, f, indent=2)
+        with open(settings, "w") as f:
+            json.dump({"digest": self.settings_digest, "library": library, "settings": info},
+                      f, indent=2)
 
     def _file(self, c):
         return os.path.join(self.path, f"chunk_{c:05d}.json")
 
     def load(self, c, idx):
+        """The rows of finished chunk `c`, or None where it is absent or fails a check (then
+        one `RepairWarning` names it; the caller computes it afresh and `save` replaces it)."""
+        path = self._file(c)
         try:
-            with open(self._file(c)) as f:
-                rows = json.load(f)
-        except (OSError, ValueError):
+            with open(path, "rb") as f:
+                data = json.loads(f.read().decode("utf-8"))
+        except FileNotFoundError:
             return None
-        if [r["member"] for r in rows] != list(idx):
-            return None
+        except (OSError, ValueError) as err:
+            return self._bad(path, f"unreadable: {type(err).__name__}")
+        if not isinstance(data, dict) or not isinstance(data.get("rows"), list):
+            return self._bad(path, "no checksum (an older layout)")
+        rows = data["rows"]
+        if data.get("checksum") != _rows_checksum(rows):
+            return self._bad(path, "checksum mismatch: its content was changed")
+        if data.get("digest") != self.digest:
+            return self._bad(path, "computed by another ppr_jax, source or dependency version, "
+                                   "or other settings")
+        if [r.get("member") for r in rows] != list(idx):
+            return self._bad(path, "its members are not this chunk's")
         for r in rows:  # JSON has no NaN by default: stored as null
             for k, v in r.items():
                 if v is None:
                     r[k] = float("nan")
         return rows
 
+    @staticmethod
+    def _bad(path, why):
+        warnings.warn(f"sweep chunk {path} is not used ({why}): computed afresh", RepairWarning,
+                      stacklevel=3)
+        return None
+
     def save(self, c, idx, rows):
         tmp = self._file(c) + ".tmp"
-        clean = [{k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+        clean = [{k: (None if isinstance(v, float) and not np.isfinite(v) else _plain(v))
                   for k, v in r.items()} for r in rows]
+        data = {"digest": self.digest, "checksum": _rows_checksum(clean), "rows": clean}
         with open(tmp, "w") as f:
-            json.dump(clean, f)
+            json.dump(data, f)
         os.replace(tmp, self._file(c))  # atomic: an interrupted write leaves no partial chunk

@@ -154,8 +154,12 @@ def cmd_sweep(args):
     fcols = ["member", *res.varied, "status", "reason", "result_code"]
     _write_rows(os.path.join(args.out, "failed.csv"), res.failed, fcols)
     written.append("failed.csv")
+    from ._sweep import library_digest
+
     with open(os.path.join(args.out, "summary.json"), "w") as f:
-        json.dump({"settings": res.info, "timing": res.timing, "n_members": len(res.rows),
+        # what the numbers depend on beyond the settings (the chunks' digests hold it too)
+        json.dump({"settings": res.info, "library": library_digest(), "timing": res.timing,
+                   "n_members": len(res.rows),
                    "n_ok": len(res.ok), "n_failed": len(res.failed),
                    "failed": [{c: r[c] for c in fcols} for r in res.failed]}, f, indent=2)
     written.append("summary.json")
@@ -196,6 +200,9 @@ def cmd_sensitivity(args):
     for m in metrics:
         if m not in SENSITIVITY_METRICS:
             raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
+    from ._scenes import check_scene_args
+
+    check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
     _log(f"sensitivity {args.scene} ({args.model}, {args.mode} mode): compiling and running ...")
     s = sensitivity(
         args.scene, params, mode=args.mode, model=model_from_args(args, args.model),

@@ -6,6 +6,7 @@ import os
 import pathlib
 import subprocess
 import sys
+import zlib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -25,3 +26,41 @@ def test_scene_program_is_stored_in_the_persistent_cache(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     names = [p.name for p in cache.iterdir()]
     assert any(n.startswith("jit__paper_circle_core-") for n in names), names
+
+
+SMALL = """
+import warnings, jax, jax.numpy as jnp, ppr_jax as pj
+warnings.simplefilter("always")
+pj.enable_compilation_cache({path!r}, min_compile_time_s=0.0)
+x = jnp.linspace(0.0, 1.0, 64).reshape(8, 8)
+print(float(jax.jit(lambda a: jnp.sum(jnp.sin(a) @ a.T))(x)))
+"""
+
+
+def test_a_damaged_persistent_cache_entry_is_deleted_and_stored_afresh(tmp_path):
+    """JAX alone warns about a damaged entry and recompiles on every run, never replacing it:
+    the entry is named once, deleted and stored again, and the next run is silent."""
+    cache = tmp_path / "cache"
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+
+    def run():
+        p = subprocess.run([sys.executable, "-c", SMALL.format(path=str(cache))], env=env,
+                           capture_output=True, text=True, timeout=300, cwd=tmp_path)
+        assert p.returncode == 0, p.stderr[-3000:]
+        return p
+
+    first = run()
+    (entry,) = [p for p in cache.iterdir()
+                if p.name.startswith("jit__lambda") and p.name.endswith("-cache")]
+    b = bytearray(entry.read_bytes())
+    i = len(b) // 3
+    b[i:i + 64] = bytes(x ^ 0xFF for x in b[i:i + 64])
+    entry.write_bytes(bytes(b))
+    second = run()
+    assert second.stdout == first.stdout
+    assert "RepairWarning" in second.stderr and entry.name in second.stderr, second.stderr
+    assert second.stderr.count(entry.name) == 1
+    zlib.decompress(entry.read_bytes())  # stored afresh, sound (raises if still damaged)
+    third = run()
+    assert third.stdout == first.stdout
+    assert "RepairWarning" not in third.stderr and "Error reading" not in third.stderr

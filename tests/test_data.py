@@ -204,3 +204,81 @@ def test_ragged_row(tmp_path):
 
 def test_data_error_is_a_ppr_error():
     assert issubclass(DataError, pj.PPRError) and issubclass(DataError, ValueError)
+
+
+# Encodings and sizes: decode what can be decoded, refuse the rest with a DataError naming the
+# file and the encoding tried.
+
+def _good_text():
+    t, x, y, phi = _good_rows()
+    return "# units: length=m\n" + _table("time,x,y,phi", [t, x, y, phi])
+
+
+def test_utf8_byte_order_mark_is_not_part_of_the_first_column(tmp_path):
+    p = tmp_path / "bom.csv"
+    p.write_bytes(b"\xef\xbb\xbf" + _table("time,x,y,phi", list(_good_rows())).encode())
+    e = pj.load_csv(str(p))
+    np.testing.assert_allclose(e.ts, _good_rows()[0], rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("encoding", ["utf-16", "utf-16-be", "utf-32"])
+def test_utf16_and_utf32_with_byte_order_mark(tmp_path, encoding):
+    text = "# tracker export, 20 °C\n" + _good_text()
+    bom = {"utf-16-be": "\ufeff"}.get(encoding, "")
+    p = tmp_path / "wide.csv"
+    p.write_bytes((bom + text).encode(encoding))  # utf-16 / utf-32 write their own mark
+    e = pj.load_csv(str(p))
+    np.testing.assert_allclose(e.X[:, 0], _good_rows()[1], rtol=1e-15)
+
+
+def test_latin1_degree_sign_in_a_comment(tmp_path):
+    p = tmp_path / "latin.csv"
+    p.write_bytes("# room at 21 \u00b0C\n".encode("latin-1") + _good_text().encode())
+    e = pj.load_csv(str(p))
+    assert e.n == 8
+
+
+def test_random_bytes_are_refused_naming_file_and_encoding(tmp_path):
+    p = tmp_path / "noise.csv"
+    p.write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    with pytest.raises(DataError, match=r"noise\.csv.*(UTF-8|NUL)"):
+        pj.load_csv(str(p))
+
+
+def test_latin1_outside_comments_and_utf16_without_mark_are_refused(tmp_path):
+    p = tmp_path / "badhead.csv"
+    p.write_bytes(_good_text().replace("phi", "\u00b0phi").encode("latin-1"))
+    with pytest.raises(DataError, match=r"badhead\.csv: line 2 is not UTF-8"):
+        pj.load_csv(str(p))
+    q = tmp_path / "nomark.csv"
+    q.write_bytes(_good_text().encode("utf-16-le"))
+    with pytest.raises(DataError, match=r"nomark\.csv: line 1 holds NUL"):
+        pj.load_csv(str(q))
+    r = tmp_path / "brokenwide.csv"
+    r.write_bytes(_good_text().encode("utf-16") + b"\x00\xd8\x41")  # a lone surrogate, odd end
+    with pytest.raises(DataError, match=r"brokenwide\.csv.*UTF-16"):
+        pj.load_csv(str(r))
+
+
+def test_file_above_the_size_limit_is_refused_before_reading(tmp_path, monkeypatch):
+    from ppr_jax import _data
+
+    assert _data.MAX_FILE_BYTES == 512 * 2**20
+    p = tmp_path / "big.csv"
+    p.write_text(_good_text())
+    monkeypatch.setattr(_data, "MAX_FILE_BYTES", p.stat().st_size - 1)
+    opened = []
+    real_open = open
+    monkeypatch.setattr("builtins.open", lambda *a, **k: opened.append(a) or real_open(*a, **k))
+    with pytest.raises(DataError, match=r"big\.csv: .*above the limit"):
+        pj.load_csv(str(p))
+    assert opened == []
+
+
+def test_line_above_the_length_limit_is_refused(tmp_path):
+    from ppr_jax import _data
+
+    p = tmp_path / "oneline.csv"
+    p.write_bytes(b"time,x,y,phi\n" + b"1" * (_data.MAX_LINE_CHARS + 10))
+    with pytest.raises(DataError, match=r"oneline\.csv: line 2 is longer than"):
+        pj.load_csv(str(p))

@@ -107,10 +107,95 @@ def test_scene_arguments_are_validated_first(scene, kw, msg):
     assert "allowed" in str(info.value)
 
 
+def _simulate_args():
+    p = pj.RobotParams()
+    m = pj.Rigid()
+    z0 = m.coords_from_pose(pj.Robot(p), pj.home_pose(p))
+    return m, p, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), z0, jnp.zeros_like(z0), \
+        jnp.linspace(0.0, 0.1, 3)
+
+
+@pytest.mark.parametrize("kw,msg", [
+    (dict(rtol=-1), r"rtol = -1 is out of its allowed range"),
+    (dict(rtol=1), r"rtol = 1 is out of its allowed range"),
+    (dict(rtol=0.0, atol=0.0), r"rtol and atol are both 0"),
+    (dict(rtol=math.nan), r"rtol must be finite: nan is not finite"),
+    (dict(atol=math.inf), r"atol must be finite: inf is not finite"),
+    (dict(max_steps=0), r"max_steps = 0 is out of its allowed range"),
+    (dict(z0=math.nan), r"z0 is not finite \(NaN or inf at entries 1\)"),
+    (dict(zdot0=math.inf), r"zdot0 is not finite"),
+    (dict(wrench=[0.0, math.nan, 0.0]), r"wrench is not finite \(NaN or inf at entries 1\)"),
+    (dict(wrench=[0.0, 1.0]), r"wrench must have shape \(3,\)"),
+    (dict(ts=[0.0, math.nan]), r"ts is not finite"),
+])
+def test_simulate_arguments_are_validated_first(kw, msg):
+    """Before, rtol=-1 was accepted, and NaN in a tolerance, the state or the wrench ran
+    200,000 steps to report "maximum number of solver steps" with advice about stiffness."""
+    m, p, act, z0, zd0, ts = _simulate_args()
+    if "z0" in kw:
+        z0, kw = z0.at[1].set(kw["z0"]), {}
+    if "zdot0" in kw:
+        zd0, kw = zd0.at[0].set(kw["zdot0"]), {}
+    if "ts" in kw:
+        ts, kw = kw["ts"], {}
+    with pytest.raises(pj.PPRError, match=msg):
+        pj.simulate(m, p, act, z0, zd0, ts, **kw)
+
+
+def test_kinematics_of_nan_inputs_are_named():
+    """Before, inverse kinematics of a NaN pose returned NaN angles without a word."""
+    p = pj.RobotParams()
+    with pytest.raises(pj.PPRError, match=r"X is not finite \(NaN or inf at entries 2\)"):
+        pj.inverse_kinematics(p, [0.45, 0.26, math.nan])
+    with pytest.raises(pj.PPRError, match=r"X is not finite \(NaN or inf at entries \(1, 0\)"):
+        pj.inverse_kinematics(p, [[0.45, 0.26, 0.0], [math.nan, 0.26, 0.0]])
+    with pytest.raises(pj.PPRError, match=r"th_a is not finite"):
+        pj.forward_kinematics(p, [0.1, math.inf, 0.2])
+    with pytest.raises(pj.PPRError, match=r"X_guess is not finite"):
+        pj.forward_kinematics(p, [0.1, 0.1, 0.2], X_guess=[math.nan, 0.0, 0.0])
+    with pytest.raises(pj.PPRError, match=r"th_a_path is not finite"):
+        pj.forward_kinematics_path(p, [[0.1, 0.1, 0.2], [0.1, math.nan, 0.2]])
+    with pytest.raises(pj.PPRError, match=r"X must be an array of numbers"):
+        pj.inverse_kinematics(p, "0.45, 0.26, 0")
+    batch = pj.stack_params([p, pj.RobotParams(t=0.4e-3)])
+    with pytest.raises(pj.PPRError, match=r"inverse_kinematics takes one robot, got a batch of 2"):
+        pj.inverse_kinematics(batch, [0.45, 0.26, 0.0])
+    with pytest.raises(pj.PPRError, match=r"forward kinematics takes one robot"):
+        pj.forward_kinematics(batch, [0.1, 0.1, 0.2])
+
+
 @pytest.mark.parametrize("n", [0, 1, 2.5, 10_000, "eight"])
 def test_beam_element_count_has_bounds(n):
     with pytest.raises(pj.PPRError, match="elements"):
         pj.get_model("beam", n)
+
+
+@pytest.mark.parametrize("kw,msg", [
+    (dict(rtol=math.nan), "rtol must be finite"),
+    (dict(rtol=1.0), "rtol = 1.0 is out of its allowed range"),
+    (dict(max_steps=0), "max_steps = 0 is out of its allowed range"),
+    (dict(t_end=math.nan), "t_end must be finite"),
+])
+def test_sweep_and_sensitivity_check_the_scene_arguments(kw, msg):
+    """Before, a sweep at rtol NaN ran every member to max_steps, max_steps 0 failed every member
+    inside diffrax, and rtol 1 was accepted by both."""
+    with pytest.raises(pj.PPRError, match=msg):
+        pj.sweep("paper-circle", vary={"t": [0.3e-3, 0.4e-3]}, **kw)
+    with pytest.raises(pj.PPRError, match=msg):
+        pj.sensitivity("paper-circle", **kw)
+
+
+def test_strings_poses_and_noise_are_checked_at_the_door():
+    """Before: t_end "0.5" ended in a raw JAX TypeError; a two-number pose gave the home modes
+    (or blamed the load); a NaN noise wrote a file whose x and y were all NaN."""
+    with pytest.raises(pj.PPRError, match=r"t_end must be a number, got '0.5'"):
+        pj.paper_circle(t_end="0.5")
+    with pytest.raises(pj.PPRError, match=r"X must have shape \(3,\), got \(2,\)"):
+        pj.modes(pj.Double1R(), pj.RobotParams(), [0.45, 0.26], actuators="free")
+    with pytest.raises(pj.PPRError, match=r"X is not finite"):
+        pj.modes(pj.Double1R(), pj.RobotParams(), [0.45, math.nan, 0.0])
+    with pytest.raises(pj.DataError, match=r"noise_pos must be finite: nan is not finite"):
+        pj.synthesize(noise_pos=math.nan)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -133,6 +218,12 @@ BAD_CLI = [
     (["simulate", "--out", "FILE"], "is a file"),
     (["torques", "--out", "FILE"], "is a file"),
     (["modes", "--set", "E=-5"], "'E'"),
+    (["sweep", "--vary", "t=0.3e-3,0.4e-3", "--rtol", "nan", "--out", "OUT"], "rtol"),
+    (["sweep", "--vary", "t=0.3e-3,0.4e-3", "--rtol", "1", "--out", "OUT"], "rtol"),
+    (["sweep", "--vary", "t=0.3e-3,0.4e-3", "--max-steps", "0", "--out", "OUT"], "max_steps"),
+    (["sensitivity", "--rtol", "1", "--out", "OUT"], "rtol"),
+    (["modes", "--pose", "0.45,0.26"], "X must have shape (3,)"),
+    (["synth", "--noise-pos", "nan", "--out", "OUT"], "noise_pos must be finite"),
 ]
 
 
@@ -140,7 +231,7 @@ BAD_CLI = [
 def test_cli_user_errors_are_one_line(tmp_path, capsys, argv, msg):
     f = tmp_path / "a_file"
     f.write_text("x")
-    argv = [str(f) if a == "FILE" else a for a in argv]
+    argv = [str(f) if a == "FILE" else str(tmp_path / "out") if a == "OUT" else a for a in argv]
     if "--out" not in argv and argv[0] in ("simulate", "torques"):
         argv += ["--out", str(tmp_path / "out")]
     assert main(argv) == 2

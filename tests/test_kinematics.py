@@ -188,3 +188,58 @@ def test_equal_links_fast_path_keeps_exact_derivatives_in_l1_alone(params):
     np.testing.assert_allclose(g_rev, jnp.sum(jnp.cos(th(l1, True)) * g_fast), rtol=1e-12)
     with pytest.raises(ValueError, match="equal_links=True needs l1 == l3"):
         pj.Robot(params.replace(l1=0.3), equal_links=True)
+
+
+def _base_centre_path(params, phi_end, n=41):
+    """Poses at the base centre with phi from -0.70 to `phi_end`; the default robot's type-II
+    singularity there is near phi = -0.814."""
+    phis = np.linspace(-0.70, phi_end, n)
+    X = np.column_stack([np.full(n, 0.45), np.full(n, 0.15 * np.sqrt(3.0)), phis])
+    return X, pj.inverse_kinematics(params, X).th_a
+
+
+def test_forward_kinematics_path_through_a_type2_singularity_is_refused(params):
+    """The issue's reproducer: forward kinematics of the L1 angles of 41 poses through the
+    singularity. Before, the returned phi rose to -0.812 and turned back to -0.728 while the
+    poses went on to -0.90 (0.17 rad off), every check passed. Now the fold is named at the
+    samples around it; the path before it, and a path that stops short of it, pass exactly."""
+    X, th = _base_centre_path(params, -0.90)
+    with pytest.raises(pj.PPRError, match=r"type-II singularity.*samples: \[23, 24\]"):
+        pj.forward_kinematics_path(params, th, X[0])
+    ok = pj.forward_kinematics_path(params, th[:22], X[0])
+    np.testing.assert_allclose(ok, X[:22], atol=1e-12)
+    X2, th2 = _base_centre_path(params, -0.80)
+    np.testing.assert_allclose(pj.forward_kinematics_path(params, th2, X2[0]), X2, atol=1e-12)
+
+
+def test_fold_flags_on_synthetic_determinants():
+    from ppr_jax._kinematics import fold_flags
+
+    s = np.linspace(-1.0, 1.0, 21) + 0.025  # the singularity between samples 9 and 10
+    assert not np.any(fold_flags(jnp.asarray(s)))  # crossing: det changes sign (another check)
+    assert not np.any(fold_flags(jnp.asarray(-1.0 - s ** 2)))  # a regular path
+    # the fold: |det| turns up, sign unchanged; flagged from the first sample past it (the next
+    # one's extrapolation, from samples on both sides of the fold, trips too)
+    v = fold_flags(jnp.asarray(-np.abs(s)))
+    assert np.flatnonzero(np.asarray(v)).tolist() == [10, 11]
+    ts = np.concatenate([np.linspace(0, 1, 10), 1 + np.linspace(0.5, 5.5, 11)])
+    v = fold_flags(jnp.asarray(-np.abs(ts - 1.2)), ts)  # uneven times: extrapolated in time
+    assert np.flatnonzero(np.asarray(v)).tolist()[0] == 10
+    assert not np.any(fold_flags(jnp.asarray(-1.0 - (ts - 1.2) ** 2), ts))
+
+
+def test_servo_circle_through_a_type2_singularity_is_a_status_code():
+    """L1 motion-driven (warm-started forward kinematics, no ODE) on a circle whose phi passes
+    the singularity: before, phi folded back and the scene reported ok; now `singular_path`.
+    A circle that stays short of it is followed exactly."""
+    p = pj.scene_params("servo-circle")
+    kw = dict(model="reduced", t_end=2.0, n_out=201)
+    r = pj.servo_circle(p, trajectory=pj.Circle(radius=jnp.asarray(0.02),
+                                                phi_amp=jnp.asarray(0.85)), throw=False, **kw)
+    assert int(r.result._value) == int(pj.RESULTS.singular_path._value)
+    with pytest.raises(pj.SimulationError, match="type-II singularity"):
+        pj.servo_circle(p, trajectory=pj.Circle(radius=jnp.asarray(0.02),
+                                                phi_amp=jnp.asarray(0.85)), **kw)
+    ok = pj.servo_circle(p, trajectory=pj.Circle(radius=jnp.asarray(0.02),
+                                                 phi_amp=jnp.asarray(0.78)), **kw)
+    np.testing.assert_allclose(ok.X, ok.X_nominal, atol=1e-9)

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from ppr_jax._programs import NotExportable, program_key
+from ppr_jax import _programs
+from ppr_jax._programs import DEPENDENCIES, MAGIC, NotExportable, program_key
 from ppr_jax._scenes import _prepare
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -62,9 +63,71 @@ def test_stored_program_equals_the_usual_compile(tmp_path, direct):
     # A damaged file is exported afresh over, not trusted.
     (path,) = pathlib.Path(d).iterdir()
     path.write_bytes(b"not a program")
-    third = pj.run_scene("paper-circle", **KW, program_dir=d)
+    with pytest.warns(_programs.RepairWarning, match="no ppr_jax program header"):
+        third = pj.run_scene("paper-circle", **KW, program_dir=d)
     assert third.timing["program"] == "exported"
     _same(third, direct[0.3e-3])
+
+
+def _flip(path: pathlib.Path, start: float = 1 / 3, n: int = 64) -> None:
+    """Invert n bytes from `start` (a fraction of the size) on: a same-size damage."""
+    b = bytearray(path.read_bytes())
+    i = int(len(b) * start)
+    b[i:i + n] = bytes(x ^ 0xFF for x in b[i:i + n])
+    path.write_bytes(bytes(b))
+
+
+def _repaired(d, direct, path):
+    """One run over a damaged store: one RepairWarning naming the file, exported afresh, the
+    usual results, and a sound file left behind (the next run loads it without a word)."""
+    with pytest.warns(_programs.RepairWarning, match=str(path.name)) as rec:
+        r = pj.run_scene("paper-circle", **KW, program_dir=d)
+    assert len([w for w in rec if issubclass(w.category, _programs.RepairWarning)]) == 1
+    assert r.timing["program"] == "exported"
+    _same(r, direct[0.3e-3])
+    assert path.read_bytes().startswith(MAGIC)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", _programs.RepairWarning)
+        again = pj.run_scene("paper-circle", **KW, program_dir=d)
+    assert again.timing["program"] == "loaded"
+    _same(again, direct[0.3e-3])
+
+
+def test_a_damaged_program_is_named_deleted_and_exported_afresh(tmp_path, direct):
+    d = str(tmp_path / "programs")
+    pj.run_scene("paper-circle", **KW, program_dir=d)
+    (path,) = pathlib.Path(d).iterdir()
+    good = path.read_bytes()
+    # The issue's reproducer: 64 bytes flipped a third of the way in (same size). Before the
+    # checksum, deserialisation accepted it and the compile failed on every later run.
+    _flip(path)
+    _repaired(d, direct, path)
+    # A file whose checksum was rewritten to match its damaged program: caught where it fails
+    # to deserialise or to compile.
+    payload = bytearray(good[len(MAGIC) + 65:])
+    i = len(payload) // 3
+    payload[i:i + 64] = bytes(x ^ 0xFF for x in payload[i:i + 64])
+    path.write_bytes(_programs._pack(bytes(payload)))
+    _repaired(d, direct, path)
+    # A program stored without the header (an older layout under the same name).
+    path.write_bytes(good[len(MAGIC) + 65:])
+    _repaired(d, direct, path)
+
+
+def test_key_holds_the_versions_of_ppr_jax_and_its_numerical_dependencies(monkeypatch):
+    assert set(DEPENDENCIES) == {"ppr_jax", "jax", "jaxlib", "diffrax", "equinox", "optimistix",
+                                 "lineax"}
+    versions = _programs._versions()
+    for name in DEPENDENCIES:
+        assert f"{name}=" in versions
+    base = program_key(_call().args, "x")
+    for name in DEPENDENCIES:
+        bumped = versions.replace(f"{name}=", f"{name}=9")
+        monkeypatch.setattr(_programs, "_versions", lambda b=bumped: b)
+        assert program_key(_call().args, "x") != base, name
+    monkeypatch.undo()
 
 
 def test_key_is_the_same_in_a_fresh_process():

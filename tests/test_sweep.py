@@ -221,3 +221,43 @@ def test_sweep_of_a_model_that_follows_its_input_warns():
         r = pj.sweep("paper-circle", vary={"t": [-1e-3]}, model="reduced",
                      torque_model="reduced", t_end=0.1, n_out=3)
     assert len(r.failed) == 1 and not r.ok
+
+
+def test_resume_recomputes_a_chunk_that_fails_its_checks(tmp_path, swept, monkeypatch):
+    """The issue's reproducer: a member's value edited in a finished chunk must not reach the
+    result; the chunk is named once and computed afresh. A chunk of another library version (or
+    source) is recomputed too; other settings are still refused."""
+    from ppr_jax import _sweep
+
+    d = tmp_path / "chunks"
+    kw = dict(vary=VARY, chunk_size=CHUNK, max_steps=MAX_STEPS, checkpoint_dir=str(d), **KW)
+    first = pj.sweep("paper-circle", **kw)
+    chunk = d / "chunk_00000.json"
+    text = chunk.read_text()
+    data = json.loads(text)
+    rows = data["rows"] if isinstance(data, dict) else data
+    j = next(j for j, r in enumerate(rows) if r["status"] == "ok")
+    rows[j]["radial_error_max_m"] = 999  # the edit of the issue, checksum left as was
+    chunk.write_text(json.dumps(data))
+    with pytest.warns(pj.RepairWarning, match="chunk_00000.json.*checksum") as rec:
+        again = pj.sweep("paper-circle", **kw)
+    assert len([w for w in rec if issubclass(w.category, pj.RepairWarning)]) == 1
+    assert 999 not in again.column("radial_error_max_m")
+    assert again.rows == first.rows or all(
+        a == b or (a != a and b != b) for ra, rb in zip(again.rows, first.rows)
+        for a, b in zip(ra.values(), rb.values()))
+    # the checksum now matches again: the next rerun uses every chunk without a word
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", pj.RepairWarning)
+        pj.sweep("paper-circle", **kw)
+    # chunks of another ppr_jax (or its source, or a dependency): every one recomputed
+    lib = _sweep.library_digest()
+    monkeypatch.setattr(_sweep, "library_digest", lambda: dict(lib, versions="ppr_jax=0.0.1"))
+    with pytest.warns(pj.RepairWarning, match="another ppr_jax") as rec:
+        pj.sweep("paper-circle", **kw)
+    assert len([w for w in rec if issubclass(w.category, pj.RepairWarning)]) == 2
+    assert json.loads(chunk.read_text())["digest"] != json.loads(text)["digest"]
+    with pytest.raises(pj.PPRError, match="different sweep"):
+        pj.sweep("paper-circle", **dict(kw, t_end=0.4))
