@@ -4,7 +4,7 @@
 
 Parts (each writes `benchmarks/results/<backend>/<part>.json` with the machine, backend and
 versions, and its figures next to it; `--quick` runs a few minutes in all, the full run is
-documented in the README with its duration):
+documented in docs/performance.md with its duration):
 
 - `work-precision`: error against run time for L0, L1, L2 and L3 (quasi-static strips) on
   `paper-circle` and `servo-circle` (L0/L1 need no ODE there: a single point), for Tsit5,

@@ -1,6 +1,7 @@
 """ppr_jax: differentiable dynamics of planar parallel robots with compliant joints.
 
-float64 is enabled on import. See README.md for the model levels, scenes and CLI.
+float64 is enabled on import. See the documentation (docs/, `mkdocs serve`) for the model levels,
+scenes and CLI.
 """
 
 from typing import TYPE_CHECKING as _TYPE_CHECKING
@@ -128,7 +129,13 @@ from ._identify import (  # noqa: E402
     synthesize as synthesize,
 )
 
-__version__ = "0.1.0"
+try:
+    from importlib.metadata import PackageNotFoundError as _PackageNotFoundError
+    from importlib.metadata import version as _version
+
+    __version__ = _version("ppr_jax")
+except _PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = "0+unknown"
 
 # The offline PRB fit and the elastica solver it uses (and scipy.optimize) are loaded on first
 # access (PEP 562), so that `import ppr_jax` stays light: the robot needs only the shipped table.

@@ -94,9 +94,12 @@ def static_equilibrium(
     return (z, free, failed) if return_failed else (z, free)
 
 
-#: time step (s) of the 5-point stencil that gives the quasi-static velocity; truncation error
-#: ~ dt^4 z^(5)/30, about 1e-13 relative for the scenes' motions (periods of seconds)
-QS_DT = 1e-3
+#: time step (s) of the 5-point stencil that gives the quasi-static path's velocity and
+#: acceleration. Truncation ~ dt^4 z^(5)/30 in the velocity (1e-11 relative for the scenes'
+#: motions, periods of seconds), dt^3 z^(5) in the one-sided accelerations at the stencil's ends
+#: (1e-8); rounding ~ 30 eps / dt^2 in those accelerations, which the second pass's solutions
+#: carry into the velocity: at 1 ms that noise reached 5e-6 of phi', at 5 ms it is 1e-7.
+QS_DT = 5e-3
 
 
 #: the quasi-static solves' times, in steps of QS_DT about t
@@ -176,7 +179,7 @@ def quasi_static_state(
     the quasi-static state: its rows of M z'' + h = Q balance, with the reference velocities
     and accelerations of the L1 manifold along `trajectory` (so `trajectory` is the guess of
     the pose under prescribed angles). Their velocity is the time derivative of that
-    quasi-static solution (a 5-point central difference of step `QS_DT`, error ~1e-13), so no
+    quasi-static solution (a 5-point central difference of step `QS_DT`, error ~1e-7), so no
     fast internal vibration is excited at t = 0 beyond what the model mismatch implies.
     L0 and L1 have no internal coordinates: torque-driven they start on the trajectory;
     motion-driven at the forward kinematics of the prescribed angles (`kinematic_state`).

@@ -5,7 +5,7 @@ LAPACK custom call `lapack_dgetrf_ffi`, which splits a large batch over XLA's in
 pool (`jax::ParallelBatchMap`) and blocks its calling thread in `BlockingCounter::Wait` until
 the pieces finish. XLA's thunk executor runs the two independent factorizations concurrently
 on the two pool threads, so both threads wait for work queued behind each other: every thread
-parks on a futex at 0 % CPU and the call never returns (native stacks: README, "Batches").
+parks on a futex at 0 % CPU and the call never returns (native stacks: docs/theory/no_lapack.md).
 
     python scripts/repro_lapack_deadlock.py            # LAPACK solve: hangs (killed after 60 s)
     python scripts/repro_lapack_deadlock.py --ours     # ppr_jax's pure-XLA solve: finishes

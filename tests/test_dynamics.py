@@ -171,15 +171,20 @@ def test_quasi_static_state_balances_and_its_velocity_is_its_time_derivative(par
     h = 1e-5
     fd = (qs(1.0 + h)[0] - qs(1.0 - h)[0]) / (2 * h)
     np.testing.assert_allclose(zd, fd, rtol=1e-6, atol=1e-9)
-    # the balanced rows: L1's accelerations with the applied (or no) torque
+    # The balanced rows, with the applied (or no) torque, at the state's velocities and the
+    # quasi-static path's own accelerations (its 5-point second difference: error ~3e-9 rad/s^2;
+    # the second pass leaves (omega/omega_mode)^2 of the first's error, 1e-8 N m, where
+    # balancing at the L1 reference's accelerations, a single pass, leaves 1.5e-5 N m).
     robot = pj.Robot(params)
     ref = lambda t: model.coords_from_pose(robot, traj(t))  # noqa: E731
-    _, zd_r, zdd_r = pj.derivatives(ref, 1.0)
-    eom = pj.eom_terms(model, robot, z, zd_r)
+    H = 2e-2
+    zs = [qs(1.0 + k * H)[0] for k in (-2, -1, 1, 2)]
+    zdd = (-zs[0] + 16 * zs[1] - 30 * z + 16 * zs[2] - zs[3]) / (12 * H**2)
+    eom = pj.eom_terms(model, robot, z, zd)
     t_a = jnp.zeros(3) if motion_driven else tau(1.0)
-    r = eom.M @ zdd_r + eom.h - (eom.Q_passive + eom.Jth.T @ t_a)
+    r = eom.M @ zdd + eom.h - (eom.Q_passive + eom.Jth.T @ t_a)
     rows = jnp.array([0, 1, 2]) if motion_driven else jnp.array([3, 4, 5])
-    assert float(jnp.abs(r[rows]).max()) < 1e-12
+    assert float(jnp.abs(r[rows]).max()) < 3e-7, r
     # it differs from the L1 state: the L2 model is not bound by eq 29
     assert float(jnp.abs(z - ref(1.0)).max()) > 1e-6
 

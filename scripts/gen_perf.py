@@ -1,0 +1,273 @@
+"""The performance tables of the documentation, generated from `benchmarks/results/*.json`.
+
+    python scripts/gen_perf.py            # print every table as Markdown
+
+The docs build (`docs/hooks.py`) replaces each `<!-- perf:NAME -->` marker of a page with
+`tables()[NAME]`, so the published numbers are always those of the JSON checked in. Only the
+standard library is used (no JAX): the docs build stays fast.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+RESULTS = os.path.join(ROOT, "benchmarks", "results")
+
+#: errors (m) at which solvers and tools are compared (as benchmarks/run.py)
+MATCHED_ERRORS_M = (2e-8, 1e-10)
+MODEL_ORDER = ("rigid", "reduced", "double1r", "beam")
+
+
+def _load(*parts):
+    path = os.path.join(RESULTS, *parts)
+    if not os.path.exists(path):
+        return None
+    with open(path) as f:
+        return json.load(f)
+
+
+def _table(header, rows) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(out)
+
+
+def _ms(s) -> str:
+    return f"{1e3 * s:.1f} ms" if s < 1 else f"{s:.2f} s"
+
+
+def _machine(d) -> str:
+    """One line naming where and when a result was measured."""
+    m = d.get("machine", d)
+    date = str(m.get("date", ""))[:10]
+    jax = m.get("versions", {}).get("jax") or m.get("jax", "?")
+    what = f"{m.get('backend', 'cpu').upper()}, {m.get('cpus', '?')} cores, JAX {jax}"
+    return f"*Measured: {what}{', ' + date if date else ''}.*"
+
+
+def interp_time(pts, err):
+    """Time at error `err` on a work-precision line `pts` [(error, time)]: the cheapest point at
+    or below `err`, interpolated in log-log with its neighbour above `err` where one exists
+    (the rule of benchmarks/run.py)."""
+    below = [p for p in pts if p[0] <= err]
+    if not below:
+        return None
+    above = [p for p in pts if p[0] > err]
+    e1, t1 = max(below, key=lambda p: p[0])
+    if not above:
+        return t1
+    e0, t0 = min(above, key=lambda p: p[0])
+    w = (math.log(err) - math.log(e0)) / (math.log(e1) - math.log(e0))
+    return math.exp(math.log(t0) + w * (math.log(t1) - math.log(t0)))
+
+
+def work_precision(backend="cpu") -> str:
+    d = _load(backend, "work_precision.json")
+    if d is None:
+        return "*No work-precision results for this backend.*"
+    rows = d["rows"]
+    header = ["scene", "model"] + [f"fastest at {e:g} m" for e in MATCHED_ERRORS_M] + [
+        "compile (per solver)"]
+    out = []
+    for scene in ("paper-circle", "servo-circle"):
+        for model in MODEL_ORDER:
+            mine = [r for r in rows if r["scene"] == scene and r["model"] == model]
+            if not mine:
+                continue
+            cells = []
+            for err in MATCHED_ERRORS_M:
+                best = None
+                for solver in sorted({r["solver"] for r in mine}):
+                    pts = [(r["error_m"], r["run_s"]) for r in mine if r["solver"] == solver]
+                    if solver.startswith("none"):  # no ODE: one exact point
+                        t = pts[0][1]
+                    else:
+                        t = interp_time([p for p in pts if p[0] > 0], err)
+                    if t is not None and (best is None or t < best[1]):
+                        best = (solver, t)
+                cells.append(f"{_ms(best[1])} ({best[0].replace('none (no ODE)', 'no ODE')})"
+                             if best else "-")
+            comp = {}
+            for r in mine:
+                if r["solver"].startswith("none") or not r.get("compile_s"):
+                    continue
+                comp[r["solver"]] = min(comp.get(r["solver"], 1e9), r["compile_s"])
+            comp_txt = ", ".join(f"{s} {c:.0f} s" for s, c in comp.items()) or "-"
+            out.append([scene, model] + cells + [comp_txt])
+    note = (f"Error: {d['error']}, against {d['reference']}; {d['t_end_s']} s, "
+            f"{d['n_out']} output times; L3 (`beam`) with N = {d.get('l3_elements', '?')}.")
+    return _table(header, out) + "\n\n" + note + " " + _machine(d)
+
+
+def contenders() -> str:
+    d = _load("cpu", "contenders.json")
+    if d is None:
+        return "*No contender results.*"
+    rows = [[f"{r['error_m']:g} m", f"{r['tool']} ({r['method']})", _ms(r["run_s"]),
+             f"{r['ratio_to_ppr_jax']:.2f}"] for r in d["matched"]]
+    note = (f"L2 (`{d['model']}`) `{d['scene']}`, {d['t_end_s']} s; reference: "
+            f"{d['reference']}. Each tool's fastest method at the matched error.")
+    return (_table(["error", "tool (fastest method)", "run", "/ ppr_jax"], rows) + "\n\n" + note
+            + " " + _machine(d))
+
+
+def compile_times() -> str:
+    d = _load("cpu", "compile.json")
+    if d is None:
+        return "*No compile results.*"
+    rows = []
+    for r in d["rows"]:
+        c, f, s = r["cold"], r["first"], r["second"]
+        rows.append([r["model"], f"{c['compile_s']:.1f} s", f"{f['first_result_s']:.1f} s",
+                     f"{s['compile_s']:.1f} s / {s['first_result_s']:.1f} s",
+                     _ms(s["run_s"])])
+    header = ["model", "cold compile", "first process: first result",
+              "second process: load / first result", "run"]
+    return _table(header, rows) + f"\n\n{d['scene']}; {d['what']}. " + _machine(d)
+
+
+def batch(backend="cpu") -> str:
+    d = _load(backend, "batch.json")
+    if d is None:
+        return "*No batch results for this backend.*"
+    rows = [[r["model"], f"{r['rtol']:g}", r["batch"], _ms(r["run_s"] / r["batch"]),
+             f"{r['trajectories_per_s']:,.0f}",
+             f"{r['compile_s']:.0f} s" if (r.get("compile_s") or 0) > 0.5 else "(compiled)"]
+            for r in d["rows"]]
+    header = ["model", "rtol", "batch", "per robot", "trajectories/s", "compile"]
+    note = f"`{d['scene']}`, {d['t_end_s']} s; members: {d['members']}."
+    flags = d["machine"].get("xla_flags")
+    if flags:
+        note += f" `XLA_FLAGS={flags}`."
+    return _table(header, rows) + "\n\n" + note + " " + _machine(d)
+
+
+def mjx_batch() -> str:
+    d = _load("cpu", "mjx_batch.json")
+    if d is None:
+        return "*No MJX results (needs the `bench` extra).*"
+    cols = {}
+    for r in d["rows"]:
+        if r["tool"] == "mjx":
+            key = f"MJX RK4 dt {r['dt_s']:g} s"
+        else:
+            key = f"ppr_jax {r.get('solver', 'tsit5')} rtol {r.get('rtol', 0):g}"
+        cols.setdefault(key, {})[r["batch"]] = r
+    batches = sorted({r["batch"] for r in d["rows"]})
+    header = ["batch"] + [
+        f"{k} (error {max(r['member0_position_error_m'] for r in v.values()):.1e} m)"
+        for k, v in cols.items()]
+    rows = [[b] + [f"{v[b]['trajectories_per_s']:.3g}" if b in v else "-" for v in cols.values()]
+            for b in batches]
+    note = (f"Trajectories per second, `{d['scene']}` over {d['t_end_s']} s; MuJoCo "
+            f"{d['mujoco']}, JAX {d['jax']}, {d['cpus']} cores. Timed: {d['includes']}")
+    return _table(header, rows) + "\n\n" + note
+
+
+def studies() -> str:
+    out = []
+    s = _load("sweep_sharding.json")
+    if s is not None:
+        rows = [[k.replace("_", " "), f"{v['per_member_ms']:.2f} ms",
+                 f"{v['trajectories_per_s']:.0f}", f"{v['first_call_s']:.1f} s"]
+                for k, v in s["rows"].items()]
+        out.append(f"**Sharded sweep** (`benchmarks/sweep_sharding.py`): {s['members']} "
+                   f"`{s['model']}` paper-circle robots, rtol {s['rtol']:g}, over {s['devices']} "
+                   f"host devices: {s['speedup']:.2f}x; the two agree to "
+                   f"{s['max_abs_difference_m']:.1e} m.\n\n"
+                   + _table(["run", "per robot", "trajectories/s", "first call"], rows))
+    c = _load("sensitivity_cost.json")
+    if c is not None:
+        rows = [[k.replace("_", " "), _ms(v["run_s"]), f"{v['ratio_to_forward_run']:.1f}",
+                 f"{v['compile_s']:.1f} s", f"{v['memory']['temp_bytes'] / 1e6:.2f} MB"]
+                for k, v in c["rows"].items()]
+        out.append(f"**Sensitivity cost** (`benchmarks/sensitivity_cost.py`): `{c['model']}` "
+                   f"paper-circle under the `{c['torque_model']}` torques, rtol {c['rtol']:g}; "
+                   f"the scalar is `{c['scalar']}` of all {c['n_parameters']} parameters.\n\n"
+                   + _table(["program", "run", "/ forward run", "compile", "XLA temp memory"],
+                            rows))
+    k = _load("kernel_counts.json")
+    if k is not None:
+        p = k["programs"]
+        rows = [[name, f"{v['kernels']}", f"{v['kernels_per_forward']:.1f}",
+                 f"{v['pad_fusions']}", f"{v['us_per_call']:.1f} us"]
+                for name, v in k["rhs"].items()]
+        out.append(f"**Kernel counts** (`benchmarks/kernel_counts.py`): a forward run launches "
+                   f"{p['forward_run']['kernel_events']:,} XLA CPU kernels, its `grad` "
+                   f"{p['grad']['kernel_events']:,} ({p['grad']['kernels_per_forward']:.1f}x, "
+                   f"against {p['grad']['time_per_forward']:.1f}x the time). One right-hand "
+                   f"side:\n\n"
+                   + _table(["pass", "kernels", "/ forward", "zero-padding fusions", "time"],
+                            rows))
+    t = _load("identify_time.json")
+    if t is not None:
+        f1, f2 = t["first_fit"], t["second_fit_after_compile"]
+        e = t["experiment"]
+        out.append(f"**Identification** (`benchmarks/identify_time.py`): `{e['model']}` "
+                   f"{e['scene']}, {e['t_end_s']} s at {e['rate_hz']:g} Hz, unknowns "
+                   f"{', '.join(t['unknowns'])}. First fit {f1['wall_s']:.1f} s "
+                   f"(compilation and one evaluation "
+                   f"{f1['first_call_s (compile + one evaluation)']:.1f} s, "
+                   f"{f1['iterations']} iterations {f1['iterations_run_s']:.1f} s); a second "
+                   f"fit on the compiled function {f2['wall_s']:.1f} s.")
+    return "\n\n".join(out)
+
+
+def l3() -> str:
+    d = _load("l3_validation.json")
+    out = []
+    if d is not None:
+        rows = [[r["N"], r["solver"], f"{r['rtol']:g}", _ms(r["run_s"]), f"{r['steps']:.0f}",
+                 f"{100 * r['metrics_max_relative_deviation']:.3g} %"] for r in d["speed"]]
+        out.append("**Quasi-static L3, paper-circle, 7.54 s** (`benchmarks/l3_validation.py`; "
+                   "deviation: the largest relative change of a metric against the tight "
+                   f"{d['tight_solver']['solver']} run at rtol {d['tight_solver']['rtol']:g}):"
+                   "\n\n" + _table(["N", "solver", "rtol", "run", "steps", "deviation"], rows))
+    m = _load("l3_implicit.json")
+    if m is not None:
+        rows = []
+        for r in m["runs"]:
+            done = "run_s" in r
+            rows.append([r["N"], f"{r['strip_loss_s']:g} s", f"{r['t_end_s']:g} s", r["solver"],
+                         f"{r['rtol']:g}", _ms(r["run_s"]) if done else "did not finish",
+                         r.get("steps", "-"), f"{r['error_m']:.1e} m" if done else "-",
+                         f"{r['compile_s']:.0f} s" if r.get("compile_s", 0) > 1 else "",
+                         "16-core host" if "host" in r else "2-core"])
+        out.append("**Full L3 (strip dynamics), the start of paper-circle** "
+                   "(`benchmarks/l3_implicit.py`; error against a Dopri8 run at rtol 1e-8 or "
+                   "tighter; compare rows of the same machine only):\n\n"
+                   + _table(["N", "strip loss", "window", "solver", "rtol", "run", "steps",
+                             "error", "compile", "machine"], rows))
+    return "\n\n".join(out)
+
+
+def headline() -> dict:
+    """The contenders' matched times, which the README's headline table quotes (to check it)."""
+    d = _load("cpu", "contenders.json")
+    return {r["tool"] + "@" + f"{r['error_m']:g}": r["run_s"] for r in d["matched"]} if d else {}
+
+
+def tables() -> dict:
+    return {
+        "work-precision": work_precision("cpu"),
+        "work-precision-gpu": work_precision("gpu"),
+        "contenders": contenders(),
+        "compile": compile_times(),
+        "batch": batch("cpu"),
+        "batch-gpu": batch("gpu"),
+        "mjx": mjx_batch(),
+        "studies": studies(),
+        "l3": l3(),
+    }
+
+
+def main():
+    for name, text in tables().items():
+        print(f"## {name}\n\n{text}\n")
+
+
+if __name__ == "__main__":
+    main()
