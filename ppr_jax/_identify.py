@@ -106,6 +106,9 @@ INIT_SCALE = (1e-3, 1e-3, 1e-2, 1e-2, 1e-2, 1e-1)
 INIT_NAMES = ("x0", "y0", "phi0", "xd0", "yd0", "phid0")
 INIT_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s")
 ID_SCENES = ("servo-circle", "paper-circle")
+#: residual scale s (1 = noise as stated) above which a fit does not explain the data: its
+#: intervals then measure the misfit, and it is reported as a poor fit, never as converged
+POOR_FIT_SCALE = 3.0
 #: default noise weights: tracker position (m) and platform angle (rad), Optotrak-like
 DEFAULT_NOISE = (1e-4, 1e-3)
 
@@ -319,6 +322,9 @@ class Identification(eqx.Module):
     #: what drove the model: "measured angles", or the commands (or torques) and for which
     #: parameters they were computed
     actuation: str = ""
+    #: whether the fit can be trusted: {"ok", "residual_scale", "explains_data", "at_bound",
+    #: "problems" (list of sentences)}
+    quality: Optional[dict] = None
 
     def residuals_at(self, values) -> np.ndarray:
         """Weighted residuals (N,) (after the loss) at parameter values (P,) (physical units,
@@ -466,6 +472,8 @@ class Identification(eqx.Module):
                      f"{idf['condition_number']:.3g}")
         if self.actuation:
             lines.append(f"  driven by: {self.actuation}")
+        for msg in (self.quality or {}).get("problems", []):
+            lines.append(f"  WARNING: {msg}")
         for c in idf["combinations"]:
             lines.append(f"  {c['expression']}: relative std {c['relative_std'] * 100:.3g}% "
                          f"({c['status']})")
@@ -512,6 +520,7 @@ class Identification(eqx.Module):
             "identifiability": self.identifiability,
             "residual_stats": self.residual_stats,
             "initial_state": self.initial_state,
+            "quality": self.quality,
             "history": self.history,
         })
 
@@ -633,7 +642,7 @@ def identify(
     model: "double1r" (L2, default), "reduced" (L1), "rigid" (L0) or a model instance.
     scene: the experiment's actuation, "servo-circle" (default) or "paper-circle" (module
     docstring). actuation: "auto" (default: the data's th_1..th_3 drive the model when every
-    experiment holds them, else the commands), "commanded" (the scene's commands, or torques,
+    experiment holds them and no `commands` are named, else the commands), "commanded" (the scene's commands, or torques,
     computed for `commands`, the parameters of the model that computed them: default the
     nominal robot `params` with `fixed`, never the unknowns' initial values) or "measured"
     (servo-circle: the data's angles). `Identification.actuation` says which drove the fit.
@@ -665,8 +674,10 @@ def identify(
         raise IdentificationError(f"unknown actuation {actuation!r}; allowed: "
                                   f"{', '.join(ACTUATIONS)}")
     if actuation == "auto":
+        # named commands are asked for; otherwise what the files hold
         has_th = all(e.th is not None for e in exps)
-        actuation = "measured" if scene == "servo-circle" and has_th else "commanded"
+        measured = commands is None and scene == "servo-circle" and has_th
+        actuation = "measured" if measured else "commanded"
     if actuation == "measured" and scene != "servo-circle":
         raise IdentificationError("actuation 'measured' (the measured angles drive the model) "
                                   "applies to the motion-driven servo-circle scene; "
@@ -1010,6 +1021,25 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="") -> Identification:
         idf["note"] = ((idf["note"] + "; ") if idf["note"] else "") + (
             f"{', '.join(at_bound)} ended at a bound: its interval is not meaningful (widen the "
             f"bounds, or fix it)")
+    # A fit that does not explain the data is neither converged nor identifying anything: its
+    # intervals measure the misfit, not the noise (a start 30x off once ended at s = 7,166 with
+    # a "converged", "identifiable" 0.2 % interval).
+    s_fit = math.sqrt(s2)
+    problems = []
+    if not s_fit <= POOR_FIT_SCALE:
+        problems.append(f"the model does not explain the data: residual scale s = {s_fit:.3g} "
+                        f"(> {POOR_FIT_SCALE:g}; 1 = noise as stated)")
+        for c in idf["combinations"]:
+            c["status"] = "not trustworthy (poor fit)"
+    if at_bound:
+        problems.append(f"{', '.join(at_bound)} at a bound")
+    hist = dict(hist)
+    hist["optimizer_stop"] = hist.get("stop")
+    if problems and hist.get("stop") == "converged":
+        hist["stop"] = "poor fit" if not s_fit <= POOR_FIT_SCALE else "at bound"
+    quality = {"residual_scale": s_fit, "explains_data": bool(s_fit <= POOR_FIT_SCALE),
+               "at_bound": at_bound, "ok": not problems,
+               "problems": problems}
     raw = np.where(np.asarray(prob.w) > 0, (X - np.asarray(prob.X)) * np.asarray(prob.w), 0.0)
     rs = []
     for k, e in enumerate(exps):
@@ -1033,7 +1063,7 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="") -> Identification:
         measured=np.asarray(prob.X), ts=np.asarray(prob.ts), mask=mask, identifiability=idf,
         residual_stats=stats_, history=hist, model=prob.model.name, scene=prob.scene,
         experiment_names=tuple(e.name for e in exps), noise=noise, problem=prob,
-        initial_state=init, z=np.asarray(z), actuation=drive,
+        initial_state=init, z=np.asarray(z), actuation=drive, quality=quality,
     )
 
 

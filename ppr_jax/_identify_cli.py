@@ -99,6 +99,9 @@ def cmd_identify(args):
     print(f"wrote {args.out}/estimates.json, estimates.txt, fitted.csv, "
           + ("profiles.json, " if args.profile else "")
           + ", ".join(os.path.basename(p) for p in figs))
+    if args.strict and not fit.quality["ok"]:
+        _log("--strict: the fit cannot be trusted: " + "; ".join(fit.quality["problems"]))
+        return 3
     return 0
 
 
@@ -200,6 +203,9 @@ def add_identify(sub, parents, fmt):
                    help="least-squares solver")
     p.add_argument("--max-iter", type=int, default=50, help="iteration limit of the fit")
     p.add_argument("--drop-nan", action="store_true", help="drop NaN rows (reported)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 3 when the fit cannot be trusted: it does not explain the data "
+                        "(residual scale s > 3) or an unknown ends at a bound")
     p.add_argument("--profile", action="store_true",
                    help="also profile-likelihood intervals of every unknown (a re-fit of the "
                         "others per point): profiles.json, profiles.png")
