@@ -7,14 +7,22 @@ correlations, the identifiable combinations (a singular-value analysis of the re
 sensitivities) and the residuals against the stated noise.
 
 The experiment (what the motors did) is a scene:
-- ``servo-circle``: the actuated angles follow L1's inverse kinematics of eq 55 *for the initial
-  parameters* (held fixed: the motors received those commands whatever the robot really is), the
-  model's response is simulated from its quasi-static state at t = 0;
+- ``servo-circle``: the actuated angles drive the model (motion-driven), its response simulated
+  from its quasi-static state at t = 0 under those angles (`quasi_static_state`);
 - ``paper-circle``: torque-driven by the measured torques (columns tau_1..tau_3, cubic Hermite
-  interpolation) or, without them, by L1's inverse-dynamics torques of eq 55 for the initial
-  parameters (again fixed), from the nominal pose at t = 0.
+  interpolation) or, without them, by L1's inverse-dynamics torques of eq 55 for the commands'
+  parameters (held fixed), from the nominal pose at t = 0.
 Sample times are those of the trajectory (t = 0 at the start of the motion).
-- ``actuation="measured"`` (servo-circle): the measured actuated angles th_1..th_3 drive the
+
+Which angles drive a servo-circle model (`actuation`, MODEL.md section 7):
+- ``"auto"`` (default): the measured angles when every experiment holds th_1..th_3, else the
+  commands. Measured angles are what the motors did; commands recomputed from a guess are not.
+- ``"commanded"``: L1's inverse kinematics of eq 55 for the parameters of the model that
+  computed the commands, `commands` (a `RobotParams`; default the nominal robot, `params` with
+  `fixed` applied), held fixed whatever the unknowns: the motors received those commands
+  whatever the robot really is. Never the unknowns' initial values: a geometric unknown (gamma,
+  rho, r, theta_c, a link length) would then change the commands it is fitted against.
+- ``"measured"``: the measured actuated angles th_1..th_3 drive the
   model instead of the commands, through a C2 not-a-knot cubic spline of the samples
   (`spline_pieces`; C2 because its second derivative is the prescribed acceleration). Use it
   when the servos do not follow their commands exactly: the commands then leave a tracking
@@ -85,9 +93,9 @@ LOSSES = ("linear", "huber", "cauchy")
 #: largest step of the Levenberg-Marquardt loop in the reparametrised unknowns z
 MAX_STEP_Z = 1.0
 SOLVERS = ("lm", "optimistix-lm", "optimistix-gn")
-#: what drove the motors of a servo-circle experiment in the model: the scene's commands for the
-#: initial parameters, or the measured actuated angles of the data
-ACTUATIONS = ("commanded", "measured")
+#: what drives a servo-circle model: the measured angles when the data hold them (auto), the
+#: scene's commands for the parameters of the model that computed them, or the measured angles
+ACTUATIONS = ("auto", "commanded", "measured")
 #: what of each experiment's initial state is estimated (number of unknowns per experiment):
 #: nothing (the scene's quasi-static state), the platform pose (x0, y0, phi0), or the pose and
 #: the platform velocity
@@ -98,6 +106,9 @@ INIT_SCALE = (1e-3, 1e-3, 1e-2, 1e-2, 1e-2, 1e-1)
 INIT_NAMES = ("x0", "y0", "phi0", "xd0", "yd0", "phid0")
 INIT_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s")
 ID_SCENES = ("servo-circle", "paper-circle")
+#: residual scale s (1 = noise as stated) above which a fit does not explain the data: its
+#: intervals then measure the misfit, and it is reported as a poor fit, never as converged
+POOR_FIT_SCALE = 3.0
 #: default noise weights: tracker position (m) and platform angle (rad), Optotrak-like
 DEFAULT_NOISE = (1e-4, 1e-3)
 
@@ -113,6 +124,7 @@ class IdentificationError(PPRError):
 
 class _Problem(eqx.Module):
     base: RobotParams  # the parameters with the unknowns at their initial values
+    commands: RobotParams  # the parameters of the model that computed the commands (fixed)
     lo: Array  # (P,) bounds of the unknowns
     hi: Array
     ts: Array  # (E, m) simulation times per experiment (padded)
@@ -233,7 +245,7 @@ def _weighted_residuals(prob: _Problem, p, d0):
     """(E, m, 3) weighted residuals (simulated - measured) / noise, raw (before the loss), and
     the success flag of every experiment's simulation; d0 (E, 6) initial-state offsets."""
     params = _params_at(prob, p)
-    base_robot = Robot(jax.lax.stop_gradient(prob.base), equal_links=prob.equal_links)
+    base_robot = Robot(jax.lax.stop_gradient(prob.commands))
     tau, th = prob.tau, prob.th
     X, ok = jax.vmap(
         lambda ts, tau, th, d0: _pose_one(prob, params, base_robot, ts, tau, th, d0),
@@ -307,6 +319,12 @@ class Identification(eqx.Module):
     problem: _Problem
     initial_state: Optional[dict] = None
     z: Optional[Array] = None
+    #: what drove the model: "measured angles", or the commands (or torques) and for which
+    #: parameters they were computed
+    actuation: str = ""
+    #: whether the fit can be trusted: {"ok", "residual_scale", "explains_data", "at_bound",
+    #: "problems" (list of sentences)}
+    quality: Optional[dict] = None
 
     def residuals_at(self, values) -> np.ndarray:
         """Weighted residuals (N,) (after the loss) at parameter values (P,) (physical units,
@@ -452,6 +470,10 @@ class Identification(eqx.Module):
                      f"experiment(s), N = {self.residuals.shape[0]} residuals, s = "
                      f"{math.sqrt(self.sigma2):.4g} (1 = noise as stated), condition number "
                      f"{idf['condition_number']:.3g}")
+        if self.actuation:
+            lines.append(f"  driven by: {self.actuation}")
+        for msg in (self.quality or {}).get("problems", []):
+            lines.append(f"  WARNING: {msg}")
         for c in idf["combinations"]:
             lines.append(f"  {c['expression']}: relative std {c['relative_std'] * 100:.3g}% "
                          f"({c['status']})")
@@ -482,6 +504,7 @@ class Identification(eqx.Module):
         return _json_safe({
             "model": self.model,
             "scene": self.scene,
+            "actuation": self.actuation,
             "experiments": list(self.experiment_names),
             "noise": {"position_m": self.noise[0], "phi_rad": self.noise[1]},
             "unknowns": {
@@ -497,6 +520,7 @@ class Identification(eqx.Module):
             "identifiability": self.identifiability,
             "residual_stats": self.residual_stats,
             "initial_state": self.initial_state,
+            "quality": self.quality,
             "history": self.history,
         })
 
@@ -591,9 +615,10 @@ def identify(
     *,
     model="double1r",
     scene: str = "servo-circle",
-    actuation: str = "commanded",
+    actuation: str = "auto",
     initial_state: str = "scene",
     params: Optional[RobotParams] = None,
+    commands: Optional[RobotParams] = None,
     fixed: Optional[dict] = None,
     initial: Optional[dict] = None,
     bounds: Optional[dict] = None,
@@ -616,8 +641,11 @@ def identify(
     experiments: one `Experiment` or several (fitted jointly; `load_csv`, `load_experiments`).
     model: "double1r" (L2, default), "reduced" (L1), "rigid" (L0) or a model instance.
     scene: the experiment's actuation, "servo-circle" (default) or "paper-circle" (module
-    docstring). actuation: "commanded" (default: the scene's commands for the initial
-    parameters) or "measured" (servo-circle: the data's th_1..th_3 drive the model).
+    docstring). actuation: "auto" (default: the data's th_1..th_3 drive the model when every
+    experiment holds them and no `commands` are named, else the commands), "commanded" (the scene's commands, or torques,
+    computed for `commands`, the parameters of the model that computed them: default the
+    nominal robot `params` with `fixed`, never the unknowns' initial values) or "measured"
+    (servo-circle: the data's angles). `Identification.actuation` says which drove the fit.
     initial_state: "scene" (default), "pose" or "pose-velocity": what of each experiment's initial
     state is estimated (module docstring). params: the robot (default `scene_params(scene)`), `fixed` ({name: value})
     overrides applied to it; `initial` ({name: value}) start values of unknowns (default: the
@@ -645,6 +673,11 @@ def identify(
     if actuation not in ACTUATIONS:
         raise IdentificationError(f"unknown actuation {actuation!r}; allowed: "
                                   f"{', '.join(ACTUATIONS)}")
+    if actuation == "auto":
+        # named commands are asked for; otherwise what the files hold
+        has_th = all(e.th is not None for e in exps)
+        measured = commands is None and scene == "servo-circle" and has_th
+        actuation = "measured" if measured else "commanded"
     if actuation == "measured" and scene != "servo-circle":
         raise IdentificationError("actuation 'measured' (the measured angles drive the model) "
                                   "applies to the motion-driven servo-circle scene; "
@@ -685,6 +718,7 @@ def identify(
     base = scene_params(scene) if params is None else params
     try:
         base = base.replace(**fixed) if fixed else base
+        nominal = base
         base = base.replace(**{k: float(v) for k, v in (initial or {}).items()})
     except ValueError as err:
         raise IdentificationError(str(err)) from None
@@ -718,8 +752,23 @@ def identify(
 
     eq = _equal_links(base) and "l1" not in names and "l3" not in names
     ode = get_solver("tsit5" if ode_solver is None else ode_solver)
+    if commands is not None and not isinstance(commands, RobotParams):
+        raise IdentificationError(f"commands must be the RobotParams of the model that computed "
+                                  f"the commands, got {type(commands).__name__}")
+    if commands is not None and actuation == "measured":
+        raise IdentificationError("commands= names the model that computed the commands; with "
+                                  "actuation='measured' the measured angles drive the model")
+    cmd = nominal if commands is None else commands
+    if actuation == "measured":
+        drive = "the measured actuated angles th_1..th_3"
+    elif scene == "paper-circle" and all(e.tau is not None for e in exps):
+        drive = "the measured torques tau_1..tau_3"
+    else:
+        what = "commanded angles" if scene == "servo-circle" else "inverse-dynamics torques"
+        drive = (f"the {what} of the nominal robot (params with fixed), held fixed"
+                 if commands is None else f"the {what} of the given commands model, held fixed")
     prob = _Problem(
-        base=base, lo=jnp.asarray(lo), hi=jnp.asarray(hi), ts=jnp.asarray(ts),
+        base=base, commands=cmd, lo=jnp.asarray(lo), hi=jnp.asarray(hi), ts=jnp.asarray(ts),
         X=jnp.asarray(X), w=jnp.asarray(W), tau=None if tau is None else jnp.asarray(tau),
         th=None if th is None else jnp.asarray(th),
         rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64),
@@ -736,7 +785,7 @@ def identify(
         z, hist = _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol)
     else:
         z, hist = _optimistix(prob, z0, solver, max_iter, xtol, ftol)
-    return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise))
+    return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise), drive)
 
 
 def _initial_state_guess(prob, z0, mask):
@@ -918,7 +967,7 @@ def _identifiability(names, p, J, s2):
             "combinations": combos, "note": note}
 
 
-def _finish(prob, zrj, p0, hist, exps, mask, noise) -> Identification:
+def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="") -> Identification:
     from scipy import stats
 
     z, r, Jz, X = zrj
@@ -972,6 +1021,25 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise) -> Identification:
         idf["note"] = ((idf["note"] + "; ") if idf["note"] else "") + (
             f"{', '.join(at_bound)} ended at a bound: its interval is not meaningful (widen the "
             f"bounds, or fix it)")
+    # A fit that does not explain the data is neither converged nor identifying anything: its
+    # intervals measure the misfit, not the noise (a start 30x off once ended at s = 7,166 with
+    # a "converged", "identifiable" 0.2 % interval).
+    s_fit = math.sqrt(s2)
+    problems = []
+    if not s_fit <= POOR_FIT_SCALE:
+        problems.append(f"the model does not explain the data: residual scale s = {s_fit:.3g} "
+                        f"(> {POOR_FIT_SCALE:g}; 1 = noise as stated)")
+        for c in idf["combinations"]:
+            c["status"] = "not trustworthy (poor fit)"
+    if at_bound:
+        problems.append(f"{', '.join(at_bound)} at a bound")
+    hist = dict(hist)
+    hist["optimizer_stop"] = hist.get("stop")
+    if problems and hist.get("stop") == "converged":
+        hist["stop"] = "poor fit" if not s_fit <= POOR_FIT_SCALE else "at bound"
+    quality = {"residual_scale": s_fit, "explains_data": bool(s_fit <= POOR_FIT_SCALE),
+               "at_bound": at_bound, "ok": not problems,
+               "problems": problems}
     raw = np.where(np.asarray(prob.w) > 0, (X - np.asarray(prob.X)) * np.asarray(prob.w), 0.0)
     rs = []
     for k, e in enumerate(exps):
@@ -995,7 +1063,7 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise) -> Identification:
         measured=np.asarray(prob.X), ts=np.asarray(prob.ts), mask=mask, identifiability=idf,
         residual_stats=stats_, history=hist, model=prob.model.name, scene=prob.scene,
         experiment_names=tuple(e.name for e in exps), noise=noise, problem=prob,
-        initial_state=init, z=np.asarray(z),
+        initial_state=init, z=np.asarray(z), actuation=drive, quality=quality,
     )
 
 

@@ -59,12 +59,16 @@ def cmd_identify(args):
     _log(f"identify {', '.join(unknowns)} with {args.model} from {len(exps)} experiment(s), "
          f"{sum(e.n for e in exps)} samples (compiling the simulation and its Jacobian first) ...")
     t0 = time.perf_counter()
+    commands = None
+    if args.commands_set:
+        commands = params.replace(**_name_values(args.commands_set, "--commands-set"))
     fit = identify(exps, unknowns, model=model_from_args(args, args.model), scene=args.scene,
-                   actuation=args.actuation, initial_state=args.initial_state, params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
+                   actuation=args.actuation, commands=commands, initial_state=args.initial_state, params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
                    noise=(args.noise_pos, args.noise_phi), loss=args.loss,
                    loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
                    ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
                    max_steps=args.max_steps)
+    _log(f"driven by {fit.actuation}")
     _log(f"done in {time.perf_counter() - t0:.1f} s ({fit.history.get('iterations')} iterations, "
          f"stop: {fit.history.get('stop')})")
     os.makedirs(args.out, exist_ok=True)
@@ -95,6 +99,9 @@ def cmd_identify(args):
     print(f"wrote {args.out}/estimates.json, estimates.txt, fitted.csv, "
           + ("profiles.json, " if args.profile else "")
           + ", ".join(os.path.basename(p) for p in figs))
+    if args.strict and not fit.quality["ok"]:
+        _log("--strict: the fit cannot be trusted: " + "; ".join(fit.quality["problems"]))
+        return 3
     return 0
 
 
@@ -166,9 +173,14 @@ def add_identify(sub, parents, fmt):
                    help="model to fit (beam/L3 is too slow for time-domain fits)")
     p.add_argument("--scene", default="servo-circle", choices=list(ID_SCENES),
                    help="what the motors did during the experiments")
-    p.add_argument("--actuation", default="commanded", choices=list(ACTUATIONS),
-                   help="servo-circle: drive the model by the scene's commands or by the "
-                        "measured angles th_1..th_3 of the data")
+    p.add_argument("--actuation", default="auto", choices=list(ACTUATIONS),
+                   help="servo-circle: drive the model by the measured angles th_1..th_3 of "
+                        "the data (auto: when every file holds them) or by the scene's commands "
+                        "computed for the model named by --commands-set")
+    p.add_argument("--commands-set", action="append", metavar="NAME=VALUE",
+                   help="a parameter of the model that computed the commands (as --set; "
+                        "default: the nominal robot, never the unknowns' start values); "
+                        "repeatable")
     p.add_argument("--initial-state", default="scene", choices=list(INITIAL_STATES),
                    help="estimate each experiment's initial platform pose (and velocity) "
                         "instead of starting from the scene's quasi-static state")
@@ -192,6 +204,9 @@ def add_identify(sub, parents, fmt):
                    help="least-squares solver")
     p.add_argument("--max-iter", type=int, default=50, help="iteration limit of the fit")
     p.add_argument("--drop-nan", action="store_true", help="drop NaN rows (reported)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 3 when the fit cannot be trusted: it does not explain the data "
+                        "(residual scale s > 3) or an unknown ends at a bound")
     p.add_argument("--profile", action="store_true",
                    help="also profile-likelihood intervals of every unknown (a re-fit of the "
                         "others per point): profiles.json, profiles.png")
