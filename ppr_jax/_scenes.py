@@ -24,15 +24,14 @@ from ._checks import (
 )
 from ._custom_types import Array
 from ._dynamics import inverse_dynamics
-from ._kinematics import _fk, det3, fold_flags
-from ._linalg import solve
+from ._kinematics import det3, fold_flags
 from ._metrics import outputs
 from ._models import Reduced, get_model
 from ._modes import modes as _modes
 from ._params import RobotParams, params_invalid
 from ._robot import Robot
 from ._simulate import Solution, _simulate_core, default_controller, get_solver
-from ._statics import _quasi_static_state
+from ._statics import _quasi_static_state, kinematic_state
 from ._tabulated import input_too_coarse, scene_input, scene_panels
 from ._trajectory import Circle, derivatives
 
@@ -176,18 +175,10 @@ def _kinematic_motion(model, robot, angles, X0, ts):
     """L0/L1 motion-driven: X(t) by warm-started forward kinematics, X' and X'' from
     th_a(X) = th_a(t) differentiated once and twice, torques by inverse dynamics. No ODE."""
 
-    def tha_of_X(X):
-        return model.kinematics(robot, model.coords_from_pose(robot, X)).th_a
-
     def step(X, t):
-        th, thd, thdd = derivatives(angles, t)
-        X, res = _fk(model, robot, th, X, 1e-13, 1e-13, 50)
-        S = jax.jacfwd(tha_of_X)(X)
-        Xd = solve(S, thd)
-        conv = jax.jvp(lambda X: jax.jvp(tha_of_X, (X,), (Xd,))[1], (X,), (Xd,))[1]
-        Xdd = solve(S, thdd - conv)
+        X, Xd, Xdd, code, S = kinematic_state(model, robot, derivatives(angles, t), X)
         tau, _ = inverse_dynamics(model, robot, X, Xd, Xdd)
-        return X, (X, Xd, tau, res._value, det3(S))
+        return X, (X, Xd, tau, code, det3(S))
 
     _, (X, Xd, tau, codes, det) = jax.lax.scan(step, X0, ts)
     # A motion through a type-II singularity: the warm start folds back in its assembly mode

@@ -246,7 +246,7 @@ def _quasi_static_state(
         if prescribed:
             # L0/L1 under prescribed angles: the pose is their forward kinematics (started at
             # the trajectory's pose), not the trajectory's own pose.
-            X, Xd, _, code = kinematic_state(model, robot, actuation.angles_at(t),
+            X, Xd, _, code, _ = kinematic_state(model, robot, actuation.angles_at(t),
                                              trajectory(t))
             return X, Xd, code != 0
         z, zd, _ = derivatives(ref, t)
@@ -345,8 +345,8 @@ def kinematic_state(model: AbstractModel, robot, angles, X_guess, rtol=1e-13, at
     - `angles`: (th_a, th_a', th_a'') (3,) each (rad, rad/s, rad/s^2).
     - `X_guess`: (3,) the pose Newton starts from (m, m, rad).
 
-    **Returns:** (X, X', X'', code): (3,) each, and the forward kinematics' optimistix result
-    code (0 when it converged)."""
+    **Returns:** (X, X', X'', code, S): (3,) each, the forward kinematics' optimistix result
+    code (0 when it converged), and S = d th_a / dX (3, 3) at X."""
     th, thd, thdd = angles
 
     def tha_of_X(X):
@@ -357,4 +357,4 @@ def kinematic_state(model: AbstractModel, robot, angles, X_guess, rtol=1e-13, at
     Xd = solve(S, thd)
     conv = jax.jvp(lambda X: jax.jvp(tha_of_X, (X,), (Xd,))[1], (X,), (Xd,))[1]
     Xdd = solve(S, thdd - conv)
-    return X, Xd, Xdd, res._value
+    return X, Xd, Xdd, res._value, S
