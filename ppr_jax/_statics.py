@@ -114,7 +114,9 @@ def _differentiation_matrices(s):
     V1 = np.where(k > 0, k * s[:, None] ** np.maximum(k - 1, 0), 0.0)
     V2 = np.where(k > 1, k * (k - 1) * s[:, None] ** np.maximum(k - 2, 0), 0.0)
     Vi = np.linalg.inv(V)
-    return jnp.asarray(V1 @ Vi), jnp.asarray(V2 @ Vi)
+    # NumPy, not JAX: a JAX array made at import would start JAX's backend before the user's
+    # `configure_cpu` could set XLA's flags
+    return V1 @ Vi, V2 @ Vi
 
 
 D1, D2 = _differentiation_matrices(STENCIL)
@@ -304,7 +306,7 @@ def _quasi_static_state(
         zus_prev, zud, zudd = carry
         out = jax.vmap(solve_at, in_axes=(0, 0, 0, 0, None))(ts, zus_prev, zud, zudd, own)
         zus = out[0]
-        return (zus, D1 @ zus / QS_DT, D2 @ zus / QS_DT**2), out
+        return (zus, jnp.asarray(D1) @ zus / QS_DT, jnp.asarray(D2) @ zus / QS_DT**2), out
 
     zero = jnp.zeros((STENCIL.shape[0], nu))
     (zus, zud, _), outs = jax.lax.scan(one_pass, (zero, zero, zero),
