@@ -204,8 +204,8 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
         angles = (InverseKinematicsAngles(Reduced(), base_robot, traj) if th is None
                   else PiecewiseCubic(ts, th))
         if model.actuated_index is None:
-            X, _, _, codes = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
-            ok = jnp.all(codes == 0)
+            X, _, _, codes, folds = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
+            ok = jnp.all(codes == 0) & ~jnp.any(folds)
             return X, ok
         # The commands as the scenes take them (tabulated for L2/L3), so that a fit of a
         # scene's output runs the scene's own program.

@@ -253,8 +253,10 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
 
 def test_profile_likelihood(truth, clean, fits):
     """One determined unknown (K_theta, t fixed at the truth): the profile-likelihood interval
-    agrees with the linearised one to 3 % of its width (the response is nearly linear in
-    K_theta over 6 %) and holds the truth."""
+    has the linearised one's width to 3 % (a wrong Jacobian changes the linearised width), its
+    ends lie within 10 % of the width of the linearised ends (the response's curvature in
+    K_theta over the +-12 % interval shifts both ends up by 5-7 % of the width on these data)
+    and it holds the truth."""
     exp = _noisy(clean, 1.0, seed=1)
     fit = pj.identify(exp, ("K_theta",), model="double1r",
                       initial={"K_theta": 1.2 * float(truth.K_theta)}, noise=NOISE)
@@ -262,7 +264,8 @@ def test_profile_likelihood(truth, clean, fits):
     lo, hi = pr["ci"]
     llo, lhi = pr["linearised"]
     assert pr["open"] == [] and pr["limited_by_bounds_of"] == []
-    assert abs(lo - llo) < 0.03 * (lhi - llo) and abs(hi - lhi) < 0.03 * (lhi - llo), pr
+    assert abs((hi - lo) / (lhi - llo) - 1) < 0.03, pr
+    assert abs(lo - llo) < 0.1 * (lhi - llo) and abs(hi - lhi) < 0.1 * (lhi - llo), pr
     assert lo < float(truth.K_theta) < hi
     # the walked points: a rise that grows both ways from zero at the estimate
     d = np.asarray(pr["delta"])
