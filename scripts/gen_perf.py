@@ -244,6 +244,38 @@ def l3() -> str:
     return "\n\n".join(out)
 
 
+def implicit() -> str:
+    d = _load("implicit_l2.json")
+    if d is None:
+        return ""
+    rows = [[f"{r['t_mm']:g}", r["solver"], f"{r['rtol']:g}", r["steps"],
+             f"{r['rejected']} ({100 * r['rejected_fraction']:.1f} %)", _ms(r["run_s"]),
+             f"{r['error_position_m']:.1e} m"] for r in d["rows"] if r.get("ok")]
+    return ("**L2 servo-circle, 1 s, explicit against implicit** (`benchmarks/implicit_l2.py`; "
+            "error against Dopri8 at rtol 1e-12; `kvaerno5-diffrax` is diffrax's own stage "
+            "solve and controller, for comparison):\n\n"
+            + _table(["t (mm)", "solver", "rtol", "steps", "rejected", "run", "error"], rows))
+
+
+def known_truth() -> str:
+    d = _load("identify_known_truth.json")
+    if d is None:
+        return ""
+    rows = [[r["case"], ", ".join(r["unknowns"]), r["actuation"],
+             " / ".join(f"{b:.2g}" for b in r["bias_in_std"]),
+             " / ".join(f"{v:.2f}" for v in r["mean_abs_error_in_std"]),
+             " / ".join(f"{100 * c:.1f} %" for c in r["coverage_95"]), r["seeds"],
+             _ms(r["warm_fit_s_median"])] for r in d["rows"]]
+    dd = d["data"]
+    return ("**Known truth on data ppr_jax did not make** (`benchmarks/identify_known_truth.py`:"
+            f" the independent scipy L2, truth {dd['truth']}, commands from {dd['commands_from']},"
+            f" {dd['t_end_s']:g} s at {dd['rate_hz']:g} Hz, noise {dd['noise']}; bias of the "
+            "noise-free fit and mean |error| in standard deviations (0.80 expected), coverage of "
+            "the linearised 95 % intervals over the noise seeds):\n\n"
+            + _table(["case", "unknowns", "driven by", "bias (std)", "mean abs error (std)",
+                      "coverage 95 %", "seeds", "warm fit"], rows))
+
+
 def headline() -> dict:
     """The contenders' matched times, which the README's headline table quotes (to check it)."""
     d = _load("cpu", "contenders.json")
@@ -261,6 +293,8 @@ def tables() -> dict:
         "mjx": mjx_batch(),
         "studies": studies(),
         "l3": l3(),
+        "implicit": implicit(),
+        "known-truth": known_truth(),
     }
 
 
