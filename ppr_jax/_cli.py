@@ -1,4 +1,4 @@
-"""Command line interface `ppr-jax` (see README.md, "Command line")."""
+"""Command line interface `ppr-jax` (docs/cli.md)."""
 
 from __future__ import annotations
 
@@ -426,7 +426,7 @@ def parent_parsers() -> dict:
                             "first strip mode by 7.5%%); default 0 (undamped); the beam's alone")
     solve = argparse.ArgumentParser(add_help=False)
     solve.add_argument("--solver", default=None, choices=list(SOLVERS),
-                       help="ODE solver (default: per model, see README 'Solvers')")
+                       help="ODE solver (default: per model, see the docs' Which model page)")
     solve.add_argument("--rtol", type=float, default=1e-8, help="relative tolerance of the solver")
     solve.add_argument("--atol", type=float, default=1e-10, help="absolute tolerance of the solver")
     solve.add_argument("--max-steps", type=int, default=200_000, help="solver step limit")

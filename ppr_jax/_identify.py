@@ -84,7 +84,7 @@ from ._params import PARAM_RANGES, RobotParams
 from ._prb import derived
 from ._robot import Robot
 from ._scenes import _kinematic_motion, input_panels_at, scene_params
-from ._simulate import _simulate_core, get_solver
+from ._simulate import _simulate_core, default_controller, get_solver
 from ._statics import _quasi_static_state
 from ._tabulated import input_too_coarse, scene_input
 from ._trajectory import Circle, Interpolated, PiecewiseCubic, spline_pieces
@@ -197,7 +197,7 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
     model = prob.model
     robot = Robot(params, equal_links=prob.equal_links)
     traj = Circle()
-    ctrl = diffrax.PIDController(rtol=prob.rtol, atol=prob.atol)
+    ctrl = default_controller(prob.solver, prob.rtol, prob.atol)
     if prob.scene == "servo-circle":
         # The angles the motors followed: measured (a C2 spline through the samples), or the
         # commands, fixed, from the initial parameters.

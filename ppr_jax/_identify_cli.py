@@ -1,4 +1,4 @@
-"""Commands `identify` and `synth` of the `ppr-jax` command line (see README, "Identification")."""
+"""Commands `identify` and `synth` of the `ppr-jax` command line (docs/identification.md)."""
 
 from __future__ import annotations
 
@@ -166,7 +166,7 @@ def add_identify(sub, parents, fmt):
         description="Fit unknown parameters to tracker data by least squares through the "
                     "simulation; write estimates.json (estimates, 95 % intervals, correlations, "
                     "identifiability, residual statistics), estimates.txt, fitted.csv and "
-                    "figures. CSV format: README, 'Identification'.")
+                    "figures. CSV format: docs/identification.md.")
     p.add_argument("--data", action="append", required=True, metavar="FILE.csv",
                    help="tracker CSV file; repeat for several experiments (fitted jointly)")
     p.add_argument("--model", default="double1r", choices=list(MODELS),

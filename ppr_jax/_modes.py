@@ -88,13 +88,21 @@ def _modes_core(model, robot, X, actuators, w):
     K = -jax.jacfwd(Q)(z_eq[f])
     K = (K + K.T) / 2  # symmetric at an equilibrium of conservative forces; remove rounding
     M = eom_terms(model, robot, z_eq, jnp.zeros(n)).M[f][:, f]
-    Lc = jnp.linalg.cholesky(M)
-    Li = jnp.linalg.inv(Lc)
-    lam, V = jnp.linalg.eigh(Li @ K @ Li.T)
-    shapes = Li.T @ V
+    lam, V, shapes = _reduced_eigh(M, K)
     freq = jnp.sign(lam) * jnp.sqrt(jnp.abs(lam)) / (2 * jnp.pi)
     growth = jnp.where(lam < 0, jnp.sqrt(jnp.abs(lam)), 0.0)
     return Modes(freq, growth, lam, shapes, z_eq, M, K, free), failed
 
 
 _modes_jit = eqx.filter_jit(_modes_core)
+
+
+def _reduced_eigh(M, K):
+    """Eigenpairs of K v = lam M v (M symmetric positive definite) through the Cholesky factor
+    M = L L^T: lam, V of L^-1 K L^-T, and the mode shapes L^-T V (M-orthonormal). (The inverse
+    of L, not triangular solves: `jax.scipy.linalg.solve_triangular` is one more LAPACK custom
+    call per member, the kind whose batched form can deadlock XLA's CPU thread pool (`_linalg`);
+    L is 3 x 3 to 9 x 9.)"""
+    Li = jnp.linalg.inv(jnp.linalg.cholesky(M))
+    lam, V = jnp.linalg.eigh(Li @ K @ Li.T)
+    return lam, V, Li.T @ V

@@ -38,7 +38,7 @@ from ._trajectory import Circle, derivatives
 SCENES = ("paper-circle", "servo-circle", "modes")
 #: strip thickness of each scene (m): the paper's simulation uses 0.3 mm, its experiment 0.5 mm
 SCENE_THICKNESS = {"paper-circle": 0.3e-3, "servo-circle": 0.5e-3, "modes": 0.3e-3}
-#: default solver per model level (see README, "Solvers")
+#: default solver per model level (docs/which_model.md)
 DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "dopri8"}
 
 

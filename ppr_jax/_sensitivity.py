@@ -45,7 +45,8 @@ from ._params import RobotParams
 from ._prb import derived
 from ._robot import Robot
 from ._scenes import DEFAULT_SOLVER, check_scene_args, scene_params
-from ._simulate import get_solver
+from ._simulate import default_controller, get_solver
+from ._modes import _reduced_eigh
 from ._statics import _assemble, static_equilibrium
 from ._sweep import FLOAT_PARAMS, _plain, follows_its_input, run_member, traced_metrics
 from ._trajectory import Circle
@@ -100,9 +101,7 @@ def base_frequency(model, robot: Robot, X=None):
     # Mode shapes from a non-differentiated eigenproblem: eigh's derivative is NaN at repeated
     # eigenvalues. The Rayleigh quotients below carry the exact first derivative.
     Ms, Ks = jax.lax.stop_gradient(M), jax.lax.stop_gradient(K)
-    Li = jnp.linalg.inv(jnp.linalg.cholesky(Ms))
-    lam0, V = jnp.linalg.eigh(Li @ Ks @ Li.T)
-    shapes = Li.T @ V  # M-orthonormal
+    lam0, _, shapes = _reduced_eigh(Ms, Ks)  # shapes M-orthonormal
     lam = jnp.einsum("ik,ij,jk->k", shapes, K, shapes) / jnp.einsum("ik,ij,jk->k", shapes, M,
                                                                     shapes)
     w = (jnp.abs(lam0 - lam0[0]) <= CLUSTER_RTOL * jnp.abs(lam0[0])).astype(lam.dtype)
@@ -188,7 +187,7 @@ def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] =
         robot = Robot(p, equal_links=equal)
         out = {}
         if scene_metrics_needed:
-            controller = diffrax.PIDController(rtol=rtol, atol=atol)
+            controller = default_controller(solver_, rtol, atol)
             adj = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
             res = run_member(scene, model_, tmodel, robot, traj, ts, solver_, controller,
                              max_steps, adj)

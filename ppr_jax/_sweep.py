@@ -42,7 +42,7 @@ from ._params import PARAM_RANGES, RobotParams, stack_params
 from ._robot import Robot
 from ._scenes import (_CORES, DEFAULT_SOLVER, _chunked_vmap, check_scene_args, input_panels_at,
                       scene_params)
-from ._simulate import get_solver
+from ._simulate import default_controller, get_solver
 from ._trajectory import Circle
 
 #: a member whose max loop-closure residual (m) at the output times exceeds this has failed
@@ -248,7 +248,7 @@ def _program(scene, model, torque_model, trajectory, ts, solver, max_steps, robo
 
     def member(robot_dyn, rtol, atol):
         robot = eqx.combine(robot_dyn, robot_static)
-        controller = diffrax.PIDController(rtol=rtol, atol=atol)
+        controller = default_controller(solver, rtol, atol)
         res = run_member(scene, model, torque_model, robot, trajectory, ts, solver, controller,
                          max_steps, adjoint)
         return traced_metrics(res, trajectory), res.result._value, res.num_steps

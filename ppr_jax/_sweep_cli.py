@@ -1,4 +1,4 @@
-"""Commands `ppr-jax sweep` and `ppr-jax sensitivity` (README.md, "Sweeps and sensitivities")."""
+"""Commands `ppr-jax sweep` and `ppr-jax sensitivity` (docs/sweeps.md)."""
 
 from __future__ import annotations
 
