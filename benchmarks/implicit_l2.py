@@ -37,12 +37,13 @@ import time
 from pathlib import Path
 
 import diffrax
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import ppr_jax as pj
-from ppr_jax._scenes import _prepare
+from ppr_jax._scenes import SceneOptions, prepare
 
 jax.config.update("jax_enable_x64", True)
 
@@ -77,11 +78,13 @@ def run_library(params, t_end, solver, rtol, atol, repeats):
 
 def run_diffrax_default(params, t_end, rtol, atol, repeats):
     """diffrax's Kvaerno5 and I controller, swapped into the scene's own program."""
-    c = _prepare("servo-circle", params, "double1r", "reduced", None, t_end, 755, "kvaerno5",
-                 rtol, atol, 2_000_000)
-    args = list(c.args)
-    args[4] = diffrax.Kvaerno5()
-    args[5] = diffrax.PIDController(rtol=jnp.asarray(rtol), atol=jnp.asarray(atol))
+    opts = SceneOptions(t_end=t_end, n_out=755, solver=diffrax.Kvaerno5(), rtol=rtol, atol=atol,
+                        max_steps=2_000_000,
+                        controller=diffrax.PIDController(rtol=jnp.asarray(rtol),
+                                                         atol=jnp.asarray(atol)))
+    c = prepare("servo-circle", params, "double1r", opts)
+    # diffrax's own root finder (`prepare` would swap in StageChord)
+    args = eqx.tree_at(lambda a: a[3].solver, c.args, diffrax.Kvaerno5())
     t0 = time.perf_counter()
     res = c.fn(*args)
     jax.block_until_ready(res)

@@ -35,14 +35,10 @@ import jax.numpy as jnp
 
 from ppr_jax._models import get_model
 from ppr_jax._robot import Robot
-from ppr_jax._scenes import (
-    InverseDynamicsTorque,
-    TorqueDriven,
-    _quasi_static_state,
-    _tabulated_input,
-    input_panels,
-    scene_params,
-)
+from ppr_jax._actuation import InverseDynamicsTorque, TorqueDriven
+from ppr_jax._scenes import input_panels, scene_params
+from ppr_jax._scenes import tabulated as _tabulated_input
+from ppr_jax._statics import _quasi_static_state
 from ppr_jax._sensitivity import explicit_params, metric_function
 from ppr_jax._simulate import _vector_field
 from ppr_jax._trajectory import Circle

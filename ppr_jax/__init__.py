@@ -84,7 +84,13 @@ from ._statics import (  # noqa: E402
 from ._modes import Modes as Modes, modes as modes  # noqa: E402
 from ._metrics import outputs as outputs, metrics as metrics  # noqa: E402
 from ._scenes import (  # noqa: E402
+    AbstractScene as AbstractScene,
+    PaperCircle as PaperCircle,
+    SceneInput as SceneInput,
+    SceneOptions as SceneOptions,
     SceneResult as SceneResult,
+    ServoCircle as ServoCircle,
+    solve_scene as solve_scene,
     paper_circle as paper_circle,
     servo_circle as servo_circle,
     modes_scene as modes_scene,

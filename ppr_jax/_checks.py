@@ -86,6 +86,18 @@ class RESULTS(diffrax.RESULTS):
     )
 
 
+def result_code(result):
+    """The integer code of a result (traceable, batched like it; 0 is success): what a table
+    column or a `lax` carry stores. The only place this package reads an enumeration's code."""
+    result = result if isinstance(result, RESULTS) else RESULTS.promote(result)
+    return result._value
+
+
+def result_message(code: int) -> str:
+    """The message of an integer result code (`result_code`)."""
+    return RESULTS._index_to_message[int(code)]
+
+
 def first_failure(*checks):
     """The result code of the first failed check, most fundamental cause first. A check is a
     pair (failed: bool array or None for "not checked", code), or a result code (diffrax's,

@@ -13,28 +13,13 @@ import numpy as np
 
 from ._checks import PPRError
 
-PAPER_REFERENCE = {
-    "paper-circle": {
-        "source": "paper section 2.2, theory vs ADAMS-ANSYS, t = 0.3 mm",
-        "radial_error_max_m": 2.41e-3,
-        "radial_error_min_m": -0.99e-3,
-        "radial_error_mean_m": 0.84e-3,
-        "radial_error_max_relative_percent": 2.41,
-        "end_rotation_diff_max_deg": 5.60,
-        "end_rotation_diff_min_deg": -7.62,
-        "end_rotation_diff_mean_deg": -0.04,
-        "end_rotation_diff_max_relative_percent": 6.60,
-        "computation_time_s": 60.0,
-        "cosimulation_time_s": 28 * 60.0,
-    },
-    "servo-circle": {
-        "source": "paper section 3, theory vs experiment (NDI Optotrak), t = 0.5 mm",
-        "radial_error_max_m": 4.69e-3,
-        "radial_error_min_m": -3.59e-3,
-        "radial_error_mean_m": 0.71e-3,
-        "radial_error_max_relative_percent": 4.69,
-    },
-}
+
+def _reference(scene):
+    """The values the scene's paper figure reports (`AbstractScene.reference`), or None."""
+    from ._scenes import SCENE_CLASSES
+
+    cls = SCENE_CLASSES.get(scene)
+    return dict(cls.reference) if cls is not None and cls.reference else None
 
 
 def _parse_sets(items, scene):
@@ -131,7 +116,7 @@ def cmd_simulate(args):
                       "strip_loss_s": args.strip_loss}
                      if "beam" in models else None),
             "failed": failed,
-            "paper_reference": PAPER_REFERENCE.get(scene),
+            "paper_reference": _reference(scene),
         }
         _write_json(os.path.join(args.out, "summary.json"), summary)
         if results:
@@ -164,7 +149,7 @@ def cmd_simulate(args):
 
 
 def _print_table(scene, results, args):
-    ref = PAPER_REFERENCE.get(scene, {})
+    ref = _reference(scene) or {}
     hdr = (f"{'model':>10s} {'e_r max':>9s} {'e_r min':>9s} {'e_r mean':>9s} {'max|e_r|/R':>10s} "
            f"{'|dphi| max':>10s} {'d_end max':>9s} {'d_end min':>9s} {'d_end mean':>10s} "
            f"{'rel':>6s} {'resid':>8s} {'steps':>6s} {'run':>8s}")

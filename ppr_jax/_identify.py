@@ -75,19 +75,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._actuation import InverseDynamicsTorque, InverseKinematicsAngles, MotionDriven, TorqueDriven
-from ._checks import PPRError
+from ._actuation import MotionDriven, TorqueDriven
+from ._checks import RESULTS, PPRError
 from ._custom_types import Array
 from ._data import DataError, Experiment
-from ._models import Reduced, get_model
+from ._models import get_model
 from ._params import PARAM_RANGES, RobotParams
 from ._prb import derived
 from ._robot import Robot
-from ._scenes import _kinematic_motion, input_panels_at, scene_params
-from ._simulate import _simulate_core, default_controller, get_solver
-from ._statics import _quasi_static_state
-from ._tabulated import input_too_coarse, scene_input
-from ._trajectory import Circle, Interpolated, PiecewiseCubic, spline_pieces
+from ._scenes import SceneOptions, get_scene, input_panels_at, scene_params
+from ._simulate import get_solver
+from ._trajectory import Interpolated, PiecewiseCubic, spline_pieces
 
 LOSSES = ("linear", "huber", "cauchy")
 #: largest step of the Levenberg-Marquardt loop in the reparametrised unknowns z
@@ -193,42 +191,27 @@ def _offsets(prob: _Problem, z):
 
 
 def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
-    """Simulated pose (m, 3) of one experiment at times ts (ts[0] = 0, the scene's start)."""
+    """Simulated pose (m, 3) of one experiment at times ts (ts[0] = 0, the scene's start) and
+    whether its scene succeeded: the scene's own run (`AbstractScene.run`), driven by the
+    measured angles or torques, or by the scene's commands for the commands' robot."""
     model = prob.model
-    robot = Robot(params, equal_links=prob.equal_links)
-    traj = Circle()
-    ctrl = default_controller(prob.solver, prob.rtol, prob.atol)
-    if prob.scene == "servo-circle":
-        # The angles the motors followed: measured (a C2 spline through the samples), or the
-        # commands, fixed, from the initial parameters.
-        angles = (InverseKinematicsAngles(Reduced(), base_robot, traj) if th is None
-                  else PiecewiseCubic(ts, th))
-        if model.actuated_index is None:
-            X, _, _, codes, folds = _kinematic_motion(model, robot, angles, traj(ts[0]), ts)
-            ok = jnp.all(codes == 0) & ~jnp.any(folds)
-            return X, ok
-        # The commands as the scenes take them (tabulated for L2/L3), so that a fit of a
-        # scene's output runs the scene's own program.
-        inp = angles if th is not None else scene_input(angles, ts,
-                                                        input_panels_at(traj, ts))
-        act = MotionDriven(inp)
+    scene = get_scene(prob.scene)
+    traj = scene.trajectory()
+    # The panel count is a shape: decided from the (traced) times as the scenes decide it.
+    options = SceneOptions(solver=prob.solver, rtol=prob.rtol, atol=prob.atol,
+                           max_steps=prob.max_steps, adjoint=diffrax.ForwardMode(),
+                           panels=input_panels_at(traj, ts)).prepared(model, traj)
+    if th is not None:
+        # the angles the motors followed: a C2 spline through the samples
+        act = MotionDriven(PiecewiseCubic(ts, th))
+    elif tau is not None:
+        act = TorqueDriven(Interpolated(ts, tau))
     else:
-        inp = (scene_input(InverseDynamicsTorque(Reduced(), base_robot, traj), ts,
-                           input_panels_at(traj, ts))
-               if tau is None else Interpolated(ts, tau))
-        act = TorqueDriven(inp)
-    coarse = input_too_coarse(inp)
-    # The status-returning form: a failure is a flag of the compiled program, not a callback.
-    z0, zd0, qs_failed = _quasi_static_state(model, robot, traj, ts[0], act)
-    # estimated initial state: the platform pose and velocity are z[:3] in every model
-    z0, zd0 = z0.at[:3].add(d0[:3]), zd0.at[:3].add(d0[3:])
-    sol = _simulate_core(model, robot, act, z0, zd0, ts, prob.solver, ctrl, None,
-                         prob.max_steps, jnp.zeros(3), False, diffrax.NoProgressMeter(),
-                         diffrax.ForwardMode())
-    X = jax.vmap(lambda z: model.kinematics(robot, z).X)(sol.z)
-    # Compared by code (0 = success) so that any RESULTS enumeration built on diffrax's works.
-    ok = (sol.result._value == diffrax.RESULTS.successful._value) & ~qs_failed
-    return X, ok if coarse is None else ok & ~coarse
+        # the commands, fixed, from the commands' parameters
+        act = scene.commands(model, base_robot, traj, ts, options.panels).actuation
+    robot = Robot(params, equal_links=prob.equal_links)
+    res = scene.run(model, robot, options, act, ts=ts, initial_offset=d0)
+    return res.X, res.result == RESULTS.successful
 
 
 def _robust(r, loss, c):

@@ -57,40 +57,94 @@ def radial_error(X, center, radius):
     return jnp.linalg.norm(X[..., :2] - center, axis=-1) - radius
 
 
-def metric_arrays(out: Outputs, X_nominal, center, radius) -> dict:
-    """The scene metrics as NumPy arrays over any leading batch axes of `out` (time is the
-    last axis of the scalar outputs): one vectorised pass for a whole batch, where a loop of
-    `metrics` per member cost more than the batch's simulation (1,024 L1 robots: 0.8 s)."""
-    X = np.asarray(out.X)
-    Xn = np.asarray(X_nominal)
-    er = np.linalg.norm(X[..., :2] - np.asarray(center), axis=-1) - float(radius)
+def _is_circle(trajectory) -> bool:
+    return (getattr(trajectory, "center", None) is not None
+            and getattr(trajectory, "radius", None) is not None)
+
+
+def metric_table(res, trajectory, xp=jnp) -> dict:
+    """The scene metrics of MODEL.md section 6, computed once for every user: inside the
+    compiled programs of sweeps and sensitivities (`xp=jax.numpy`: traced, vmappable,
+    differentiable) and on the host for reports (`xp=numpy`: one vectorised pass for a whole
+    batch, where a loop per member cost more than the batch's simulation).
+
+    **Arguments:**
+
+    - `res`: a `SceneResult` (or anything with its signals: X, X_nominal, end_rot, residual,
+      kinetic, potential, and optionally tau), with any leading batch axes; time is the axis
+      after them.
+    - `trajectory`: the nominal path; the radial-error metrics need a circle (`center`,
+      `radius`), the others hold for any path.
+    - `xp`: the array namespace (`jax.numpy` or `numpy`).
+
+    **Returns:** {name: array over the batch axes}, SI unless the name says otherwise
+    (`_deg`, `_percent`). Radial error e_r = |(x, y) - c| - R (m); its max and min are the
+    exact max / min over the output samples, whose derivative is that of the arg-max sample (a
+    subgradient, exact while the arg-max sample does not change). Position and phi errors
+    against the nominal pose; chain 1's joint end rotations and their difference (deg); the
+    peak actuator torque max |tau| (N m); the largest loop-closure residual (m); the energy.
+    """
+    X, Xn = xp.asarray(res.X), xp.asarray(res.X_nominal)
+    out = {}
+    if _is_circle(trajectory):
+        radius = trajectory.radius
+        er = xp.linalg.norm(X[..., :2] - xp.asarray(trajectory.center), axis=-1) - radius
+        out.update(
+            radial_error_max_m=xp.max(er, axis=-1),
+            radial_error_min_m=xp.min(er, axis=-1),
+            radial_error_mean_m=xp.mean(er, axis=-1),
+            radial_error_max_relative_percent=xp.max(xp.abs(er), axis=-1) / radius * 100,
+        )
     dphi = X[..., 2] - Xn[..., 2]
-    rot = np.degrees(np.asarray(out.end_rot))
+    rot = xp.degrees(xp.asarray(res.end_rot))
     diff = rot[..., 0] - rot[..., 1]
-    scale = np.maximum(np.abs(rot).max(axis=(-2, -1)), 1e-300)
-    E = np.asarray(out.kinetic) + np.asarray(out.potential)
-    return {
-        "radial_error_max_m": er.max(-1),
-        "radial_error_min_m": er.min(-1),
-        "radial_error_mean_m": er.mean(-1),
-        "radial_error_max_relative_percent": np.abs(er).max(-1) / float(radius) * 100,
-        "position_error_max_m": np.linalg.norm(X[..., :2] - Xn[..., :2], axis=-1).max(-1),
-        "phi_error_max_rad": np.abs(dphi).max(-1),
-        "phi_error_rms_rad": np.sqrt(np.mean(dphi**2, axis=-1)),
-        "end_rotation_1_max_deg": rot[..., 0].max(-1),
-        "end_rotation_1_min_deg": rot[..., 0].min(-1),
-        "end_rotation_2_max_deg": rot[..., 1].max(-1),
-        "end_rotation_2_min_deg": rot[..., 1].min(-1),
-        "end_rotation_diff_max_deg": diff.max(-1),
-        "end_rotation_diff_min_deg": diff.min(-1),
-        "end_rotation_diff_mean_deg": diff.mean(-1),
-        "end_rotation_diff_max_relative_percent": np.abs(diff).max(-1) / scale * 100,
-        "constraint_residual_max_m": np.asarray(out.residual).max(-1),
-        "energy_initial_J": E[..., 0],
-        "energy_final_J": E[..., -1],
-        "energy_min_J": E.min(-1),
-        "energy_max_J": E.max(-1),
-    }
+    scale = xp.maximum(xp.max(xp.abs(rot), axis=(-2, -1)), 1e-300)
+    E = xp.asarray(res.kinetic) + xp.asarray(res.potential)
+    out.update(
+        position_error_max_m=xp.max(xp.linalg.norm(X[..., :2] - Xn[..., :2], axis=-1), axis=-1),
+        phi_error_max_rad=xp.max(xp.abs(dphi), axis=-1),
+        phi_error_rms_rad=xp.sqrt(xp.mean(dphi**2, axis=-1)),
+        end_rotation_1_max_deg=xp.max(rot[..., 0], axis=-1),
+        end_rotation_1_min_deg=xp.min(rot[..., 0], axis=-1),
+        end_rotation_2_max_deg=xp.max(rot[..., 1], axis=-1),
+        end_rotation_2_min_deg=xp.min(rot[..., 1], axis=-1),
+        end_rotation_diff_max_deg=xp.max(diff, axis=-1),
+        end_rotation_diff_min_deg=xp.min(diff, axis=-1),
+        end_rotation_diff_mean_deg=xp.mean(diff, axis=-1),
+        end_rotation_diff_max_relative_percent=xp.max(xp.abs(diff), axis=-1) / scale * 100,
+        constraint_residual_max_m=xp.max(xp.asarray(res.residual), axis=-1),
+        energy_initial_J=E[..., 0],
+        energy_final_J=E[..., -1],
+        energy_min_J=xp.min(E, axis=-1),
+        energy_max_J=xp.max(E, axis=-1),
+    )
+    tau = getattr(res, "tau", None)
+    if tau is not None:
+        out["torque_peak_Nm"] = xp.max(xp.abs(xp.asarray(tau)), axis=(-2, -1))
+    return out
+
+
+class _Signals(eqx.Module):
+    X: Array
+    X_nominal: Array
+    end_rot: Array
+    residual: Array
+    kinetic: Array
+    potential: Array
+
+
+class _Circle(eqx.Module):
+    center: Array
+    radius: Array
+
+
+def metric_arrays(out: Outputs, X_nominal, center, radius) -> dict:
+    """`metric_table` (NumPy) of `outputs` and the nominal pose samples (m, 3) about the circle
+    (center (2,), radius) (m): arrays over any leading batch axes."""
+    sig = _Signals(X=out.X, X_nominal=X_nominal, end_rot=out.end_rot, residual=out.residual,
+                   kinetic=out.kinetic, potential=out.potential)
+    sig = jax.tree_util.tree_map(np.asarray, sig)
+    return metric_table(sig, _Circle(np.asarray(center), float(radius)), xp=np)
 
 
 def metrics(out: Outputs, X_nominal, center, radius) -> dict:

@@ -88,7 +88,7 @@ def _modes_core(model, robot, X, actuators, w):
     K = -jax.jacfwd(Q)(z_eq[f])
     K = (K + K.T) / 2  # symmetric at an equilibrium of conservative forces; remove rounding
     M = eom_terms(model, robot, z_eq, jnp.zeros(n)).M[f][:, f]
-    lam, V, shapes = _reduced_eigh(M, K)
+    lam, V, shapes = reduced_eigh(M, K)
     freq = jnp.sign(lam) * jnp.sqrt(jnp.abs(lam)) / (2 * jnp.pi)
     growth = jnp.where(lam < 0, jnp.sqrt(jnp.abs(lam)), 0.0)
     return Modes(freq, growth, lam, shapes, z_eq, M, K, free), failed
@@ -97,7 +97,7 @@ def _modes_core(model, robot, X, actuators, w):
 _modes_jit = eqx.filter_jit(_modes_core)
 
 
-def _reduced_eigh(M, K):
+def reduced_eigh(M, K):
     """Eigenpairs of K v = lam M v (M symmetric positive definite) through the Cholesky factor
     M = L L^T: lam, V of L^-1 K L^-T, and the mode shapes L^-T V (M-orthonormal). (The inverse
     of L, not triangular solves: `jax.scipy.linalg.solve_triangular` is one more LAPACK custom

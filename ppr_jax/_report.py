@@ -15,14 +15,21 @@ import jax
 import numpy as np
 
 from ._checks import PPRError
-from ._metrics import metric_arrays
+from ._metrics import metric_table
 from ._params import RobotParams
 from ._programs import compiled_program
-from ._scenes import SceneResult, _finish, _prepare, result_template, scene_params
-from ._trajectory import Circle
+from ._scenes import (
+    SCENE_CLASSES,
+    AbstractScene,
+    SceneOptions,
+    SceneResult,
+    finish,
+    get_scene,
+    prepare,
+)
 
-#: the scenes `run_scene` runs (`modes` has its own report: `ppr_jax.modes_scene`)
-RUN_SCENES = ("paper-circle", "servo-circle")
+#: the scenes `run_scene` runs by name (`modes` has its own report: `ppr_jax.modes_scene`)
+RUN_SCENES = tuple(SCENE_CLASSES)
 
 
 @dataclasses.dataclass
@@ -68,13 +75,13 @@ class SceneReport:
         return self.result.end_rot
 
 
-def scene_metrics(res: SceneResult, trajectory: Optional[Circle] = None) -> Union[dict, list]:
-    """The metrics of MODEL.md section 6 and the solver statistics of a `SceneResult`: a dict,
-    or a list of dicts (one per member) for a batched result."""
-    traj = Circle() if trajectory is None else trajectory
-    center, radius = np.asarray(traj.center), float(traj.radius)
+def scene_metrics(res: SceneResult, trajectory=None) -> Union[dict, list]:
+    """The metrics of MODEL.md section 6 (`metric_table`) and the solver statistics of a
+    `SceneResult`: a dict, or a list of dicts (one per member) for a batched result.
+    `trajectory`: the nominal path (default: the scene's own)."""
+    traj = get_scene(res.scene).trajectory() if trajectory is None else trajectory
     res = jax.tree_util.tree_map(np.asarray, res)
-    arrays = metric_arrays(res, res.X_nominal, center, radius)
+    arrays = metric_table(res, traj, xp=np)
     arrays.update(num_steps=res.num_steps, num_accepted=res.num_accepted,
                   num_rejected=res.num_rejected)
     kinds = {k: (int if k.startswith("num_") else float) for k in arrays}
@@ -84,12 +91,12 @@ def scene_metrics(res: SceneResult, trajectory: Optional[Circle] = None) -> Unio
 
 
 def run_scene(
-    scene: str,
+    scene: Union[str, AbstractScene],
     params: Optional[RobotParams] = None,
     *,
     model="reduced",
     torque_model="reduced",
-    trajectory: Optional[Circle] = None,
+    trajectory=None,
     t_end: float = 7.54,
     n_out: int = 755,
     solver=None,
@@ -99,8 +106,9 @@ def run_scene(
     repeats: int = 1,
     program_dir: Optional[str] = None,
 ) -> SceneReport:
-    """Run scene `paper-circle` or `servo-circle` (arguments as `paper_circle`; `torque_model`
-    is used by `paper-circle` only) and time it: compilation ahead of time (lowering and
+    """Run a scene (`paper-circle`, `servo-circle` or an `AbstractScene`; arguments as
+    `paper_circle`, which are `SceneOptions`' fields; `torque_model` is used by `paper-circle`
+    only) and time it: compilation ahead of time (lowering and
     compiling; a cache hit once a model and shapes have run), then `repeats` runs (at least one),
     each after `block_until_ready`; `timing = {compile_s, run_s: fastest run}`. A failure raises
     `SimulationError` naming the failed members. Returns a `SceneReport`.
@@ -109,19 +117,21 @@ def run_scene(
     passes one inside its compilation cache): the program is loaded from there, or exported there
     on first use, so that a later process skips tracing too; `timing["program"]` says which
     ("loaded", "exported", or "compiled" where the program cannot be stored)."""
-    if scene not in RUN_SCENES:
+    if not isinstance(scene, AbstractScene) and scene not in RUN_SCENES:
         raise PPRError(f"unknown scene {scene!r}; allowed: {', '.join(RUN_SCENES)}")
-    params = scene_params(scene) if params is None else params
-    c = _prepare(scene, params, model, torque_model, trajectory, t_end, n_out, solver, rtol,
-                 atol, max_steps)
+    scene = get_scene(scene, torque_model)
+    params = scene.default_params() if params is None else params
+    options = SceneOptions(t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
+                           max_steps=max_steps, trajectory=trajectory)
+    c = prepare(scene, params, model, options)
     # Compiled ahead of time (a cache hit if this shape ran before: lowering shares the jit
     # cache), then run `repeats` times; no extra run just to separate compilation from the run.
     # Tolerances are arrays, so changing them does not recompile.
     t0 = time.perf_counter()
     # A batch split over devices is compiled as usual (stored programs are single-device).
     directory = None if c.devices else program_dir
-    fn, how = compiled_program(c.fn, c.args, result_template(c), directory,
-                               f"{scene}-{c.args[0].name}")
+    fn, how = compiled_program(c.fn, c.args, c.template(), directory,
+                               f"{scene.name}-{c.args[1].name}")
     compile_s = time.perf_counter() - t0
     runs = []
     for _ in range(max(int(repeats), 1)):
@@ -129,8 +139,8 @@ def run_scene(
         res = fn(*c.args)
         jax.block_until_ready(res)
         runs.append(time.perf_counter() - t1)
-    res = _finish(res)
-    m = scene_metrics(res, trajectory)
+    res = finish(res, params=params)
+    m = scene_metrics(res, c.args[3].trajectory)
     timing = {"compile_s": compile_s, "run_s": min(runs), "program": how}
     for mm in m if isinstance(m, list) else [m]:
         mm.update(wall_time_s=timing["run_s"], compile_time_s=timing["compile_s"])

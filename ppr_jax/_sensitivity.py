@@ -44,12 +44,11 @@ from ._models import get_model
 from ._params import RobotParams
 from ._prb import derived
 from ._robot import Robot
-from ._scenes import DEFAULT_SOLVER, check_scene_args, scene_params
-from ._simulate import default_controller, get_solver
-from ._modes import _reduced_eigh
+from ._checks import RESULTS
+from ._modes import reduced_eigh
+from ._scenes import SceneOptions, check_scene_args, get_scene, scene_params
 from ._statics import _assemble, static_equilibrium
-from ._sweep import FLOAT_PARAMS, _plain, follows_its_input, run_member, traced_metrics
-from ._trajectory import Circle
+from ._sweep import FLOAT_PARAMS, _plain, traced_metrics
 
 #: the metrics a sensitivity table reports (rows), SI units
 SENSITIVITY_METRICS = (
@@ -101,7 +100,7 @@ def base_frequency(model, robot: Robot, X=None):
     # Mode shapes from a non-differentiated eigenproblem: eigh's derivative is NaN at repeated
     # eigenvalues. The Rayleigh quotients below carry the exact first derivative.
     Ms, Ks = jax.lax.stop_gradient(M), jax.lax.stop_gradient(K)
-    lam0, _, shapes = _reduced_eigh(Ms, Ks)  # shapes M-orthonormal
+    lam0, _, shapes = reduced_eigh(Ms, Ks)  # shapes M-orthonormal
     lam = jnp.einsum("ik,ij,jk->k", shapes, K, shapes) / jnp.einsum("ik,ij,jk->k", shapes, M,
                                                                     shapes)
     w = (jnp.abs(lam0 - lam0[0]) <= CLUSTER_RTOL * jnp.abs(lam0[0])).astype(lam.dtype)
@@ -163,7 +162,8 @@ def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] =
             raise PPRError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
     x0 = jnp.array([float(getattr(base, n)) for n in names])
     model_, tmodel = get_model(model), get_model(torque_model)
-    follows = follows_its_input(scene, model_, tmodel)
+    scene_ = get_scene(scene, tmodel)
+    follows = scene_.follows_its_input(model_)
     tracking = [m for m in metrics if m in TRACKING_METRICS]
     if follows and tracking:
         raise PPRError(
@@ -177,9 +177,8 @@ def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] =
     # closed-form inverse kinematics, whose one Newton step carries the implicit-function
     # derivative in l1 or l3 alone (ppr_jax._robot).
     equal = float(base.l1) == float(base.l3)
-    traj = Circle()
-    ts = jnp.linspace(0.0, t_end, n_out)
-    solver_ = get_solver(DEFAULT_SOLVER[model_.name] if solver is None else solver)
+    options = SceneOptions(t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
+                           max_steps=max_steps).prepared(model_, scene_.trajectory())
     scene_metrics_needed = [m for m in metrics if m != "base_frequency_hz"]
 
     def f(x, adjoint=None):
@@ -187,13 +186,12 @@ def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] =
         robot = Robot(p, equal_links=equal)
         out = {}
         if scene_metrics_needed:
-            controller = default_controller(solver_, rtol, atol)
-            adj = diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
-            res = run_member(scene, model_, tmodel, robot, traj, ts, solver_, controller,
-                             max_steps, adj)
-            out.update(traced_metrics(res, traj))
+            opts = options if adjoint is None else eqx.tree_at(
+                lambda o: o.adjoint, options, adjoint)
+            res = scene_.run(model_, robot, opts)
+            out.update(traced_metrics(res, opts.trajectory))
             # A failed solve must not pass as a number: NaN through every metric.
-            bad = res.result._value != 0
+            bad = res.result != RESULTS.successful
             out = {k: jnp.where(bad, jnp.nan, v) for k, v in out.items()}
         if "base_frequency_hz" in metrics:
             out["base_frequency_hz"] = base_frequency(fmodel, robot)

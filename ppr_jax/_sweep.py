@@ -28,21 +28,26 @@ import time
 import warnings
 from typing import Callable, Optional, Sequence, Union
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import RESULTS, PPRError, RepairWarning, check_number
+from ._checks import PPRError, RepairWarning, check_number, result_code, result_message
 from ._kinematics import REACH_TOL, SINGULAR_TOL, _ik
-from ._metrics import radial_error
+from ._metrics import metric_table
 from ._models import Reduced, get_model
 from ._params import PARAM_RANGES, RobotParams, stack_params
 from ._robot import Robot
-from ._scenes import (_CORES, DEFAULT_SOLVER, _chunked_vmap, check_scene_args, input_panels_at,
-                      scene_params)
-from ._simulate import default_controller, get_solver
+from ._scenes import (
+    SCENE_CLASSES,
+    SceneOptions,
+    check_scene_args,
+    get_scene,
+    map_members,
+    scene_params,
+)
+from ._simulate import default_controller
 from ._trajectory import Circle
 
 #: a member whose max loop-closure residual (m) at the output times exceeds this has failed
@@ -60,59 +65,21 @@ METRICS = (
     "torque_peak_Nm",
     "constraint_residual_max_m",
 )
-SWEEP_SCENES = tuple(_CORES)
+SWEEP_SCENES = tuple(SCENE_CLASSES)
 #: the float parameters a sweep (or a sensitivity) may vary
 FLOAT_PARAMS = tuple(PARAM_RANGES)
 
 
-def traced_metrics(res, trajectory: Circle) -> dict:
-    """The scene metrics of one member as traced scalars (jit-, vmap- and grad-able).
-
-    `res` is one member's `SceneResult`. Radial error e_r = |(x, y) - c| - R (m) against the
-    nominal circle; its max and min are the exact max / min over the output samples, whose
-    derivative is that of the arg-max sample (a subgradient; exact while the arg-max sample does
-    not change). phi error vs the nominal pose (rad); chain 1's joint end-rotation difference
-    (deg); peak actuator torque max |tau| over time and actuators (N m); max loop residual (m)."""
-    er = radial_error(res.X, trajectory.center, trajectory.radius)
-    dphi = res.X[:, 2] - res.X_nominal[:, 2]
-    diff = jnp.degrees(res.end_rot[:, 0] - res.end_rot[:, 1])
-    return {
-        "radial_error_max_m": jnp.max(er),
-        "radial_error_min_m": jnp.min(er),
-        "radial_error_mean_m": jnp.mean(er),
-        "radial_error_max_relative_percent": jnp.max(jnp.abs(er)) / trajectory.radius * 100,
-        "phi_error_max_rad": jnp.max(jnp.abs(dphi)),
-        "end_rotation_diff_max_deg": jnp.max(diff),
-        "end_rotation_diff_min_deg": jnp.min(diff),
-        "end_rotation_diff_mean_deg": jnp.mean(diff),
-        "torque_peak_Nm": jnp.max(jnp.abs(res.tau)),
-        "constraint_residual_max_m": jnp.max(res.residual),
-    }
+def traced_metrics(res, trajectory) -> dict:
+    """`METRICS` of one member's `SceneResult` as traced scalars (jit-, vmap- and grad-able):
+    the program-side columns of `metric_table`."""
+    table = metric_table(res, trajectory)
+    return {k: table[k] for k in METRICS}
 
 
-def run_member(scene, model, torque_model, robot, trajectory, ts, solver, controller, max_steps,
-               adjoint, panels: Optional[int] = None):
-    """One member's scene, traced: its `SceneResult` (the scene cores of `_scenes`). `panels`:
-    the input table's panel count (static; default from `ts`, as the scenes decide it)."""
-    core, _ = _CORES[scene]
-    pre = (model, torque_model) if scene == "paper-circle" else (model,)
-    panels = input_panels_at(trajectory, ts) if panels is None else panels
-    return core(*pre, robot, trajectory, ts, solver, controller, max_steps, adjoint, panels)
-
-
-def follows_its_input(scene: str, model, torque_model) -> str:
-    """Why `model` follows the scene's nominal circle exactly (to the integrator's tolerance),
-    or "" when it does not. A model driven by its own inverse dynamics (`paper-circle` with
-    model == torque_model, L0 or L1) or by its own inverse kinematics (`servo-circle` with L1,
-    whose angles are L1's) reproduces the circle: its radial error is the solver's error
-    (about 1e-11 m at rtol 1e-8), and derivatives of it say nothing about the robot."""
-    model, torque_model = get_model(model), get_model(torque_model)
-    if scene == "paper-circle" and model.name == torque_model.name:
-        return (f"it is driven by its own inverse-dynamics torques (torque_model="
-                f"{torque_model.name!r}), so it follows the circle exactly")
-    if scene == "servo-circle" and model.name == "reduced":
-        return "its angles are its own inverse kinematics of the circle, so it follows it exactly"
-    return ""
+def follows_its_input(scene, model, torque_model="reduced") -> str:
+    """`AbstractScene.follows_its_input` of `scene` (a name or a scene) for `model`."""
+    return get_scene(scene, torque_model).follows_its_input(get_model(model))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -235,38 +202,22 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model="r
 # ---------------------------------------------------------------------------------------------
 
 
-def _program(scene, model, torque_model, trajectory, ts, solver, max_steps, robot_static,
-             devices):
+def _program(scene, model, options, robot_static, devices):
     """jit(f)(robot_arrays, rtol, atol) -> ({metric: (B,)}, result codes (B,), num_steps (B,)).
 
-    Members run as the scenes' batches do (`_scenes._chunked_vmap`: vmapped chunks of at most
-    `MEMBER_CHUNK`, one after the other). With `devices` (more than one), the batch axis is
-    split over a 1-D mesh with `shard_map` and each device runs that over its members: adaptive
-    steps never synchronise across devices (a member only waits for the slowest member of its
-    own chunk on its own device)."""
-    adjoint = diffrax.RecursiveCheckpointAdjoint()
+    `options`: prepared `SceneOptions` (their tolerances replaced by the program's inputs).
+    Members are mapped as the scenes' batches are (`map_members`: vmapped chunks, split over
+    `devices` by `shard_map` when there are several): adaptive steps never synchronise across
+    devices."""
 
     def member(robot_dyn, rtol, atol):
         robot = eqx.combine(robot_dyn, robot_static)
-        controller = default_controller(solver, rtol, atol)
-        res = run_member(scene, model, torque_model, robot, trajectory, ts, solver, controller,
-                         max_steps, adjoint)
-        return traced_metrics(res, trajectory), res.result._value, res.num_steps
+        opts = eqx.tree_at(lambda o: o.controller, options,
+                           default_controller(options.solver, rtol, atol))
+        res = scene.run(model, robot, opts)
+        return traced_metrics(res, opts.trajectory), result_code(res.result), res.num_steps
 
-    def local(robot_dyn, rtol, atol):
-        return _chunked_vmap(lambda r: member(r, rtol, atol), robot_dyn)
-
-    if devices is None or len(devices) <= 1:
-        return jax.jit(local)
-    from jax.sharding import Mesh, PartitionSpec as P
-
-    mesh = Mesh(np.asarray(devices), ("batch",))
-    # check_vma=False: diffrax's loops carry values that are replicated at entry and vary per
-    # device after one step, which the varying-axes type check rejects; each device's body is a
-    # plain local vmap, so there is no cross-device collective to get wrong.
-    sharded = jax.shard_map(local, mesh=mesh, in_specs=(P("batch"), P(), P()),
-                            out_specs=P("batch"), check_vma=False)
-    return jax.jit(sharded)
+    return jax.jit(map_members(member, devices or ()))
 
 
 _PROGRAMS: dict = {}
@@ -287,7 +238,8 @@ def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
     over `devices` (default: all local devices) along its leading axis: each device holds its
     slice. The sweep does this itself through `shard_map`; use it to feed your own jitted,
     vmapped functions."""
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+    from jax.sharding import Mesh, NamedSharding
+    from jax.sharding import PartitionSpec as P
 
     devices = list(jax.local_devices() if devices is None else devices)
     mesh = Mesh(np.asarray(devices), ("batch",))
@@ -349,7 +301,7 @@ def _member_rows(idx, members, names, out, codes, steps):
         m = {k: float(out[k][j]) for k in METRICS}
         code = int(codes[j])
         if code != 0:
-            reason = RESULTS._index_to_message[code]
+            reason = result_message(code)
         elif not all(np.isfinite(v) for v in m.values()):
             reason = "non-finite metrics (NaN or inf)"
         elif m["constraint_residual_max_m"] > RESIDUAL_TOL:
@@ -499,21 +451,23 @@ def sweep(
         update, close = (lambda k: None), (lambda: None)
     update(len(rows))
 
-    ts = jnp.linspace(0.0, t_end, n_out)
-    solver_ = get_solver(DEFAULT_SOLVER[model_.name] if solver is None else solver)
-    tol = (jnp.asarray(rtol, jnp.float64), jnp.asarray(atol, jnp.float64))
+    scene_ = get_scene(scene, tmodel)
+    options = SceneOptions(t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
+                           max_steps=max_steps, trajectory=traj).prepared(model_)
+    tol = (options.rtol, options.atol)
     fns = {}
 
     def program(equal, i0):
         if equal not in fns:
             sample = Robot(stack_params([plist[i0]] * chunk_size), equal_links=equal)
             robot_static = eqx.partition(sample, eqx.is_array)[1]
-            key = (scene, model_, tmodel, n_out, float(t_end), type(solver_), max_steps, equal,
-                   _static_fields(base), chunk_size, tuple(devices or ()), trajectory is None,
+            key = (scene, model_, tmodel, n_out, float(t_end), type(options.solver), max_steps,
+                   equal,
+                   _static_fields(base), chunk_size, tuple(devices or ()),
+                   eqx.tree_pformat(traj, short_arrays=False),
                    tuple(sorted(n for n in ("gamma", "rho", "K_theta")
                                 if getattr(base, n) is None and n not in names)))
-            fns[equal] = _get_program(key, scene, model_, tmodel, traj, ts, solver_, max_steps,
-                                      robot_static, devices)
+            fns[equal] = _get_program(key, scene_, model_, options, robot_static, devices)
         return fns[equal]
 
     def run(equal, idx):

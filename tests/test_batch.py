@@ -73,7 +73,7 @@ def test_chunked_batch_equals_single_runs(params, monkeypatch):
     """A batch larger than `MEMBER_CHUNK` runs as a loop over chunks of vmapped members
     (here chunks of 2, 2 and a remainder of 1): every member equals its own single run, an
     unreachable member fails alone."""
-    import ppr_jax._scenes as scenes
+    import ppr_jax._scenes._batch as scenes
 
     monkeypatch.setattr(scenes, "MEMBER_CHUNK", 2)
     ts = [0.3e-3, 0.32e-3, 0.34e-3, 0.36e-3]

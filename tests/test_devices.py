@@ -24,12 +24,11 @@ TWO_DEVICES = textwrap.dedent(
     import jax
     import numpy as np
     assert len(jax.devices()) == 2, jax.devices()
-    from ppr_jax._scenes import _prepare
+    from ppr_jax._scenes import SceneOptions, prepare
     kw, ts = json.loads(sys.argv[1])
     p = pj.scene_params("paper-circle")
     batch = pj.stack_params([p.replace(t=t) if t > 0 else p.replace(a=3.0) for t in ts])
-    c = _prepare("paper-circle", batch, "reduced", "reduced", None, kw["t_end"], kw["n_out"],
-                 None, kw["rtol"], kw["atol"], 200_000)
+    c = prepare("paper-circle", batch, "reduced", SceneOptions(**kw))
     assert c.devices == 2
     r = pj.paper_circle(batch, model="reduced", throw=False, **kw)
     print(json.dumps({"X": np.asarray(r.X).tolist(), "ok": np.asarray(r.ok).tolist(),

@@ -16,19 +16,17 @@ import pytest
 import ppr_jax as pj
 from ppr_jax import _programs
 from ppr_jax._programs import DEPENDENCIES, MAGIC, NotExportable, program_key
-from ppr_jax._scenes import _prepare
+from ppr_jax._scenes import SceneOptions, prepare
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 #: a short scene: the program is the full scene's, its run is short
 KW = dict(model="rigid", t_end=0.1, n_out=11)
 
 
-def _call(**over):
-    kw = dict(scene="paper-circle", params=None, model="rigid", torque_model="reduced",
-              trajectory=None, t_end=0.1, n_out=11, solver=None, rtol=1e-8, atol=1e-10,
-              max_steps=200_000)
+def _call(scene="paper-circle", params=None, model="rigid", **over):
+    kw = dict(t_end=0.1, n_out=11)
     kw.update(over)
-    return _prepare(**kw)
+    return prepare(scene, params, model, SceneOptions(**kw))
 
 
 def _same(a, b):
@@ -131,9 +129,10 @@ def test_key_holds_the_versions_of_ppr_jax_and_its_numerical_dependencies(monkey
 
 
 def test_key_is_the_same_in_a_fresh_process():
-    script = ("from ppr_jax._scenes import _prepare; from ppr_jax._programs import program_key; "
-              "c = _prepare('paper-circle', None, 'rigid', 'reduced', None, 0.1, 11, None, "
-              "1e-8, 1e-10, 200000); print(program_key(c.args, 'x'))")
+    script = ("from ppr_jax._scenes import SceneOptions, prepare; "
+              "from ppr_jax._programs import program_key; "
+              "c = prepare('paper-circle', None, 'rigid', SceneOptions(t_end=0.1, n_out=11)); "
+              "print(program_key(c.args, 'x'))")
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
                          text=True, timeout=300, check=True).stdout.split()[-1]
@@ -156,10 +155,7 @@ def test_key_follows_what_the_trace_depends_on():
 
 
 def test_a_closure_in_the_static_arguments_is_not_stored():
-    c = _call()
     norm = lambda x: jax.numpy.max(jax.numpy.abs(x))  # noqa: E731
-    args = list(c.args)
-    i = next(k for k, a in enumerate(args) if isinstance(a, diffrax.PIDController))
-    args[i] = diffrax.PIDController(rtol=1e-8, atol=1e-10, norm=norm)
+    c = _call(controller=diffrax.PIDController(rtol=1e-8, atol=1e-10, norm=norm))
     with pytest.raises(NotExportable):
-        program_key(tuple(args), "x")
+        program_key(c.args, "x")

@@ -197,7 +197,7 @@ def test_chunked_members_equal_the_plain_vmap(swept, monkeypatch):
     """With chunks of members smaller than a sweep chunk (the scenes' `MEMBER_CHUNK`, here 3 of
     a sweep chunk of 4: a loop over a chunk of 3 and a remainder of 1), every member, failures
     included, equals the plain-vmap sweep of the fixture."""
-    import ppr_jax._scenes as scenes
+    import ppr_jax._scenes._batch as scenes
     import ppr_jax._sweep as sweep_mod
 
     monkeypatch.setattr(scenes, "MEMBER_CHUNK", 3)

@@ -1,0 +1,21 @@
+"""The scenes wing: one interface (`AbstractScene`, `SceneOptions`), one file per scene, one
+registry line per scene (`_registry.py`), one batch mapper (`_batch.py`)."""
+
+from ._base import AbstractScene, SceneInput, kinematic_motion, path_out_of_reach, tabulated
+from ._batch import MEMBER_CHUNK, batch_devices, chunked_vmap, map_members
+from ._modes_scene import modes_scene
+from ._options import DEFAULT_SOLVER, SceneOptions, check_scene_args, input_panels, input_panels_at
+from ._paper_circle import PaperCircle
+from ._registry import SCENE_CLASSES, SCENE_THICKNESS, SCENES, get_scene, scene_params
+from ._result import SceneResult, failure_detail, finish, result_template
+from ._run import SceneCall, paper_circle, prepare, servo_circle, solve_scene
+from ._servo_circle import ServoCircle
+
+__all__ = [
+    "AbstractScene", "DEFAULT_SOLVER", "MEMBER_CHUNK", "PaperCircle", "SCENES",
+    "SCENE_CLASSES", "SCENE_THICKNESS", "SceneCall", "SceneInput", "SceneOptions",
+    "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
+    "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
+    "kinematic_motion", "map_members", "modes_scene", "paper_circle", "path_out_of_reach",
+    "prepare", "result_template", "scene_params", "servo_circle", "solve_scene", "tabulated",
+]

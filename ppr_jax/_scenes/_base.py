@@ -1,0 +1,211 @@
+"""The scene interface: what a scene is and how every scene runs.
+
+A scene names a nominal motion, the input that realises it (torques, or prescribed angles) and
+the strip thickness of its paper figure. `AbstractScene.run` is the one way any scene is run, by
+the scene functions, `run_scene`, sweeps, sensitivities and identification: traced, for one
+robot (batches map it, `_batch.py`). It computes only what the scene needs: a motion-driven
+L0/L1 scene is forward kinematics plus inverse dynamics (no ODE); every other case integrates the
+model from its quasi-static state under the input.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Callable, Optional
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._actuation import AbstractActuation, MotionDriven
+from .._checks import RESIDUAL_TOL, RESULTS, first_failure
+from .._custom_types import Array
+from .._dynamics import inverse_dynamics
+from .._kinematics import det3, fold_flags
+from .._metrics import outputs
+from .._models import AbstractModel
+from .._params import RobotParams, params_invalid
+from .._robot import Robot
+from .._simulate import Solution, _simulate_core
+from .._statics import _quasi_static_state, kinematic_state
+from .._tabulated import input_too_coarse, scene_input
+from .._trajectory import derivatives
+from ._options import SceneOptions
+from ._result import SceneResult
+
+
+class SceneInput(eqx.Module):
+    """A scene's input for one robot: the actuation, and what building it found (traced bools,
+    None where not checked): `out_of_reach`, the nominal path leaves the reach of the model that
+    computed the input; `coarse`, its table is too coarse for the horizon."""
+
+    actuation: AbstractActuation
+    out_of_reach: Optional[Array] = None
+    coarse: Optional[Array] = None
+
+
+def tabulated(fn, ts, panels: int):
+    """(table, coarse, out_of_reach): the input `fn` (an `InverseDynamicsTorque` or
+    `InverseKinematicsAngles`) tabulated on [ts[0], ts[-1]] (`_tabulated.scene_input`), whether
+    the table is too coarse, and whether the nominal path leaves the chains' reach at a node
+    (from the table's own evaluations)."""
+    table, resid = scene_input(fn.with_residual, ts, panels, aux=True)
+    return table, input_too_coarse(table), ~(jnp.max(resid) <= RESIDUAL_TOL)
+
+
+def path_out_of_reach(ref_model, robot, traj, ts):
+    """The nominal path is out of reach at some output time for `ref_model` (L0 or L1), whose
+    inverse kinematics gives the input."""
+
+    def resid(t):
+        k = ref_model.kinematics(robot, ref_model.coords_from_pose(robot, traj(t)))
+        return jnp.max(jnp.linalg.norm(ref_model.loop_residual(robot, k), axis=-1))
+
+    return ~(jnp.max(jax.vmap(resid)(ts)) <= RESIDUAL_TOL)
+
+
+def _open_at(model, robot, z):
+    """A chain is open at coordinates z (loop-closure residual above `RESIDUAL_TOL`)."""
+    k = model.kinematics(robot, z)
+    return ~(jnp.max(jnp.linalg.norm(model.loop_residual(robot, k), axis=-1)) <= RESIDUAL_TOL)
+
+
+def _any(*flags):
+    """Or of the flags that were checked (None: not checked)."""
+    out = False
+    for f in flags:
+        if f is not None:
+            out = out | f
+    return out
+
+
+def kinematic_motion(model, robot, angles, X0, ts):
+    """L0/L1 motion-driven: X(t) by warm-started forward kinematics from X0, X' and X'' from
+    th_a(X) = th_a(t) differentiated once and twice, torques by inverse dynamics. No ODE.
+    Returns (X, Xd, tau, codes, folds): (m, 3) poses, rates, torques, the forward kinematics'
+    status per time, and whether the path folds through a type-II singularity (`fold_flags`)."""
+
+    def step(X, t):
+        X, Xd, Xdd, code, S = kinematic_state(model, robot, derivatives(angles, t), X)
+        tau, _ = inverse_dynamics(model, robot, X, Xd, Xdd)
+        return X, (X, Xd, tau, code, det3(S))
+
+    _, (X, Xd, tau, codes, det) = jax.lax.scan(step, X0, ts)
+    # A motion through a type-II singularity: the warm start folds back in its assembly mode
+    # and every solve converges; det S along the solved poses shows it.
+    return X, Xd, tau, codes, fold_flags(det, ts)
+
+
+class AbstractScene(eqx.Module):
+    """A scene of MODEL.md section 6, or your own: a nominal motion and the input realising it.
+
+    A concrete scene sets the class variables and implements `commands`; `run` is shared.
+
+    - `name`: the scene's name (the CLI's and the registry's).
+    - `thickness`: its default strip thickness (m).
+    - `reference`: the values its paper figure reports, {metric: value} (may be empty).
+    - `trajectory()`: the nominal path when the options name none.
+    """
+
+    name: eqx.AbstractClassVar[str]
+    thickness: eqx.AbstractClassVar[float]
+    reference: eqx.AbstractClassVar[dict]
+
+    @abc.abstractmethod
+    def trajectory(self) -> Callable:
+        """The scene's nominal pose path t -> X (3,) (m, m, rad): an `equinox.Module`."""
+
+    @abc.abstractmethod
+    def commands(self, model: AbstractModel, robot: Robot, traj: Callable, ts: Array,
+                 panels: int) -> SceneInput:
+        """The scene's input for `robot` (the robot the commands are computed for, which
+        identification keeps apart from the robot simulated) along `traj` over `ts`, for
+        simulating `model`; `panels` the input table's (static)."""
+
+    @abc.abstractmethod
+    def follows_its_input(self, model: AbstractModel) -> str:
+        """Why `model` follows the nominal path exactly (its error is the solver's alone), or
+        ""; derivatives of its tracking error then say nothing about the robot."""
+
+    def run(
+        self,
+        model: AbstractModel,
+        robot: Robot,
+        options: SceneOptions,
+        actuation: Optional[AbstractActuation] = None,
+        *,
+        ts: Optional[Array] = None,
+        initial_offset: Optional[Array] = None,
+    ) -> SceneResult:
+        """Run the scene for one robot (traced; `options` from `SceneOptions.prepared`).
+
+        **Arguments:**
+
+        - `model`, `robot`: what is simulated.
+        - `options`: the prepared options (`SceneOptions.prepared`).
+        - `actuation`: the input; None: the scene's `commands` for `robot`. A `MotionDriven`
+          input of a kinematic model (L0/L1) runs as forward kinematics + inverse dynamics.
+        - `ts`: output times (s), ts[0] the start; None: `options.times()`.
+        - `initial_offset`: (6,) added to the platform pose and its rate of the quasi-static
+          initial state (m, m, rad, m/s, m/s, rad/s), as identification estimates them.
+
+        **Returns:** a `SceneResult` (its `result` the first failed check, or success).
+        """
+        ts = options.times() if ts is None else ts
+        traj = options.trajectory
+        inp = (self.commands(model, robot, traj, ts, options.panels) if actuation is None
+               else SceneInput(actuation, coarse=input_too_coarse(
+                   getattr(actuation, "torque", getattr(actuation, "angles", None)))))
+        act = inp.actuation
+        if isinstance(act, MotionDriven) and model.actuated_index is None:
+            X, Xd, tau, codes, folds = kinematic_motion(model, robot, act.angles, traj(ts[0]), ts)
+            # A status code, not a callback: forward kinematics failing along the path is
+            # reported like a solver failure (and the program stays free of host callbacks).
+            result = first_failure((jnp.any(folds), RESULTS.singular_path),
+                                   (jnp.any(codes != 0), RESULTS.kinematics_failed))
+            zero = jnp.asarray(0)
+            sol = Solution(ts=ts, z=X, zdot=Xd, tau=tau, result=result, num_steps=zero,
+                           num_accepted=zero, num_rejected=zero)
+            return self._result(model, robot, traj, sol, ref_open=inp.out_of_reach)
+        z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
+        if initial_offset is not None:
+            # the platform pose and its rate are z[:3] in every model
+            z0, zd0 = z0.at[:3].add(initial_offset[:3]), zd0.at[:3].add(initial_offset[3:])
+        open0 = _open_at(model, robot, z0)
+        sol = _simulate_core(
+            model, robot, act, z0, zd0, ts, options.solver, options.controller, None,
+            options.max_steps, jnp.zeros(3), False, diffrax.NoProgressMeter(), options.adjoint,
+            _any(failed, open0, inp.out_of_reach, inp.coarse, params_invalid(robot.params)),
+        )
+        return self._result(model, robot, traj, sol, failed, open0, inp.out_of_reach, inp.coarse)
+
+    def _result(self, model, robot, traj, sol: Solution, qs_failed=None, open0=None,
+                ref_open=None, coarse=None) -> SceneResult:
+        out = outputs(model, robot, sol.z, sol.zdot)
+        # Every precondition as a status code (most fundamental cause first): invalid
+        # parameters, the input out of reach or too coarse, no initial state, the solver's
+        # failure, a chain that does not close at some output time (an L0/L1 pose out of reach
+        # integrates happily on an open chain).
+        result = first_failure(
+            (params_invalid(robot.params), RESULTS.invalid_parameter),
+            (ref_open, RESULTS.trajectory_out_of_reach),
+            (coarse, RESULTS.input_table_too_coarse),
+            (qs_failed, RESULTS.initial_state_failed),
+            (open0, RESULTS.loop_not_closed),
+            sol.result,
+            (~(jnp.max(out.residual) <= RESIDUAL_TOL), RESULTS.loop_not_closed),
+        )
+        return SceneResult(
+            ts=sol.ts, z=sol.z, zdot=sol.zdot, X=out.X, X_nominal=jax.vmap(traj)(sol.ts),
+            tau=sol.tau, end_rot=out.end_rot, residual=out.residual, kinetic=out.kinetic,
+            potential=out.potential, result=result, num_steps=sol.num_steps,
+            num_accepted=sol.num_accepted, num_rejected=sol.num_rejected, scene=self.name,
+            model=model.name,
+        )
+
+    def default_params(self, **overrides) -> RobotParams:
+        """Table 1 with the scene's strip thickness, and `overrides` applied."""
+        kw = {"t": self.thickness}
+        kw.update(overrides)
+        return RobotParams().replace(**kw)

@@ -1,0 +1,119 @@
+"""How a scene runs: the horizon, output times, solver and tolerances, written once."""
+
+from __future__ import annotations
+
+from typing import Callable, Optional, Union
+
+import diffrax
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .._checks import check_number, is_traced
+from .._custom_types import Array
+from .._simulate import default_controller, get_solver
+from .._tabulated import scene_panels
+from .._trajectory import Circle
+
+#: default solver per model level (docs/which_model.md)
+DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "dopri8"}
+
+
+def check_scene_args(t_end, n_out, rtol, atol, max_steps) -> None:
+    """Validate a scene's arguments before anything is compiled (`PPRError` naming the argument
+    and its allowed range). The tolerance bounds: below 1e-14 the error control chases round-off;
+    above 1e-2 the result is not worth a number."""
+    if not is_traced(t_end):
+        check_number("t_end", t_end, 0.0, 1e5, "s", open_lo=True)
+    check_number("n_out", n_out, 2, 10_000_000, integer=True)
+    check_number("max_steps", max_steps, 1, 10**9, integer=True)
+    if not is_traced(rtol):
+        check_number("rtol", rtol, 1e-14, 1e-2)
+    if not is_traced(atol):
+        check_number("atol", atol, 1e-16, 1e-2)
+
+
+def input_panels(traj, t_end, n_out: int) -> int:
+    """Panels of the scene's input table (`_tabulated.scene_panels`). The count is a shape, so it
+    is decided before tracing: more panels for a longer horizon where t_end and the trajectory's
+    speed (`omega`) are concrete, the minimum otherwise (the scene then reports a table too
+    coarse for its horizon as `RESULTS.input_table_too_coarse`)."""
+    omega = getattr(traj, "omega", None)
+    known = not (is_traced(t_end) or omega is None or is_traced(omega) or np.ndim(omega) != 0)
+    return scene_panels(n_out, float(t_end) * float(omega) if known else None)
+
+
+def input_panels_at(traj, ts) -> int:
+    """`input_panels` for output times `ts` (traced or not)."""
+    t_end = ts[-1] if is_traced(ts) else float(np.asarray(ts)[-1])
+    return input_panels(traj, t_end, ts.shape[0])
+
+
+class SceneOptions(eqx.Module):
+    """How a scene runs: every scene, sweep, sensitivity and identification takes one.
+
+    **Arguments:**
+
+    - `t_end`: horizon (s); the output times are `n_out` equal steps over [0, t_end].
+    - `n_out`: number of output times (static: a shape).
+    - `solver`: a diffrax solver or its name (`tsit5`, `dopri5`, `dopri8`, `kvaerno3`,
+      `kvaerno5`); None: the model's default (`DEFAULT_SOLVER`).
+    - `rtol`, `atol`: the step-size controller's tolerances (arrays inside a program, so
+      changing them does not recompile).
+    - `max_steps`: the solver's step budget (static).
+    - `adjoint`: diffrax's adjoint; None: `RecursiveCheckpointAdjoint` (reverse mode);
+      `diffrax.ForwardMode()` for `jax.jvp` / `jax.jacfwd` through the scene.
+    - `controller`: a step-size controller replacing the default (`default_controller`: the
+      I controller for explicit solvers, the PI controller for implicit ones).
+    - `trajectory`: the nominal pose path t -> X (3,) (m, m, rad), an `equinox.Module`;
+      None: the scene's own (the circle of eq 55 for the circle scenes).
+    - `panels`: panels of the tabulated input (static); None: decided by `prepared` from the
+      horizon and the trajectory's speed (`input_panels`).
+    """
+
+    t_end: Union[float, Array] = 7.54
+    n_out: int = eqx.field(static=True, default=755)
+    solver: Union[str, diffrax.AbstractSolver, None] = None
+    rtol: Union[float, Array] = 1e-8
+    atol: Union[float, Array] = 1e-10
+    max_steps: int = eqx.field(static=True, default=200_000)
+    adjoint: Optional[diffrax.AbstractAdjoint] = None
+    controller: Optional[diffrax.AbstractStepSizeController] = None
+    trajectory: Optional[Callable] = None
+    panels: Optional[int] = eqx.field(static=True, default=None)
+
+    def check(self) -> "SceneOptions":
+        """Raise `PPRError` naming the first argument out of its range; returns self."""
+        check_scene_args(self.t_end, self.n_out, self.rtol, self.atol, self.max_steps)
+        return self
+
+    def prepared(self, model, default_trajectory: Optional[Callable] = None) -> "SceneOptions":
+        """The options with every choice made, in Python before tracing: the solver an instance
+        (the model's default where None), the tolerances and horizon arrays (so that changing
+        them reuses a compiled program), the controller, adjoint and trajectory built, and the
+        input table's panel count fixed."""
+        traj = self.trajectory
+        if traj is None:
+            traj = Circle() if default_trajectory is None else default_trajectory
+        solver = get_solver(DEFAULT_SOLVER[model.name] if self.solver is None else self.solver)
+        controller = (default_controller(solver, self.rtol, self.atol)
+                      if self.controller is None else self.controller)
+        panels = (input_panels(traj, self.t_end, self.n_out) if self.panels is None
+                  else self.panels)
+        return SceneOptions(
+            t_end=jnp.asarray(self.t_end, dtype=jnp.float64), n_out=self.n_out, solver=solver,
+            rtol=jnp.asarray(self.rtol, dtype=jnp.float64),
+            atol=jnp.asarray(self.atol, dtype=jnp.float64), max_steps=self.max_steps,
+            adjoint=(diffrax.RecursiveCheckpointAdjoint() if self.adjoint is None
+                     else self.adjoint),
+            controller=controller, trajectory=traj, panels=panels,
+        )
+
+    def times(self) -> Array:
+        """(n_out,) output times (s)."""
+        return jnp.linspace(0.0, self.t_end, self.n_out)
+
+    def solver_name(self, model) -> str:
+        """The solver's name as reports print it."""
+        s = DEFAULT_SOLVER[model.name] if self.solver is None else self.solver
+        return str(s) if isinstance(s, str) else type(s).__name__

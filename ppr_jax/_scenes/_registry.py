@@ -1,0 +1,45 @@
+"""The scenes by name: a new scene is one file and one line here."""
+
+from __future__ import annotations
+
+from typing import Union
+
+from .._checks import PPRError
+from .._models import get_model
+from .._params import RobotParams
+from ._base import AbstractScene
+from ._paper_circle import PaperCircle
+from ._servo_circle import ServoCircle
+
+#: the time-domain scenes by name
+SCENE_CLASSES = {cls.name: cls for cls in (PaperCircle, ServoCircle)}
+#: every scene the command line runs (`modes` is a static solve: `modes_scene`)
+SCENES = (*SCENE_CLASSES, "modes")
+#: strip thickness of each scene (m): the paper's simulation uses 0.3 mm, its experiment 0.5 mm
+SCENE_THICKNESS = {**{n: c.thickness for n, c in SCENE_CLASSES.items()}, "modes": 0.3e-3}
+
+
+def get_scene(scene: Union[str, AbstractScene], torque_model=None) -> AbstractScene:
+    """A scene instance from its name (or the instance itself). `torque_model` is the model
+    whose inverse dynamics gives `paper-circle`'s torques (default L1)."""
+    if isinstance(scene, AbstractScene):
+        return scene
+    if scene not in SCENE_CLASSES:
+        allowed = ", ".join(SCENE_CLASSES)
+        raise PPRError(f"unknown scene {scene!r}; allowed: {allowed} (or an AbstractScene)")
+    cls = SCENE_CLASSES[scene]
+    if cls is PaperCircle and torque_model is not None:
+        return PaperCircle(torque_model=get_model(torque_model))
+    return cls()
+
+
+def scene_params(scene: Union[str, AbstractScene], **overrides) -> RobotParams:
+    """Default parameters of a scene (Table 1 with the scene's strip thickness) with overrides
+    applied."""
+    if isinstance(scene, AbstractScene):
+        return scene.default_params(**overrides)
+    if scene not in SCENES:
+        raise PPRError(f"unknown scene {scene!r}; allowed: {', '.join(SCENES)}")
+    kw = {"t": SCENE_THICKNESS[scene]}
+    kw.update(overrides)
+    return RobotParams().replace(**kw)

@@ -1,0 +1,124 @@
+"""What a scene returns, and how its failures are told."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import numpy as np
+
+from .._checks import RESIDUAL_TOL, RESULTS, check_result, failure_reasons, is_traced
+from .._custom_types import Array
+from .._params import PARAM_RANGES
+
+
+class SceneResult(eqx.Module):
+    """The result of a scene: the same pytree for one robot or a batch (then every array has a
+    leading batch axis), as `diffrax.diffeqsolve` always returns a `Solution`.
+
+    ts (m,) output times (s); z, zdot (m, n) the model's coordinates and their rates; X (m, 3)
+    platform pose (m, m, rad); X_nominal (m, 3) the scene's nominal pose (eq 55 for the circle
+    scenes); tau (m, 3) actuator torques (applied, or the reactions when motion-driven) (N m);
+    end_rot (m, 2) rotations of chain 1's compliant-joint ends (rad); residual (m,) max
+    loop-closure residual (m); kinetic, potential (m,) energy (J); result a `ppr_jax.RESULTS`
+    code: diffrax's, or invalid parameters, no initial state, a loop-closure residual above
+    1e-9 m at an output time (a failure is raised by the scene functions when called outside a
+    transformation with `throw=True`; `failures()` lists them per member); num_steps,
+    num_accepted, num_rejected solver statistics (0 for a scene that needs no ODE). `scene` and
+    `model` (static) name what ran. Metrics, timings and printing: `ppr_jax.run_scene`."""
+
+    ts: Array
+    z: Array
+    zdot: Array
+    X: Array
+    X_nominal: Array
+    tau: Array
+    end_rot: Array
+    residual: Array
+    kinetic: Array
+    potential: Array
+    result: RESULTS
+    num_steps: Array
+    num_accepted: Array
+    num_rejected: Array
+    scene: str = eqx.field(static=True)
+    model: str = eqx.field(static=True)
+
+    @property
+    def ok(self) -> np.ndarray:
+        """True where the member succeeded (host-side; bool, or (batch,) bool)."""
+        return np.asarray(self.result == RESULTS.successful)
+
+    def failures(self, params=None) -> dict:
+        """{member index (None for one robot): reason} for every failed member (host-side).
+        With the `RobotParams` that ran, an invalid-parameter failure names the parameters."""
+        return failure_reasons(self.result, failure_detail(self, params))
+
+
+def result_template(scene: str, model: str) -> SceneResult:
+    """A `SceneResult` with the tree structure of a scene's result (zeros as leaves): how a
+    stored program's flat outputs are put back together (`_programs.py`)."""
+    z = np.zeros(())
+    return SceneResult(
+        ts=z, z=z, zdot=z, X=z, X_nominal=z, tau=z, end_rot=z, residual=z, kinetic=z,
+        potential=z, result=RESULTS.successful, num_steps=z, num_accepted=z, num_rejected=z,
+        scene=scene, model=model,
+    )
+
+
+def _bad_params(params, i) -> str:
+    out = []
+    for name, (lo, hi, unit, _) in PARAM_RANGES.items():
+        v = getattr(params, name, None)
+        if v is None:
+            continue
+        v = np.asarray(v)
+        v = v if i is None else v[i]
+        if not (np.isfinite(v) and lo <= v <= hi):
+            out.append(f"{name} = {float(v):.6g} {unit} not in [{lo:g}, {hi:g}]".replace(" ]", "]"))
+    return "; ".join(out)
+
+
+def failure_detail(res: SceneResult, params=None):
+    """detail(i): host-side particulars of failed member i (None for one robot), told only where
+    they describe the failure: the parameters out of range (given `params`), how far and when the
+    loop opened, or where the solver stopped."""
+    result = res.result
+    invalid = np.asarray(result == RESULTS.invalid_parameter)
+    open_loop = np.asarray(result == RESULTS.loop_not_closed)
+    # the solver's own failures: diffrax fills the output times after one with inf
+    stopped = np.zeros(np.shape(invalid), dtype=bool)
+    for name in ("max_steps_reached", "max_steps_rejected", "singular", "breakdown",
+                 "nonlinear_divergence", "nonlinear_max_steps_reached", "dt_min_reached",
+                 "nonfinite"):
+        if hasattr(RESULTS, name):
+            stopped |= np.asarray(result == getattr(RESULTS, name))
+    resid = np.asarray(res.residual)
+    ts = np.asarray(res.ts)
+
+    def detail(i):
+        pick = (lambda a: a) if i is None else (lambda a: a[i])
+        r, t = pick(resid), pick(ts)
+        if pick(invalid):
+            return _bad_params(params, i) if params is not None else ""
+        if pick(open_loop):
+            bad = np.flatnonzero(~(r <= RESIDUAL_TOL) & np.isfinite(t))
+            if bad.size == 0:
+                return ""
+            k = bad[0]
+            return (f"loop-closure residual {r[k]:.3g} m at t = {t[k]:.4g} s, largest "
+                    f"{np.nanmax(r):.3g} m")
+        if pick(stopped):
+            done = np.flatnonzero(np.isfinite(t))
+            if done.size and done.size < t.size:
+                return f"the last output time reached is t = {t[done[-1]]:.4g} s"
+            if done.size == 0:
+                return "no output time was reached"
+        return ""
+
+    return detail
+
+
+def finish(res: SceneResult, throw: bool = True, params=None) -> SceneResult:
+    """`res`, raising `SimulationError` for failed members when `throw` and concrete."""
+    if throw and not is_traced(res.result):
+        check_result(res.result, f"{res.scene} ({res.model})", failure_detail(res, params), res)
+    return res

@@ -1,0 +1,176 @@
+"""Running a scene for one robot or a batch: compiled once per (scene, model, shapes)."""
+
+from __future__ import annotations
+
+from typing import Callable, Optional, Union
+
+import diffrax
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._models import get_model
+from .._params import RobotParams
+from .._robot import Robot
+from ._base import AbstractScene
+from ._batch import batch_devices, map_members
+from ._options import SceneOptions
+from ._registry import get_scene, scene_params
+from ._result import SceneResult, finish, result_template
+
+
+@eqx.filter_jit
+def _run_one(scene, model, robot, options):
+    return scene.run(model, robot, options)
+
+
+def _member(robot_dyn, scene, model, robot_static, options):
+    return scene.run(model, eqx.combine(robot_dyn, robot_static), options)
+
+
+def _run_batch(scene, model, robot, options):
+    dyn, static = eqx.partition(robot, eqx.is_array)
+    return map_members(_member)(dyn, scene, model, static, options)
+
+
+_JIT_BATCH = eqx.filter_jit(_run_batch)
+_SHARDED: dict = {}
+
+
+def _sharded(devices: tuple):
+    """The batched run split over `devices` (compiled once per device set)."""
+    if devices not in _SHARDED:
+        def fn(scene, model, robot, options):
+            dyn, static = eqx.partition(robot, eqx.is_array)
+            return map_members(_member, devices)(dyn, scene, model, static, options)
+
+        _SHARDED[devices] = eqx.filter_jit(fn)
+    return _SHARDED[devices]
+
+
+class SceneCall(eqx.Module):
+    """A scene ready to run: `fn(*args)` is the compiled (and, for a batch, mapped) run;
+    `args = (scene, model, robot, options)`."""
+
+    fn: Callable
+    args: tuple
+    scene: str = eqx.field(static=True)
+    batched: bool = eqx.field(static=True)
+    solver_name: str = eqx.field(static=True)
+    #: devices a batch is split over (0: not split)
+    devices: int = eqx.field(static=True, default=0)
+
+    def template(self) -> SceneResult:
+        """The tree structure of this call's result (`_programs.py`)."""
+        return result_template(self.scene, self.args[1].name)
+
+
+def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], model,
+            options: SceneOptions, torque_model=None) -> SceneCall:
+    """Check the options, decide every structural choice in Python and pick the compiled run:
+    one robot, a batch (`RobotParams` with a leading axis), or a batch split over devices."""
+    options.check()
+    scene = get_scene(scene, torque_model)
+    model = get_model(model)
+    params = scene.default_params() if params is None else params
+    solver_name = options.solver_name(model)
+    if scene.name == "servo-circle" and model.actuated_index is None:
+        solver_name = "none (kinematics + inverse dynamics)"
+    # Built here, outside any trace when params are concrete: the derived quantities once and
+    # the structural choices (equal links, elbow) static, so a batch is branch-free.
+    robot = Robot(params)
+    opts = options.prepared(model, scene.trajectory())
+    batched = jnp.ndim(params.a) == 1
+    devices = batch_devices(int(jnp.shape(params.a)[0])) if batched else ()
+    fn = _sharded(devices) if devices else (_JIT_BATCH if batched else _run_one)
+    return SceneCall(fn=fn, args=(scene, model, robot, opts), scene=scene.name,
+                     batched=batched, solver_name=solver_name, devices=len(devices))
+
+
+def solve_scene(
+    scene: Union[str, AbstractScene],
+    params: Optional[RobotParams] = None,
+    *,
+    model="reduced",
+    options: Optional[SceneOptions] = None,
+    throw: bool = True,
+) -> SceneResult:
+    """Run a scene, by name or an `AbstractScene` instance (your own, too).
+
+    **Arguments:**
+
+    - `scene`: `"paper-circle"`, `"servo-circle"` or an `AbstractScene`.
+    - `params`: a `RobotParams`, or a batch of them (`stack_params`: one compiled, mapped call);
+      None: the scene's defaults.
+    - `model`: a model or its name.
+    - `options`: a `SceneOptions` (default horizon 7.54 s, 755 output times, the model's
+      default solver at rtol 1e-8, atol 1e-10).
+    - `throw`: raise `SimulationError` naming the failed members; False, or under a JAX
+      transformation: check `result` instead (as diffrax's `throw`).
+
+    **Returns:** a `SceneResult`, with a leading axis for a batch.
+    """
+    options = SceneOptions() if options is None else options
+    c = prepare(scene, params, model, options)
+    return finish(c.fn(*c.args), throw, params)
+
+
+def _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory) -> SceneOptions:
+    return SceneOptions(t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
+                        max_steps=max_steps, adjoint=adjoint, trajectory=trajectory)
+
+
+def paper_circle(
+    params: Optional[RobotParams] = None,
+    *,
+    model="reduced",
+    torque_model="reduced",
+    trajectory=None,
+    t_end: float = 7.54,
+    n_out: int = 755,
+    solver=None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_steps: int = 200_000,
+    throw: bool = True,
+    adjoint: Optional[diffrax.AbstractAdjoint] = None,
+) -> SceneResult:
+    """Scene `paper-circle` (paper Fig 8-12, `PaperCircle`): torques from `torque_model`'s
+    inverse dynamics along eq 55 (default L1; `rigid` gives the paper's "simplified model"
+    torques), `model` simulated torque-driven from its quasi-static state at t = 0. Default
+    params: Table 1 with t = 0.3 mm. The keywords are `SceneOptions`' fields.
+
+    Returns a `SceneResult`, with a leading axis for batched `params` (`stack_params`): one
+    compiled vmapped call. A failed member raises `SimulationError` naming it; with
+    `throw=False`, or under a JAX transformation, check `result` instead (as diffrax's `throw`).
+    `adjoint`: diffrax's default (reverse mode, `jax.grad`) or `diffrax.ForwardMode()` for
+    `jax.jvp` / `jax.jacfwd` through the scene. Metrics and timings: `run_scene`."""
+    opts = _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory)
+    c = prepare("paper-circle", params, model, opts, torque_model)
+    return finish(c.fn(*c.args), throw, params)
+
+
+def servo_circle(
+    params: Optional[RobotParams] = None,
+    *,
+    model="double1r",
+    trajectory=None,
+    t_end: float = 7.54,
+    n_out: int = 755,
+    solver=None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_steps: int = 200_000,
+    throw: bool = True,
+    adjoint: Optional[diffrax.AbstractAdjoint] = None,
+) -> SceneResult:
+    """Scene `servo-circle` (paper Fig 17-18, `ServoCircle`): the actuated angles follow L1's
+    inverse kinematics of eq 55 exactly (motion-driven); the platform's response of `model`.
+    L0/L1 need no ODE (forward kinematics + inverse dynamics). Default params: Table 1 with
+    t = 0.5 mm. Returns a `SceneResult` (batched like `paper_circle`); `throw` and `adjoint` as
+    there."""
+    opts = _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory)
+    c = prepare("servo-circle", params, model, opts)
+    return finish(c.fn(*c.args), throw, params)
+
+
+__all__ = ["SceneCall", "paper_circle", "prepare", "scene_params", "servo_circle", "solve_scene"]
