@@ -10,12 +10,13 @@ from ._registry import SCENE_CLASSES, SCENE_THICKNESS, SCENES, get_scene, scene_
 from ._result import SceneResult, failure_detail, finish, result_template
 from ._run import SceneCall, paper_circle, prepare, servo_circle, solve_scene
 from ._servo_circle import ServoCircle
+from ._torques import nominal_torques
 
 __all__ = [
     "AbstractScene", "DEFAULT_SOLVER", "MEMBER_CHUNK", "PaperCircle", "SCENES",
     "SCENE_CLASSES", "SCENE_THICKNESS", "SceneCall", "SceneInput", "SceneOptions",
     "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
-    "kinematic_motion", "map_members", "modes_scene", "paper_circle", "path_out_of_reach",
+    "kinematic_motion", "map_members", "modes_scene", "nominal_torques", "paper_circle", "path_out_of_reach",
     "prepare", "result_template", "scene_params", "servo_circle", "solve_scene", "tabulated",
 ]

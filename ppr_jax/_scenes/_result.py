@@ -83,7 +83,9 @@ def failure_detail(res: SceneResult, params=None):
     loop opened, or where the solver stopped."""
     result = res.result
     invalid = np.asarray(result == RESULTS.invalid_parameter)
-    open_loop = np.asarray(result == RESULTS.loop_not_closed)
+    # how far and when the loop is open: for a chain that opened, and for a path out of reach
+    open_loop = np.asarray((result == RESULTS.loop_not_closed)
+                           | (result == RESULTS.trajectory_out_of_reach))
     # the solver's own failures: diffrax fills the output times after one with inf
     stopped = np.zeros(np.shape(invalid), dtype=bool)
     for name in ("max_steps_reached", "max_steps_rejected", "singular", "breakdown",

@@ -1,8 +1,4 @@
-"""Figures of the `simulate` command (matplotlib, Agg backend), after the paper's Fig 8, 9, 12.
-
-The scenes are about sub-millimetre effects, so models that run far off the circle (L0 under L1's
-open-loop torques runs ~280 mm off) get their own panel and scale instead of flattening the others
-(as the paper's Fig 12 shows the compliant models' errors on their own scale)."""
+"""Figures of a scene run (trajectory, angle, radial error), written by `simulate`."""
 
 from __future__ import annotations
 
@@ -14,7 +10,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ._metrics import radial_error  # noqa: E402
+from .._metrics import radial_error  # noqa: E402
+
+#: a model whose radial error exceeds this (m) is drawn on its own panel
+
 
 #: a model whose radial error exceeds this (m) is drawn on its own panel
 FAR_OFF_M = 0.02

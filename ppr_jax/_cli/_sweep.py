@@ -1,24 +1,20 @@
-"""Commands `ppr-jax sweep` and `ppr-jax sensitivity` (docs/sweeps.md)."""
+"""`ppr-jax sweep`: a scene over a design of parameter values; CSV/Parquet, figures."""
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
-import sys
 
 import numpy as np
 
-
-def _log(msg):
-    print(msg, file=sys.stderr, flush=True)
+from ._common import _out_dir, _write_rows
 
 
 def parse_vary(items) -> dict:
     """``NAME=LO:HI:N`` (N evenly spaced values, ends included) or ``NAME=V1,V2,...`` ->
     {name: values}."""
-    from ._sweep import FLOAT_PARAMS
+    from .._sweep import FLOAT_PARAMS
 
     out = {}
     for item in items or []:
@@ -51,23 +47,6 @@ def parse_vary(items) -> dict:
     return out
 
 
-def _out_dir(path):
-    """Create the output directory (or check it) before a long run."""
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise ValueError(f"--out {path!r} is a file, not a directory")
-    os.makedirs(path, exist_ok=True)
-    if not os.access(path, os.W_OK):
-        raise ValueError(f"--out {path!r} is not writable")
-
-
-def _write_rows(path, rows, columns):
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=columns)
-        w.writeheader()
-        for r in rows:
-            w.writerow({c: r[c] for c in columns})
-
-
 def _write_parquet(path, rows, columns) -> bool:
     try:
         import pyarrow as pa
@@ -86,7 +65,7 @@ def sweep_figures(result, out_dir) -> list:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ._sweep import METRICS
+    from .._sweep import METRICS
 
     ok = result.ok
     paths = []
@@ -117,10 +96,9 @@ def sweep_figures(result, out_dir) -> list:
 def cmd_sweep(args):
     import jax
 
-    from ._cli import _parse_sets
-    from ._cli import model_from_args
-    from ._sweep import sweep
-    from ._scenes import batch_devices
+    from .._scenes import batch_devices
+    from .._sweep import sweep
+    from ._common import _parse_sets, model_from_args
 
     vary = parse_vary(args.vary)
     params = _parse_sets(args.set, args.scene)
@@ -154,7 +132,7 @@ def cmd_sweep(args):
     fcols = ["member", *res.varied, "status", "reason", "result_code"]
     _write_rows(os.path.join(args.out, "failed.csv"), res.failed, fcols)
     written.append("failed.csv")
-    from ._sweep import library_digest
+    from .._sweep import library_digest
 
     with open(os.path.join(args.out, "summary.json"), "w") as f:
         # what the numbers depend on beyond the settings (the chunks' digests hold it too)
@@ -178,65 +156,9 @@ def cmd_sweep(args):
     return 0
 
 
-def cmd_sensitivity(args):
-    from ._cli import _parse_sets
-    from ._cli import model_from_args
-    from ._sensitivity import SENSITIVITY_METRICS, sensitivity
-
-    params = _parse_sets(args.set, args.scene)
-    _out_dir(args.out)
-    names = None
-    if args.params:
-        names = [s.strip() for s in args.params.split(",") if s.strip()]
-    metrics = SENSITIVITY_METRICS
-    if args.metrics:
-        metrics = tuple(s.strip() for s in args.metrics.split(",") if s.strip())
-    # Names checked before the (long) compilation starts.
-    from ._sweep import FLOAT_PARAMS
-
-    for n in names or []:
-        if n not in FLOAT_PARAMS:
-            raise ValueError(f"unknown parameter {n!r}; allowed: {', '.join(FLOAT_PARAMS)}")
-    for m in metrics:
-        if m not in SENSITIVITY_METRICS:
-            raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
-    from ._scenes import check_scene_args
-
-    check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
-    _log(f"sensitivity {args.scene} ({args.model}, {args.mode} mode): compiling and running ...")
-    s = sensitivity(
-        args.scene, params, mode=args.mode, model=model_from_args(args, args.model),
-        torque_model=args.torque_model, frequency_model=args.frequency_model,
-        parameters=names, metrics=metrics, t_end=args.t_end, n_out=args.n_out,
-        solver=args.solver, rtol=args.rtol, atol=args.atol, max_steps=args.max_steps,
-    )
-    rows = s.rows()
-    cols = ["metric", "parameter", "metric_value", "parameter_value", "derivative", "normalized"]
-    _write_rows(os.path.join(args.out, "sensitivity.csv"), rows, cols)
-    with open(os.path.join(args.out, "sensitivity.json"), "w") as f:
-        clean = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-                  for k, v in r.items()} for r in rows]
-        json.dump({"settings": s.info, "mode": s.mode, "timing": s.timing, "values": s.values,
-                   "parameters": s.param_values, "rows": clean}, f, indent=2)
-    print(f"\nNormalised sensitivities (p / m) dm/dp, scene {args.scene}, model {s.info['model']} "
-          f"(torques of {s.info['torque_model']}; base frequency of {s.info['frequency_model']}, "
-          f"locked), {s.mode} mode")
-    w = max(len(m) for m in s.metrics)
-    short = [m.replace("_", " ")[:14] for m in s.metrics]
-    print(f"{'parameter':>10s} " + " ".join(f"{h:>14s}" for h in short))
-    print(f"{'value':>10s} " + " ".join(f"{s.values[m]:14.6g}" for m in s.metrics))
-    for j, p in enumerate(s.parameters):
-        print(f"{p:>10s} " + " ".join(f"{s.normalized[i, j]:14.4g}" for i in range(len(s.metrics))))
-    del w
-    print(f"compile {s.timing['compile_s']:.1f} s, derivative run {s.timing['run_s'] * 1e3:.1f} ms "
-          f"(metrics alone {s.timing['value_run_s'] * 1e3:.1f} ms)")
-    print(f"wrote {args.out}/sensitivity.csv, sensitivity.json")
-    return 0
-
-
 def add_sweep(sub, parents, fmt):
-    from ._models import MODELS
-    from ._sweep import SWEEP_SCENES
+    from .._models import MODELS
+    from .._sweep import SWEEP_SCENES
 
     kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
     s = sub.add_parser(
@@ -269,33 +191,3 @@ def add_sweep(sub, parents, fmt):
                         "where they divide --chunk)")
     s.add_argument("--out", required=True, help="output directory")
     s.set_defaults(func=cmd_sweep)
-
-
-def add_sensitivity(sub, parents, fmt):
-    from ._models import MODELS
-    from ._sensitivity import SENSITIVITY_METRICS
-    from ._sweep import SWEEP_SCENES
-
-    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
-    s = sub.add_parser(
-        "sensitivity", formatter_class=fmt,
-        parents=[parents[k] for k in ("params", "model", "solve", "times")],
-        help="normalised sensitivities (p/m) dm/dp of the paper's metrics to every parameter",
-        description="d(metric)/d(parameter) of " + ", ".join(SENSITIVITY_METRICS) + " by "
-                    "automatic differentiation through the scene (forward or reverse mode), "
-                    "printed as normalised sensitivities and written to sensitivity.csv/json.")
-    s.add_argument("--scene", default="paper-circle", choices=list(SWEEP_SCENES))
-    s.add_argument("--model", default="double1r", choices=list(MODELS),
-                   help="the model whose response is measured (L0 or L1 under its own "
-                        "torques follows the circle exactly: its radial error is the "
-                        "solver's, and is refused)")
-    s.add_argument("--torque-model", default="reduced", choices=kinematic)
-    s.add_argument("--frequency-model", default="double1r",
-                   choices=[n for n in MODELS if n not in kinematic],
-                   help="the model whose first locked natural frequency is the base frequency")
-    s.add_argument("--mode", default="fwd", choices=["fwd", "rev"],
-                   help="forward (jacfwd) or reverse (jacrev) mode")
-    s.add_argument("--params", default=None, help="comma list of parameters (default: all)")
-    s.add_argument("--metrics", default=None, help="comma list of metrics (default: all)")
-    s.add_argument("--out", required=True, help="output directory")
-    s.set_defaults(func=cmd_sensitivity)

@@ -1,0 +1,154 @@
+"""Shared pieces of the commands: parameter parsing, the options every command shares (parent
+parsers), output directories and JSON."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+
+from .._checks import PPRError
+
+
+def _parse_sets(items, scene):
+    from .._params import parse_value
+    from .._scenes import scene_params
+
+    kw = {}
+    for item in items or []:
+        if "=" not in item:
+            raise PPRError(f"--set expects NAME=VALUE, got {item!r}")
+        name, value = item.split("=", 1)
+        name = name.strip()
+        kw[name] = parse_value(name, value)
+    return scene_params(scene, **kw)
+
+
+def _params_dict(params):
+    import dataclasses
+
+    out = {}
+    for f in dataclasses.fields(params):
+        v = getattr(params, f.name)
+        out[f.name] = None if v is None else (v if isinstance(v, (int, str)) else float(v))
+    return out
+
+
+def _derived_dict(params):
+    import dataclasses
+
+    from .._prb import derived
+
+    dv = derived(params)
+    return {f.name: float(getattr(dv, f.name)) for f in dataclasses.fields(dv)}
+
+
+def _log(msg):
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _models(text, default):
+    names = [m.strip() for m in (text or default).split(",") if m.strip()]
+    from .._models import MODELS
+
+    for m in names:
+        if m not in MODELS:
+            raise PPRError(f"unknown model {m!r}; allowed: {', '.join(MODELS)}")
+    return names
+
+
+def model_from_args(args, name: str):
+    """The model `name` with the `model` parent parser's options (--elements, --strip-dynamics,
+    --strip-loss)."""
+    from .._models import get_model
+
+    loss = getattr(args, "strip_loss", 0.0)
+    if name == "beam" and loss != 0 and args.strip_dynamics != "full":
+        raise PPRError(f"--strip-loss {loss:g} needs --strip-dynamics full (quasi-static "
+                       "strips have no strip modes to damp)")
+    # L0-L2 run beside the beam have no strips: --strip-loss is the beam's alone
+    return get_model(name, args.elements, args.strip_dynamics,
+                     strip_loss=loss if name == "beam" else 0.0)
+
+
+def parent_parsers() -> dict:
+    """Options shared by several commands, as argparse parent parsers (one definition each):
+    `params` (--set), `model` (--model, --elements), `solve` (solver, tolerances, step limit,
+    times), `out` (--out). A command takes the ones it needs with `parents=[...]`."""
+    from .._params import settable_names
+    from .._simulate import SOLVERS
+
+    params = argparse.ArgumentParser(add_help=False)
+    params.add_argument("--set", action="append", metavar="NAME=VALUE",
+                        help="override a parameter, NAME=VALUE (SI units); repeatable; names: "
+                             + ", ".join(settable_names()))
+    model = argparse.ArgumentParser(add_help=False)
+    model.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
+    model.add_argument("--strip-dynamics", default="quasi-static", choices=["quasi-static", "full"],
+                       help="L3's strips: in static equilibrium for their clamp poses (9 "
+                            "coordinates, fast) or with their own inertia and kHz modes (3 + 3N "
+                            "coordinates, stiff: hours for a 7.54 s scene at N >= 8)")
+    model.add_argument("--strip-loss", type=float, default=0.0, metavar="SECONDS",
+                       help="Kelvin-Voigt material loss of L3's strips with --strip-dynamics "
+                            "full: retardation time tau (s), each strip spring damped by "
+                            "tau * its stiffness (damping ratio tau*omega/2; 1e-5 damps the "
+                            "first strip mode by 7.5%%); default 0 (undamped); the beam's alone")
+    solve = argparse.ArgumentParser(add_help=False)
+    solve.add_argument("--solver", default=None, choices=list(SOLVERS),
+                       help="ODE solver (default: per model, see the docs' Which model page)")
+    solve.add_argument("--rtol", type=float, default=1e-8, help="relative tolerance of the solver")
+    solve.add_argument("--atol", type=float, default=1e-10, help="absolute tolerance of the solver")
+    solve.add_argument("--max-steps", type=int, default=200_000, help="solver step limit")
+    times = argparse.ArgumentParser(add_help=False)
+    times.add_argument("--t-end", type=float, default=7.54, help="end time (s)")
+    times.add_argument("--n-out", type=int, default=755, help="number of output times")
+    return {"params": params, "model": model, "solve": solve, "times": times}
+
+
+def check_out_dir(path: str) -> str:
+    """Make sure the output directory can be written before a long run starts (`PPRError`)."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise PPRError(f"--out {path!r} is a file, not a directory")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as err:
+        raise PPRError(f"--out {path!r}: cannot create the directory ({err.strerror})") from None
+    if not os.access(path, os.W_OK):
+        raise PPRError(f"--out {path!r}: the directory is not writable")
+    return path
+
+
+def _write_json(path, obj):
+    with open(path, "w") as f:
+        json.dump(obj, f, indent=2)
+
+
+def _out_dir(path):
+    """Create the output directory (or check it) before a long run."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise ValueError(f"--out {path!r} is a file, not a directory")
+    os.makedirs(path, exist_ok=True)
+    if not os.access(path, os.W_OK):
+        raise ValueError(f"--out {path!r} is not writable")
+
+
+def _write_rows(path, rows, columns):
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns)
+        w.writeheader()
+        for r in rows:
+            w.writerow({c: r[c] for c in columns})
+
+
+def _name_values(items, what):
+    from .._params import parse_value
+
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ValueError(f"{what} expects NAME=VALUE, got {item!r}")
+        name, value = (v.strip() for v in item.split("=", 1))
+        out[name] = parse_value(name, value)
+    return out

@@ -1,0 +1,84 @@
+"""Command line interface `ppr-jax` (docs/cli.md): the parser of every command and the entry point."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from .._checks import PPRError
+from ._common import (
+    _log,
+    parent_parsers,
+)
+from ._identify import add_identify
+from ._modes import _add_modes
+from ._prb import _add_prb, _add_prb_table
+from ._sensitivity import add_sensitivity
+from ._simulate import _add_simulate
+from ._sweep import add_sweep
+from ._synth import add_synth
+from ._torques import _add_torques
+
+#: The commands, in the order `--help` lists them: each entry adds one subparser. A new command
+#: is one module in this wing with a function `add(sub, parents, fmt)`, and one line here.
+COMMANDS = [
+    _add_simulate, _add_torques, _add_modes, _add_prb, _add_prb_table,
+    add_sweep, add_sensitivity, add_identify, add_synth,
+]
+
+
+def build_parser():
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    p = argparse.ArgumentParser(prog="ppr-jax", description="Command line interface of ppr_jax (docs/cli.md).", formatter_class=fmt)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    parents = parent_parsers()
+    for add in COMMANDS:
+        add(sub, parents, fmt)
+    return p
+
+
+def _runtime_message(err: Exception) -> str:
+    """The library's own message out of an error raised inside compiled code (equinox's runtime
+    errors arrive wrapped in JAX's), without the framework's hints."""
+    text = str(err)
+    for marker in ("EqxRuntimeError: ", "XlaRuntimeError: "):
+        if marker in text:
+            text = text.split(marker, 1)[1]
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    keep = [ln for ln in lines if not ln.startswith(("-----", "This error", "Note:", "If this"))]
+    return keep[0] if keep else (lines[0] if lines else type(err).__name__)
+
+
+def main(argv=None) -> int:
+    """Run the command line; every user error is one line on stderr and exit status 2."""
+    import jax
+
+    args = build_parser().parse_args(argv)
+    args.program_dir = None
+    if args.cmd == "sweep" and os.environ.get("PPR_JAX_CPU_DEFAULTS", "1") != "0":
+        from .._devices import configure_cpu
+
+        try:
+            configure_cpu()  # one host device per core: a sweep's chunks split over them
+        except PPRError:  # JAX started already (the command called from Python): keep it
+            pass
+    if os.environ.get("PPR_JAX_CACHE", "1") != "0":
+        from .._cache import enable_compilation_cache
+        from .._programs import PROGRAM_SUBDIR
+
+        try:
+            # Exported scene programs beside the compiled ones: a second run skips tracing too.
+            args.program_dir = os.path.join(enable_compilation_cache(), PROGRAM_SUBDIR)
+        except OSError as err:  # a read-only home: run without the cache, say so once
+            _log(f"ppr-jax: note: compilation cache disabled ({err})")
+    try:
+        return args.func(args)
+    except (PPRError, ValueError) as err:
+        msg = str(err)
+    except OSError as err:
+        msg = f"{err.filename or ''}: {err.strerror or err}".lstrip(": ")
+    except jax.errors.JaxRuntimeError as err:
+        msg = _runtime_message(err)
+    print(f"ppr-jax: error: {' '.join(msg.split())}", file=sys.stderr)
+    return 2

@@ -1,0 +1,61 @@
+"""`ppr-jax synth`: a synthetic measurement file from a scene."""
+
+from __future__ import annotations
+
+import os
+
+from ._common import (
+    _log,
+    _name_values,
+)
+
+
+def cmd_synth(args):
+    from .._data import write_csv
+    from .._identify import check_synth_args, synthesize
+    from .._scenes import scene_params
+    from ._common import model_from_args
+
+    params = scene_params(args.scene, **_name_values(args.set, "--set"))
+    check_synth_args(args.noise_pos, args.noise_phi, args.rate, args.t_end)
+    _log(f"synth: {args.scene} with {args.model}, {args.t_end} s at {args.rate} Hz (compiling, "
+         f"then running) ...")
+    exp = synthesize(args.scene, model_from_args(args, args.model), params,
+                     noise_pos=args.noise_pos, noise_phi=args.noise_phi, rate=args.rate,
+                     t_end=args.t_end, seed=args.seed,
+                     name=os.path.splitext(os.path.basename(args.out))[0], solver=args.solver,
+                     rtol=args.rtol, atol=args.atol, max_steps=args.max_steps)
+    sets = " ".join(args.set or []) or "scene defaults"
+    write_csv(args.out, exp, length_unit=args.length_unit, angle_unit=args.angle_unit, comments=[
+        f"synthetic tracker data from ppr_jax: scene {args.scene}, model {args.model}, "
+        f"parameters: {sets}",
+        f"Gaussian noise: {args.noise_pos:g} m on x and y, {args.noise_phi:g} rad on phi, seed "
+        f"{args.seed}; {args.rate:g} Hz; th_i noise-free; tau: applied or reaction torques",
+    ])
+    print(f"wrote {args.out} ({exp.n} samples)")
+    return 0
+
+
+def add_synth(sub, parents, fmt):
+    from .._identify import ID_SCENES
+    from .._models import MODELS
+
+    p = sub.add_parser(
+        "synth", formatter_class=fmt,
+        parents=[parents[k] for k in ("params", "model", "solve")],
+        help="write a synthetic tracker CSV (a scene plus Gaussian noise)",
+        description="Simulate a scene with a model and write what a tracker would record: the "
+                    "platform pose at --rate Hz with Gaussian noise (seeded), the actuated "
+                    "angles and torques, in the CSV format that 'identify' reads.")
+    p.add_argument("--scene", default="servo-circle", choices=list(ID_SCENES))
+    p.add_argument("--model", default="double1r", choices=list(MODELS))
+    p.add_argument("--noise-pos", type=float, default=0.1e-3, help="position noise std (m)")
+    p.add_argument("--noise-phi", type=float, default=1e-3, help="angle noise std (rad)")
+    p.add_argument("--rate", type=float, default=100.0, help="sample rate (Hz)")
+    p.add_argument("--t-end", type=float, default=7.54, help="duration (s)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the noise")
+    p.add_argument("--length-unit", default="mm", choices=["m", "mm"], help="unit of x, y")
+    p.add_argument("--angle-unit", default="rad", choices=["rad", "mrad", "deg"],
+                   help="unit of phi and th_i")
+    p.add_argument("--out", required=True, metavar="FILE.csv")
+    p.set_defaults(func=cmd_synth)
