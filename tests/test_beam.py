@@ -58,7 +58,7 @@ def test_layout_and_closure(params, robot):
     m = Beam(4)
     assert (m.n_dof, m.name, m.level, m.actuated_index) == (15, "beam", 3, (3, 4, 5))
     assert Beam().n_elements == 8 and Beam().n_dof == 27
-    with pytest.raises(ValueError):
+    with pytest.raises(pj.PPRError, match="elements"):
         Beam(1)
     X = jnp.array([0.47, 0.24, 0.02])
     z = m.coords_from_pose(robot, X) + 0.01 * jnp.sin(jnp.arange(15.0))

@@ -186,7 +186,7 @@ def test_equal_links_fast_path_keeps_exact_derivatives_in_l1_alone(params):
     assert float(jnp.abs(g_fast).max()) > 0.1
     g_rev = jax.grad(lambda l: jnp.sum(jnp.sin(th(l, True))))(l1)
     np.testing.assert_allclose(g_rev, jnp.sum(jnp.cos(th(l1, True)) * g_fast), rtol=1e-12)
-    with pytest.raises(ValueError, match="equal_links=True needs l1 == l3"):
+    with pytest.raises(pj.PPRError, match="equal_links=True needs l1 == l3"):
         pj.Robot(params.replace(l1=0.3), equal_links=True)
 
 
