@@ -101,7 +101,8 @@ def _tips(kappa0, forces, *, allow_failure=False):
     x, y, th, ok = (np.asarray(v) for v in out)
     if not allow_failure and not ok.all():
         bad = forces[~ok]
-        raise ElasticaConvergenceError(f"fit_prb: elastica did not converge for kappa0={kappa0} and forces {bad[:4].tolist()}")
+        raise ElasticaConvergenceError(
+            f"fit_prb: elastica did not converge for kappa0={kappa0} and forces {bad[:4].tolist()}")
     return x, y, th, ok
 
 
