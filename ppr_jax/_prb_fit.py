@@ -25,7 +25,8 @@ import numpy as np  # noqa: E402
 import scipy.optimize  # noqa: E402
 
 from ._prb_table import _geometry  # noqa: E402
-from .elastica import solve_cantilever  # noqa: E402
+from ._checks import PPRError  # noqa: E402
+from .elastica import ElasticaConvergenceError, solve_cantilever  # noqa: E402
 
 __all__ = [
     "DEFAULT_LOAD_RANGE",
@@ -100,7 +101,8 @@ def _tips(kappa0, forces, *, allow_failure=False):
     x, y, th, ok = (np.asarray(v) for v in out)
     if not allow_failure and not ok.all():
         bad = forces[~ok]
-        raise RuntimeError(f"fit_prb: elastica did not converge for kappa0={kappa0} and forces {bad[:4].tolist()}")
+        raise ElasticaConvergenceError(
+            f"fit_prb: elastica did not converge for kappa0={kappa0} and forces {bad[:4].tolist()}")
     return x, y, th, ok
 
 
@@ -206,7 +208,7 @@ def _best_K_theta(kappa0, gamma, samples):
 def _check_kappa0(kappa0):
     k = float(kappa0)
     if not np.isfinite(k):
-        raise ValueError(f"kappa0 must be finite (got {k}).")
+        raise PPRError(f"kappa0 must be finite (got {k}).")
     return k
 
 

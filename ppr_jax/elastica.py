@@ -64,6 +64,8 @@ import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 from jaxtyping import Array, Bool, Float  # noqa: E402
 
+from ._checks import PPRError  # noqa: E402
+
 __all__ = ["CantileverSolution", "ElasticaConvergenceError", "solve_cantilever"]
 
 #: Largest ``h * (load scale)`` for which the RK4 solution is considered resolved.
@@ -81,8 +83,9 @@ _NOT_CONVERGED_MSG = (
 )
 
 
-class ElasticaConvergenceError(RuntimeError):
-    """Raised (eagerly) when the shooting solver does not converge for the given load."""
+class ElasticaConvergenceError(PPRError, RuntimeError):
+    """Raised (eagerly) when the shooting solver does not converge for the given load. A
+    `PPRError` (as the library's other errors) and, as before, a `RuntimeError`."""
 
 
 class CantileverSolution(eqx.Module):
@@ -316,7 +319,8 @@ def solve_cantilever(
         A :class:`CantileverSolution` (tip via ``.tip``/``.tip_x``/``.tip_y``/``.tip_angle``).
 
     Raises:
-        ValueError: ``length <= 0`` or ``EI <= 0`` (or non-finite inputs), when inputs are concrete.
+        PPRError (a ValueError): ``length <= 0`` or ``EI <= 0`` (or non-finite inputs), when inputs
+            are concrete.
         ElasticaConvergenceError: non-convergence, when inputs are concrete (message gives the load).
         equinox's runtime error (``eqx.error_if``): the same two failures under ``jit``/``vmap``.
 
@@ -331,19 +335,19 @@ def solve_cantilever(
     if eager:
         for name, v in concrete.items():
             if v.shape != ():
-                raise ValueError(
+                raise PPRError(
                     f"solve_cantilever: {name} must be a scalar (got shape {v.shape}); use jax.vmap for batches."
                 )
             if not np.isfinite(v):
-                raise ValueError(f"solve_cantilever: {name} must be finite (got {float(v)}).")
+                raise PPRError(f"solve_cantilever: {name} must be finite (got {float(v)}).")
         for name in ("length", "EI"):
             if not concrete[name] > 0:
-                raise ValueError(
+                raise PPRError(
                     f"solve_cantilever: {name} must be > 0 (allowed range (0, inf)); got {float(concrete[name])}."
                 )
     kwargs = dict(n_nodes=n_nodes, substeps=substeps, n_continuation=n_continuation, n_newton=n_newton)
     if n_nodes < 2 or substeps < 1 or n_continuation < 1 or n_newton < 1:
-        raise ValueError("solve_cantilever: need n_nodes >= 2 and substeps, n_continuation, n_newton >= 1.")
+        raise PPRError("solve_cantilever: need n_nodes >= 2 and substeps, n_continuation, n_newton >= 1.")
     if not eager and throw:
         length, EI = jnp.asarray(length, jnp.float64), jnp.asarray(EI, jnp.float64)
         length = eqx.error_if(length, ~(length > 0), "solve_cantilever: length must be > 0 (allowed range (0, inf)).")

@@ -37,3 +37,26 @@ def rotate_vel(Xd, k=1):
     a = 2 * jnp.pi / 3 * k
     R = jnp.array([[jnp.cos(a), -jnp.sin(a)], [jnp.sin(a), jnp.cos(a)]])
     return jnp.concatenate([R @ Xd[:2], Xd[2:3]])
+
+
+def raises_in_compiled_code(match):
+    """`pytest.raises` for a check that fails inside a compiled program (`eqx.error_if` under
+    `jax.jit`): no library exception class can cross the compiled program, so JAX raises its own
+    error with the library's message in it. jaxlib raises it as `jax.errors.JaxRuntimeError`, or
+    as a bare `ValueError` ("INTERNAL: CpuCallback error") once the function has run
+    successfully (its fast dispatch path); either way the text carries equinox's
+    `EquinoxRuntimeError: <message>`. A library `PPRError` (a ValueError too) is not accepted."""
+    import contextlib
+
+    import pytest
+
+    from ppr_jax import PPRError
+
+    @contextlib.contextmanager
+    def ctx():
+        with pytest.raises((jax.errors.JaxRuntimeError, ValueError), match=match) as info:
+            yield info
+        assert not isinstance(info.value, PPRError), type(info.value)
+        assert "EquinoxRuntimeError: " in str(info.value)
+
+    return ctx()

@@ -1,14 +1,13 @@
 """vmap over a batch of robots equals a Python loop; batch failures name the failing members."""
 
-import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import ppr_jax as pj
+from helpers import raises_in_compiled_code
 from ppr_jax._checks import raise_if
-from ppr_jax._simulate import check_result
 
 
 def test_vmapped_scene_equals_python_loop(params, paper_circle_L1):
@@ -48,16 +47,31 @@ def test_batched_inverse_kinematics_names_failing_members(params):
     assert ok.th.shape == (2, 3, 3)
 
 
-def test_batched_solver_failures_name_members():
-    import jax
-
-    res = jax.vmap(
-        lambda b: diffrax.RESULTS.where(
-            b, diffrax.RESULTS.max_steps_reached, diffrax.RESULTS.successful
-        )
-    )(jnp.array([False, True, False, True]))
-    with pytest.raises(pj.SimulationError, match=r"2 of 4 batch members.*member 1:.*maximum"):
-        check_result(res)
+def test_batched_solver_failures_name_members(params):
+    """A real solver failure in a batch: L1 driven by its own torques on eq 55, four strip
+    thicknesses, a step limit of 60 that the thin strips (12-15 steps over 0.5 s) stay under
+    and the stiff 1.8 and 2 mm strips (about 100 steps: K grows as t^3) run out of. The error
+    names members 1 and 3 and why; the other members' results are kept, on the circle of eq 55
+    (a robot driven by its own inverse-dynamics torques follows it to the solver tolerance)."""
+    ts = [0.3e-3, 2.0e-3, 0.35e-3, 1.8e-3]
+    batch = pj.stack_params([params.replace(t=t) for t in ts])
+    kw = dict(model="reduced", t_end=0.5, n_out=6, max_steps=60)
+    res = pj.paper_circle(batch, throw=False, **kw)
+    assert list(res.failures()) == [1, 3]
+    codes = [int(res.result._value[i]) for i in range(4)]
+    assert codes == [0, int(pj.RESULTS.max_steps_reached._value)] * 2
+    wt = 5 / 6 * np.linspace(0.0, 0.5, 6)  # eq 55 at the output times
+    X55 = np.column_stack([0.45 + 0.1 * np.cos(wt), 0.15 * np.sqrt(3) + 0.1 * np.sin(wt),
+                           -0.05 * np.sin(wt)])
+    for i in (0, 2):
+        np.testing.assert_allclose(res.X[i], X55, rtol=0, atol=1e-9)
+    with pytest.raises(pj.SimulationError,
+                       match=r"2 of 4 batch members\): member 1: The maximum number of solver "
+                             r"steps.*; member 3: The maximum number of solver steps") as info:
+        pj.paper_circle(batch, **kw)
+    kept = info.value.result
+    for i in (0, 2):
+        np.testing.assert_array_equal(kept.X[i], res.X[i])
 
 
 def test_raise_if_traced_uses_equinox_runtime_error():
@@ -65,7 +79,7 @@ def test_raise_if_traced_uses_equinox_runtime_error():
 
     f = jax.jit(lambda x: raise_if(x, x < 0, "x must be >= 0"))
     assert float(f(1.0)) == 1.0
-    with pytest.raises(Exception, match="x must be >= 0"):
+    with raises_in_compiled_code("x must be >= 0"):
         jax.block_until_ready(f(-1.0))
 
 

@@ -58,7 +58,7 @@ def test_layout_and_closure(params, robot):
     m = Beam(4)
     assert (m.n_dof, m.name, m.level, m.actuated_index) == (15, "beam", 3, (3, 4, 5))
     assert Beam().n_elements == 8 and Beam().n_dof == 27
-    with pytest.raises(ValueError):
+    with pytest.raises(pj.PPRError, match="elements"):
         Beam(1)
     X = jnp.array([0.47, 0.24, 0.02])
     z = m.coords_from_pose(robot, X) + 0.01 * jnp.sin(jnp.arange(15.0))
@@ -261,11 +261,22 @@ def test_modes_locked_converge(params, beam_modes):
     f4, f8 = (np.asarray(beam_modes[N].freq_hz) for N in (4, 8))
     assert len(f4) == 3 * 4 and len(f8) == 3 * 8  # locked: X and the strips' interior angles
     assert np.all(f4 > 0) and np.all(f8 > 0)  # locked: stable
-    assert abs(f8[0] - f8[1]) < 1e-6 * f8[0]  # the translation pair (three-fold symmetry)
-    assert np.all(np.abs(f8[:3] - f4[:3]) / f8[:3] < 0.05), (f4[:3], f8[:3])
-    # L3 is stiffer than L2 (the PRB joint on the centre lines has lever arms r_i = r + b_r/2
-    # instead of r): same mode ordering, frequencies within a factor 2
-    assert np.all((f8[:3] / f2 > 1.0) & (f8[:3] / f2 < 2.0)), (f8[:3], f2)
+    # the translation pair (three-fold symmetry): equal to the eigensolver's rounding (3e-10)
+    assert abs(f8[0] - f8[1]) < 1e-8 * f8[0]
+    # Second-order convergence in the element length (f_N = f_inf - C/N^2; the slow test below
+    # measures the ratio (f8 - f4)/(f16 - f8) = 3.8 against 4): then f8 - f4 = 3 (f_inf - f8).
+    # Measured: f4 = 9.325, 9.325, 10.201 Hz; f8 = 9.619, 9.619, 10.505 Hz; f16 = 9.697, 9.697,
+    # 10.585 Hz; (f8 - f4)/f8 = 3.05 %, 3.05 %, 2.90 % (f8 is 1.0 % below the extrapolated
+    # limit). A 4-element strip that were already converged (or a wrong N) gives about 0.
+    rel = (f8[:3] - f4[:3]) / f8[:3]
+    assert np.all((rel > 0.025) & (rel < 0.035)), (f4[:3], f8[:3])
+    # L3 against L2: the PRB joint on the centre lines is about 2.3 times softer under platform
+    # loads than the strip itself (MODEL.md 3a, from an independent elastica computation); the
+    # bodies' inertia is the same, so the frequencies' squared ratio is that stiffness ratio.
+    # Measured (f8/f2)^2 = 2.303, 2.303, 2.318 (2.35 extrapolated to N -> inf). The lever-arm
+    # ratio alone, (r_i/r)^2 = 2.48, would fail it, as would a mode ordering that differed.
+    ratio2 = (f8[:3] / f2) ** 2
+    assert np.all((ratio2 > 2.2) & (ratio2 < 2.4)), (f8[:3], f2)
 
 
 @pytest.mark.slow
@@ -278,12 +289,21 @@ def test_modes_locked_second_order(params, beam_modes):
 
 @pytest.mark.slow
 def test_paper_circle_quasi_static_start(params):
-    """Torque-driven L3 (N = 4) with L1's torques from the quasi-static state: stays near the
-    nominal circle over 0.05 s (Tsit5) and keeps its loop closed."""
+    """Torque-driven L3 (N = 4) with L1's torques from the quasi-static state: leaves the
+    nominal circle as t^2 (a consistent start: pose and velocity on it, only the acceleration
+    differs), by the model mismatch's size, and keeps its loop closed (Tsit5, 0.05 s)."""
     res = pj.paper_circle(params, model=Beam(4), solver="tsit5", t_end=0.05, n_out=11,
                           max_steps=100_000)
-    ts, sol, out = res.ts, res, res
-    assert int(sol.result._value) == 0
-    Xn = jax.vmap(pj.Circle())(ts)
-    assert np.abs(np.asarray(out.X[:, :2] - Xn[:, :2])).max() < 5e-3
-    assert float(np.max(out.residual)) < 1e-12
+    assert int(res.result._value) == 0
+    wt = 5 / 6 * np.asarray(res.ts)  # eq 55
+    Xn = np.column_stack([0.45 + 0.1 * np.cos(wt), 0.15 * np.sqrt(3) + 0.1 * np.sin(wt)])
+    dev = np.linalg.norm(np.asarray(res.X[:, :2]) - Xn, axis=1)
+    # Measured: 4.4e-6 m at 5 ms, 1.6e-5 m at 10 ms, 0.38 mm at 50 ms (phi 1.1 mrad): an
+    # acceleration mismatch of about 0.3 m/s^2 (L3's strip is stiffer than L1's centre-line joint,
+    # so L1's torques do not balance it exactly). Zero error in position and velocity at t = 0
+    # makes it quadratic: the ratio at 10 and 5 ms is 4 (an initial velocity error would give 2,
+    # a position error 1); the third-order term brings it to 3.8. The window was 5 mm before.
+    assert dev[0] < 1e-12
+    assert 3.5 < dev[2] / dev[1] < 4.2, dev[:3]
+    assert 1e-4 < dev.max() < 1e-3, dev
+    assert float(np.max(res.residual)) < 1e-12

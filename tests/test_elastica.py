@@ -14,7 +14,9 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from ppr_jax import elastica  # noqa: E402
+from ppr_jax import PPRError, elastica  # noqa: E402
+
+from helpers import raises_in_compiled_code  # noqa: E402
 
 L, EI = 1.7, 2.3  # deliberately not 1: checks the nondimensionalization
 
@@ -121,26 +123,28 @@ def test_vmap_equals_loop():
 )
 def test_bad_inputs_raise_eagerly(name, kwargs):
     args = dict(length=L, EI=EI, kappa0=0.5) | kwargs
-    with pytest.raises(ValueError, match=rf"{name} must be > 0 \(allowed range \(0, inf\)\)"):
+    with pytest.raises(PPRError, match=rf"{name} must be > 0 \(allowed range \(0, inf\)\)"):
         elastica.solve_cantilever(**args)
 
 
 def test_bad_inputs_raise_when_traced():
     f = jax.jit(lambda length, ei: elastica.solve_cantilever(length, ei, 0.5, (1.0, 0.0), 0.0).tip)
-    with pytest.raises(Exception, match="length must be > 0"):
+    with raises_in_compiled_code("length must be > 0"):
         jax.block_until_ready(f(-1.0, EI))
-    with pytest.raises(Exception, match="EI must be > 0"):
+    with raises_in_compiled_code("EI must be > 0"):
         jax.block_until_ready(f(L, 0.0))
 
 
 def test_non_convergence_is_reported():
     F = 1e3 * EI / L**2  # load index 1000: beyond the default continuation
-    with pytest.raises(elastica.ElasticaConvergenceError, match=r"force=\(0.0, -"):
+    with pytest.raises(elastica.ElasticaConvergenceError, match=r"force=\(0.0, -") as info:
         elastica.solve_cantilever(L, EI, 0.0, (0.0, -F), 0.0)
+    assert isinstance(info.value, PPRError) and isinstance(info.value, RuntimeError)
     sol = elastica.solve_cantilever(L, EI, 0.0, (0.0, -F), 0.0, throw=False)
     assert not bool(sol.converged)
     f = eqx.filter_jit(lambda F: elastica.solve_cantilever(L, EI, 0.0, (0.0, -F), 0.0).tip)
-    with pytest.raises(Exception, match="did not converge for this load"):
+    # eqx.filter_jit re-raises eqx.error_if's failure as equinox's own runtime error
+    with pytest.raises(eqx.EquinoxRuntimeError, match="did not converge for this load"):
         jax.block_until_ready(f(F))
 
 

@@ -79,14 +79,14 @@ def test_explicit_rho_overrides(params):
     "name,value", [("t", -0.3e-3), ("E", 0.0), ("theta_c", 4.0), ("gamma", 1.5), ("a", float("nan"))]
 )
 def test_out_of_range_parameter_names_parameter_and_range(name, value):
-    with pytest.raises(ValueError, match=rf"'{name}'.*range \["):
+    with pytest.raises(pj.PPRError, match=rf"'{name}'.*range \["):
         pj.RobotParams(**{name: value})
 
 
 def test_unknown_parameter_and_bad_sigma(params):
-    with pytest.raises(ValueError, match="unknown parameter"):
+    with pytest.raises(pj.PPRError, match="unknown parameter"):
         params.replace(thickness=1.0)
-    with pytest.raises(ValueError, match="sigma"):
+    with pytest.raises(pj.PPRError, match="sigma"):
         pj.RobotParams(sigma=0)
 
 

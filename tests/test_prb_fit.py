@@ -13,6 +13,9 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import scipy.interpolate  # noqa: E402
 
+from ppr_jax import PPRError  # noqa: E402
+
+from helpers import raises_in_compiled_code  # noqa: E402
 from ppr_jax import _prb_fit as prb  # noqa: E402
 from ppr_jax import _prb_table as tab  # noqa: E402
 
@@ -138,9 +141,9 @@ def test_interpolant_is_smooth_between_nodes():
 
 
 def test_interpolant_out_of_range():
-    with pytest.raises(ValueError, match=r"kappa0 must lie in \[0.0, 2.0\]"):
+    with pytest.raises(PPRError, match=r"kappa0 must lie in \[0.0, 2.0\]"):
         tab.prb_parameters(2.5)
-    with pytest.raises(ValueError, match=r"kappa0 must lie in"):
+    with pytest.raises(PPRError, match=r"kappa0 must lie in"):
         tab.prb_parameters(-0.1)
-    with pytest.raises(Exception, match=r"kappa0 must lie in"):
+    with raises_in_compiled_code(r"kappa0 must lie in"):
         jax.block_until_ready(jax.jit(tab.prb_parameters)(2.5))
