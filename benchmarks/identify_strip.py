@@ -3,11 +3,11 @@
 Data from L2 on the actual strip (joint_geometry='strip', MODEL.md 3a), the motors commanded
 by the centre-line L1 inverse kinematics (what a user of the paper's model sends), fitted by L2
 on the centre lines: what do the PRB parameters become?"""
-import json, os, time, types
+import json, os, time
 import jax, jax.numpy as jnp, numpy as np
 import ppr_jax as pj
-from ppr_jax import _identify as I
 from ppr_jax._robot import Robot
+from ppr_jax._scenes import prepare
 
 cl = pj.scene_params("servo-circle")
 dv = pj.derived(cl)
@@ -15,11 +15,15 @@ cl = cl.replace(K_theta=float(dv.K_theta), gamma=float(dv.gamma))
 strip = cl.replace(joint_geometry="strip")
 T_END, RATE = 2.0, 100.0
 ts = jnp.linspace(0.0, T_END, int(T_END * RATE) + 1)
-ns = types.SimpleNamespace(model=pj.get_model("double1r"), rtol=jnp.asarray(1e-8), atol=jnp.asarray(1e-10),
-                           scene="servo-circle", equal_links=Robot(strip).equal_links,
-                           solver=pj._simulate.get_solver("tsit5"), max_steps=100_000)
+# the strip robot under the commands of the centre-line robot: the scene's run with the
+# scene's commands computed for `cl`
+call = prepare("servo-circle", strip, "double1r",
+               pj.SceneOptions(t_end=T_END, n_out=len(ts), solver="tsit5", max_steps=100_000))
+scene, model, robot, opts = call.args
 t0 = time.perf_counter()
-X, ok = jax.jit(lambda: I._pose_one(ns, strip, Robot(cl), ts, None, None, jnp.zeros(6)))()
+res = jax.jit(lambda: scene.run(model, robot, opts, scene.commands(
+    model, Robot(cl), opts.trajectory, opts.times(), opts.panels).actuation))()
+X, ok = res.X, res.result == pj.RESULTS.successful
 print("data sim", time.perf_counter() - t0, bool(ok), flush=True)
 rng = np.random.default_rng(0)
 noise = (1e-4, 1e-3)

@@ -38,8 +38,8 @@ from ppr_jax._robot import Robot
 from ppr_jax._actuation import InverseDynamicsTorque, TorqueDriven
 from ppr_jax._scenes import input_panels, scene_params
 from ppr_jax._scenes import tabulated as _tabulated_input
-from ppr_jax._statics import _quasi_static_state
-from ppr_jax._sensitivity import explicit_params, metric_function
+from ppr_jax._statics import quasi_static_core
+from ppr_jax._studies import explicit_params, metric_function
 from ppr_jax._simulate import _vector_field
 from ppr_jax._trajectory import Circle
 
@@ -131,7 +131,7 @@ def main():
     torque, _, _ = _tabulated_input(InverseDynamicsTorque(torque_model, robot, traj), ts,
                                     input_panels(traj, t_end, 755))
     act = TorqueDriven(torque)
-    z0, zd0, _ = _quasi_static_state(model, robot, traj, ts[0], act)
+    z0, zd0, _ = quasi_static_core(model, robot, traj, ts[0], act)
     y0, w = (z0, zd0), jnp.zeros(3)
 
     def vf(r, y, t):

@@ -6,7 +6,7 @@ stiff) at N = 8 (N = 16 is an option: not measured, its Kvaerno5 compilation alo
 out of reach of the first session's budget), undamped strips (tau = 0, the default) and Kelvin-Voigt strips
 (tau = 1e-5 s: damping ratio tau omega / 2 = 0.075 for the first strip mode, 2.4 kHz at N = 8 and
 2.6 kHz at N = 16, 3e-4 for the robot's 10 Hz mode). `run_scene` starts every run from the
-consistent quasi-static state (`_quasi_static_state`: strips in equilibrium, velocities of the
+consistent quasi-static state (`quasi_static_core`: strips in equilibrium, velocities of the
 quasi-static motion), so the strip modes are excited only by the motion itself.
 
 Error: the largest platform position distance over the n_out output times against a reference of

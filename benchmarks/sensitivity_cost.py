@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 
 import ppr_jax as pj
-from ppr_jax._sensitivity import metric_function
+from ppr_jax._studies import metric_function
 
 OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 

@@ -82,7 +82,11 @@ from ._statics import (  # noqa: E402
     quasi_static_state as quasi_static_state,
 )
 from ._modes import Modes as Modes, modes as modes  # noqa: E402
-from ._metrics import outputs as outputs, metrics as metrics  # noqa: E402
+from ._metrics import (  # noqa: E402
+    outputs as outputs,
+    metrics as metrics,
+    metric_table as metric_table,
+)
 from ._scenes import (  # noqa: E402
     AbstractScene as AbstractScene,
     PaperCircle as PaperCircle,
@@ -91,12 +95,13 @@ from ._scenes import (  # noqa: E402
     SceneResult as SceneResult,
     ServoCircle as ServoCircle,
     solve_scene as solve_scene,
+    nominal_torques as nominal_torques,
     paper_circle as paper_circle,
     servo_circle as servo_circle,
     modes_scene as modes_scene,
     scene_params as scene_params,
 )
-from ._report import (  # noqa: E402
+from ._scenes import (  # noqa: E402
     SceneReport as SceneReport,
     run_scene as run_scene,
     scene_metrics as scene_metrics,
@@ -104,13 +109,13 @@ from ._report import (  # noqa: E402
 
 from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
 from ._devices import configure_cpu as configure_cpu, cpu_flags as cpu_flags  # noqa: E402
-from ._sweep import (  # noqa: E402
+from ._studies import (  # noqa: E402
     SweepResult as SweepResult,
     sweep as sweep,
     shard_batch as shard_batch,
     design_members as design_members,
 )
-from ._sensitivity import (  # noqa: E402
+from ._studies import (  # noqa: E402
     Sensitivity as Sensitivity,
     sensitivity as sensitivity,
     base_frequency as base_frequency,
@@ -129,7 +134,7 @@ from ._data import (  # noqa: E402
     load_experiments as load_experiments,
     write_csv as write_csv,
 )
-from ._identify import (  # noqa: E402
+from ._studies import (  # noqa: E402
     Identification as Identification,
     IdentificationError as IdentificationError,
     identify as identify,

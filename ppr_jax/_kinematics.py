@@ -43,7 +43,7 @@ class IKResult(eqx.Module):
     deflection: Array
 
 
-def _ik(model: AbstractModel, robot: Robot, X) -> IKResult:
+def ik_solve(model: AbstractModel, robot: Robot, X) -> IKResult:
     robot = as_robot(robot)
 
     def q_of_X(X):
@@ -62,7 +62,7 @@ def _ik(model: AbstractModel, robot: Robot, X) -> IKResult:
     )
 
 
-_ik_jit = eqx.filter_jit(_ik)
+_ik_jit = eqx.filter_jit(ik_solve)
 
 
 def check_pose(res: IKResult, X):
@@ -140,7 +140,7 @@ def predeflection(robot: RobotLike, X=None) -> dict:
 # ---------------------------------------------------------------------------------------------
 
 
-def _fk(model, robot, th_a, X_guess, rtol, atol, max_steps):
+def fk_solve(model, robot, th_a, X_guess, rtol, atol, max_steps):
     robot = as_robot(robot)
 
     def resid(X, th_a):
@@ -154,7 +154,7 @@ def _fk(model, robot, th_a, X_guess, rtol, atol, max_steps):
     return sol.value, sol.result
 
 
-_fk_jit = eqx.filter_jit(_fk)
+_fk_jit = eqx.filter_jit(fk_solve)
 
 
 def _fk_inputs(robot, th_a, X_guess, model, names=("th_a", "X_guess")):
@@ -247,7 +247,7 @@ def fold_flags(det, ts=None):
 
 def _fk_path(model, robot, th_a_path, X0, rtol, atol, max_steps):
     def step(X, th_a):
-        Xn, res = _fk(model, robot, th_a, X, rtol, atol, max_steps)
+        Xn, res = fk_solve(model, robot, th_a, X, rtol, atol, max_steps)
         return Xn, (Xn, res._value)
 
     _, (Xs, codes) = jax.lax.scan(step, X0, th_a_path)
@@ -303,4 +303,4 @@ def forward_kinematics_path(
     return Xs
 
 
-_ik_path_jit = eqx.filter_jit(eqx.filter_vmap(_ik, in_axes=(None, None, 0)))
+_ik_path_jit = eqx.filter_jit(eqx.filter_vmap(ik_solve, in_axes=(None, None, 0)))

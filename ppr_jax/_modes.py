@@ -19,7 +19,7 @@ from ._dynamics import eom_terms, generalized_force
 from ._geometry import home_pose
 from ._models import AbstractModel
 from ._robot import RobotLike, as_robot
-from ._statics import _assemble, static_equilibrium
+from ._statics import assemble, static_equilibrium
 
 
 class Modes(eqx.Module):
@@ -82,7 +82,7 @@ def _modes_core(model, robot, X, actuators, w):
     zk = z_eq[jnp.array(known)] if known else None
 
     def Q(zf):
-        z = _assemble(n, free, zf, known, zk)
+        z = assemble(n, free, zf, known, zk)
         return generalized_force(eom_terms(model, robot, z, jnp.zeros(n)), jnp.zeros(3), w)[f]
 
     K = -jax.jacfwd(Q)(z_eq[f])

@@ -24,7 +24,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.optimize  # noqa: E402
 
-from ._prb_table import _geometry  # noqa: E402
+from ._prb_table import prb_geometry  # noqa: E402
 from ._checks import PPRError  # noqa: E402
 from .elastica import ElasticaConvergenceError, solve_cantilever  # noqa: E402
 
@@ -178,7 +178,7 @@ def _tip_error(kappa0, gamma, rho, tip):
 
 def _torque_data(kappa0, gamma, samples):
     """(Theta - Theta_i, F_t) per sample, shape (n_dir, n_loads)."""
-    _, theta_i = _geometry(kappa0, gamma)
+    _, theta_i = prb_geometry(kappa0, gamma)
     _, theta = _prb_angles(kappa0, gamma, samples["tip"])
     F = samples["forces"]
     f_t = -F[..., 0] * np.sin(theta) + F[..., 1] * np.cos(theta)
@@ -234,7 +234,7 @@ def fit_prb(kappa0: float, **load_range) -> PRBFit:
     tip = samples["tip"]
 
     def objective(gamma):
-        rho, _ = _geometry(kappa0, gamma)
+        rho, _ = prb_geometry(kappa0, gamma)
         return _tip_error(kappa0, gamma, rho, tip).max()
 
     grid = np.arange(0.5, 1.0 + 1e-12, 0.002)
@@ -243,7 +243,7 @@ def fit_prb(kappa0: float, **load_range) -> PRBFit:
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
     res = scipy.optimize.minimize_scalar(objective, bounds=(lo, hi), method="bounded", options=dict(xatol=1e-9))
     gamma = float(res.x) if res.fun <= vals[i] else float(grid[i])
-    rho, _ = _geometry(kappa0, gamma)
+    rho, _ = prb_geometry(kappa0, gamma)
     K_theta = _best_K_theta(kappa0, gamma, samples)
     err = _errors(kappa0, gamma, rho, K_theta, samples)
     return PRBFit(kappa0=kappa0, gamma=gamma, rho=float(rho), K_theta=K_theta, **err._asdict())
@@ -268,6 +268,6 @@ def prb_error(
     kappa0 = _check_kappa0(kappa0)
     samples = _samples(kappa0, *_load_range(load_range))
     gamma = float(gamma)
-    rho = float(_geometry(kappa0, gamma)[0]) if rho is None else float(rho)
+    rho = float(prb_geometry(kappa0, gamma)[0]) if rho is None else float(rho)
     K_theta = _best_K_theta(kappa0, gamma, samples) if K_theta is None else float(K_theta)
     return _errors(kappa0, gamma, rho, K_theta, samples)

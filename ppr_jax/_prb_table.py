@@ -45,7 +45,7 @@ def _arc_tip(kappa0):
     return a, b
 
 
-def _geometry(kappa0, gamma):
+def prb_geometry(kappa0, gamma):
     """(rho_default, Theta_i) for given kappa0, gamma (numpy or jax)."""
     xp = jnp if isinstance(kappa0, jax.Array) or isinstance(gamma, jax.Array) else np
     a, b = _arc_tip(kappa0)
@@ -155,5 +155,5 @@ def prb_parameters(kappa0):
     knots, coef = _splines()
     gamma = _spline_eval(knots, coef["gamma"], k)
     K_theta = _spline_eval(knots, coef["K_theta"], k)
-    rho, _ = _geometry(k, gamma)
+    rho, _ = prb_geometry(k, gamma)
     return gamma, rho, K_theta

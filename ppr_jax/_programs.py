@@ -58,7 +58,7 @@ _PACKAGE = pathlib.Path(__file__).resolve().parent
 
 
 @functools.lru_cache(maxsize=None)
-def _source_hash() -> str:
+def source_hash() -> str:
     h = hashlib.sha256()
     for p in sorted(_PACKAGE.rglob("*")):
         if p.suffix in (".py", ".json", ".csv") and "__pycache__" not in p.parts:
@@ -68,7 +68,7 @@ def _source_hash() -> str:
 
 
 @functools.lru_cache(maxsize=None)
-def _versions() -> str:
+def dependency_versions() -> str:
     """"name=version,..." of `DEPENDENCIES` ("?" for one not installed as a distribution)."""
     out = []
     for name in DEPENDENCIES:
@@ -102,7 +102,7 @@ def program_key(args: tuple, label: str) -> str:
     functions = _static_functions(static)
     leaves = jax.tree_util.tree_leaves(dyn)
     text = "\n".join([
-        f"format {FORMAT}", label, _versions(), jax.default_backend(), _source_hash(),
+        f"format {FORMAT}", label, dependency_versions(), jax.default_backend(), source_hash(),
         str(jax.tree_util.tree_structure(dyn)),
         eqx.tree_pformat(static, short_arrays=True), str(functions),
         str([(tuple(x.shape), str(x.dtype)) for x in leaves]),

@@ -42,7 +42,7 @@ def _concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def _equal_links(params: RobotParams) -> bool:
+def equal_links_of(params: RobotParams) -> bool:
     if not (_concrete(params.l1) and _concrete(params.l3)):
         return False
     return bool(np.all(np.asarray(params.l1) == np.asarray(params.l3)))
@@ -69,7 +69,7 @@ class Robot(eqx.Module):
         self.params = params
         concrete = all(_concrete(x) for x in jax.tree_util.tree_leaves(params))
         self.dv = derived_concrete(params) if concrete else derived(params)
-        auto = _equal_links(params)
+        auto = equal_links_of(params)
         if equal_links is None:
             equal_links = auto
         elif equal_links and not auto and _concrete(params.l1) and _concrete(params.l3):

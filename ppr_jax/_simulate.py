@@ -275,7 +275,7 @@ def _vector_field(model, robot, actuation, wrench, skip, t, y):
 
 
 @eqx.filter_jit
-def _simulate_core(
+def simulate_core(
     model, robot, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0, max_steps, wrench,
     throw, progress_meter, adjoint=None, skip=None,
 ):
@@ -367,7 +367,7 @@ def simulate(
     w = jnp.zeros(3) if wrench is None else check_array("wrench", wrench, (3,))
     traced = _is_traced((robot, actuation, z0, zdot0, ts, w))
     meter = diffrax.TextProgressMeter() if progress else diffrax.NoProgressMeter()
-    sol = _simulate_core(
+    sol = simulate_core(
         model, robot, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0,
         max_steps, w, traced, meter, adjoint,
     )

@@ -22,11 +22,11 @@ from ._dynamics import eom_terms, generalized_force
 from ._linalg import SmallLU, solve
 from ._models import AbstractModel, Reduced
 from ._robot import RobotLike, as_robot
-from ._kinematics import _fk
+from ._kinematics import fk_solve
 from ._trajectory import derivatives
 
 
-def _assemble(n, idx_u, zu, idx_k, zk):
+def assemble(n, idx_u, zu, idx_k, zk):
     z = jnp.zeros(n, dtype=jnp.float64)
     if idx_u:
         z = z.at[jnp.array(idx_u)].set(zu)
@@ -78,7 +78,7 @@ def static_equilibrium(
     zk = z_guess[jnp.array(known)] if known else None
 
     def resid(zf, _):
-        z = _assemble(n, free, zf, known, zk)
+        z = assemble(n, free, zf, known, zk)
         eom = eom_terms(model, robot, z, jnp.zeros(n))
         return generalized_force(eom, tau, w)[jnp.array(free)]
 
@@ -90,7 +90,7 @@ def static_equilibrium(
             "static equilibrium not found (Newton did not converge): the load may exceed what "
             "the joints hold, or the guess is far from an equilibrium",
         )
-    z = _assemble(n, free, zf, known, zk)
+    z = assemble(n, free, zf, known, zk)
     return (z, free, failed) if return_failed else (z, free)
 
 
@@ -210,7 +210,7 @@ def quasi_static_state(
     return z, zd
 
 
-def _quasi_static_state(
+def quasi_static_core(
     model: AbstractModel,
     robot: RobotLike,
     trajectory: Callable,
@@ -283,7 +283,7 @@ def _quasi_static_state(
 
         def full(zu):
             # the balance, and the chains' reach (which the balance needs: below)
-            z = _assemble(n, unknown, zu, known, z_r[ik])
+            z = assemble(n, unknown, zu, known, z_r[ik])
             eom = eom_terms(model, robot, z, zd_b)
             r = (eom.M @ zdd_b + eom.h - generalized_force(eom, tau, w))[iu]
             return r, jnp.min(eom.kin.margin)
@@ -320,8 +320,8 @@ def _quasi_static_state(
     # that the step criterion (1e-13 relative) may not reach. The residual decides.
     stalled = results == optx.RESULTS.nonlinear_max_steps_reached
     failed = ~(jnp.max(errs) < 1e-10) | jnp.any((results != optx.RESULTS.successful) & ~stalled)
-    z = _assemble(n, unknown, zu, known, z_r[ik])
-    zd = _assemble(n, unknown, zu_dot, known, zd_r[ik])
+    z = assemble(n, unknown, zu, known, z_r[ik])
+    zd = assemble(n, unknown, zu_dot, known, zd_r[ik])
     # A balance found outside the chains' reach is no state: there the closed-form closure works
     # on clipped values, is locally flat, and the balance equations can hold spuriously (a strip
     # too thin to carry the loads collapses the chain).
@@ -333,7 +333,7 @@ def _quasi_static_state(
 
 # Compiled once per (model, actuation type, shapes): run op by op, the Newton iteration's many
 # small operations cost minutes.
-_quasi_static_state_jit = eqx.filter_jit(_quasi_static_state)
+_quasi_static_state_jit = eqx.filter_jit(quasi_static_core)
 
 
 def kinematic_state(model: AbstractModel, robot, angles, X_guess, rtol=1e-13, atol=1e-13,
@@ -354,7 +354,7 @@ def kinematic_state(model: AbstractModel, robot, angles, X_guess, rtol=1e-13, at
     def tha_of_X(X):
         return model.kinematics(robot, model.coords_from_pose(robot, X)).th_a
 
-    X, res = _fk(model, robot, th, X_guess, rtol, atol, max_steps)
+    X, res = fk_solve(model, robot, th, X_guess, rtol, atol, max_steps)
     S = jax.jacfwd(tha_of_X)(X)
     Xd = solve(S, thd)
     conv = jax.jvp(lambda X: jax.jvp(tha_of_X, (X,), (Xd,))[1], (X,), (Xd,))[1]

@@ -48,7 +48,7 @@ def test_table_loads_and_is_complete():
     for name in ("gamma", "rho", "K_theta", "tip_error_max", "load_error_max"):
         assert t[name].shape == (21,) and np.all(np.isfinite(t[name]))
     # rho and Theta_i are Howell's geometry for the tabulated gamma.
-    rho, theta_i = tab._geometry(t["kappa0"], t["gamma"])
+    rho, theta_i = tab.prb_geometry(t["kappa0"], t["gamma"])
     np.testing.assert_allclose(t["rho"], rho, atol=1e-12)
     np.testing.assert_allclose(t["theta_i"], theta_i, atol=1e-12)
 

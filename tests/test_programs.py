@@ -117,13 +117,13 @@ def test_a_damaged_program_is_named_deleted_and_exported_afresh(tmp_path, direct
 def test_key_holds_the_versions_of_ppr_jax_and_its_numerical_dependencies(monkeypatch):
     assert set(DEPENDENCIES) == {"ppr_jax", "jax", "jaxlib", "diffrax", "equinox", "optimistix",
                                  "lineax"}
-    versions = _programs._versions()
+    versions = _programs.dependency_versions()
     for name in DEPENDENCIES:
         assert f"{name}=" in versions
     base = program_key(_call().args, "x")
     for name in DEPENDENCIES:
         bumped = versions.replace(f"{name}=", f"{name}=9")
-        monkeypatch.setattr(_programs, "_versions", lambda b=bumped: b)
+        monkeypatch.setattr(_programs, "dependency_versions", lambda b=bumped: b)
         assert program_key(_call().args, "x") != base, name
     monkeypatch.undo()
 

@@ -16,7 +16,7 @@ import pytest
 
 import ppr_jax as pj
 from ppr_jax._cli import main
-from ppr_jax._sensitivity import metric_function
+from ppr_jax._studies import metric_function
 
 SCENE = dict(model="reduced", torque_model="rigid", t_end=0.3, n_out=7, rtol=1e-11, atol=1e-13)
 PARAMS = ["t", "l3", "gamma", "w", "E"]

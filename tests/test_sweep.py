@@ -18,7 +18,7 @@ import pytest
 
 import ppr_jax as pj
 from ppr_jax._cli import main
-from ppr_jax._sweep import METRICS, design_members
+from ppr_jax._studies import METRICS, design_members
 
 KW = dict(model="reduced", torque_model="rigid", t_end=0.5, n_out=11)
 #: the thickest strip needs 38 steps over 0.5 s, the others 16-28
@@ -198,7 +198,7 @@ def test_chunked_members_equal_the_plain_vmap(swept, monkeypatch):
     a sweep chunk of 4: a loop over a chunk of 3 and a remainder of 1), every member, failures
     included, equals the plain-vmap sweep of the fixture."""
     import ppr_jax._scenes._batch as scenes
-    import ppr_jax._sweep as sweep_mod
+    import ppr_jax._studies._sweep as sweep_mod
 
     monkeypatch.setattr(scenes, "MEMBER_CHUNK", 3)
     monkeypatch.setattr(sweep_mod, "_PROGRAMS", {})  # trace again with the patched chunk
@@ -227,7 +227,7 @@ def test_resume_recomputes_a_chunk_that_fails_its_checks(tmp_path, swept, monkey
     """The issue's reproducer: a member's value edited in a finished chunk must not reach the
     result; the chunk is named once and computed afresh. A chunk of another library version (or
     source) is recomputed too; other settings are still refused."""
-    from ppr_jax import _sweep
+    from ppr_jax._studies import _sweep
 
     d = tmp_path / "chunks"
     kw = dict(vary=VARY, chunk_size=CHUNK, max_steps=MAX_STEPS, checkpoint_dir=str(d), **KW)

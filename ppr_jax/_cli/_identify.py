@@ -29,8 +29,8 @@ def _bounds(items):
 
 def cmd_identify(args):
     from .._data import load_experiments
-    from .._identify import identify
-    from .._identify_plots import identification_figures
+    from .._studies import identify
+    from .._studies import identification_figures
     from .._scenes import scene_params
     from ._common import model_from_args
 
@@ -68,7 +68,7 @@ def cmd_identify(args):
     _write_fitted(os.path.join(args.out, "fitted.csv"), fit)
     figs = identification_figures(fit, args.out)
     if args.profile:
-        from .._identify_plots import profile_figure
+        from .._studies import profile_figure
 
         _log("profile likelihood of " + ", ".join(fit.names) + " ...")
         profiles = [fit.profile(n) for n in fit.names]
@@ -117,7 +117,7 @@ def _units(p):
 
 
 def add_identify(sub, parents, fmt):
-    from .._identify import ACTUATIONS, ID_SCENES, INITIAL_STATES, LOSSES, SOLVERS
+    from .._studies import ACTUATIONS, ID_SCENES, INITIAL_STATES, LOSSES, SOLVERS
     from .._models import MODELS
     from .._params import PARAM_RANGES
 

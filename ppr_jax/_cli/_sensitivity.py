@@ -14,7 +14,7 @@ from ._common import (
 
 
 def cmd_sensitivity(args):
-    from .._sensitivity import SENSITIVITY_METRICS, sensitivity
+    from .._studies import SENSITIVITY_METRICS, sensitivity
     from ._common import _parse_sets, model_from_args
 
     params = _parse_sets(args.set, args.scene)
@@ -26,7 +26,7 @@ def cmd_sensitivity(args):
     if args.metrics:
         metrics = tuple(s.strip() for s in args.metrics.split(",") if s.strip())
     # Names checked before the (long) compilation starts.
-    from .._sweep import FLOAT_PARAMS
+    from .._studies import FLOAT_PARAMS
 
     for n in names or []:
         if n not in FLOAT_PARAMS:
@@ -70,8 +70,8 @@ def cmd_sensitivity(args):
 
 def add_sensitivity(sub, parents, fmt):
     from .._models import MODELS
-    from .._sensitivity import SENSITIVITY_METRICS
-    from .._sweep import SWEEP_SCENES
+    from .._studies import SENSITIVITY_METRICS
+    from .._studies import SWEEP_SCENES
 
     kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
     s = sub.add_parser(

@@ -31,7 +31,7 @@ def _reference(scene):
 
 
 def cmd_simulate(args):
-    from .._report import run_scene
+    from .._scenes import run_scene
     from .._scenes import check_scene_args, modes_scene
     from ._figures import scene_figures
 

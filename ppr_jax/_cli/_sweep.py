@@ -14,7 +14,7 @@ from ._common import _out_dir, _write_rows
 def parse_vary(items) -> dict:
     """``NAME=LO:HI:N`` (N evenly spaced values, ends included) or ``NAME=V1,V2,...`` ->
     {name: values}."""
-    from .._sweep import FLOAT_PARAMS
+    from .._studies import FLOAT_PARAMS
 
     out = {}
     for item in items or []:
@@ -65,7 +65,7 @@ def sweep_figures(result, out_dir) -> list:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .._sweep import METRICS
+    from .._studies import METRICS
 
     ok = result.ok
     paths = []
@@ -97,7 +97,7 @@ def cmd_sweep(args):
     import jax
 
     from .._scenes import batch_devices
-    from .._sweep import sweep
+    from .._studies import sweep
     from ._common import _parse_sets, model_from_args
 
     vary = parse_vary(args.vary)
@@ -132,7 +132,7 @@ def cmd_sweep(args):
     fcols = ["member", *res.varied, "status", "reason", "result_code"]
     _write_rows(os.path.join(args.out, "failed.csv"), res.failed, fcols)
     written.append("failed.csv")
-    from .._sweep import library_digest
+    from .._studies import library_digest
 
     with open(os.path.join(args.out, "summary.json"), "w") as f:
         # what the numbers depend on beyond the settings (the chunks' digests hold it too)
@@ -158,7 +158,7 @@ def cmd_sweep(args):
 
 def add_sweep(sub, parents, fmt):
     from .._models import MODELS
-    from .._sweep import SWEEP_SCENES
+    from .._studies import SWEEP_SCENES
 
     kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
     s = sub.add_parser(

@@ -12,7 +12,7 @@ from ._common import (
 
 def cmd_synth(args):
     from .._data import write_csv
-    from .._identify import check_synth_args, synthesize
+    from .._studies import check_synth_args, synthesize
     from .._scenes import scene_params
     from ._common import model_from_args
 
@@ -37,7 +37,7 @@ def cmd_synth(args):
 
 
 def add_synth(sub, parents, fmt):
-    from .._identify import ID_SCENES
+    from .._studies import ID_SCENES
     from .._models import MODELS
 
     p = sub.add_parser(

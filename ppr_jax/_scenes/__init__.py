@@ -7,16 +7,17 @@ from ._modes_scene import modes_scene
 from ._options import DEFAULT_SOLVER, SceneOptions, check_scene_args, input_panels, input_panels_at
 from ._paper_circle import PaperCircle
 from ._registry import SCENE_CLASSES, SCENE_THICKNESS, SCENES, get_scene, scene_params
+from ._report import RUN_SCENES, SceneReport, run_scene, scene_metrics
 from ._result import SceneResult, failure_detail, finish, result_template
 from ._run import SceneCall, paper_circle, prepare, servo_circle, solve_scene
 from ._servo_circle import ServoCircle
 from ._torques import nominal_torques
 
 __all__ = [
-    "AbstractScene", "DEFAULT_SOLVER", "MEMBER_CHUNK", "PaperCircle", "SCENES",
+    "AbstractScene", "DEFAULT_SOLVER", "MEMBER_CHUNK", "PaperCircle", "RUN_SCENES", "SCENES", "SceneReport",
     "SCENE_CLASSES", "SCENE_THICKNESS", "SceneCall", "SceneInput", "SceneOptions",
     "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
     "kinematic_motion", "map_members", "modes_scene", "nominal_torques", "paper_circle", "path_out_of_reach",
-    "prepare", "result_template", "scene_params", "servo_circle", "solve_scene", "tabulated",
+    "prepare", "result_template", "run_scene", "scene_metrics", "scene_params", "servo_circle", "solve_scene", "tabulated",
 ]

@@ -27,8 +27,8 @@ from .._metrics import outputs
 from .._models import AbstractModel
 from .._params import RobotParams, params_invalid
 from .._robot import Robot
-from .._simulate import Solution, _simulate_core
-from .._statics import _quasi_static_state, kinematic_state
+from .._simulate import Solution, simulate_core
+from .._statics import quasi_static_core, kinematic_state
 from .._tabulated import input_too_coarse, scene_input
 from .._trajectory import derivatives
 from ._options import SceneOptions
@@ -168,12 +168,12 @@ class AbstractScene(eqx.Module):
             sol = Solution(ts=ts, z=X, zdot=Xd, tau=tau, result=result, num_steps=zero,
                            num_accepted=zero, num_rejected=zero)
             return self._result(model, robot, traj, sol, ref_open=inp.out_of_reach)
-        z0, zd0, failed = _quasi_static_state(model, robot, traj, ts[0], act)
+        z0, zd0, failed = quasi_static_core(model, robot, traj, ts[0], act)
         if initial_offset is not None:
             # the platform pose and its rate are z[:3] in every model
             z0, zd0 = z0.at[:3].add(initial_offset[:3]), zd0.at[:3].add(initial_offset[3:])
         open0 = _open_at(model, robot, z0)
-        sol = _simulate_core(
+        sol = simulate_core(
             model, robot, act, z0, zd0, ts, options.solver, options.controller, None,
             options.max_steps, jnp.zeros(3), False, diffrax.NoProgressMeter(), options.adjoint,
             _any(failed, open0, inp.out_of_reach, inp.coarse, params_invalid(robot.params)),

@@ -14,19 +14,15 @@ from typing import Optional, Union
 import jax
 import numpy as np
 
-from ._checks import PPRError
-from ._metrics import metric_table
-from ._params import RobotParams
-from ._programs import compiled_program
-from ._scenes import (
-    SCENE_CLASSES,
-    AbstractScene,
-    SceneOptions,
-    SceneResult,
-    finish,
-    get_scene,
-    prepare,
-)
+from .._checks import PPRError
+from .._metrics import metric_table
+from .._params import RobotParams
+from .._programs import compiled_program
+from ._base import AbstractScene
+from ._options import SceneOptions
+from ._registry import SCENE_CLASSES, get_scene
+from ._result import SceneResult, finish
+from ._run import prepare
 
 #: the scenes `run_scene` runs by name (`modes` has its own report: `ppr_jax.modes_scene`)
 RUN_SCENES = tuple(SCENE_CLASSES)

@@ -1,6 +1,6 @@
 """Sensitivities d(metric)/d(parameter) of the paper's metrics to every float parameter.
 
-The metrics are traced functions of the parameters (`ppr_jax._sweep.traced_metrics` of a scene,
+The metrics are traced functions of the parameters (`_sweep.traced_metrics` of a scene,
 plus the first locked natural frequency), differentiated in forward mode (`jax.jacfwd` with
 `diffrax.ForwardMode()`: one tangent per parameter, all in one vmapped pass) or reverse mode
 (`jax.jacrev` with diffrax's `RecursiveCheckpointAdjoint`: one forward pass, one backward pass
@@ -37,17 +37,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import PPRError
-from ._dynamics import eom_terms, generalized_force
-from ._geometry import home_pose
-from ._models import get_model
-from ._params import RobotParams
-from ._prb import derived
-from ._robot import Robot
-from ._checks import RESULTS
-from ._modes import reduced_eigh
-from ._scenes import SceneOptions, check_scene_args, get_scene, scene_params
-from ._statics import _assemble, static_equilibrium
+from .._checks import RESULTS, PPRError
+from .._dynamics import eom_terms, generalized_force
+from .._geometry import home_pose
+from .._models import get_model
+from .._modes import reduced_eigh
+from .._params import RobotParams
+from .._prb import derived
+from .._robot import Robot
+from .._scenes import SceneOptions, check_scene_args, get_scene, scene_params
+from .._statics import assemble, static_equilibrium
 from ._sweep import FLOAT_PARAMS, _plain, traced_metrics
 
 #: the metrics a sensitivity table reports (rows), SI units
@@ -90,7 +89,7 @@ def base_frequency(model, robot: Robot, X=None):
     zk = z_eq[jnp.array(known)] if known else None
 
     def Q(zf):
-        z = _assemble(n, free, zf, known, zk)
+        z = assemble(n, free, zf, known, zk)
         return generalized_force(eom_terms(model, robot, z, jnp.zeros(n)), jnp.zeros(3),
                                  jnp.zeros(3))[f]
 

@@ -33,13 +33,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import PPRError, RepairWarning, check_number, result_code, result_message
-from ._kinematics import REACH_TOL, SINGULAR_TOL, _ik
-from ._metrics import metric_table
-from ._models import Reduced, get_model
-from ._params import PARAM_RANGES, RobotParams, stack_params
-from ._robot import Robot
-from ._scenes import (
+from .._checks import PPRError, RepairWarning, check_number, result_code, result_message
+from .._kinematics import REACH_TOL, SINGULAR_TOL, ik_solve
+from .._metrics import metric_table
+from .._models import Reduced, get_model
+from .._params import PARAM_RANGES, RobotParams, stack_params
+from .._robot import Robot
+from .._scenes import (
     SCENE_CLASSES,
     SceneOptions,
     check_scene_args,
@@ -47,8 +47,8 @@ from ._scenes import (
     map_members,
     scene_params,
 )
-from ._simulate import default_controller
-from ._trajectory import Circle
+from .._simulate import default_controller
+from .._trajectory import Circle
 
 #: a member whose max loop-closure residual (m) at the output times exceeds this has failed
 RESIDUAL_TOL = 1e-9
@@ -138,7 +138,7 @@ N_PATH_CHECK = 64
 
 def _path_check(model, robot, Xs):
     def one(X):
-        r = _ik(model, robot, X)
+        r = ik_solve(model, robot, X)
         return jnp.min(r.margin), r.singularity
 
     margin, sing = jax.vmap(one)(Xs)
@@ -530,9 +530,9 @@ def library_digest() -> dict:
     """What a sweep's numbers depend on beyond its settings: the versions of ppr_jax and its
     numerical dependencies (`_programs.DEPENDENCIES`) and a hash of this package's source and
     data files. Part of each chunk's digest, so chunks of another library are recomputed."""
-    from ._programs import _source_hash, _versions
+    from .._programs import source_hash, dependency_versions
 
-    return {"versions": _versions(), "source": _source_hash()}
+    return {"versions": dependency_versions(), "source": source_hash()}
 
 
 def _rows_checksum(rows) -> str:

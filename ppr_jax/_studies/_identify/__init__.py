@@ -1,0 +1,23 @@
+"""Identification (MODEL.md section 7): the problem (`_problem`), the experiments' arrays
+(`_data`), the fits (`_fit`), the result (`_result`), the entry point (`_identify`), synthetic
+experiments (`_synthesize`) and figures (`_plots`)."""
+
+from ._identify import identify
+from ._plots import identification_figures, profile_figure
+from ._problem import (
+                       ACTUATIONS,
+                       DEFAULT_NOISE,
+                       ID_SCENES,
+                       INITIAL_STATES,
+                       LOSSES,
+                       POOR_FIT_SCALE,
+                       SOLVERS,
+                       IdentificationError,
+)
+from ._result import Identification
+from ._synthesize import check_synth_args, synthesize
+
+__all__ = ["ACTUATIONS", "DEFAULT_NOISE", "ID_SCENES", "INITIAL_STATES", "LOSSES",
+           "POOR_FIT_SCALE", "SOLVERS", "Identification", "IdentificationError",
+           "check_synth_args", "identification_figures", "identify", "profile_figure",
+           "synthesize"]

@@ -1,0 +1,156 @@
+"""The fits: Levenberg-Marquardt with bounds by reparametrisation, or optimistix's solvers."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ._problem import (
+    INIT_SCALE,
+    MAX_STEP_Z,
+    IdentificationError,
+    _residual_and_jacobian,
+    _residual_vector,
+    _to_p,
+)
+
+
+def _initial_state_guess(prob, z0, mask):
+    """Start the initial-state unknowns where the data put them: the pose offset as the first
+    measured sample minus the simulated one, the velocity offset as the same difference of the
+    first two samples' finite difference. A released robot oscillates at 10 to 100 Hz, so the
+    cost is far from convex in the initial state; from zero offsets the fit can end in a local
+    minimum."""
+    _, _, ok, X = _residual_and_jacobian(prob, jnp.asarray(z0))
+    _check_ok(ok, z0, prob)
+    X, Xm, ts = np.asarray(X), np.asarray(prob.X), np.asarray(prob.ts)
+    P, k = len(prob.names), prob.n_init
+    d = np.zeros((X.shape[0], 6))
+    for j in range(X.shape[0]):
+        i = np.flatnonzero(mask[j])
+        d[j, :3] = Xm[j, i[0]] - X[j, i[0]]
+        dt = ts[j, i[1]] - ts[j, i[0]]
+        d[j, 3:] = ((Xm[j, i[1]] - Xm[j, i[0]]) - (X[j, i[1]] - X[j, i[0]])) / dt
+    z0 = np.array(z0, dtype=np.float64)
+    z0[P:] = (d[:, :k] / np.asarray(INIT_SCALE[:k])).reshape(-1)
+    return z0
+
+
+def _check_ok(ok, z, prob):
+    if not bool(ok):
+        p = np.asarray(_to_p(prob, jnp.asarray(z)))
+        at = ", ".join(f"{n} = {v:.6g}" for n, v in zip(prob.names, p))
+        raise IdentificationError(f"the {prob.model.name} simulation of the {prob.scene} scene "
+                                  f"failed at {at} (solver failure or step limit; loosen "
+                                  f"tolerances or raise max_steps)")
+
+
+def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None):
+    """Levenberg-Marquardt (Marquardt's diagonal scaling, Nielsen's damping update) on the host,
+    around the one compiled residual-and-Jacobian function. Each trial point costs one call.
+    `free` (bool, like z) the unknowns that move (default all; a profile holds one fixed and
+    reuses the same compiled function)."""
+    t0 = time.perf_counter()
+    r, J, ok, X = _residual_and_jacobian(prob, jnp.asarray(z0))
+    r, J = np.asarray(r), np.asarray(J)
+    compile_s = time.perf_counter() - t0
+    _check_ok(ok, z0, prob)
+    t1 = time.perf_counter()
+    z = np.array(z0, dtype=np.float64)
+    sel = np.arange(z.size) if free is None else np.flatnonzero(free)
+    cost = float(r @ r)
+    A = J.T @ J
+    lam = 1e-3  # dimensionless: the damping term is lam * diag(J^T J) (Marquardt's scaling)
+    nu = 2.0
+    costs = [cost]
+    n_eval, it, reason = 1, 0, "max_iter"
+    for it in range(1, max_iter + 1):
+        Jf = J[:, sel]
+        g = Jf.T @ r
+        A = Jf.T @ Jf
+        if not np.max(np.diag(A)) > 0:
+            # e.g. t with a kinematic model (L0/L1 motion-driven): nothing to fit
+            reason = "the residuals do not depend on the unknowns"
+            break
+        D = np.maximum(np.diag(A), 1e-12 * max(float(np.max(np.diag(A))), 1e-300))
+        try:
+            dz = -np.linalg.solve(A + lam * np.diag(D), g)
+        except np.linalg.LinAlgError:
+            lam *= nu
+            nu *= 2
+            continue
+        # A trust region in z (unit steps: a factor of about 10 in a log-bounded parameter):
+        # along a direction the data barely see (t against K_theta) the Gauss-Newton step is
+        # huge and would run the estimate into its bounds.
+        big = float(np.max(np.abs(dz)))
+        if big > MAX_STEP_Z:
+            dz = dz * (MAX_STEP_Z / big)
+        z_new = z.copy()
+        z_new[sel] += dz
+        r_new, J_new, ok_new, X_new = _residual_and_jacobian(prob, jnp.asarray(z_new))
+        n_eval += 1
+        r_new = np.asarray(r_new)
+        cost_new = float(r_new @ r_new) if bool(ok_new) else np.inf
+        pred = float(dz @ (lam * D * dz - g))  # predicted reduction of the cost (>= 0)
+        if np.isfinite(cost_new) and cost_new < cost:
+            rho_gain = (cost - cost_new) / max(pred, 1e-300)
+            rel = (cost - cost_new) / max(cost, 1e-300)
+            z, r, J, X, cost = z_new, r_new, np.asarray(J_new), X_new, cost_new
+            costs.append(cost)
+            lam *= max(1 / 3, 1 - (2 * rho_gain - 1) ** 3)
+            nu = 2.0
+            # Statistical stop: a step below `stat_tol` standard errors of every unknown moves
+            # the estimate by nothing the data can tell (noise-dominated residuals make
+            # Gauss-Newton converge only linearly, so the plain tests would take many steps).
+            # The step's length in standard errors is measured with the information matrix
+            # (sqrt(dz' J'J dz / s^2)): steps along directions the data do not determine (t
+            # against K_theta) are free and must not count, steps along determined ones must.
+            # The noise scale is the smaller of the stated one (1 in weighted units) and the
+            # residuals' estimate: far from the optimum the misfit inflates the latter, which
+            # would make every step look negligible.
+            Jf = J[:, sel]
+            A = Jf.T @ Jf
+            s2 = min(cost / max(r.size - sel.size, 1), 1.0)
+            step_se = math.sqrt(max(float(dz @ A @ dz), 0.0) / max(s2, 1e-300))
+            if (np.max(np.abs(dz)) < xtol * (1 + np.max(np.abs(z))) or rel < ftol
+                    or step_se < stat_tol):
+                reason = "converged"
+                break
+        else:
+            lam *= nu
+            nu *= 2
+            if np.max(np.abs(dz)) < xtol * (1 + np.max(np.abs(z))):
+                reason = "converged"  # no smaller cost within a negligible step
+                break
+    hist = {"solver": "lm (host loop, compiled residual+Jacobian)", "iterations": it,
+            "evaluations": n_eval, "cost": costs, "stop": reason, "compile_s": compile_s,
+            "run_s": time.perf_counter() - t1}
+    return (z, r, J, np.asarray(X)), hist
+
+
+def _optimistix(prob, z0, solver, max_iter, xtol, ftol):
+    import optimistix as optx
+
+    fn = lambda z, _: _residual_vector(prob, z)[0]  # noqa: E731
+    s = (optx.LevenbergMarquardt(rtol=xtol, atol=xtol) if solver == "optimistix-lm"
+         else optx.GaussNewton(rtol=xtol, atol=xtol))
+    run = eqx.filter_jit(lambda z0: optx.least_squares(fn, s, z0, max_steps=max_iter,
+                                                       throw=False,
+                                                       options={"jac": "fwd"}))
+    t0 = time.perf_counter()
+    sol = run(jnp.asarray(z0))
+    z = np.asarray(sol.value)
+    first = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    r, J, ok, X = _residual_and_jacobian(prob, jnp.asarray(z))
+    _check_ok(ok, z, prob)
+    hist = {"solver": f"{solver} (optimistix)", "iterations": int(sol.stats["num_steps"]),
+            "stop": "converged" if sol.result == optx.RESULTS.successful else str(sol.result),
+            "compile_and_run_s": first, "covariance_compile_s": time.perf_counter() - t1,
+            "cost": [float(np.asarray(r) @ np.asarray(r))]}
+    return (z, np.asarray(r), np.asarray(J), np.asarray(X)), hist
+

@@ -1,0 +1,271 @@
+"""Identification of robot parameters from measured platform trajectories (MODEL.md section 7).
+
+`identify(experiments, unknowns=("t", "K_theta"), model="double1r")` fits any subset of the
+float leaves of `RobotParams` to measured poses by least squares through the simulation, and
+reports how well the data determine them: the Gauss-Newton covariance, 95 % intervals,
+correlations, the identifiable combinations (a singular-value analysis of the relative
+sensitivities) and the residuals against the stated noise.
+
+The experiment (what the motors did) is a scene:
+- ``servo-circle``: the actuated angles drive the model (motion-driven), its response simulated
+  from its quasi-static state at t = 0 under those angles (`quasi_static_state`);
+- ``paper-circle``: torque-driven by the measured torques (columns tau_1..tau_3, cubic Hermite
+  interpolation) or, without them, by L1's inverse-dynamics torques of eq 55 for the commands'
+  parameters (held fixed), from the nominal pose at t = 0.
+Sample times are those of the trajectory (t = 0 at the start of the motion).
+
+Which angles drive a servo-circle model (`actuation`, MODEL.md section 7):
+- ``"auto"`` (default): the measured angles when every experiment holds th_1..th_3, else the
+  commands. Measured angles are what the motors did; commands recomputed from a guess are not.
+- ``"commanded"``: L1's inverse kinematics of eq 55 for the parameters of the model that
+  computed the commands, `commands` (a `RobotParams`; default the nominal robot, `params` with
+  `fixed` applied), held fixed whatever the unknowns: the motors received those commands
+  whatever the robot really is. Never the unknowns' initial values: a geometric unknown (gamma,
+  rho, r, theta_c, a link length) would then change the commands it is fitted against.
+- ``"measured"``: the measured actuated angles th_1..th_3 drive the
+  model instead of the commands, through a C2 not-a-knot cubic spline of the samples
+  (`spline_pieces`; C2 because its second derivative is the prescribed acceleration). Use it
+  when the servos do not follow their commands exactly: the commands then leave a tracking
+  error the fit would misread as stiffness. Encoders are far finer than a tracker, so the
+  spline interpolates (no smoothing); it is fourth-order accurate (1e-9 rad at 100 Hz on the
+  paper's circle).
+- ``initial_state``: ``"scene"`` (default) starts each experiment from the scene's quasi-static
+  state at t = 0; ``"pose"`` adds each experiment's initial platform pose (x0, y0, phi0) to the
+  unknowns, ``"pose-velocity"`` also its initial platform velocity, as offsets from that state
+  (the platform coordinates z[:3] of every model; the actuated angles stay where the actuation
+  puts them, the chains' other coordinates where the quasi-static state does). They are nuisance
+  parameters: the parameters' covariance is marginal over them (their Jacobian columns projected
+  out), and they are reported per experiment in `Identification.initial_state`. Use it when a
+  recording starts in motion or off equilibrium.
+
+Method, and why:
+- Residuals: simulated minus measured pose at the sample times, each channel divided by its
+  stated noise (`noise=(position m, phi rad)`), so x, y and phi weigh alike and the residual
+  variance is about 1 when the noise is as stated. The simulation saves at the sample times
+  directly (no interpolation error).
+- Unknowns are reparametrised for their bounds (default `PARAM_RANGES`): p = exp(log lo +
+  (log hi - log lo) sigmoid(z)) for lo > 0 (relative steps, so t ~ 5e-4 and E ~ 7e10 are both
+  O(1) in z), p = lo + (hi - lo) sigmoid(z) otherwise. Bounds are never crossed.
+- Experiments are padded to a common length and simulated in one vmapped call, so several
+  experiments cost one compilation.
+- Jacobian: forward mode through diffrax (`jax.jacfwd`, `diffrax.ForwardMode`), one compiled
+  function returning residuals and Jacobian together (one jvp per unknown). The default solver
+  is a Levenberg-Marquardt loop on the host around that one compiled function: the same
+  compilation then serves the covariance and any further fit on data of the same shapes.
+  ``solver="optimistix-lm"`` / ``"optimistix-gn"`` run `optimistix.LevenbergMarquardt` /
+  `optimistix.GaussNewton` instead; they compile their own loop (L2, 0.5 s experiment: about 115 s
+  against 31 s for the compiled Jacobian, and 0.4 s per step against 0.12 s, because
+  `jax.linearize` re-runs the solve for each tangent).
+- Robust losses ``huber`` and ``cauchy`` transform each residual r into sign(r) sqrt(2 rho(r))
+  (as scipy's `least_squares`), with `loss_scale` in noise units (default 3): least squares on
+  the transformed residuals minimises the robust cost.
+- Covariance: s^2 (J^T J)^-1 with J the Jacobian with respect to the physical parameters and
+  s^2 = sum r^2 / (N - P) estimated from the (weighted) residuals; intervals use Student's t."""
+
+from __future__ import annotations
+
+from typing import Optional, Sequence, Union
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..._data import DataError, Experiment
+from ..._models import get_model
+from ..._params import PARAM_RANGES, RobotParams
+from ..._scenes import scene_params
+from ..._simulate import get_solver
+from ._data import _fill_prb, _pack
+from ._fit import _initial_state_guess, _levenberg_marquardt, _optimistix
+from ._problem import (
+    ACTUATIONS,
+    DEFAULT_NOISE,
+    ID_SCENES,
+    INIT_SCALE,
+    INITIAL_STATES,
+    LOSSES,
+    SOLVERS,
+    IdentificationError,
+    _Problem,
+    _to_z,
+)
+from ._result import Identification, _finish
+
+
+def identify(
+    experiments: Union[Experiment, Sequence[Experiment]],
+    unknowns: Sequence[str] = ("t", "K_theta"),
+    *,
+    model="double1r",
+    scene: str = "servo-circle",
+    actuation: str = "auto",
+    initial_state: str = "scene",
+    params: Optional[RobotParams] = None,
+    commands: Optional[RobotParams] = None,
+    fixed: Optional[dict] = None,
+    initial: Optional[dict] = None,
+    bounds: Optional[dict] = None,
+    noise: tuple = DEFAULT_NOISE,
+    loss: str = "linear",
+    loss_scale: float = 3.0,
+    solver: str = "lm",
+    max_iter: int = 50,
+    xtol: float = 1e-8,
+    ftol: float = 1e-10,
+    stat_tol: float = 1e-2,
+    ode_solver=None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_steps: int = 100_000,
+    n_elements: Optional[int] = None,
+) -> Identification:
+    """Fit `unknowns` (names of `RobotParams` float leaves) to measured experiments.
+
+    experiments: one `Experiment` or several (fitted jointly; `load_csv`, `load_experiments`).
+    model: "double1r" (L2, default), "reduced" (L1), "rigid" (L0) or a model instance.
+    scene: the experiment's actuation, "servo-circle" (default) or "paper-circle" (module
+    docstring). actuation: "auto" (default: the data's th_1..th_3 drive the model when every
+    experiment holds them and no `commands` are named, else the commands), "commanded" (the scene's commands, or torques,
+    computed for `commands`, the parameters of the model that computed them: default the
+    nominal robot `params` with `fixed`, never the unknowns' initial values) or "measured"
+    (servo-circle: the data's angles). `Identification.actuation` says which drove the fit.
+    initial_state: "scene" (default), "pose" or "pose-velocity": what of each experiment's initial
+    state is estimated (module docstring). params: the robot (default `scene_params(scene)`), `fixed` ({name: value})
+    overrides applied to it; `initial` ({name: value}) start values of unknowns (default: the
+    robot's); `bounds` ({name: (lo, hi)}) default `PARAM_RANGES`. noise: (position m, phi rad),
+    the residual weights (their scale is estimated from the fit; the report compares the RMS of
+    the residuals to them). loss: "linear", "huber" or "cauchy" with `loss_scale` in noise units.
+    solver: "lm" (host Levenberg-Marquardt on the compiled Jacobian), "optimistix-lm",
+    "optimistix-gn". xtol, ftol: stop when the step in z or the relative cost change is below
+    them; "lm" also stops when an accepted step is shorter than `stat_tol` standard errors
+    (measured with the information matrix J^T J / s^2, so that steps along undetermined
+    directions do not count). ode_solver, rtol, atol, max_steps: the simulation's (default tsit5, 1e-8, 1e-10).
+
+    Returns an `Identification`. Raises `IdentificationError` for unknown or fixed names that
+    are not leaves, bounds outside the physical range, an initial value outside its bounds or a
+    simulation that fails at the initial values; `DataError` for unusable data."""
+    exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
+    if not exps:
+        raise DataError("no experiment given")
+    for e in exps:
+        if not isinstance(e, Experiment):
+            raise DataError(f"experiments must be Experiment objects (load_csv), got "
+                            f"{type(e).__name__}")
+    if scene not in ID_SCENES:
+        raise IdentificationError(f"unknown scene {scene!r}; allowed: {', '.join(ID_SCENES)}")
+    if actuation not in ACTUATIONS:
+        raise IdentificationError(f"unknown actuation {actuation!r}; allowed: "
+                                  f"{', '.join(ACTUATIONS)}")
+    if actuation == "auto":
+        # named commands are asked for; otherwise what the files hold
+        has_th = all(e.th is not None for e in exps)
+        measured = commands is None and scene == "servo-circle" and has_th
+        actuation = "measured" if measured else "commanded"
+    if actuation == "measured" and scene != "servo-circle":
+        raise IdentificationError("actuation 'measured' (the measured angles drive the model) "
+                                  "applies to the motion-driven servo-circle scene; "
+                                  "paper-circle is torque-driven (it uses measured torques "
+                                  "tau_1..tau_3 when the data give them)")
+    if initial_state not in INITIAL_STATES:
+        raise IdentificationError(f"unknown initial_state {initial_state!r}; allowed: "
+                                  f"{', '.join(INITIAL_STATES)}")
+    n_init = INITIAL_STATES[initial_state]
+    if loss not in LOSSES:
+        raise IdentificationError(f"unknown loss {loss!r}; allowed: {', '.join(LOSSES)}")
+    if solver not in SOLVERS:
+        raise IdentificationError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
+    names = tuple(unknowns)
+    if not names:
+        raise IdentificationError("no unknown given; choose among " + ", ".join(PARAM_RANGES))
+    for n in names:
+        if n not in PARAM_RANGES:
+            raise IdentificationError(f"unknown {n!r} is not a float parameter; allowed: "
+                                      f"{', '.join(PARAM_RANGES)}")
+    if len(set(names)) != len(names):
+        raise IdentificationError(f"an unknown is repeated: {list(names)}")
+    fixed = dict(fixed or {})
+    clash = set(fixed) & set(names)
+    if clash:
+        raise IdentificationError(f"parameter(s) {sorted(clash)} are both unknown and fixed")
+    if len(noise) != 2 or not all(float(v) > 0 for v in noise):
+        raise IdentificationError(f"noise must be (position m, phi rad), both > 0, got {noise}")
+    stray = set(initial or {}) - set(names)
+    if stray:
+        raise IdentificationError(f"initial values given for {sorted(stray)}, which are not "
+                                  f"unknowns (to hold a parameter at a value, use fixed=)")
+    mdl = get_model(model, n_elements)
+    if n_init and scene == "servo-circle" and mdl.actuated_index is None:
+        raise IdentificationError(f"initial_state={initial_state!r}: the {mdl.name} model has no "
+                                  f"free initial state in the motion-driven servo-circle scene "
+                                  f"(its pose follows from the angles); use initial_state='scene'")
+    base = scene_params(scene) if params is None else params
+    try:
+        base = base.replace(**fixed) if fixed else base
+        nominal = base
+        base = base.replace(**{k: float(v) for k, v in (initial or {}).items()})
+    except ValueError as err:
+        raise IdentificationError(str(err)) from None
+    base = _fill_prb(base, names)
+    bounds = dict(bounds or {})
+    lo, hi, lg = [], [], []
+    for n in names:
+        plo, phi_, unit, _ = PARAM_RANGES[n]
+        b = bounds.pop(n, (plo, phi_))
+        b_lo, b_hi = float(b[0]), float(b[1])
+        if not (plo <= b_lo < b_hi <= phi_):
+            raise IdentificationError(f"bounds of {n!r} must satisfy {plo:g} <= lo < hi <= "
+                                      f"{phi_:g} {unit}, got ({b_lo:g}, {b_hi:g})")
+        v = float(getattr(base, n))
+        if not (b_lo < v < b_hi):
+            raise IdentificationError(f"initial value of {n!r} = {v:g} {unit} is not strictly "
+                                      f"inside its bounds ({b_lo:g}, {b_hi:g}); give initial="
+                                      f"{{{n!r}: value}}")
+        lo.append(b_lo)
+        hi.append(b_hi)
+        lg.append(b_lo > 0)
+    if bounds:
+        raise IdentificationError(f"bounds given for parameters that are not unknowns: "
+                                  f"{sorted(bounds)}")
+    ts, X, W, tau, th, mask = _pack(exps, float(noise[0]), float(noise[1]), scene, actuation)
+    n_res = int(mask.sum()) * 3
+    n_unknown = len(names) + n_init * len(exps)
+    if n_res <= n_unknown:
+        raise DataError(f"{n_res} residuals cannot determine {n_unknown} unknowns")
+    from ..._robot import equal_links_of
+
+    eq = equal_links_of(base) and "l1" not in names and "l3" not in names
+    ode = get_solver("tsit5" if ode_solver is None else ode_solver)
+    if commands is not None and not isinstance(commands, RobotParams):
+        raise IdentificationError(f"commands must be the RobotParams of the model that computed "
+                                  f"the commands, got {type(commands).__name__}")
+    if commands is not None and actuation == "measured":
+        raise IdentificationError("commands= names the model that computed the commands; with "
+                                  "actuation='measured' the measured angles drive the model")
+    cmd = nominal if commands is None else commands
+    if actuation == "measured":
+        drive = "the measured actuated angles th_1..th_3"
+    elif scene == "paper-circle" and all(e.tau is not None for e in exps):
+        drive = "the measured torques tau_1..tau_3"
+    else:
+        what = "commanded angles" if scene == "servo-circle" else "inverse-dynamics torques"
+        drive = (f"the {what} of the nominal robot (params with fixed), held fixed"
+                 if commands is None else f"the {what} of the given commands model, held fixed")
+    prob = _Problem(
+        base=base, commands=cmd, lo=jnp.asarray(lo), hi=jnp.asarray(hi), ts=jnp.asarray(ts),
+        X=jnp.asarray(X), w=jnp.asarray(W), tau=None if tau is None else jnp.asarray(tau),
+        th=None if th is None else jnp.asarray(th),
+        rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64),
+        names=names, log=tuple(lg), model=mdl, scene=scene, equal_links=eq, solver=ode,
+        max_steps=int(max_steps), loss=jnp.asarray(LOSSES.index(loss)),
+        loss_scale=jnp.asarray(float(loss_scale), dtype=jnp.float64),
+        n_init=n_init, init_scale=jnp.asarray(INIT_SCALE[:n_init]) if n_init else None,
+    )
+    p0 = np.array([float(getattr(base, n)) for n in names])
+    z0 = np.concatenate([_to_z(lg, lo, hi, p0), np.zeros(n_init * len(exps))])
+    if n_init:
+        z0 = _initial_state_guess(prob, z0, mask)
+    if solver == "lm":
+        z, hist = _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol)
+    else:
+        z, hist = _optimistix(prob, z0, solver, max_iter, xtol, ftol)
+    return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise), drive)
+

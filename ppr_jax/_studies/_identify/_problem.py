@@ -1,0 +1,204 @@
+"""The identification problem: everything the compiled residual needs, as one pytree, and the
+residual and its Jacobian through the scene's own run."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..._actuation import MotionDriven, TorqueDriven
+from ..._checks import RESULTS, PPRError
+from ..._custom_types import Array
+from ..._params import RobotParams
+from ..._robot import Robot
+from ..._scenes import SceneOptions, get_scene, input_panels_at
+from ..._trajectory import Interpolated, PiecewiseCubic
+
+LOSSES = ("linear", "huber", "cauchy")
+
+
+#: largest step of the Levenberg-Marquardt loop in the reparametrised unknowns z
+MAX_STEP_Z = 1.0
+
+
+SOLVERS = ("lm", "optimistix-lm", "optimistix-gn")
+
+
+#: what drives a servo-circle model: the measured angles when the data hold them (auto), the
+#: scene's commands for the parameters of the model that computed them, or the measured angles
+ACTUATIONS = ("auto", "commanded", "measured")
+
+
+#: what of each experiment's initial state is estimated (number of unknowns per experiment):
+#: nothing (the scene's quasi-static state), the platform pose (x0, y0, phi0), or the pose and
+#: the platform velocity
+INITIAL_STATES = {"scene": 0, "pose": 3, "pose-velocity": 6}
+
+
+#: the scale of the initial-state unknowns in the fit (m, m, rad, m/s, m/s, rad/s): the size of
+#: offset a unit step in z makes, so that the trust region of MAX_STEP_Z means 1 mm, 10 mrad
+INIT_SCALE = (1e-3, 1e-3, 1e-2, 1e-2, 1e-2, 1e-1)
+
+
+INIT_NAMES = ("x0", "y0", "phi0", "xd0", "yd0", "phid0")
+
+
+INIT_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s")
+
+
+ID_SCENES = ("servo-circle", "paper-circle")
+
+
+#: residual scale s (1 = noise as stated) above which a fit does not explain the data: its
+#: intervals then measure the misfit, and it is reported as a poor fit, never as converged
+POOR_FIT_SCALE = 3.0
+
+
+#: default noise weights: tracker position (m) and platform angle (rad), Optotrak-like
+DEFAULT_NOISE = (1e-4, 1e-3)
+
+
+class IdentificationError(PPRError):
+    """An identification that cannot run as asked (unknown names, bounds, a failed simulation)."""
+
+
+class _Problem(eqx.Module):
+    base: RobotParams  # the parameters with the unknowns at their initial values
+    commands: RobotParams  # the parameters of the model that computed the commands (fixed)
+    lo: Array  # (P,) bounds of the unknowns
+    hi: Array
+    ts: Array  # (E, m) simulation times per experiment (padded)
+    X: Array  # (E, m, 3) measured pose (padded)
+    w: Array  # (E, m, 3) weights 1/noise, 0 on padding
+    tau: Optional[Array]  # (E, m, 3) measured torques or None
+    th: Optional[Array]  # (E, m - 1, 4, 3) spline pieces of the measured actuated angles or None
+    rtol: Array
+    atol: Array
+    names: tuple = eqx.field(static=True)
+    log: tuple = eqx.field(static=True)  # per unknown: bounds in log space
+    model: object = eqx.field(static=True)
+    scene: str = eqx.field(static=True)
+    equal_links: bool = eqx.field(static=True)
+    solver: object = eqx.field(static=True)
+    max_steps: int = eqx.field(static=True)
+    loss: Array  # index into LOSSES: traced, so that changing the loss reuses the compilation
+    loss_scale: Array
+    #: unknowns of each experiment's initial state (0, 3 or 6: INITIAL_STATES), after the
+    #: parameters in z, as offsets in units of `init_scale` (m, m, rad, m/s, m/s, rad/s)
+    n_init: int = eqx.field(static=True, default=0)
+    init_scale: Optional[Array] = None
+
+
+def _to_p(prob: _Problem, z):
+    s = jax.nn.sigmoid(z[:len(prob.names)])
+    out = []
+    for i, lg in enumerate(prob.log):
+        lo, hi = prob.lo[i], prob.hi[i]
+        out.append(jnp.exp(jnp.log(lo) + s[i] * (jnp.log(hi) - jnp.log(lo))) if lg
+                   else lo + s[i] * (hi - lo))
+    return jnp.stack(out)
+
+
+def _to_z(prob_log, lo, hi, p):
+    p, lo, hi = (np.asarray(v, dtype=np.float64) for v in (p, lo, hi))
+    lg = np.asarray(prob_log)
+    s = np.where(lg, (np.log(p) - np.log(lo)) / (np.log(hi) - np.log(lo)), (p - lo) / (hi - lo))
+    return np.log(s) - np.log1p(-s)
+
+
+def _dp_dz(prob: _Problem, z):
+    """Diagonal of dp/dz (the reparametrisation is elementwise) of the parameters."""
+    z = z[:len(prob.names)]
+    s = jax.nn.sigmoid(z)
+    p = _to_p(prob, z)
+    ds = s * (1 - s)
+    lg = jnp.asarray(prob.log)
+    return jnp.where(lg, p * (jnp.log(prob.hi) - jnp.log(prob.lo)) * ds, (prob.hi - prob.lo) * ds)
+
+
+def _params_at(prob: _Problem, p):
+    return eqx.tree_at(lambda q: tuple(getattr(q, n) for n in prob.names), prob.base,
+                       tuple(p[i] for i in range(len(prob.names))))
+
+
+def _offsets(prob: _Problem, z):
+    """(E, 6) offsets of each experiment's initial platform pose and velocity (zeros where not
+    estimated) from the unknowns z."""
+    E = prob.ts.shape[0]
+    d = jnp.zeros((E, 6))
+    if prob.n_init:
+        P = len(prob.names)
+        d = d.at[:, :prob.n_init].set(z[P:].reshape(E, prob.n_init) * prob.init_scale)
+    return d
+
+
+def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
+    """Simulated pose (m, 3) of one experiment at times ts (ts[0] = 0, the scene's start) and
+    whether its scene succeeded: the scene's own run (`AbstractScene.run`), driven by the
+    measured angles or torques, or by the scene's commands for the commands' robot."""
+    model = prob.model
+    scene = get_scene(prob.scene)
+    traj = scene.trajectory()
+    # The panel count is a shape: decided from the (traced) times as the scenes decide it.
+    options = SceneOptions(solver=prob.solver, rtol=prob.rtol, atol=prob.atol,
+                           max_steps=prob.max_steps, adjoint=diffrax.ForwardMode(),
+                           panels=input_panels_at(traj, ts)).prepared(model, traj)
+    if th is not None:
+        # the angles the motors followed: a C2 spline through the samples
+        act = MotionDriven(PiecewiseCubic(ts, th))
+    elif tau is not None:
+        act = TorqueDriven(Interpolated(ts, tau))
+    else:
+        # the commands, fixed, from the commands' parameters
+        act = scene.commands(model, base_robot, traj, ts, options.panels).actuation
+    robot = Robot(params, equal_links=prob.equal_links)
+    res = scene.run(model, robot, options, act, ts=ts, initial_offset=d0)
+    return res.X, res.result == RESULTS.successful
+
+
+def _robust(r, loss, c):
+    """sign(r) sqrt(2 rho(r)) for the loss with index `loss` in LOSSES (all three are computed
+    and one selected: cheap, and the loss stays a traced value)."""
+    a = jnp.abs(r)
+    # Huber: rho = r^2/2 inside c, c (|r| - c/2) outside (max(...) keeps sqrt's argument safe)
+    huber = jnp.where(a <= c, r, jnp.sign(r) * jnp.sqrt(jnp.maximum(2 * c * a - c * c, c * c)))
+    cauchy = jnp.sign(r) * c * jnp.sqrt(jnp.log1p((r / c) ** 2))
+    return jnp.select([loss == 0, loss == 1], [r, huber], cauchy)
+
+
+def _weighted_residuals(prob: _Problem, p, d0):
+    """(E, m, 3) weighted residuals (simulated - measured) / noise, raw (before the loss), and
+    the success flag of every experiment's simulation; d0 (E, 6) initial-state offsets."""
+    params = _params_at(prob, p)
+    base_robot = Robot(jax.lax.stop_gradient(prob.commands))
+    tau, th = prob.tau, prob.th
+    X, ok = jax.vmap(
+        lambda ts, tau, th, d0: _pose_one(prob, params, base_robot, ts, tau, th, d0),
+        in_axes=(0, None if tau is None else 0, None if th is None else 0, 0),
+    )(prob.ts, tau, th, d0)
+    # Padding rows have weight 0; a failed simulation may be NaN there, keep it out of sums.
+    r = jnp.where(prob.w > 0, (X - prob.X) * prob.w, 0.0)
+    return r, X, jnp.all(ok)
+
+
+def _residual_vector(prob: _Problem, z):
+    r, X, ok = _weighted_residuals(prob, _to_p(prob, z), _offsets(prob, z))
+    return _robust(r.reshape(-1), prob.loss, prob.loss_scale), (ok, X)
+
+
+@eqx.filter_jit
+def _residual_and_jacobian(prob: _Problem, z):
+    """(r (N,), J (N, P) = dr/dz, simulations ok, simulated pose (E, m, 3)) in one compiled
+    forward-mode pass: the fit, the covariance and the fitted trajectory share it."""
+    def fn(z):
+        r, aux = _residual_vector(prob, z)
+        return r, (r, aux)
+
+    J, (r, (ok, X)) = jax.jacfwd(fn, has_aux=True)(z)
+    return r, J, ok, X
+

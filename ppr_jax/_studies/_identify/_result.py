@@ -1,0 +1,471 @@
+"""The result of an identification: estimates, covariance, identifiability, residual statistics."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Optional
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..._custom_types import Array
+from ..._params import RobotParams
+from ._fit import _check_ok, _levenberg_marquardt
+from ._problem import (
+    INIT_NAMES,
+    INIT_SCALE,
+    INIT_UNITS,
+    POOR_FIT_SCALE,
+    IdentificationError,
+    _dp_dz,
+    _params_at,
+    _Problem,
+    _residual_and_jacobian,
+    _to_p,
+    _to_z,
+)
+
+
+class Identification(eqx.Module):
+    """The result of `identify` (SI units; P unknowns, E experiments).
+
+    names (P,) unknowns; estimate, initial, std (P,); ci95 (P, 2) 95 % confidence intervals
+    (Student t on the Gauss-Newton standard errors); ci95_log (P, 2) the same for log p,
+    p exp(+-q std/p), positive (the better reading when std/p is not small); covariance, correlation (P, P); params the
+    fitted `RobotParams`; sigma2 the estimated variance of the weighted residuals (about 1 when
+    the noise is as stated: s^2 = sum r^2/(N - P)); jacobian (N, P) d(weighted residual)/d(p)
+    at the estimate; residuals (N,) weighted residuals (after the loss) at the estimate;
+    fitted (E, m, 3) and measured (E, m, 3) poses, ts (E, m) their times, mask (E, m) real
+    samples (padding False); identifiability (dict: singular values of the relative
+    sensitivities, condition number, the combinations the data determine and those they do
+    not); residual_stats (dict: RMS per experiment and channel in m / rad against the stated
+    noise); history (dict: iterations, cost, convergence, compile_s, run_s)."""
+
+    names: tuple
+    estimate: Array
+    initial: Array
+    std: Array
+    ci95: Array
+    ci95_log: Array
+    covariance: Array
+    correlation: Array
+    params: RobotParams
+    sigma2: float
+    jacobian: Array
+    residuals: Array
+    fitted: Array
+    measured: Array
+    ts: Array
+    mask: Array
+    identifiability: dict
+    residual_stats: dict
+    history: dict
+    model: str
+    scene: str
+    experiment_names: tuple
+    noise: tuple
+    problem: _Problem
+    initial_state: Optional[dict] = None
+    z: Optional[Array] = None
+    #: what drove the model: "measured angles", or the commands (or torques) and for which
+    #: parameters they were computed
+    actuation: str = ""
+    #: whether the fit can be trusted: {"ok", "residual_scale", "explains_data", "at_bound",
+    #: "problems" (list of sentences)}
+    quality: Optional[dict] = None
+
+    def residuals_at(self, values) -> np.ndarray:
+        """Weighted residuals (N,) (after the loss) at parameter values (P,) (physical units,
+        order of `names`), the initial state (when estimated) held at its estimate, through the
+        fit's compiled function: for checks such as a finite-difference Jacobian, or a profile
+        of the cost."""
+        prob = self.problem
+        z = _to_z(prob.log, np.asarray(prob.lo), np.asarray(prob.hi), values)
+        z = np.concatenate([z, np.asarray(self.z)[len(self.names):]])
+        return np.asarray(_residual_and_jacobian(prob, jnp.asarray(z))[0])
+
+    def profile(self, name: str, *, level: float = 0.95, n_max: int = 8,
+                max_iter: int = 20) -> dict:
+        """Profile-likelihood interval of the unknown `name`: walk it away from the estimate in
+        both directions (steps of half its linearised standard error, in log p for a
+        log-bounded unknown), re-fitting every other unknown at each step (warm-started, the
+        fit's own compiled function), until the cost rises by the likelihood-ratio threshold
+        (S - S_min) / s^2 = F(level; 1, N - P) (the square of Student's t: the linearised interval
+        when the model is linear in the unknowns). The end points are interpolated in the
+        signed root of the rise. A side that reaches a bound, or `n_max` steps, without the
+        rise is open (None): the data do not bound the unknown on that side. An end reached
+        only because another unknown ran into its bound while compensating (t against
+        K_theta) names that unknown in `limited_by_bounds_of`: the interval is then the
+        bounds' doing, not the data's.
+
+        Where the model is nonlinear in the unknowns over the interval (the stiffness through
+        t^3 when t is poorly determined) the profile interval is the one to quote: it is
+        invariant under reparametrisation and does not assume a quadratic cost.
+
+        Returns a dict: name, estimate, level, threshold, values and delta (the walked points,
+        sorted, delta = (S - S_min) / s^2), ci (low, high) with None for an open side, open
+        (the open sides: 'low', 'high'), limited_by_bounds_of, linearised (ci95 for
+        comparison), evaluations, run_s."""
+        from scipy import stats
+
+        if name not in self.names:
+            raise IdentificationError(f"{name!r} is not an unknown of this fit "
+                                      f"({', '.join(self.names)})")
+        prob = self.problem
+        i = self.names.index(name)
+        lo, hi = float(prob.lo[i]), float(prob.hi[i])
+        lg = prob.log[i]
+        p_hat = float(self.estimate[i])
+        n_all = self.z.shape[0]
+        dof = max(int(self.mask.sum()) * 3 - n_all, 1)
+        q = float(stats.f.ppf(level, 1, dof))
+        s2 = float(self.sigma2)
+        s_min = float(self.residuals @ self.residuals)
+        std = float(self.std[i])
+        if lg:
+            span = math.log(hi / lo)
+            h = min(0.5 * std / p_hat, span / 8) if math.isfinite(std) else span / 8
+            h = max(h, 1e-6)
+            at = lambda k: p_hat * math.exp(k * h)  # noqa: E731
+        else:
+            span = hi - lo
+            h = min(0.5 * std, span / 8) if math.isfinite(std) else span / 8
+            h = max(h, 1e-9 * span)
+            at = lambda k: p_hat + k * h  # noqa: E731
+        free = np.ones(n_all, bool)
+        free[i] = False
+        t0 = time.perf_counter()
+        pts = [(p_hat, 0.0)]
+        ends, open_, limited = [None, None], [], []
+        n_eval = [0]
+        to_x = (lambda v: math.log(v)) if lg else (lambda v: v)  # noqa: E731
+        from_x = (lambda x: math.exp(x)) if lg else (lambda x: x)  # noqa: E731
+
+        def rise(v, z):
+            """(S(v) - S_min) / s^2 with the other unknowns re-fitted from z, and their z."""
+            z = np.array(z, dtype=np.float64)
+            z[i] = _to_z((lg,), [lo], [hi], [v])[0]
+            if free.any():
+                (z, r, _, _), hist = _levenberg_marquardt(prob, z, max_iter, 1e-8, 1e-10, 1e-2,
+                                                          free=free)
+                n_eval[0] += hist["evaluations"]
+            else:  # a single unknown: nothing to re-fit
+                r, _, ok, _ = _residual_and_jacobian(prob, jnp.asarray(z))
+                _check_ok(ok, z, prob)
+                r = np.asarray(r)
+                n_eval[0] += 1
+            return (float(r @ r) - s_min) / s2, z
+
+        for side, sgn in ((0, -1), (1, 1)):
+            prev = (p_hat, 0.0, np.asarray(self.z))
+            for k in range(1, n_max + 1):
+                v = at(sgn * k)
+                if not (lo < v < hi):
+                    break
+                try:
+                    d, z = rise(v, prev[2])
+                except IdentificationError:
+                    break  # the simulation fails out there: the walk ends
+                pts.append((v, d))
+                if d > q:
+                    # A steep wall (another unknown reaching its bound) is bisected until the
+                    # crossing step is short enough for the interpolation below.
+                    cur = (v, d, z)
+                    for _ in range(8):
+                        if cur[1] <= 3 * q:
+                            break
+                        vm = from_x((to_x(prev[0]) + to_x(cur[0])) / 2)
+                        try:
+                            dm, zm = rise(vm, prev[2])
+                        except IdentificationError:
+                            break
+                        pts.append((vm, dm))
+                        if dm > q:
+                            cur = (vm, dm, zm)
+                        else:
+                            prev = (vm, dm, zm)
+                    # the signed root of the rise is nearly linear in the parameter
+                    a0, a1 = math.sqrt(max(prev[1], 0.0)), math.sqrt(cur[1])
+                    f = (math.sqrt(q) - a0) / (a1 - a0)
+                    x0, x1 = to_x(prev[0]), to_x(cur[0])
+                    ends[side] = from_x(x0 + f * (x1 - x0))
+                    sz = 1 / (1 + np.exp(-cur[2][:len(self.names)]))
+                    limited += [n for j, n in enumerate(self.names)
+                                if j != i and not (1e-3 < sz[j] < 1 - 1e-3) and n not in limited]
+                    break
+                prev = (v, d, z)
+            if ends[side] is None:
+                open_.append(("low", "high")[side])
+        n_eval = n_eval[0]
+        pts.sort()
+        return {"name": name, "estimate": p_hat, "level": level, "threshold": q,
+                "values": [v for v, _ in pts], "delta": [d for _, d in pts],
+                "ci": ends, "open": open_, "limited_by_bounds_of": limited,
+                "linearised": [float(self.ci95[i, 0]), float(self.ci95[i, 1])],
+                "evaluations": n_eval, "run_s": time.perf_counter() - t0}
+
+    def table(self) -> str:
+        """A text table of the estimates with their intervals."""
+        lines = [f"{'name':>10s} {'estimate':>13s} {'std':>11s} {'95% low':>13s} "
+                 f"{'95% high':>13s} {'rel.std':>8s} {'initial':>13s}"]
+        for i, n in enumerate(self.names):
+            e, s = float(self.estimate[i]), float(self.std[i])
+            lines.append(f"{n:>10s} {e:13.6g} {s:11.3g} {float(self.ci95[i, 0]):13.6g} "
+                         f"{float(self.ci95[i, 1]):13.6g} {abs(s / e) * 100:7.3g}% "
+                         f"{float(self.initial[i]):13.6g}")
+        idf = self.identifiability
+        lines.append(f"model {self.model}, scene {self.scene}, {len(self.experiment_names)} "
+                     f"experiment(s), N = {self.residuals.shape[0]} residuals, s = "
+                     f"{math.sqrt(self.sigma2):.4g} (1 = noise as stated), condition number "
+                     f"{idf['condition_number']:.3g}")
+        if self.actuation:
+            lines.append(f"  driven by: {self.actuation}")
+        for msg in (self.quality or {}).get("problems", []):
+            lines.append(f"  WARNING: {msg}")
+        for c in idf["combinations"]:
+            lines.append(f"  {c['expression']}: relative std {c['relative_std'] * 100:.3g}% "
+                         f"({c['status']})")
+        if idf.get("note"):
+            lines.append(f"  note: {idf['note']}")
+        if self.initial_state:
+            for en, row in self.initial_state["experiments"].items():
+                parts = [(f"{k} = {v['estimate']:.6g}" if "estimate" in v else
+                          f"{k} {v['offset']:+.4g}") + f" +- {v['std']:.2g} {v['unit']}"
+                         for k, v in row.items()]
+                lines.append(f"  initial state of {en}: " + ", ".join(parts))
+        for e in self.residual_stats["experiments"]:
+            lines.append(f"  {e['name']}: RMS x {e['rms_x_m'] * 1e3:.4g} mm, y "
+                         f"{e['rms_y_m'] * 1e3:.4g} mm, phi {e['rms_phi_rad'] * 1e3:.4g} mrad "
+                         f"(noise {self.noise[0] * 1e3:.3g} mm, {self.noise[1] * 1e3:.3g} mrad)")
+        return "\n".join(lines)
+
+    def figures(self, out_dir: str) -> list:
+        """Write fit_trajectory.png and fit_residuals.png to `out_dir` (matplotlib, Agg);
+        returns their paths."""
+        from ._plots import identification_figures
+
+        return identification_figures(self, out_dir)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (estimates, intervals, correlations, identifiability, residuals);
+        an infinite or undefined value (a parameter the data do not see) is None."""
+        return _json_safe({
+            "model": self.model,
+            "scene": self.scene,
+            "actuation": self.actuation,
+            "experiments": list(self.experiment_names),
+            "noise": {"position_m": self.noise[0], "phi_rad": self.noise[1]},
+            "unknowns": {
+                n: {"estimate": float(self.estimate[i]), "std": float(self.std[i]),
+                    "ci95": [float(self.ci95[i, 0]), float(self.ci95[i, 1])],
+                    "ci95_log": [float(self.ci95_log[i, 0]), float(self.ci95_log[i, 1])],
+                    "initial": float(self.initial[i])}
+                for i, n in enumerate(self.names)
+            },
+            "correlation": np.asarray(self.correlation).tolist(),
+            "covariance": np.asarray(self.covariance).tolist(),
+            "sigma2": float(self.sigma2),
+            "identifiability": self.identifiability,
+            "residual_stats": self.residual_stats,
+            "initial_state": self.initial_state,
+            "quality": self.quality,
+            "history": self.history,
+        })
+
+
+def _json_safe(x):
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    return x
+
+
+def _combination(names, v):
+    """Name the combination prod p_i^e_i whose log is v . log p, with exponents normalised so
+    that the smallest significant one is +-1 (t^3 K_theta^1 for the bending stiffness)."""
+    v = np.asarray(v, dtype=np.float64)
+    big = np.abs(v) > 0.1 * np.max(np.abs(v))
+    c = np.min(np.abs(v[big]))
+    e = v / c
+    if e[np.argmax(np.abs(e))] < 0:
+        e = -e
+    parts = [f"{n}^{x:.2f}" for n, x, b in zip(names, e, big) if b]
+    return " * ".join(parts), e, c
+
+
+def _identifiability(names, p, J, s2):
+    """SVD of the relative sensitivities J diag(p): each right singular vector v is a
+    combination sum v_i log p_i whose standard deviation is s / sigma."""
+    Jr = J * p[None, :]
+    U, sv, Vt = np.linalg.svd(Jr, full_matrices=False)
+    s = math.sqrt(s2)
+    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+    combos = []
+    for k in range(len(sv)):
+        expr, e, c = _combination(names, Vt[k])
+        rel = s / sv[k] / c if sv[k] > 0 else float("inf")  # std of sum e_i log p_i
+        status = ("identifiable" if rel < 0.1 else "poorly identifiable" if rel < 1.0
+                  else "not identifiable from these data")
+        combos.append({"expression": expr, "exponents": [float(x) for x in e],
+                       "value": float(np.prod(p ** e)), "relative_std": float(rel),
+                       "singular_value": float(sv[k]), "status": status})
+    note = None
+    if len(names) > 1 and combos[-1]["status"] != "identifiable":
+        note = (f"the data determine {combos[0]['expression']} (relative std "
+                f"{combos[0]['relative_std'] * 100:.2g}%) but not each parameter apart: along "
+                f"{combos[-1]['expression']} the relative std is "
+                f"{combos[-1]['relative_std'] * 100:.2g}%")
+        if {"t", "K_theta"} <= set(names):
+            note += ("; t and K_theta act through the joint stiffness K = 2 E I rho K_theta / L "
+                     "with I = w t^3/12, i.e. through E w t^3 K_theta (the strip mass adds a "
+                     "little t alone); fix one of them (e.g. --fix t=...) to identify the other")
+    return {"singular_values": [float(v) for v in sv], "condition_number": cond,
+            "combinations": combos, "note": note}
+
+
+def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="") -> Identification:
+    from scipy import stats
+
+    z, r, Jz, X = zrj
+    z = jnp.asarray(z)
+    P, E = len(prob.names), len(exps)
+    p = np.asarray(_to_p(prob, z))
+    dpdz = np.asarray(_dp_dz(prob, z))
+    sz = np.asarray(jax.nn.sigmoid(z[:P]))
+    # At a bound the reparametrisation is flat (dp/dz -> 0): the chain rule loses the
+    # physical Jacobian there, so such unknowns are reported and their columns kept finite.
+    at_bound = [n for n, v in zip(prob.names, sz * (1 - sz)) if v < 1e-9]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        J = Jz[:, :P] / np.maximum(dpdz, 1e-300)[None, :]  # d r / d p (physical)
+    J = np.where(np.isfinite(J), J, 0.0)
+    N = int(mask.sum()) * 3  # padding rows are exact zeros
+    scale = np.tile(np.asarray(INIT_SCALE[:prob.n_init]), E)
+    Ji = Jz[:, P:] / scale[None, :] if prob.n_init else np.zeros((Jz.shape[0], 0))
+    dof = max(N - P - Ji.shape[1], 1)
+    s2 = float(r @ r) / dof
+    init = _initial_state_report(prob, z, X, J * p[None, :], Ji, s2, exps) if prob.n_init else None
+    if prob.n_init:
+        # The initial state is a nuisance: the parameters' marginal covariance is that of their
+        # Jacobian with the initial-state directions projected out (the Schur complement).
+        Qi = _range_basis(Ji)
+        J = J - Qi @ (Qi.T @ J)
+    # Relative (scaled) normal equations: better conditioned than J^T J in SI units.
+    Jr = J * p[None, :]
+    U, sv, Vt = np.linalg.svd(Jr, full_matrices=False)
+    null = ~(sv > sv[0] * 1e-14) | ~(sv > 0)
+    inv = np.zeros_like(sv)
+    inv[~null] = 1.0 / sv[~null] ** 2
+    Cr = (Vt.T * inv) @ Vt * s2
+    # Directions the data do not see at all have infinite variance (not the zero of a
+    # pseudo-inverse): every parameter with a component along them is undetermined.
+    unseen = np.any(np.abs(Vt[null]) > 1e-8, axis=0) if null.any() else np.zeros(P, bool)
+    Cr = np.where(unseen[:, None] | unseen[None, :], np.inf, Cr)
+    C = Cr * np.outer(p, p)
+    std = np.sqrt(np.diag(C))
+    q = float(stats.t.ppf(0.975, dof))
+    ci = np.column_stack([p - q * std, p + q * std])
+    # The same interval for log p (first order: std(log p) = std / p): positive, and the better
+    # reading when std / p is not small (a linear interval of t can reach below 0).
+    with np.errstate(over="ignore", invalid="ignore"):
+        rel = std / np.abs(p)
+        ci_log = np.column_stack([p * np.exp(-q * rel), p * np.exp(q * rel)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = np.where(np.isfinite(np.outer(std, std)), C / np.outer(std, std), np.nan)
+    idf = _identifiability(prob.names, p, J, s2)
+    idf["at_bound"] = at_bound
+    if at_bound:
+        idf["note"] = ((idf["note"] + "; ") if idf["note"] else "") + (
+            f"{', '.join(at_bound)} ended at a bound: its interval is not meaningful (widen the "
+            f"bounds, or fix it)")
+    # A fit that does not explain the data is neither converged nor identifying anything: its
+    # intervals measure the misfit, not the noise (a start 30x off once ended at s = 7,166 with
+    # a "converged", "identifiable" 0.2 % interval).
+    s_fit = math.sqrt(s2)
+    problems = []
+    if not s_fit <= POOR_FIT_SCALE:
+        problems.append(f"the model does not explain the data: residual scale s = {s_fit:.3g} "
+                        f"(> {POOR_FIT_SCALE:g}; 1 = noise as stated)")
+        for c in idf["combinations"]:
+            c["status"] = "not trustworthy (poor fit)"
+    if at_bound:
+        problems.append(f"{', '.join(at_bound)} at a bound")
+    hist = dict(hist)
+    hist["optimizer_stop"] = hist.get("stop")
+    if problems and hist.get("stop") == "converged":
+        hist["stop"] = "poor fit" if not s_fit <= POOR_FIT_SCALE else "at bound"
+    quality = {"residual_scale": s_fit, "explains_data": bool(s_fit <= POOR_FIT_SCALE),
+               "at_bound": at_bound, "ok": not problems,
+               "problems": problems}
+    raw = np.where(np.asarray(prob.w) > 0, (X - np.asarray(prob.X)) * np.asarray(prob.w), 0.0)
+    rs = []
+    for k, e in enumerate(exps):
+        m = mask[k]
+        d = (X[k] - np.asarray(prob.X)[k])[m]
+        rs.append({"name": e.name, "n": int(m.sum()),
+                   "rms_x_m": float(np.sqrt(np.mean(d[:, 0] ** 2))),
+                   "rms_y_m": float(np.sqrt(np.mean(d[:, 1] ** 2))),
+                   "rms_phi_rad": float(np.sqrt(np.mean(d[:, 2] ** 2))),
+                   "max_abs_position_m": float(np.max(np.hypot(d[:, 0], d[:, 1]))),
+                   "max_abs_phi_rad": float(np.max(np.abs(d[:, 2])))})
+    wr = raw[mask]  # (n_real, 3) weighted, before the loss
+    stats_ = {"experiments": rs,
+              "rms_weighted": float(np.sqrt(np.mean(wr ** 2))),
+              "note": "RMS of simulated minus measured pose; with the noise as stated and a "
+                      "model that fits, RMS x, y ~ noise position and RMS phi ~ noise phi"}
+    params = _params_at(prob, jnp.asarray(p))
+    return Identification(
+        names=prob.names, estimate=p, initial=p0, std=std, ci95=ci, ci95_log=ci_log, covariance=C,
+        correlation=corr, params=params, sigma2=s2, jacobian=J, residuals=r, fitted=X,
+        measured=np.asarray(prob.X), ts=np.asarray(prob.ts), mask=mask, identifiability=idf,
+        residual_stats=stats_, history=hist, model=prob.model.name, scene=prob.scene,
+        experiment_names=tuple(e.name for e in exps), noise=noise, problem=prob,
+        initial_state=init, z=np.asarray(z), actuation=drive, quality=quality,
+    )
+
+
+def _range_basis(A, rtol=1e-12):
+    """Orthonormal basis (n, k) of the column space of A (n, q), columns scaled first."""
+    nrm = np.linalg.norm(A, axis=0)
+    A = A / np.where(nrm > 0, nrm, 1.0)[None, :]
+    U, sv, _ = np.linalg.svd(A, full_matrices=False)
+    return U[:, sv > rtol * max(float(sv[0]) if sv.size else 0.0, 1e-300)]
+
+
+def _initial_state_report(prob, z, X, Jr, Ji, s2, exps):
+    """Per experiment: the estimated initial platform pose (absolute: the fitted pose at t = 0)
+    and the velocity offset from the scene's quasi-static initial velocity, with standard
+    deviations marginal over the parameters (their directions projected out)."""
+    Qp = _range_basis(Jr)
+    Jie = Ji - Qp @ (Qp.T @ Ji)
+    nrm = np.linalg.norm(Jie, axis=0)
+    nrm = np.where(nrm > 0, nrm, 1.0)
+    A = (Jie / nrm).T @ (Jie / nrm)
+    Ci = np.linalg.pinv(A) / np.outer(nrm, nrm) * s2
+    sd = np.sqrt(np.maximum(np.diag(Ci), 0.0))
+    k = prob.n_init
+    d = np.asarray(z)[len(prob.names):].reshape(len(exps), k) * np.asarray(INIT_SCALE[:k])
+    out = {}
+    for j, e in enumerate(exps):
+        row = {}
+        for i in range(k):
+            name, unit = INIT_NAMES[i], INIT_UNITS[i]
+            if i < 3:
+                row[name] = {"estimate": float(X[j, 0, i]), "offset": float(d[j, i]),
+                             "std": float(sd[j * k + i]), "unit": unit}
+            else:
+                row[name] = {"offset": float(d[j, i]), "std": float(sd[j * k + i]),
+                             "unit": unit}
+        out[e.name] = row
+    return {"estimated": list(INIT_NAMES[:k]), "experiments": out,
+            "note": "x0, y0, phi0: the fitted platform pose at t = 0 and its offset from the "
+                    "scene's quasi-static initial state; xd0, yd0, phid0: offsets from the "
+                    "scene's initial platform velocity; std marginal over the parameters"}
+

@@ -1,0 +1,75 @@
+"""Synthetic experiments: a scene's output with independent Gaussian noise."""
+
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import equinox as eqx
+import jax
+import numpy as np
+
+from ..._data import DataError, Experiment
+from ..._models import get_model
+from ..._params import RobotParams
+from ..._robot import Robot
+from ..._scenes import scene_params
+from ._problem import ID_SCENES
+
+
+@eqx.filter_jit
+def _actuated_angles(model, robot, z):
+    return jax.vmap(lambda z: model.kinematics(robot, z).th_a)(z)
+
+
+def check_synth_args(noise_pos, noise_phi, rate, t_end) -> None:
+    """`synthesize`'s numbers, checked before anything is compiled (`DataError` naming them)."""
+    for what, v in (("noise_pos", noise_pos), ("noise_phi", noise_phi), ("rate", rate),
+                    ("t_end", t_end)):
+        if not math.isfinite(v):  # a NaN noise wrote a file of NaN poses
+            raise DataError(f"{what} must be finite: {v!r} is not finite")
+    if not (rate > 0 and t_end > 0):
+        raise DataError(f"rate and t_end must be > 0, got rate={rate}, t_end={t_end}")
+    if noise_pos < 0 or noise_phi < 0:
+        raise DataError(f"noise must be >= 0, got noise_pos={noise_pos}, noise_phi={noise_phi}")
+
+
+def synthesize(
+    scene: str = "servo-circle",
+    model="double1r",
+    params: Optional[RobotParams] = None,
+    *,
+    noise_pos: float = 0.1e-3,
+    noise_phi: float = 1e-3,
+    rate: float = 100.0,
+    t_end: float = 7.54,
+    seed: int = 0,
+    name: str = "synthetic",
+    n_elements: Optional[int] = None,
+    **scene_kw,
+) -> Experiment:
+    """A tracker-like `Experiment` from a scene: the simulated pose sampled at `rate` (Hz) from
+    t = 0 to `t_end` (s, rounded down to whole samples), with independent Gaussian noise of
+    standard deviation `noise_pos` (m) on x and y and `noise_phi` (rad) on phi, seeded
+    (`numpy.random.default_rng(seed)`). The actuated angles (noise-free: encoders are far finer
+    than a tracker) and the torques (applied, or the reactions of a motion-driven scene) are
+    included. `params` defaults to `scene_params(scene)`; `scene_kw` go to the scene function."""
+    from ..._scenes import paper_circle, servo_circle
+
+    if scene not in ID_SCENES:
+        raise DataError(f"unknown scene {scene!r}; allowed: {', '.join(ID_SCENES)}")
+    check_synth_args(noise_pos, noise_phi, rate, t_end)
+    n = int(math.floor(t_end * rate + 1e-9)) + 1
+    if n < 2:
+        raise DataError(f"t_end = {t_end} s at {rate} Hz gives fewer than 2 samples")
+    mdl = get_model(model, n_elements)
+    params = scene_params(scene) if params is None else params
+    fn = servo_circle if scene == "servo-circle" else paper_circle
+    res = fn(params, model=mdl, t_end=(n - 1) / rate, n_out=n, **scene_kw)
+    th = np.asarray(_actuated_angles(mdl, Robot(params), res.z))
+    rng = np.random.default_rng(seed)
+    X = np.asarray(res.X).copy()
+    X[:, :2] += noise_pos * rng.standard_normal((n, 2))
+    X[:, 2] += noise_phi * rng.standard_normal(n)
+    return Experiment(ts=np.asarray(res.ts), X=X, th=th, tau=np.asarray(res.tau), name=name)
+
