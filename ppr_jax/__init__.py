@@ -38,7 +38,7 @@ from ._models.beam import (  # noqa: E402
     solve_strip as solve_strip,
     strip_constants as strip_constants,
 )
-from ._checks import (  # noqa: E402
+from ._errors import (  # noqa: E402
     PPRError as PPRError,
     RESULTS as RESULTS,
     RepairWarning as RepairWarning,

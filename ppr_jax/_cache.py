@@ -21,7 +21,7 @@ from typing import Optional
 
 import jax
 
-from ._checks import RepairWarning
+from ._errors import RepairWarning
 
 
 def default_cache_dir() -> str:

@@ -34,8 +34,8 @@ from typing import Optional, Sequence
 import equinox as eqx
 import numpy as np
 
-from ._checks import PPRError
 from ._custom_types import Array
+from ._errors import DataError
 
 #: unit name -> factor to SI, per kind of quantity
 UNITS = {
@@ -64,11 +64,6 @@ MAX_LINE_CHARS = 100_000
 #: byte-order marks and the encodings they announce, longest first
 _BOMS = ((b"\xff\xfe\x00\x00", "utf-32"), (b"\x00\x00\xfe\xff", "utf-32"),
          (b"\xef\xbb\xbf", "utf-8-sig"), (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16"))
-
-
-class DataError(PPRError):
-    """A measured-data file or array that cannot be used: missing or misnamed columns, bad units,
-    non-increasing time, NaN rows, too few samples. The message names the file, column and lines."""
 
 
 class Experiment(eqx.Module):

@@ -25,7 +25,7 @@ from __future__ import annotations
 import os
 from typing import Optional
 
-from ._checks import PPRError
+from ._errors import PPRError
 
 _DEVICES_FLAG = "--xla_force_host_platform_device_count"
 _YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type"

@@ -27,7 +27,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._checks import PPRError
+from ._errors import PPRError
 from ._custom_types import Array, Float
 from ._linalg import solve
 from ._models import AbstractClosedLoop, AbstractModel, Kin

@@ -49,8 +49,11 @@ def turn(v, alpha):
     """Vector(s) v (..., 2) turned by the angle alpha (broadcast against v's leading axes):
     e(a + alpha) = turn(e(a), alpha) with one sine and cosine of alpha however many v."""
     ca = e(alpha)
-    c, s = ca[..., 0:1], ca[..., 1:2]
-    return jnp.concatenate([c * v[..., :1] - s * v[..., 1:], s * v[..., :1] + c * v[..., 1:]], -1)
+    # explicit broadcasting (the package runs under JAX's strict rank promotion in its tests)
+    shape = jnp.broadcast_shapes(ca.shape[:-1], v.shape[:-1]) + (1,)
+    c, s = jnp.broadcast_to(ca[..., 0:1], shape), jnp.broadcast_to(ca[..., 1:2], shape)
+    vx, vy = jnp.broadcast_to(v[..., :1], shape), jnp.broadcast_to(v[..., 1:], shape)
+    return jnp.concatenate([c * vx - s * vy, s * vx + c * vy], -1)
 
 
 def home_pose(robot: Robot) -> Float[Array, "3"]:
@@ -71,7 +74,7 @@ def base_points(robot: Robot) -> Float[Array, "3 2"]:
 def platform_points(robot: Robot, X: Float[Array, "3"]) -> Float[Array, "3 2"]:
     """Platform joints E_i = (x, y) + rho_E e(beta_i + phi) (m)."""
     # e(beta_i + phi) as e(beta_i) turned by phi: one sine and cosine instead of three
-    return X[:2] + robot.rho_E * turn(np.stack([np.cos(BETA), np.sin(BETA)], -1), X[2])
+    return X[None, :2] + robot.rho_E * turn(np.stack([np.cos(BETA), np.sin(BETA)], -1), X[2])
 
 
 def wrap(x):

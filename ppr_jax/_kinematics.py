@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._checks import PPRError, check_array, raise_if
+from ._errors import PPRError, check_array, raise_if
 from ._custom_types import Array, Float
 from ._linalg import SmallLU
 from ._geometry import home_pose, singularity_measure

@@ -13,7 +13,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._checks import PPRError, check_array, raise_if
+from ._errors import PPRError, check_array, raise_if
 from ._custom_types import Array
 from ._dynamics import eom_terms, generalized_force
 from ._geometry import home_pose

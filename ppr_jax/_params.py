@@ -16,9 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import PPRError
 from ._custom_types import Array
-
+from ._errors import PPRError, is_traced
 
 
 def _f(x):
@@ -127,17 +126,13 @@ def settable_names() -> list[str]:
     return list(PARAM_RANGES) + ["sigma", "joint_geometry"]
 
 
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
 def check_params(params: RobotParams) -> None:
     """Raise `ValueError` naming the parameter and its allowed range if a concrete value is out of
     range (or not finite). Traced values (inside jit/vmap) are skipped here and checked by
     `validate_traced` instead."""
     for name, (lo, hi, unit, meaning) in PARAM_RANGES.items():
         v = getattr(params, name)
-        if v is None or not _is_concrete(v):
+        if v is None or is_traced(v):
             continue
         arr = np.asarray(v)
         nonfinite = ~np.isfinite(arr)

@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 import scipy.optimize  # noqa: E402
 
 from ._prb_table import prb_geometry  # noqa: E402
-from ._checks import PPRError  # noqa: E402
+from ._errors import PPRError  # noqa: E402
 from .elastica import ElasticaConvergenceError, solve_cantilever  # noqa: E402
 
 __all__ = [

@@ -24,7 +24,7 @@ import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ._checks import PPRError
+from ._errors import PPRError
 
 __all__ = ["KAPPA0_RANGE", "prb_parameters", "prb_table"]
 

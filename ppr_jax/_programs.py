@@ -43,7 +43,7 @@ from typing import Callable, Optional
 import equinox as eqx
 import jax
 
-from ._checks import RepairWarning
+from ._errors import RepairWarning
 
 #: bump when the stored layout changes
 FORMAT = 2

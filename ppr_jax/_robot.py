@@ -33,17 +33,13 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ._checks import PPRError
+from ._errors import PPRError, is_traced
 from ._params import RobotParams
 from ._prb import Derived, derived, derived_concrete
 
 
-def _concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
 def equal_links_of(params: RobotParams) -> bool:
-    if not (_concrete(params.l1) and _concrete(params.l3)):
+    if not (not is_traced(params.l1) and not is_traced(params.l3)):
         return False
     return bool(np.all(np.asarray(params.l1) == np.asarray(params.l3)))
 
@@ -67,12 +63,12 @@ class Robot(eqx.Module):
         if not isinstance(params, RobotParams):
             raise TypeError(f"Robot needs RobotParams, got {type(params).__name__}")
         self.params = params
-        concrete = all(_concrete(x) for x in jax.tree_util.tree_leaves(params))
+        concrete = all(not is_traced(x) for x in jax.tree_util.tree_leaves(params))
         self.dv = derived_concrete(params) if concrete else derived(params)
         auto = equal_links_of(params)
         if equal_links is None:
             equal_links = auto
-        elif equal_links and not auto and _concrete(params.l1) and _concrete(params.l3):
+        elif equal_links and not auto and not is_traced(params.l1) and not is_traced(params.l3):
             raise PPRError(
                 "equal_links=True needs l1 == l3 (drive and connecting links of equal length) "
                 "for every robot of the batch"

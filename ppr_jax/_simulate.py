@@ -19,9 +19,17 @@ import numpy as np
 import optimistix as optx
 
 from ._actuation import AbstractActuation
-from ._checks import PPRError, RESULTS, check_array, check_number, check_result, first_failure
 from ._custom_types import Array, Float
 from ._dynamics import eom_terms, generalized_force
+from ._errors import (
+    RESULTS,
+    PPRError,
+    check_array,
+    check_number,
+    check_result,
+    first_failure,
+    is_traced,
+)
 from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
@@ -306,10 +314,6 @@ def simulate_core(
     )
 
 
-def _is_traced(tree) -> bool:
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
-
-
 def simulate(
     model: AbstractModel,
     robot: RobotLike,
@@ -350,22 +354,22 @@ def simulate(
         )
     if ts.ndim != 1 or ts.shape[0] < 2:
         raise PPRError("ts must be a 1-D array of at least two increasing output times")
-    if not _is_traced(ts) and not bool(np.all(np.diff(np.asarray(ts)) > 0)):
+    if not is_traced(ts) and not bool(np.all(np.diff(np.asarray(ts)) > 0)):
         raise PPRError("ts must be strictly increasing")
     max_steps = check_number("max_steps", max_steps, 1, 10**9, integer=True)
     solver = get_solver(solver)
     if stepsize_controller is None:
         # Finite, not negative, at most the scenes' 1e-2 (above it the result is not worth a
         # number); tiny values stay allowed here (a pure relative or absolute control).
-        if not _is_traced(rtol):
+        if not is_traced(rtol):
             rtol = check_number("rtol", rtol, 0.0, 1e-2)
-        if not _is_traced(atol):
+        if not is_traced(atol):
             atol = check_number("atol", atol, 0.0, 1e-2)
-        if not _is_traced((rtol, atol)) and rtol == 0 and atol == 0:
+        if not is_traced((rtol, atol)) and rtol == 0 and atol == 0:
             raise PPRError("rtol and atol are both 0: the step-size control needs one of them > 0")
         stepsize_controller = default_controller(solver, rtol, atol)
     w = jnp.zeros(3) if wrench is None else check_array("wrench", wrench, (3,))
-    traced = _is_traced((robot, actuation, z0, zdot0, ts, w))
+    traced = is_traced((robot, actuation, z0, zdot0, ts, w))
     meter = diffrax.TextProgressMeter() if progress else diffrax.NoProgressMeter()
     sol = simulate_core(
         model, robot, actuation, z0, zdot0, ts, solver, stepsize_controller, dt0,

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._checks import PPRError, raise_if
+from ._errors import PPRError, raise_if
 from ._actuation import (
     AbstractActuation, InverseKinematicsAngles, MotionDriven, TorqueDriven,
 )
@@ -144,7 +144,7 @@ def _fd_newton_solve(resid, y0, rtol: float = 1e-13, atol: float = 1e-13, max_st
 
     def newton(y, _):
         d = FD_STEP * (1 + jnp.abs(y))
-        pts = jnp.concatenate([y[None], y + jnp.diag(d), y - jnp.diag(d)])
+        pts = jnp.concatenate([y[None], y[None] + jnp.diag(d), y[None] - jnp.diag(d)])
         F, aux = jax.vmap(resid)(pts)
         J = jax.lax.stop_gradient(((F[1:n + 1] - F[n + 1:]) / (2 * d)[:, None]).T)
         scale = jnp.maximum(jnp.max(jnp.abs(J)) * jnp.max(jnp.abs(y)), 1e-300)

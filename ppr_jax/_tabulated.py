@@ -95,7 +95,7 @@ class Chebyshev(eqx.Module):
         P, m = self.coeffs.shape[:2]
         s = (t - self.t0) / self.H
         i = jnp.clip(jnp.floor(s), 0, P - 1).astype(jnp.int32)
-        x = 2.0 * (s - i) - 1.0
+        x = 2.0 * (s - i.astype(s.dtype)) - 1.0
         c = self.coeffs[i]
         x = jnp.reshape(x, x.shape + (1,) * (c.ndim - 1))
         # Clenshaw: sum_k c_k T_k(x) without evaluating the T_k

@@ -53,18 +53,16 @@ that RK4 errors exceed ~1e-5 and the grid must be refined). Failure raises (see
 
 from __future__ import annotations
 
-import jax
-
-
 import functools  # noqa: E402
 
 import equinox as eqx  # noqa: E402
+import jax
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 from jaxtyping import Array, Bool, Float  # noqa: E402
 
-from ._checks import PPRError  # noqa: E402
+from ._errors import ElasticaConvergenceError, PPRError  # noqa: E402
 
 __all__ = ["CantileverSolution", "ElasticaConvergenceError", "solve_cantilever"]
 
@@ -81,11 +79,6 @@ _NOT_CONVERGED_MSG = (
     "nondimensional end load |F| L^2/EI (or |m| L/EI) is too large for the solver. Reduce the "
     "load, or increase n_nodes/substeps (grid resolution) and n_continuation."
 )
-
-
-class ElasticaConvergenceError(PPRError, RuntimeError):
-    """Raised (eagerly) when the shooting solver does not converge for the given load. A
-    `PPRError` (as the library's other errors) and, as before, a `RuntimeError`."""
 
 
 class CantileverSolution(eqx.Module):

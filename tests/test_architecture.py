@@ -20,7 +20,7 @@ FLOORS = [
     ("models", ["_models"]),
     ("chain geometry", ["_geometry", "_linalg"]),
     ("robot and joint", ["_robot", "_prb", "_params", "_prb_table", "_prb_fit", "elastica"]),
-    ("infrastructure", ["_checks", "_custom_types", "_data", "_cache", "_devices", "_programs"]),
+    ("infrastructure", ["_errors", "_custom_types", "_data", "_cache", "_devices", "_programs"]),
 ]
 FLOOR = {room: len(FLOORS) - i for i, (_, rooms) in enumerate(FLOORS) for room in rooms}
 

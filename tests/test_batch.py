@@ -7,7 +7,7 @@ import pytest
 
 import ppr_jax as pj
 from helpers import raises_in_compiled_code
-from ppr_jax._checks import raise_if
+from ppr_jax._errors import raise_if
 
 
 def test_vmapped_scene_equals_python_loop(params, paper_circle_L1):

@@ -25,7 +25,7 @@ def test_scene_program_is_stored_in_the_persistent_cache(tmp_path):
                           capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     names = [p.name for p in cache.iterdir()]
-    assert any(n.startswith("jit__paper_circle_core-") for n in names), names
+    assert any(n.startswith("jit_scene_program-") for n in names), names
 
 
 SMALL = """

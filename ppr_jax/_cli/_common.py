@@ -9,7 +9,7 @@ import json
 import os
 import sys
 
-from .._checks import PPRError
+from .._errors import PPRError
 
 
 def _parse_sets(items, scene):

@@ -6,7 +6,7 @@ import argparse
 import os
 import sys
 
-from .._checks import PPRError
+from .._errors import PPRError
 from ._common import (
     _log,
     parent_parsers,

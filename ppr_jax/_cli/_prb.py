@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from .._checks import PPRError
+from .._errors import PPRError
 from ._common import (
     _derived_dict,
     _log,

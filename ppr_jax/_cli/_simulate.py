@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from .._checks import PPRError
+from .._errors import PPRError
 from .._scenes import get_scene
 from ._common import (
     _derived_dict,

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Optional, Union
 
-from .._checks import PPRError, check_number
+from .._errors import PPRError, check_number
 from .base import (
     AbstractClosedLoop as AbstractClosedLoop,
     AbstractModel as AbstractModel,

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from .._checks import PPRError
+from .._errors import PPRError
 from .._custom_types import Array, Float
 from .._geometry import base_points, e, ik_reduced, platform_points, two_link, wrap
 from .._linalg import SmallLU, solve

@@ -69,7 +69,7 @@ def apply_K(u):
     z = jnp.zeros_like(u[..., :1])
     left = jnp.concatenate([z, u[..., :-1]], axis=-1)
     right = jnp.concatenate([u[..., 1:], z], axis=-1)
-    return jnp.asarray(_K_diag(u.shape[-1]), u.dtype) * u - left - right
+    return jnp.broadcast_to(jnp.asarray(_K_diag(u.shape[-1]), u.dtype), u.shape) * u - left - right
 
 
 def kkt_residual(y: Float[Array, " n2"], p: Float[Array, "4"]) -> Float[Array, " n2"]:

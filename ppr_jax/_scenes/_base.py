@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from .._actuation import AbstractActuation, MotionDriven
-from .._checks import RESIDUAL_TOL, RESULTS, first_failure
+from .._errors import RESIDUAL_TOL, RESULTS, first_failure
 from .._custom_types import Array
 from .._dynamics import inverse_dynamics
 from .._kinematics import det3, fold_flags

@@ -9,7 +9,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import check_number, is_traced
+from .._errors import check_number, is_traced
 from .._custom_types import Array
 from .._simulate import default_controller, get_solver
 from .._tabulated import scene_panels

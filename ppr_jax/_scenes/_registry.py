@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Union
 
-from .._checks import PPRError
+from .._errors import PPRError
 from .._models import get_model
 from .._params import RobotParams
 from ._base import AbstractScene

@@ -14,7 +14,7 @@ from typing import Optional, Union
 import jax
 import numpy as np
 
-from .._checks import PPRError
+from .._errors import PPRError
 from .._metrics import metric_table
 from .._params import RobotParams
 from .._programs import compiled_program

@@ -5,7 +5,7 @@ from __future__ import annotations
 import equinox as eqx
 import numpy as np
 
-from .._checks import RESIDUAL_TOL, RESULTS, check_result, failure_reasons, is_traced
+from .._errors import RESIDUAL_TOL, RESULTS, check_result, failure_reasons, is_traced
 from .._custom_types import Array
 from .._params import PARAM_RANGES
 

@@ -19,7 +19,7 @@ from ._result import SceneResult, finish, result_template
 
 
 @eqx.filter_jit
-def _run_one(scene, model, robot, options):
+def scene_program(scene, model, robot, options):
     return scene.run(model, robot, options)
 
 
@@ -27,12 +27,12 @@ def _member(robot_dyn, scene, model, robot_static, options):
     return scene.run(model, eqx.combine(robot_dyn, robot_static), options)
 
 
-def _run_batch(scene, model, robot, options):
+def scene_batch_program(scene, model, robot, options):
     dyn, static = eqx.partition(robot, eqx.is_array)
     return map_members(_member)(dyn, scene, model, static, options)
 
 
-_JIT_BATCH = eqx.filter_jit(_run_batch)
+_JIT_BATCH = eqx.filter_jit(scene_batch_program)
 _SHARDED: dict = {}
 
 
@@ -81,7 +81,7 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
     opts = options.prepared(model, scene.trajectory())
     batched = jnp.ndim(params.a) == 1
     devices = batch_devices(int(jnp.shape(params.a)[0])) if batched else ()
-    fn = _sharded(devices) if devices else (_JIT_BATCH if batched else _run_one)
+    fn = _sharded(devices) if devices else (_JIT_BATCH if batched else scene_program)
     return SceneCall(fn=fn, args=(scene, model, robot, opts), scene=scene.name,
                      batched=batched, solver_name=solver_name, devices=len(devices))
 

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._actuation import InverseDynamicsTorque
-from .._checks import PPRError, check_number
+from .._errors import PPRError, check_number
 from .._kinematics import inverse_kinematics
 from .._models import get_model
 from .._params import RobotParams

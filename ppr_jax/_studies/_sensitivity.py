@@ -37,8 +37,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import RESULTS, PPRError
 from .._dynamics import eom_terms, generalized_force
+from .._errors import RESULTS, PPRError
 from .._geometry import home_pose
 from .._models import get_model
 from .._modes import reduced_eigh

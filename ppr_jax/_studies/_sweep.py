@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import PPRError, RepairWarning, check_number, result_code, result_message
+from .._errors import PPRError, RepairWarning, check_number, result_code, result_message
 from .._kinematics import REACH_TOL, SINGULAR_TOL, ik_solve
 from .._metrics import metric_table
 from .._models import Reduced, get_model
@@ -530,7 +530,7 @@ def library_digest() -> dict:
     """What a sweep's numbers depend on beyond its settings: the versions of ppr_jax and its
     numerical dependencies (`_programs.DEPENDENCIES`) and a hash of this package's source and
     data files. Part of each chunk's digest, so chunks of another library are recomputed."""
-    from .._programs import source_hash, dependency_versions
+    from .._programs import dependency_versions, source_hash
 
     return {"versions": dependency_versions(), "source": source_hash()}
 

@@ -2,6 +2,7 @@
 (`_data`), the fits (`_fit`), the result (`_result`), the entry point (`_identify`), synthetic
 experiments (`_synthesize`) and figures (`_plots`)."""
 
+from ..._errors import IdentificationError
 from ._identify import identify
 from ._plots import identification_figures, profile_figure
 from ._problem import (
@@ -12,7 +13,6 @@ from ._problem import (
                        LOSSES,
                        POOR_FIT_SCALE,
                        SOLVERS,
-                       IdentificationError,
 )
 from ._result import Identification
 from ._synthesize import check_synth_args, synthesize

@@ -9,10 +9,10 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from ..._errors import IdentificationError
 from ._problem import (
     INIT_SCALE,
     MAX_STEP_Z,
-    IdentificationError,
     _residual_and_jacobian,
     _residual_vector,
     _to_p,

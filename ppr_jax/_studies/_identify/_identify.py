@@ -70,6 +70,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._data import DataError, Experiment
+from ..._errors import IdentificationError
 from ..._models import get_model
 from ..._params import PARAM_RANGES, RobotParams
 from ..._scenes import scene_params
@@ -84,7 +85,6 @@ from ._problem import (
     INITIAL_STATES,
     LOSSES,
     SOLVERS,
-    IdentificationError,
     _Problem,
     _to_z,
 )

@@ -12,8 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._actuation import MotionDriven, TorqueDriven
-from ..._checks import RESULTS, PPRError
 from ..._custom_types import Array
+from ..._errors import RESULTS
 from ..._params import RobotParams
 from ..._robot import Robot
 from ..._scenes import SceneOptions, get_scene, input_panels_at
@@ -61,10 +61,6 @@ POOR_FIT_SCALE = 3.0
 
 #: default noise weights: tracker position (m) and platform angle (rad), Optotrak-like
 DEFAULT_NOISE = (1e-4, 1e-3)
-
-
-class IdentificationError(PPRError):
-    """An identification that cannot run as asked (unknown names, bounds, a failed simulation)."""
 
 
 class _Problem(eqx.Module):

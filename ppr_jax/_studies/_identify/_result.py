@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._custom_types import Array
+from ..._errors import IdentificationError
 from ..._params import RobotParams
 from ._fit import _check_ok, _levenberg_marquardt
 from ._problem import (
@@ -19,7 +20,6 @@ from ._problem import (
     INIT_SCALE,
     INIT_UNITS,
     POOR_FIT_SCALE,
-    IdentificationError,
     _dp_dz,
     _params_at,
     _Problem,

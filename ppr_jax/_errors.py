@@ -33,6 +33,20 @@ class SimulationError(PPRError, RuntimeError):
     result = None
 
 
+class DataError(PPRError):
+    """A measured-data file or array that cannot be used: missing or misnamed columns, bad units,
+    non-increasing time, NaN rows, too few samples. The message names the file, column and lines."""
+
+
+class IdentificationError(PPRError):
+    """An identification that cannot run as asked (unknown names, bounds, a failed simulation)."""
+
+
+class ElasticaConvergenceError(PPRError, RuntimeError):
+    """Raised (eagerly) when the shooting solver does not converge for the given load. A
+    `PPRError` (as the library's other errors) and, as before, a `RuntimeError`."""
+
+
 class RepairWarning(UserWarning):
     """A stored file this library wrote (an exported scene program, a persistent-cache entry, a
     sweep's chunk) failed its check (checksum, deserialisation, compilation, or settings digest):
@@ -206,6 +220,8 @@ def check_array(name: str, value, shape: Optional[tuple] = None):
 
 
 def is_traced(tree) -> bool:
+    """Whether any leaf of `tree` is a JAX tracer (inside jit, vmap, grad...): the one test the
+    package uses to choose between an eager check and a status code."""
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
 
 
