@@ -16,6 +16,7 @@ from ._params import (  # noqa: E402
     stack_params as stack_params,
     unstack_params as unstack_params,
 )
+from ._params_file import load_params as load_params, save_params as save_params  # noqa: E402
 from ._prb import Derived as Derived, derived as derived  # noqa: E402
 from ._robot import Robot as Robot, RobotLike as RobotLike  # noqa: E402
 from ._models import (  # noqa: E402

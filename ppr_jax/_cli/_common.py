@@ -12,7 +12,7 @@ import sys
 from .._errors import PPRError
 
 
-def _parse_sets(items, scene):
+def _parse_sets(items, scene, path=None):
     from .._params import parse_value
     from .._scenes import scene_params
 
@@ -23,7 +23,12 @@ def _parse_sets(items, scene):
         name, value = item.split("=", 1)
         name = name.strip()
         kw[name] = parse_value(name, value)
-    return scene_params(scene, **kw)
+    base = scene_params(scene)
+    if path:
+        from .._params_file import load_params
+
+        base = load_params(path, base)
+    return base.replace(**kw)
 
 
 def _params_dict(params):
@@ -81,6 +86,9 @@ def parent_parsers() -> dict:
     from .._simulate import SOLVERS
 
     params = argparse.ArgumentParser(add_help=False)
+    params.add_argument("--params-file", dest="params_file", default=None, metavar="FILE",
+                        help="read the robot's parameters from a TOML or JSON file (names as "
+                             "--set, SI units); --set overrides it")
     params.add_argument("--set", action="append", metavar="NAME=VALUE",
                         help="override a parameter, NAME=VALUE (SI units); repeatable; names: "
                              + ", ".join(settable_names()))

@@ -40,7 +40,12 @@ def cmd_identify(args):
         if e.dropped_lines:
             _log(f"{e.name}: dropped {len(e.dropped_lines)} NaN rows (lines "
                  f"{', '.join(map(str, e.dropped_lines[:10]))}{', ...' if len(e.dropped_lines) > 10 else ''})")
-    params = scene_params(args.scene, **_name_values(args.set, "--set"))
+    params = scene_params(args.scene)
+    if getattr(args, "params_file", None):
+        from .._params_file import load_params
+
+        params = load_params(args.params_file, params)
+    params = params.replace(**_name_values(args.set, "--set"))
     fixed = _name_values(args.fix, "--fix")
     initial = _name_values(args.initial, "--initial")
     unknowns = args.unknown or ["t", "K_theta"]

@@ -13,7 +13,7 @@ from ._common import (
 def cmd_modes(args):
     from .._scenes import modes_scene
 
-    params = _parse_sets(args.set, "modes")
+    params = _parse_sets(args.set, "modes", getattr(args, "params_file", None))
     X = None if args.pose is None else [float(v) for v in args.pose.split(",")]
     r = modes_scene(params, model=model_from_args(args, args.model), actuators=args.actuators,
                     X=X)

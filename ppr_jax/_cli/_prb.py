@@ -119,7 +119,7 @@ def cmd_prb(args):
     if args.fit:
         _log("ppr-jax: note: 'prb --fit' without --kappa0 is ignored (deprecated; see 'ppr-jax "
              "prb-table')")
-    params = _parse_sets(args.set, "paper-circle")
+    params = _parse_sets(args.set, "paper-circle", getattr(args, "params_file", None))
     out = {"params": _params_dict(params), "derived": _derived_dict(params)}
     pd = predeflection(params)
     out["predeflection_home_rad"] = {

@@ -17,7 +17,7 @@ def cmd_sensitivity(args):
     from .._studies import SENSITIVITY_METRICS, sensitivity
     from ._common import _parse_sets, model_from_args
 
-    params = _parse_sets(args.set, args.scene)
+    params = _parse_sets(args.set, args.scene, getattr(args, "params_file", None))
     _out_dir(args.out)
     names = None
     if args.params:

@@ -36,7 +36,7 @@ def cmd_simulate(args):
     from ._figures import scene_figures
 
     scene = args.scene
-    params = _parse_sets(args.set, scene)
+    params = _parse_sets(args.set, scene, getattr(args, "params_file", None))
     check_out_dir(args.out)
     if scene == "modes":
         models = _models(args.model, "reduced,double1r")

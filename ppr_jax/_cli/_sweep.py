@@ -101,7 +101,7 @@ def cmd_sweep(args):
     from ._common import _parse_sets, model_from_args
 
     vary = parse_vary(args.vary)
-    params = _parse_sets(args.set, args.scene)
+    params = _parse_sets(args.set, args.scene, getattr(args, "params_file", None))
     _out_dir(args.out)
     design, n = ("lhs", args.lhs) if args.lhs is not None else ("grid", None)
     if args.lhs is not None and args.lhs < 1:

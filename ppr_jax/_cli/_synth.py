@@ -16,7 +16,12 @@ def cmd_synth(args):
     from .._scenes import scene_params
     from ._common import model_from_args
 
-    params = scene_params(args.scene, **_name_values(args.set, "--set"))
+    params = scene_params(args.scene)
+    if getattr(args, "params_file", None):
+        from .._params_file import load_params
+
+        params = load_params(args.params_file, params)
+    params = params.replace(**_name_values(args.set, "--set"))
     check_synth_args(args.noise_pos, args.noise_phi, args.rate, args.t_end)
     _log(f"synth: {args.scene} with {args.model}, {args.t_end} s at {args.rate} Hz (compiling, "
          f"then running) ...")

@@ -16,7 +16,7 @@ from ._common import (
 def cmd_torques(args):
     from .._scenes import nominal_torques
 
-    params = _parse_sets(args.set, "paper-circle")
+    params = _parse_sets(args.set, "paper-circle", getattr(args, "params_file", None))
     check_out_dir(args.out)
     ts, tau = nominal_torques(params, model=args.model, t_end=args.t_end, n_out=args.n_out)
     path = os.path.join(args.out, "torques.csv")
