@@ -10,6 +10,7 @@ import os
 import sys
 
 from .._errors import PPRError
+from .._scenes import ATOL, MAX_STEPS, N_OUT, RTOL, T_END
 
 
 def _parse_sets(items, scene, path=None):
@@ -106,12 +107,12 @@ def parent_parsers() -> dict:
     solve = argparse.ArgumentParser(add_help=False)
     solve.add_argument("--solver", default=None, choices=list(SOLVERS),
                        help="ODE solver (default: per model, see the docs' Which model page)")
-    solve.add_argument("--rtol", type=float, default=1e-8, help="relative tolerance of the solver")
-    solve.add_argument("--atol", type=float, default=1e-10, help="absolute tolerance of the solver")
-    solve.add_argument("--max-steps", type=int, default=200_000, help="solver step limit")
+    solve.add_argument("--rtol", type=float, default=RTOL, help="relative tolerance of the solver")
+    solve.add_argument("--atol", type=float, default=ATOL, help="absolute tolerance of the solver")
+    solve.add_argument("--max-steps", type=int, default=MAX_STEPS, help="solver step limit")
     times = argparse.ArgumentParser(add_help=False)
-    times.add_argument("--t-end", type=float, default=7.54, help="end time (s)")
-    times.add_argument("--n-out", type=int, default=755, help="number of output times")
+    times.add_argument("--t-end", type=float, default=T_END, help="end time (s)")
+    times.add_argument("--n-out", type=int, default=N_OUT, help="number of output times")
     return {"params": params, "model": model, "solve": solve, "times": times}
 
 

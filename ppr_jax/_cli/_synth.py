@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+from .._scenes import T_END
 from ._common import (
     _log,
     _name_values,
@@ -57,7 +58,7 @@ def add_synth(sub, parents, fmt):
     p.add_argument("--noise-pos", type=float, default=0.1e-3, help="position noise std (m)")
     p.add_argument("--noise-phi", type=float, default=1e-3, help="angle noise std (rad)")
     p.add_argument("--rate", type=float, default=100.0, help="sample rate (Hz)")
-    p.add_argument("--t-end", type=float, default=7.54, help="duration (s)")
+    p.add_argument("--t-end", type=float, default=T_END, help="duration (s)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the noise")
     p.add_argument("--length-unit", default="mm", choices=["m", "mm"], help="unit of x, y")
     p.add_argument("--angle-unit", default="rad", choices=["rad", "mrad", "deg"],

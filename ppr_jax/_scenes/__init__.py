@@ -4,7 +4,18 @@ registry line per scene (`_registry.py`), one batch mapper (`_batch.py`)."""
 from ._base import AbstractScene, SceneInput, kinematic_motion, path_out_of_reach, tabulated
 from ._batch import MEMBER_CHUNK, batch_devices, chunked_vmap, map_members
 from ._modes_scene import modes_scene
-from ._options import DEFAULT_SOLVER, SceneOptions, check_scene_args, input_panels, input_panels_at
+from ._options import (
+    ATOL,
+    DEFAULT_SOLVER,
+    MAX_STEPS,
+    N_OUT,
+    RTOL,
+    T_END,
+    SceneOptions,
+    check_scene_args,
+    input_panels,
+    input_panels_at,
+)
 from ._paper_circle import PaperCircle
 from ._registry import SCENE_CLASSES, SCENE_THICKNESS, SCENES, get_scene, scene_params
 from ._report import RUN_SCENES, SceneReport, run_scene, scene_metrics
@@ -14,7 +25,7 @@ from ._servo_circle import ServoCircle
 from ._torques import nominal_torques
 
 __all__ = [
-    "AbstractScene", "DEFAULT_SOLVER", "MEMBER_CHUNK", "PaperCircle", "RUN_SCENES", "SCENES", "SceneReport",
+    "ATOL", "AbstractScene", "DEFAULT_SOLVER", "MAX_STEPS", "N_OUT", "RTOL", "T_END", "MEMBER_CHUNK", "PaperCircle", "RUN_SCENES", "SCENES", "SceneReport",
     "SCENE_CLASSES", "SCENE_THICKNESS", "SceneCall", "SceneInput", "SceneOptions",
     "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",

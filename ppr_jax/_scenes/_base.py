@@ -19,16 +19,16 @@ import jax
 import jax.numpy as jnp
 
 from .._actuation import AbstractActuation, MotionDriven
-from .._errors import RESIDUAL_TOL, RESULTS, first_failure
 from .._custom_types import Array
 from .._dynamics import inverse_dynamics
+from .._errors import RESIDUAL_TOL, RESULTS, first_failure
 from .._kinematics import det3, fold_flags
 from .._metrics import outputs
 from .._models import AbstractModel
 from .._params import RobotParams, params_invalid
 from .._robot import Robot
 from .._simulate import Solution, simulate_core
-from .._statics import quasi_static_core, kinematic_state
+from .._statics import kinematic_state, quasi_static_core
 from .._tabulated import input_too_coarse, scene_input
 from .._trajectory import derivatives
 from ._options import SceneOptions

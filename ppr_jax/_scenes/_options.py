@@ -9,12 +9,20 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import check_number, is_traced
 from .._custom_types import Array
+from .._errors import check_number, is_traced
 from .._simulate import default_controller, get_solver
 from .._tabulated import scene_panels
 from .._trajectory import Circle
 
+#: the scenes' defaults, written once: one turn of the circle of eq 55 (2 pi / omega = 7.54 s),
+#: output every 10 ms, tolerances that put L2's error near 1e-8 m, and a step budget that no
+#: default scene comes near
+T_END = 7.54
+N_OUT = 755
+RTOL = 1e-8
+ATOL = 1e-10
+MAX_STEPS = 200_000
 #: default solver per model level (docs/which_model.md)
 DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "dopri8"}
 
@@ -71,12 +79,12 @@ class SceneOptions(eqx.Module):
       horizon and the trajectory's speed (`input_panels`).
     """
 
-    t_end: Union[float, Array] = 7.54
-    n_out: int = eqx.field(static=True, default=755)
+    t_end: Union[float, Array] = T_END
+    n_out: int = eqx.field(static=True, default=N_OUT)
     solver: Union[str, diffrax.AbstractSolver, None] = None
-    rtol: Union[float, Array] = 1e-8
-    atol: Union[float, Array] = 1e-10
-    max_steps: int = eqx.field(static=True, default=200_000)
+    rtol: Union[float, Array] = RTOL
+    atol: Union[float, Array] = ATOL
+    max_steps: int = eqx.field(static=True, default=MAX_STEPS)
     adjoint: Optional[diffrax.AbstractAdjoint] = None
     controller: Optional[diffrax.AbstractStepSizeController] = None
     trajectory: Optional[Callable] = None

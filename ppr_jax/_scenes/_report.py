@@ -19,7 +19,7 @@ from .._metrics import metric_table
 from .._params import RobotParams
 from .._programs import compiled_program
 from ._base import AbstractScene
-from ._options import SceneOptions
+from ._options import ATOL, MAX_STEPS, N_OUT, RTOL, T_END, SceneOptions
 from ._registry import SCENE_CLASSES, get_scene
 from ._result import SceneResult, finish
 from ._run import prepare
@@ -93,12 +93,12 @@ def run_scene(
     model="reduced",
     torque_model="reduced",
     trajectory=None,
-    t_end: float = 7.54,
-    n_out: int = 755,
+    t_end: float = T_END,
+    n_out: int = N_OUT,
     solver=None,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 200_000,
+    rtol: float = RTOL,
+    atol: float = ATOL,
+    max_steps: int = MAX_STEPS,
     repeats: int = 1,
     program_dir: Optional[str] = None,
 ) -> SceneReport:

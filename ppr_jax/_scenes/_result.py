@@ -5,8 +5,8 @@ from __future__ import annotations
 import equinox as eqx
 import numpy as np
 
-from .._errors import RESIDUAL_TOL, RESULTS, check_result, failure_reasons, is_traced
 from .._custom_types import Array
+from .._errors import RESIDUAL_TOL, RESULTS, check_result, failure_reasons, is_traced
 from .._params import PARAM_RANGES
 
 

@@ -13,7 +13,7 @@ from .._params import RobotParams
 from .._robot import Robot
 from ._base import AbstractScene
 from ._batch import batch_devices, map_members
-from ._options import SceneOptions
+from ._options import ATOL, MAX_STEPS, N_OUT, RTOL, T_END, SceneOptions
 from ._registry import get_scene, scene_params
 from ._result import SceneResult, finish, result_template
 
@@ -125,12 +125,12 @@ def paper_circle(
     model="reduced",
     torque_model="reduced",
     trajectory=None,
-    t_end: float = 7.54,
-    n_out: int = 755,
+    t_end: float = T_END,
+    n_out: int = N_OUT,
     solver=None,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 200_000,
+    rtol: float = RTOL,
+    atol: float = ATOL,
+    max_steps: int = MAX_STEPS,
     throw: bool = True,
     adjoint: Optional[diffrax.AbstractAdjoint] = None,
 ) -> SceneResult:
@@ -154,12 +154,12 @@ def servo_circle(
     *,
     model="double1r",
     trajectory=None,
-    t_end: float = 7.54,
-    n_out: int = 755,
+    t_end: float = T_END,
+    n_out: int = N_OUT,
     solver=None,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 200_000,
+    rtol: float = RTOL,
+    atol: float = ATOL,
+    max_steps: int = MAX_STEPS,
     throw: bool = True,
     adjoint: Optional[diffrax.AbstractAdjoint] = None,
 ) -> SceneResult:

@@ -14,6 +14,7 @@ from .._kinematics import inverse_kinematics
 from .._models import get_model
 from .._params import RobotParams
 from ._base import AbstractScene
+from ._options import N_OUT, T_END
 from ._registry import get_scene
 
 
@@ -22,8 +23,8 @@ def nominal_torques(
     *,
     model="reduced",
     scene: Union[str, AbstractScene] = "paper-circle",
-    t_end: float = 7.54,
-    n_out: int = 755,
+    t_end: float = T_END,
+    n_out: int = N_OUT,
     trajectory=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The actuator torques that move a kinematic model (L0 or L1) along the scene's nominal path,

@@ -45,7 +45,17 @@ from .._modes import reduced_eigh
 from .._params import RobotParams
 from .._prb import derived
 from .._robot import Robot
-from .._scenes import SceneOptions, check_scene_args, get_scene, scene_params
+from .._scenes import (
+    ATOL,
+    MAX_STEPS,
+    N_OUT,
+    RTOL,
+    T_END,
+    SceneOptions,
+    check_scene_args,
+    get_scene,
+    scene_params,
+)
 from .._statics import assemble, static_equilibrium
 from ._sweep import FLOAT_PARAMS, _plain, traced_metrics
 
@@ -143,9 +153,9 @@ class Sensitivity:
 
 def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] = None, *,
                     model="double1r", torque_model="reduced", frequency_model="double1r",
-                    parameters: Optional[Sequence[str]] = None, t_end: float = 7.54,
-                    n_out: int = 755, solver=None, rtol: float = 1e-8, atol: float = 1e-10,
-                    max_steps: int = 200_000, metrics: Sequence[str] = SENSITIVITY_METRICS):
+                    parameters: Optional[Sequence[str]] = None, t_end: float = T_END,
+                    n_out: int = N_OUT, solver=None, rtol: float = RTOL, atol: float = ATOL,
+                    max_steps: int = MAX_STEPS, metrics: Sequence[str] = SENSITIVITY_METRICS):
     """(f, x0, names): `f(x, adjoint)` -> (k,) the `metrics` at parameter values x (p,) (the
     `parameters`, default every float parameter, in `names` order), x0 the nominal values.
     Traceable and differentiable; `adjoint` is diffrax's (ForwardMode for forward mode)."""
@@ -205,9 +215,9 @@ _JIT_CACHE: dict = {}
 def sensitivity(scene: str = "paper-circle", params: Optional[RobotParams] = None, *,
                 mode: str = "fwd", model="double1r", torque_model="reduced",
                 frequency_model="double1r", parameters: Optional[Sequence[str]] = None,
-                metrics: Sequence[str] = SENSITIVITY_METRICS, t_end: float = 7.54,
-                n_out: int = 755, solver=None, rtol: float = 1e-8, atol: float = 1e-10,
-                max_steps: int = 200_000, checkpoints: Optional[int] = None) -> Sensitivity:
+                metrics: Sequence[str] = SENSITIVITY_METRICS, t_end: float = T_END,
+                n_out: int = N_OUT, solver=None, rtol: float = RTOL, atol: float = ATOL,
+                max_steps: int = MAX_STEPS, checkpoints: Optional[int] = None) -> Sensitivity:
     """d(metric)/d(parameter) of `metrics` (`SENSITIVITY_METRICS`) of `scene` to `parameters`
     (default every float parameter of `RobotParams`), at `params` (default the scene's).
 

@@ -40,7 +40,12 @@ from .._models import Reduced, get_model
 from .._params import PARAM_RANGES, RobotParams, stack_params
 from .._robot import Robot
 from .._scenes import (
+    ATOL,
+    MAX_STEPS,
+    N_OUT,
+    RTOL,
     SCENE_CLASSES,
+    T_END,
     SceneOptions,
     check_scene_args,
     get_scene,
@@ -149,7 +154,7 @@ _path_check_batch = eqx.filter_jit(eqx.filter_vmap(_path_check, in_axes=(None, 0
 
 
 def validate_members(scene, base: RobotParams, members: dict, *, torque_model="reduced",
-                     trajectory=None, t_end=7.54):
+                     trajectory=None, t_end=T_END):
     """Build each member's `RobotParams` and check it before any solve.
 
     Returns (params list with None for invalid members, reasons list: '' or why the member cannot
@@ -364,12 +369,12 @@ def sweep(
     model="double1r",
     torque_model="reduced",
     trajectory: Optional[Circle] = None,
-    t_end: float = 7.54,
-    n_out: int = 755,
+    t_end: float = T_END,
+    n_out: int = N_OUT,
     solver=None,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 200_000,
+    rtol: float = RTOL,
+    atol: float = ATOL,
+    max_steps: int = MAX_STEPS,
     chunk_size: int = 64,
     devices: Optional[Sequence] = None,
     checkpoint_dir: Optional[str] = None,

@@ -13,7 +13,7 @@ from ..._data import DataError, Experiment
 from ..._models import get_model
 from ..._params import RobotParams
 from ..._robot import Robot
-from ..._scenes import scene_params
+from ..._scenes import T_END, scene_params
 from ._problem import ID_SCENES
 
 
@@ -42,7 +42,7 @@ def synthesize(
     noise_pos: float = 0.1e-3,
     noise_phi: float = 1e-3,
     rate: float = 100.0,
-    t_end: float = 7.54,
+    t_end: float = T_END,
     seed: int = 0,
     name: str = "synthetic",
     n_elements: Optional[int] = None,
