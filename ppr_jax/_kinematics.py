@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._errors import PPRError, check_array, raise_if
+from ._errors import PPRError, check_array, raise_if, result_code
 from ._custom_types import Array, Float
 from ._linalg import SmallLU
 from ._geometry import home_pose, singularity_measure
@@ -248,7 +248,7 @@ def fold_flags(det, ts=None):
 def _fk_path(model, robot, th_a_path, X0, rtol, atol, max_steps):
     def step(X, th_a):
         Xn, res = fk_solve(model, robot, th_a, X, rtol, atol, max_steps)
-        return Xn, (Xn, res._value)
+        return Xn, (Xn, result_code(res))
 
     _, (Xs, codes) = jax.lax.scan(step, X0, th_a_path)
     return Xs, codes

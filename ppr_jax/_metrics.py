@@ -52,9 +52,10 @@ def outputs(model: AbstractModel, robot: Robot, z, zdot) -> Outputs:
     return Outputs(X=X, end_rot=er, residual=res, kinetic=T, potential=U)
 
 
-def radial_error(X, center, radius):
-    """e_r = |(x, y) - c| - R (m)."""
-    return jnp.linalg.norm(X[..., :2] - center, axis=-1) - radius
+def radial_error(X, center, radius, xp=jnp):
+    """e_r = |(x, y) - c| - R (m) of poses X (..., 3), centre c (2,), radius R (m)."""
+    c = xp.reshape(xp.asarray(center), (1,) * (X.ndim - 1) + (2,))
+    return xp.linalg.norm(X[..., :2] - c, axis=-1) - radius
 
 
 def _is_circle(trajectory) -> bool:
@@ -88,7 +89,7 @@ def metric_table(res, trajectory, xp=jnp) -> dict:
     out = {}
     if _is_circle(trajectory):
         radius = trajectory.radius
-        er = xp.linalg.norm(X[..., :2] - xp.asarray(trajectory.center), axis=-1) - radius
+        er = radial_error(X, trajectory.center, radius, xp)
         out.update(
             radial_error_max_m=xp.max(er, axis=-1),
             radial_error_min_m=xp.min(er, axis=-1),

@@ -99,10 +99,9 @@ _modes_jit = eqx.filter_jit(_modes_core)
 
 def reduced_eigh(M, K):
     """Eigenpairs of K v = lam M v (M symmetric positive definite) through the Cholesky factor
-    M = L L^T: lam, V of L^-1 K L^-T, and the mode shapes L^-T V (M-orthonormal). (The inverse
-    of L, not triangular solves: `jax.scipy.linalg.solve_triangular` is one more LAPACK custom
-    call per member, the kind whose batched form can deadlock XLA's CPU thread pool (`_linalg`);
-    L is 3 x 3 to 9 x 9.)"""
-    Li = jnp.linalg.inv(jnp.linalg.cholesky(M))
+    M = L L^T: lam, V of L^-1 K L^-T, and the mode shapes L^-T V (M-orthonormal). L^-1 comes
+    from one triangular solve (a general inverse would factor L again)."""
+    L = jnp.linalg.cholesky(M)
+    Li = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[-1]), lower=True)
     lam, V = jnp.linalg.eigh(Li @ K @ Li.T)
     return lam, V, Li.T @ V

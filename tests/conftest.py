@@ -2,6 +2,10 @@ import jax
 import pytest
 
 jax.config.update("jax_enable_x64", True)
+# Strict promotion: an implicit dtype promotion (int with float, float32 with float64) or an
+# implicit rank broadcast is an error in the tests, so the package states both where it means them.
+jax.config.update("jax_numpy_dtype_promotion", "strict")
+jax.config.update("jax_numpy_rank_promotion", "raise")
 
 import ppr_jax as pj  # noqa: E402
 

@@ -89,7 +89,7 @@ def test_energy_drop_equals_dissipated_work(robot, damped_run):
     rates = jax.vmap(
         lambda z, zd: jax.jvp(lambda z: m.kinematics(robot, z).deflection, (z,), (zd,))[1]
     )(sol.z, sol.zdot)
-    P = np.asarray(jnp.sum(m.damping(robot) * rates**2, axis=1))  # dissipated power (W)
+    P = np.asarray(jnp.sum(m.damping(robot)[None, :] * rates**2, axis=1))  # dissipated power (W)
     dt = float(ts[1] - ts[0])
     # cumulative Simpson at every second output
     W = np.concatenate([[0.0], np.cumsum(dt / 3 * (P[:-2:2] + 4 * P[1:-1:2] + P[2::2]))])

@@ -40,7 +40,8 @@ def fns(pexp):
     def metric(p, adjoint=None):
         sol = pj.simulate(model, p, act, z0, zd0, TS, rtol=1e-12, atol=1e-13,
                           adjoint=adjoint)
-        er = jnp.linalg.norm(sol.z[:, :2] - traj.center, axis=-1) - traj.radius
+        c = jnp.asarray(traj.center)[None, :]
+        er = jnp.linalg.norm(sol.z[:, :2] - c, axis=-1) - traj.radius
         # a smooth scalar of the whole run: squared radial error (mm^2) plus final angle (mrad)
         return jnp.sum((1e3 * er) ** 2) + 1e3 * sol.z[-1, 2]
 

@@ -111,7 +111,7 @@ def test_forward_kinematics_path_names_the_failing_samples(params):
     """Turning one actuator by up to 3 rad from home drives the platform out of reach; the
     error names the samples (from the first failing one), not just 'some member'."""
     th0 = pj.inverse_kinematics(params, pj.home_pose(params)).th_a
-    path = th0 + jnp.linspace(0.0, 3.0, 31)[:, None] * jnp.array([1.0, 0.0, 0.0])
+    path = th0[None, :] + jnp.linspace(0.0, 3.0, 31)[:, None] * jnp.array([[1.0, 0.0, 0.0]])
     with pytest.raises(pj.PPRError, match=r"samples: \[") as info:
         pj.forward_kinematics_path(params, path)
     first = int(str(info.value).split("samples: [")[1].split(",")[0].rstrip("]"))

@@ -42,7 +42,7 @@ def test_L2_locked_frequency_against_simulation(params, L2_locked):
     ts = jnp.linspace(0.0, 5 / f_mode, 2001)
     sol = pj.simulate(m, params, pj.MotionDriven(pj.Hold(z_eq[3:])), z0, jnp.zeros(6), ts,
                       solver="dopri8", rtol=1e-12, atol=1e-16)
-    y = np.asarray((sol.z[:, :3] - z_eq[:3]) @ (L2_locked.M @ shape))
+    y = np.asarray((sol.z[:, :3] - z_eq[None, :3]) @ (L2_locked.M @ shape))
     crossings = np.flatnonzero(np.sign(y[:-1]) != np.sign(y[1:]))
     tc = np.asarray(ts)[crossings]
     f_sim = (len(tc) - 1) / (2 * (tc[-1] - tc[0]))

@@ -173,7 +173,7 @@ class AbstractBeam(AbstractModel):
         N = self.n_elements
         sc = strip_constants(robot, N)
         sig = robot.sigma
-        thetas = th_a[:, None] + sig * sc.dtheta * (jnp.arange(N, dtype=jnp.float64) + 0.5)
+        thetas = th_a[:, None] + sig * sc.dtheta * (jnp.arange(N, dtype=jnp.float64) + 0.5)[None, :]
         th3 = th_a + sig * robot.theta_c
         return jnp.concatenate([th_a[:, None], thetas, th3[:, None]], axis=1)
 
@@ -367,13 +367,14 @@ def solve_strip(
     def step(q, lam):
         newton = optx.Newton(rtol=1e-13, atol=1e-13, linear_solver=SmallLU())
         sol = optx.root_find(resid, newton, q, args=lam, max_steps=50, throw=False)
-        return sol.value, sol.result._value
+        return sol.value, sol.result == optx.RESULTS.successful
 
-    q0 = jnp.concatenate([dth * (jnp.arange(N) + 0.5), kappa0[None]])  # the unloaded arc
+    # the unloaded arc
+    q0 = jnp.concatenate([dth * (jnp.arange(N, dtype=jnp.float64) + 0.5), kappa0[None]])
     lams = jnp.arange(1, n_continuation + 1, dtype=jnp.float64) / n_continuation
-    q, codes = jax.lax.scan(step, q0, lams)
+    q, converged = jax.lax.scan(step, q0, lams)
     result = optx.RESULTS.where(
-        jnp.all(codes == 0), optx.RESULTS.successful, optx.RESULTS.nonlinear_divergence
+        jnp.all(converged), optx.RESULTS.successful, optx.RESULTS.nonlinear_divergence
     )
     theta, tip_angle = q[:N], q[N]
     steps = h * e(theta)

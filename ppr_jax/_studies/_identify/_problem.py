@@ -129,7 +129,7 @@ def _offsets(prob: _Problem, z):
     d = jnp.zeros((E, 6))
     if prob.n_init:
         P = len(prob.names)
-        d = d.at[:, :prob.n_init].set(z[P:].reshape(E, prob.n_init) * prob.init_scale)
+        d = d.at[:, :prob.n_init].set(z[P:].reshape(E, prob.n_init) * prob.init_scale[None, :])
     return d
 
 
