@@ -9,6 +9,7 @@ import numpy as np
 import optimistix as optx
 
 import ppr_jax as pj
+from ppr_jax._scenes._solver_choice import choose_solver
 from ppr_jax._simulate import StageChord, default_controller, get_solver
 
 
@@ -131,3 +132,28 @@ def test_kvaerno5_rejects_few_steps_on_l2_servo_circle():
     steps, rejected = int(r.num_steps), int(r.num_rejected)
     assert steps > 10, steps
     assert rejected <= 0.15 * steps, (steps, rejected)
+
+
+def test_auto_solver_follows_the_work_precision_measurements():
+    """`solver="auto"` picks the solver that `benchmarks/implicit_l2.py` measured faster on the
+    L2 servo-circle: Kvaerno5 at t = 4 mm for rtol 1e-3 to 1e-5 (31 against 154 ms at 1e-4),
+    Tsit5 there at 1e-6 and 1e-8 (142 against 229 ms, 0.32 against 1.55 s), Tsit5 at 2 mm and
+    1e-5 (44 against 89 ms) and at the paper's thicknesses; a scene run with "auto" is the run
+    with the solver it names, step for step."""
+    dbl = pj.Double1R()
+    thick = pj.scene_params("servo-circle", t=4e-3)
+    for t, rtol, want in [(4e-3, 1e-3, "kvaerno5"), (4e-3, 1e-4, "kvaerno5"),
+                          (4e-3, 1e-5, "kvaerno5"), (4e-3, 1e-6, "tsit5"),
+                          (4e-3, 1e-8, "tsit5"), (2e-3, 1e-5, "tsit5"), (0.5e-3, 1e-4, "tsit5"),
+                          (0.3e-3, 1e-3, "tsit5")]:
+        got, why = choose_solver(dbl, thick.replace(t=t), rtol, "tsit5")
+        assert got == want, (t, rtol, why)
+    # a batch is decided by its stiffest member
+    batch = pj.stack_params([thick.replace(t=0.5e-3), thick])
+    assert choose_solver(dbl, batch, 1e-4, "tsit5")[0] == "kvaerno5"
+    auto = pj.servo_circle(thick, model="double1r", solver="auto", rtol=1e-4, t_end=0.2,
+                           n_out=21)
+    named = pj.servo_circle(thick, model="double1r", solver="kvaerno5", rtol=1e-4, t_end=0.2,
+                            n_out=21)
+    assert int(auto.num_steps) == int(named.num_steps) < 100
+    np.testing.assert_array_equal(auto.X, named.X)

@@ -105,8 +105,10 @@ def parent_parsers() -> dict:
                             "tau * its stiffness (damping ratio tau*omega/2; 1e-5 damps the "
                             "first strip mode by 7.5%%); default 0 (undamped); the beam's alone")
     solve = argparse.ArgumentParser(add_help=False)
-    solve.add_argument("--solver", default=None, choices=list(SOLVERS),
-                       help="ODE solver (default: per model, see the docs' Which model page)")
+    solve.add_argument("--solver", default=None, choices=[*SOLVERS, "auto"],
+                       help="ODE solver (default: per model, see the docs' Which model page); "
+                            "auto: Kvaerno5 where the robot's highest natural frequency makes "
+                            "the explicit solver's stable steps dearer than implicit ones")
     solve.add_argument("--rtol", type=float, default=RTOL, help="relative tolerance of the solver")
     solve.add_argument("--atol", type=float, default=ATOL, help="absolute tolerance of the solver")
     solve.add_argument("--max-steps", type=int, default=MAX_STEPS, help="solver step limit")

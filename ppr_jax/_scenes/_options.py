@@ -65,7 +65,10 @@ class SceneOptions(eqx.Module):
     - `t_end`: horizon (s); the output times are `n_out` equal steps over [0, t_end].
     - `n_out`: number of output times (static: a shape).
     - `solver`: a diffrax solver or its name (`tsit5`, `dopri5`, `dopri8`, `kvaerno3`,
-      `kvaerno5`); None: the model's default (`DEFAULT_SOLVER`).
+      `kvaerno5`); None: the model's default (`DEFAULT_SOLVER`); `"auto"`: Kvaerno5 where a
+      stiffness estimate says the problem is stiff, else the default, decided on the concrete
+      parameters by the scene functions and `run_scene` (`_solver_choice`; where the
+      parameters are not at hand, as in sweeps, the default).
     - `rtol`, `atol`: the step-size controller's tolerances (arrays inside a program, so
       changing them does not recompile).
     - `max_steps`: the solver's step budget (static).
@@ -90,6 +93,11 @@ class SceneOptions(eqx.Module):
     trajectory: Optional[Callable] = None
     panels: Optional[int] = eqx.field(static=True, default=None)
 
+    @property
+    def auto_solver(self) -> bool:
+        """The solver is to be chosen from a stiffness estimate (`solver="auto"`)."""
+        return isinstance(self.solver, str) and self.solver.lower() == "auto"
+
     def check(self) -> "SceneOptions":
         """Raise `PPRError` naming the first argument out of its range; returns self."""
         check_scene_args(self.t_end, self.n_out, self.rtol, self.atol, self.max_steps)
@@ -103,7 +111,8 @@ class SceneOptions(eqx.Module):
         traj = self.trajectory
         if traj is None:
             traj = Circle() if default_trajectory is None else default_trajectory
-        solver = get_solver(DEFAULT_SOLVER[model.name] if self.solver is None else self.solver)
+        default = self.solver is None or self.auto_solver
+        solver = get_solver(DEFAULT_SOLVER[model.name] if default else self.solver)
         controller = (default_controller(solver, self.rtol, self.atol)
                       if self.controller is None else self.controller)
         panels = (input_panels(traj, self.t_end, self.n_out) if self.panels is None
@@ -123,5 +132,5 @@ class SceneOptions(eqx.Module):
 
     def solver_name(self, model) -> str:
         """The solver's name as reports print it."""
-        s = DEFAULT_SOLVER[model.name] if self.solver is None else self.solver
+        s = DEFAULT_SOLVER[model.name] if self.solver is None or self.auto_solver else self.solver
         return str(s) if isinstance(s, str) else type(s).__name__

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, Optional, Union
 
 import diffrax
@@ -13,9 +14,10 @@ from .._params import RobotParams
 from .._robot import Robot
 from ._base import AbstractScene
 from ._batch import batch_devices, map_members
-from ._options import ATOL, MAX_STEPS, N_OUT, RTOL, T_END, SceneOptions
+from ._options import ATOL, DEFAULT_SOLVER, MAX_STEPS, N_OUT, RTOL, T_END, SceneOptions
 from ._registry import get_scene, scene_params
 from ._result import SceneResult, finish, result_template
+from ._solver_choice import choose_solver
 
 
 @eqx.filter_jit
@@ -72,7 +74,13 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
     scene = get_scene(scene, torque_model)
     model = get_model(model)
     params = scene.default_params() if params is None else params
-    solver_name = options.solver_name(model)
+    if options.auto_solver:
+        # decided here, on the concrete parameters, before anything is traced
+        name, why = choose_solver(model, params, options.rtol, DEFAULT_SOLVER[model.name])
+        options = dataclasses.replace(options, solver=name)
+        solver_name = f"{name} (auto: {why})"
+    else:
+        solver_name = options.solver_name(model)
     if scene.name == "servo-circle" and model.actuated_index is None:
         solver_name = "none (kinematics + inverse dynamics)"
     # Built here, outside any trace when params are concrete: the derived quantities once and
