@@ -245,6 +245,19 @@ def fold_flags(det, ts=None):
     return flags.at[1:-1].set(flags[1:-1] | bwd)
 
 
+def path_singular(model: AbstractModel, robot: RobotLike, X) -> Array:
+    """(m,) bool: the samples of a pose path X (m, 3) (m, m, rad) at which `model`'s (L0 or L1)
+    inverse kinematics is singular (inverse condition number of S below `SINGULAR_TOL`), or
+    at which det S has changed sign since the sample before: the path crossed a type-II
+    singularity between the two (det S is continuous in the pose). A pose out of reach (NaN)
+    is not flagged here. Two crossings between one pair of samples cancel: sample finely.
+    Traceable."""
+    res = jax.vmap(lambda x: ik_solve(model, robot, x))(X)
+    sign = jnp.sign(det3(res.S))
+    crossed = jnp.concatenate([jnp.zeros(1, bool), sign[1:] * sign[:-1] < 0])
+    return crossed | (res.singularity < SINGULAR_TOL)
+
+
 def _fk_path(model, robot, th_a_path, X0, rtol, atol, max_steps):
     def step(X, th_a):
         Xn, res = fk_solve(model, robot, th_a, X, rtol, atol, max_steps)
