@@ -11,10 +11,10 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._errors import PPRError, check_array, raise_if, result_code
 from ._custom_types import Array, Float
-from ._linalg import SmallLU
+from ._errors import PPRError, check_array, raise_if, result_code
 from ._geometry import home_pose, singularity_measure
+from ._linalg import SmallLU
 from ._models import AbstractModel, Reduced
 from ._robot import Robot, RobotLike, as_robot
 
@@ -148,8 +148,8 @@ def fk_solve(model, robot, th_a, X_guess, rtol, atol, max_steps):
         return k.th_a - th_a
 
     sol = optx.root_find(
-        resid, optx.Newton(rtol=rtol, atol=atol, linear_solver=SmallLU()), X_guess, args=th_a, max_steps=max_steps,
-        throw=False,
+        resid, optx.Newton(rtol=rtol, atol=atol, linear_solver=SmallLU()), X_guess, args=th_a,
+        max_steps=max_steps, throw=False,
     )
     return sol.value, sol.result
 
