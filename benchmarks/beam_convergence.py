@@ -47,7 +47,8 @@ def strip_vs_elastica(params, Ns=(4, 8, 16, 32, 64)):
         idx = np.arange(0, n_nodes, (n_nodes - 1) // N)
         rows.append(dict(
             N=N,
-            tip_position_error_rel_L=float(np.hypot(*(np.asarray(s.tip[:2]) - np.asarray(ela.tip[:2]))) / L),
+            tip_position_error_rel_L=float(
+                np.hypot(*(np.asarray(s.tip[:2]) - np.asarray(ela.tip[:2]))) / L),
             tip_angle_error_rad=float(abs(s.tip[2] - ela.tip_angle)),
             shape_error_max_rel_L=float(np.max(np.hypot(s.x - ela.x[idx], s.y - ela.y[idx])) / L),
         ))
@@ -65,7 +66,8 @@ def strip_vs_elastica(params, Ns=(4, 8, 16, 32, 64)):
 def richardson(vals):
     """Observed orders from successive values at N, 2N, 4N."""
     v = np.asarray(vals)
-    return [float(np.log2(abs((v[i + 1] - v[i]) / (v[i + 2] - v[i + 1])))) for i in range(len(v) - 2)]
+    return [float(np.log2(abs((v[i + 1] - v[i]) / (v[i + 2] - v[i + 1]))))
+            for i in range(len(v) - 2)]
 
 
 def robot(params, Ns=(4, 8, 16, 32)):

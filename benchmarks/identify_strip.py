@@ -3,8 +3,14 @@
 Data from L2 on the actual strip (joint_geometry='strip', MODEL.md 3a), the motors commanded
 by the centre-line L1 inverse kinematics (what a user of the paper's model sends), fitted by L2
 on the centre lines: what do the PRB parameters become?"""
-import json, os, time
-import jax, jax.numpy as jnp, numpy as np
+import json
+import os
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
 import ppr_jax as pj
 from ppr_jax._robot import Robot
 from ppr_jax._scenes import prepare
@@ -31,7 +37,8 @@ Xn = np.asarray(X).copy()
 Xn[:, :2] += noise[0] * rng.standard_normal((len(ts), 2))
 Xn[:, 2] += noise[1] * rng.standard_normal(len(ts))
 exp = pj.experiment(np.asarray(ts), Xn, name="strip-robot")
-out = {"truth": {"joint_geometry": "strip", "t": 5e-4, "K_theta": float(dv.K_theta), "gamma": float(dv.gamma)},
+out = {"truth": {"joint_geometry": "strip", "t": 5e-4, "K_theta": float(dv.K_theta),
+                 "gamma": float(dv.gamma)},
        "experiment": {"t_end_s": T_END, "rate_hz": RATE, "noise": noise}}
 for names in (("K_theta",), ("K_theta", "gamma")):
     t0 = time.perf_counter()

@@ -1,8 +1,9 @@
 """Where reverse mode's cost goes on a CPU: XLA kernels launched, forward run against `jax.grad`.
 
 The L1 `paper-circle` sensitivity (`benchmarks/sensitivity_cost.py`: 7.54 s, rtol 1e-8, L1 under
-the rigid model's torques, the scalar `radial_error_min_m` of all 19 parameters) is made of kernels of a few dozen numbers
-each, so its time is set by how many kernels XLA's CPU runtime launches, not by arithmetic.
+the rigid model's torques, the scalar `radial_error_min_m` of all 19 parameters) is made of kernels
+of a few dozen numbers each, so its time is set by how many kernels XLA's CPU runtime launches, not
+by arithmetic.
 This script counts them two ways and writes benchmarks/results/kernel_counts.json:
 
 - whole programs: the kernel events of one call of the compiled forward run and of its `grad`,
@@ -33,14 +34,13 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ppr_jax._actuation import InverseDynamicsTorque, TorqueDriven
 from ppr_jax._models import get_model
 from ppr_jax._robot import Robot
-from ppr_jax._actuation import InverseDynamicsTorque, TorqueDriven
-from ppr_jax._scenes import input_panels, scene_params
-from ppr_jax._scenes import tabulated as _tabulated_input
+from ppr_jax._scenes import input_panels, scene_params, tabulated as _tabulated_input
+from ppr_jax._simulate import _vector_field
 from ppr_jax._statics import quasi_static_core
 from ppr_jax._studies import explicit_params, metric_function
-from ppr_jax._simulate import _vector_field
 from ppr_jax._trajectory import Circle
 
 OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

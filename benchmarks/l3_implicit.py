@@ -3,11 +3,11 @@
 paper-circle (t = 0.3 mm, `pj.scene_params("paper-circle")`, L1's centre-line torques) over the
 first T seconds, with the full L3 (`pj.Beam(N, strip_loss=tau)`: strip inertia and modes kept,
 stiff) at N = 8 (N = 16 is an option: not measured, its Kvaerno5 compilation alone was
-out of reach of the first session's budget), undamped strips (tau = 0, the default) and Kelvin-Voigt strips
-(tau = 1e-5 s: damping ratio tau omega / 2 = 0.075 for the first strip mode, 2.4 kHz at N = 8 and
-2.6 kHz at N = 16, 3e-4 for the robot's 10 Hz mode). `run_scene` starts every run from the
-consistent quasi-static state (`quasi_static_core`: strips in equilibrium, velocities of the
-quasi-static motion), so the strip modes are excited only by the motion itself.
+out of reach of the first session's budget), undamped strips (tau = 0, the default) and
+Kelvin-Voigt strips (tau = 1e-5 s: damping ratio tau omega / 2 = 0.075 for the first strip mode,
+2.4 kHz at N = 8 and 2.6 kHz at N = 16, 3e-4 for the robot's 10 Hz mode). `run_scene` starts
+every run from the consistent quasi-static state (`quasi_static_core`: strips in equilibrium,
+velocities of the quasi-static motion), so the strip modes are excited only by the motion itself.
 
 Error: the largest platform position distance over the n_out output times against a reference of
 the same model: Dopri8 at rtol 1e-9, atol 1e-11 (`--ref-solver`, `--ref-rtol`; `--ref-check` also
@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
-import time
 
 import diffrax
 import numpy as np

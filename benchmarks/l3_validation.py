@@ -140,7 +140,8 @@ def statics_and_modes(N):
         z0 = model.coords_from_pose(robot, pj.home_pose(p))
         z_a = _static_eq(model, p, z0, jnp.zeros(3))
         z_b = _static_eq(model, p, z_a, WRENCH)
-        row = dict(model=name, platform_displacement_under_wrench=np.asarray(z_b[:3] - z_a[:3]).tolist())
+        row = dict(model=name,
+                   platform_displacement_under_wrench=np.asarray(z_b[:3] - z_a[:3]).tolist())
         for act in ("locked", "free"):
             row[f"modes_{act}_hz"] = np.asarray(pj.modes(model, p, actuators=act).freq_hz).tolist()
         out.append(row)
@@ -205,7 +206,8 @@ def main():
         path.write_text(json.dumps(res, indent=1))
         return
     Ns = (4, 8) if args.quick else (4, 8, 16, 32)
-    t_end = {"paper-circle": 2.0 if args.quick else 7.54, "servo-circle": 2.0 if args.quick else 7.54}
+    t_end = {"paper-circle": 2.0 if args.quick else 7.54,
+             "servo-circle": 2.0 if args.quick else 7.54}
     t0 = time.time()
     res = dict(machine=platform.processor() or platform.machine(), jax=jax.__version__,
                backend=jax.default_backend(), tight_solver=TIGHT, quick=args.quick)

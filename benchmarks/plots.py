@@ -86,8 +86,8 @@ def contenders(data: dict, out_dir=None):
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.8, 4.6))
     colour = {"ppr_jax": "C0", "mujoco": "C3", "scipy": "C2"}
-    style = {"tsit5": "o-", "dopri5": "^-", "dopri8": "s-", "RK4": "D-", "RK4 stages": "v-", "DOP853": "o--",
-             "Radau": "s--", "LSODA": "^--"}
+    style = {"tsit5": "o-", "dopri5": "^-", "dopri8": "s-", "RK4": "D-", "RK4 stages": "v-",
+             "DOP853": "o--", "Radau": "s--", "LSODA": "^--"}
     rows = [r for r in data["rows"] if r.get("error_m") is not None]
     for tool in ("ppr_jax", "mujoco", "scipy"):
         for method in sorted({r["method"] for r in rows if r["tool"] == tool}):

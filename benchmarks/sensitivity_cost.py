@@ -27,7 +27,6 @@ import diffrax
 import jax
 import jax.numpy as jnp
 
-import ppr_jax as pj
 from ppr_jax._studies import metric_function
 
 OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

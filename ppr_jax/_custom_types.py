@@ -7,7 +7,7 @@ Shape names: ``batch`` a leading parameter-batch axis, ``n`` generalized coordin
 from typing import Union
 
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int, Bool  # noqa: F401
+from jaxtyping import Array, ArrayLike, Bool, Float, Int  # noqa: F401
 
 Scalar = Float[Array, ""]
 ScalarLike = Union[float, int, Float[ArrayLike, ""]]

@@ -104,7 +104,8 @@ def experiment(ts, X, th=None, tau=None, *, name: str = "experiment",
     if ts.ndim != 1:
         raise DataError(f"{name}: time must be a vector (n,), got shape {ts.shape}")
     if X.shape != (n, 3):
-        raise DataError(f"{name}: pose must have shape (n, 3) = ({n}, 3) (x, y, phi), got {X.shape}")
+        raise DataError(f"{name}: pose must have shape (n, 3) = ({n}, 3) (x, y, phi), "
+                        f"got {X.shape}")
     lines = np.arange(1, n + 1) if lines is None else np.asarray(lines)
     extra = {}
     for key, v in (("th", th), ("tau", tau)):

@@ -5,9 +5,9 @@ keeps about 1.5 of this machine's two cores busy (it overlaps independent kernel
 host device per core (`--xla_force_host_platform_device_count`), JAX can split the batch over
 them with `shard_map`, each device running a local vmap over its members so that adaptive steps
 never synchronise across devices; the batched scenes do this by themselves when more than one
-local device is present (`_scenes/_batch.py`). Measured on the 2-core CPU (L1 `paper-circle`, a batch
-of 1,024 at rtol 1e-6): 489 trajectories/s on one device, 731 on two; 4 or 8 host devices give
-no more than 2.
+local device is present (`_scenes/_batch.py`). Measured on the 2-core CPU (L1 `paper-circle`, a
+batch of 1,024 at rtol 1e-6): 489 trajectories/s on one device, 731 on two; 4 or 8 host devices
+give no more than 2.
 
 XLA's YNNPACK fusions (jaxlib 0.10) turn the batched 2 x 2 to 6 x 6 products of the equations of
 motion into library calls that are slower than XLA's own loops: switching them off

@@ -27,8 +27,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._errors import PPRError
 from ._custom_types import Array, Float
+from ._errors import PPRError
 from ._linalg import solve
 from ._models import AbstractClosedLoop, AbstractModel, Kin
 from ._robot import Robot, RobotLike, as_robot

@@ -91,13 +91,15 @@ class RESULTS(diffrax.RESULTS):
         "leave the workspace or cross a singularity"
     )
     singular_path = (
-        "the prescribed motion passes through (or within one output step of) a type-II "
-        "singularity: det S (S = d th_a/dX) extrapolated from the output times before changes "
-        "sign and the solved pose's does not, so forward kinematics folded back in its assembly "
-        "mode instead of following the motion (the pose would be wrong); keep the trajectory "
-        "away from the singularity (smaller radius or phi amplitude), or ask for more output "
-        "times (n_out) if it only passes near one"
+        "the scene's path passes through (or within one output interval of) a type-II "
+        "singularity (det S = 0, S = d th_a/dX): the inverse-dynamics torques along it are "
+        "unbounded, and under prescribed angles forward kinematics folds back in its assembly "
+        "mode instead of following the motion (det S extrapolated from the output times before "
+        "changes sign, the solved pose's does not: the pose would be wrong); keep the "
+        "trajectory away from the singularity (smaller radius or phi amplitude), or ask for "
+        "more output times (n_out) if it only passes near one"
     )
+
 
 
 def result_code(result):

@@ -143,7 +143,8 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     th1, th3 = u - v, u + v
 
     # d_i1 = d_i2 (eq 29) puts the middle angle at the mean plus a constant, nonzero only for the
-    # strip geometry with unequal links: th_i2 = (th_i1 + th_i3)/2 + c, c = sigma (delta3 - delta1)/2
+    # strip geometry with unequal links: th_i2 = (th_i1 + th_i3)/2 + c,
+    # c = sigma (delta3 - delta1)/2
     c2 = robot.sigma * (robot.delta3 - robot.delta1) / 2
 
     def resid(th13, di):

@@ -11,10 +11,10 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._errors import PPRError, check_array, raise_if, result_code
 from ._custom_types import Array, Float
-from ._linalg import SmallLU
+from ._errors import PPRError, check_array, raise_if, result_code
 from ._geometry import home_pose, singularity_measure
+from ._linalg import SmallLU
 from ._models import AbstractModel, Reduced
 from ._robot import Robot, RobotLike, as_robot
 
@@ -148,8 +148,8 @@ def fk_solve(model, robot, th_a, X_guess, rtol, atol, max_steps):
         return k.th_a - th_a
 
     sol = optx.root_find(
-        resid, optx.Newton(rtol=rtol, atol=atol, linear_solver=SmallLU()), X_guess, args=th_a, max_steps=max_steps,
-        throw=False,
+        resid, optx.Newton(rtol=rtol, atol=atol, linear_solver=SmallLU()), X_guess, args=th_a,
+        max_steps=max_steps, throw=False,
     )
     return sol.value, sol.result
 
@@ -243,6 +243,19 @@ def fold_flags(det, ts=None):
     flags = jnp.zeros(m, bool)
     flags = flags.at[2:].set(fwd)
     return flags.at[1:-1].set(flags[1:-1] | bwd)
+
+
+def path_singular(model: AbstractModel, robot: RobotLike, X) -> Array:
+    """(m,) bool: the samples of a pose path X (m, 3) (m, m, rad) at which `model`'s (L0 or L1)
+    inverse kinematics is singular (inverse condition number of S below `SINGULAR_TOL`), or
+    at which det S has changed sign since the sample before: the path crossed a type-II
+    singularity between the two (det S is continuous in the pose). A pose out of reach (NaN)
+    is not flagged here. Two crossings between one pair of samples cancel: sample finely.
+    Traceable."""
+    res = jax.vmap(lambda x: ik_solve(model, robot, x))(X)
+    sign = jnp.sign(det3(res.S))
+    crossed = jnp.concatenate([jnp.zeros(1, bool), sign[1:] * sign[:-1] < 0])
+    return crossed | (res.singularity < SINGULAR_TOL)
 
 
 def _fk_path(model, robot, th_a_path, X0, rtol, atol, max_steps):

@@ -7,15 +7,13 @@ negative eigenvalue; it is reported as a negative signed frequency and a growth 
 
 from __future__ import annotations
 
-
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._errors import PPRError, check_array, raise_if
 from ._custom_types import Array
 from ._dynamics import eom_terms, generalized_force
+from ._errors import PPRError, check_array, raise_if
 from ._geometry import home_pose
 from ._models import AbstractModel
 from ._robot import RobotLike, as_robot

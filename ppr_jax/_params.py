@@ -234,6 +234,7 @@ def parse_value(name: str, text: str):
     if not math.isfinite(v):
         lo, hi, unit, _ = PARAM_RANGES[name]
         raise PPRError(
-            f"parameter {name!r} must be finite (allowed range [{lo:g}, {hi:g}] {unit}), got {text!r}"
+            f"parameter {name!r} must be finite (allowed range [{lo:g}, {hi:g}] {unit}), "
+            f"got {text!r}"
         )
     return v

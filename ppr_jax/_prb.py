@@ -122,8 +122,8 @@ def derived(params: RobotParams) -> Derived:
     return Derived(
         r_i=r_i, l=l, l_h=l_h, kappa0=kappa0, a_i=a_i, b_i=b_i, gamma=gamma, rho=rho,
         K_theta=K_theta, s=s, Theta_i=Theta_i, Theta_0=Theta_0, I_s=I_s, L=L, K=K, r2=r2, r1=r1,
-        r3=r3, delta1=delta1, delta3=delta3, psi0=psi0, R1=R1, R3=R3, K0=K0, m1=m1, I1=I1, m2=m2, I2=I2, m3=m3, I3=I3, m4=m4,
-        I4=I4, rho_E=rho_E,
+        r3=r3, delta1=delta1, delta3=delta3, psi0=psi0, R1=R1, R3=R3, K0=K0, m1=m1, I1=I1, m2=m2,
+        I2=I2, m3=m3, I3=I3, m4=m4, I4=I4, rho_E=rho_E,
     )
 
 

@@ -14,18 +14,16 @@ K_theta, error measures; cited below as "steps 1-6") and the resulting table are
 
 from __future__ import annotations
 
-import jax
-
-
 import functools  # noqa: E402
 from typing import NamedTuple  # noqa: E402
 
+import jax
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.optimize  # noqa: E402
 
-from ._prb_table import prb_geometry  # noqa: E402
 from ._errors import PPRError  # noqa: E402
+from ._prb_table import prb_geometry  # noqa: E402
 from .elastica import ElasticaConvergenceError, solve_cantilever  # noqa: E402
 
 __all__ = [
@@ -96,7 +94,8 @@ def _directions(kappa0, n_values, senses):
 
 
 def _tips(kappa0, forces, *, allow_failure=False):
-    """Elastica tips (x, y, angle, converged) for forces (m, 2); raises on failure unless allowed."""
+    """Elastica tips (x, y, angle, converged) for forces (m, 2); raises on failure unless
+    allowed."""
     out = _solve_tip_batch(float(kappa0), jnp.asarray(forces[:, 0]), jnp.asarray(forces[:, 1]))
     x, y, th, ok = (np.asarray(v) for v in out)
     if not allow_failure and not ok.all():
@@ -138,7 +137,8 @@ def _samples(kappa0, n_values, senses, dtheta_tip_max, load_cap, n_loads):
         lo = grid[j - 1] if j > 0 else 0.0
         p_max[i] = scipy.optimize.brentq(excess, lo, grid[j], args=(i,), xtol=1e-10, rtol=1e-12)
         if excess(p_max[i], i) > 0.5:  # Brent ended on the solver-failure side of the bracket
-            p_max[i] = scipy.optimize.brentq(excess, lo, p_max[i], args=(i,), xtol=1e-10, rtol=1e-12) * (1 - 1e-9)
+            p_max[i] = scipy.optimize.brentq(excess, lo, p_max[i], args=(i,), xtol=1e-10,
+                                             rtol=1e-12) * (1 - 1e-9)
     P = p_max[:, None] * (np.arange(1, n_loads + 1) / n_loads)[None, :]
     forces = d[:, None, :] * P[..., None]
     x, y, _, _ = _tips(kappa0, forces.reshape(-1, 2))
@@ -149,7 +149,8 @@ def _samples(kappa0, n_values, senses, dtheta_tip_max, load_cap, n_loads):
 def _load_range(load_range):
     unknown = set(load_range) - set(DEFAULT_LOAD_RANGE)
     if unknown:
-        raise TypeError(f"unknown load-range options {sorted(unknown)}; allowed: {sorted(DEFAULT_LOAD_RANGE)}")
+        raise TypeError(f"unknown load-range options {sorted(unknown)}; "
+                        f"allowed: {sorted(DEFAULT_LOAD_RANGE)}")
     lr = {**DEFAULT_LOAD_RANGE, **load_range}
     return (
         tuple(float(v) for v in lr["n_values"]),
@@ -241,7 +242,8 @@ def fit_prb(kappa0: float, **load_range) -> PRBFit:
     vals = np.array([objective(g) for g in grid])
     i = int(np.argmin(vals))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    res = scipy.optimize.minimize_scalar(objective, bounds=(lo, hi), method="bounded", options=dict(xatol=1e-9))
+    res = scipy.optimize.minimize_scalar(objective, bounds=(lo, hi), method="bounded",
+                                         options=dict(xatol=1e-9))
     gamma = float(res.x) if res.fun <= vals[i] else float(grid[i])
     rho, _ = prb_geometry(kappa0, gamma)
     K_theta = _best_K_theta(kappa0, gamma, samples)
@@ -250,7 +252,8 @@ def fit_prb(kappa0: float, **load_range) -> PRBFit:
 
 
 def prb_error(
-    kappa0: float, gamma: float, rho: float | None = None, K_theta: float | None = None, **load_range
+    kappa0: float, gamma: float, rho: float | None = None, K_theta: float | None = None,
+    **load_range,
 ) -> PRBError:
     """Errors of given PRB parameters against the elastica over the fit's load range.
 
@@ -263,7 +266,8 @@ def prb_error(
         **load_range: as in :func:`fit_prb`.
 
     Returns:
-        :class:`PRBError` (tip errors in units of ``l``; load errors relative, docs/prb_fit.md step 6).
+        :class:`PRBError` (tip errors in units of ``l``; load errors relative, docs/prb_fit.md
+            step 6).
     """
     kappa0 = _check_kappa0(kappa0)
     samples = _samples(kappa0, *_load_range(load_range))

@@ -5,22 +5,20 @@ Runtime half of the PRB parameters: :func:`prb_table` loads ``ppr_jax/data/prb_t
 offline fit that produced the table (:mod:`ppr_jax._prb_fit`, elastica + scipy) is not imported.
 The PRB model, the fitting procedure and the table are described in ``docs/prb_fit.md``.
 
-Nondimensional: beam length ``l = 1``, ``kappa0 = l/R`` the initial curvature. PRB geometry (Howell):
-pivot at ``((1 - gamma) l, 0)`` in the clamp tangent frame, unloaded tip
+Nondimensional: beam length ``l = 1``, ``kappa0 = l/R`` the initial curvature. PRB geometry
+(Howell): pivot at ``((1 - gamma) l, 0)`` in the clamp tangent frame, unloaded tip
 ``(a_i, b_i) = (R sin kappa0, R (1 - cos kappa0))``, ``rho = |(a_i - (1-gamma) l, b_i)|/l`` and rest
 PRB angle ``Theta_i = atan2(b_i, a_i - (1-gamma) l)``.
 """
 
 from __future__ import annotations
 
-import jax
-
-
 import functools  # noqa: E402
 import importlib.resources  # noqa: E402
 import json  # noqa: E402
 
 import equinox as eqx  # noqa: E402
+import jax
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -145,7 +143,8 @@ def prb_parameters(kappa0):
     except (jax.errors.JAXTypeError, TypeError):
         k_np = None
     if k_np is not None and not np.all((k_np >= lo - tol) & (k_np <= hi + tol)):
-        raise PPRError(f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range); got {kappa0}.")
+        raise PPRError(f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range); "
+                       f"got {kappa0}.")
     k = jnp.asarray(kappa0, jnp.float64)
     k = eqx.error_if(
         k,

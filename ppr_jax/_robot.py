@@ -13,8 +13,8 @@ Static structural choices:
 - `equal_links`: r1 == r3 (l1 == l3), for every member of a batch. The L1 inverse kinematics is
   then closed form (MODEL.md section 4) and needs a single Newton step, whose update is zero but
   whose derivative is the implicit-function derivative (so gradients with respect to l1 or l3
-  alone stay exact); otherwise Newton's method from the closed-form guess, to a step of 1e-15 rad, then three
-  differentiable Newton steps (derivatives exact to third order).
+  alone stay exact); otherwise Newton's method from the closed-form guess, to a step of 1e-15 rad,
+  then three differentiable Newton steps (derivatives exact to third order).
   Decided from the concrete values; with traced parameters (a `Robot` built inside `jit`,
   `grad` or `vmap`) it cannot be known and is False, the general path, which is exact for
   equal links too.
@@ -52,8 +52,8 @@ class Robot(eqx.Module):
     `Robot(params)` decides `equal_links` from the values; pass `equal_links=False` to force the
     general (Newton) inverse kinematics, or `equal_links=True` inside a trace (`jax.grad` over
     the parameters) when you know l1 == l3 there: the fast path, with derivatives in l1 and l3
-    that stay exact (tests/test_kinematics.py). Concrete unequal lengths with `True` raise. A batch of robots (`stack_params`) gives one `Robot`
-    with a leading axis on every leaf."""
+    that stay exact (tests/test_kinematics.py). Concrete unequal lengths with `True` raise. A batch
+    of robots (`stack_params`) gives one `Robot` with a leading axis on every leaf."""
 
     params: RobotParams
     dv: Derived
@@ -90,7 +90,8 @@ def _forward(container: str, name: str):
         return getattr(getattr(self, container), name)
 
     get.__name__ = name
-    get.__doc__ = f"`{container}.{name}` (see `{'Derived' if container == 'dv' else 'RobotParams'}`)."
+    get.__doc__ = (f"`{container}.{name}` "
+                   f"(see `{'Derived' if container == 'dv' else 'RobotParams'}`).")
     return property(get)
 
 

@@ -191,7 +191,8 @@ def get_solver(solver) -> diffrax.AbstractSolver:
 class Solution(eqx.Module):
     """Result of `simulate`. ts (m,), z and zdot (m, n) the model's coordinates and velocities,
     tau (m, 3) actuator torques (applied, or the reaction torques when motion-driven) (N m),
-    result a `ppr_jax.RESULTS` code (diffrax's, or invalid parameters), num_steps / num_accepted / num_rejected solver statistics."""
+    result a `ppr_jax.RESULTS` code (diffrax's, or invalid parameters), num_steps / num_accepted /
+    num_rejected solver statistics."""
 
     ts: Array
     z: Array

@@ -14,15 +14,18 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._errors import PPRError, raise_if, result_code
 from ._actuation import (
-    AbstractActuation, InverseKinematicsAngles, MotionDriven, TorqueDriven,
+    AbstractActuation,
+    InverseKinematicsAngles,
+    MotionDriven,
+    TorqueDriven,
 )
 from ._dynamics import eom_terms, generalized_force
+from ._errors import PPRError, raise_if, result_code
+from ._kinematics import fk_solve
 from ._linalg import SmallLU, solve
 from ._models import AbstractModel, Reduced
 from ._robot import RobotLike, as_robot
-from ._kinematics import fk_solve
 from ._trajectory import derivatives
 
 

@@ -35,9 +35,9 @@ The root ``M(0)`` is found in two stages:
    ``n_newton`` Newton corrections per step, on a coarse grid (one RK4 step per output
    interval: the guess only has to be in the fine problem's Newton basin). This follows the
    principal (continuously loaded) branch; a step that does not converge or turns the tip by
-   more than ``pi/2 + |m| L/(EI K)`` (a jump to another branch) marks the solve as failed. With the default
-   ``K = 8`` loads up to ``|F| L^2/EI ~ 30`` are followed, ``K = 16`` reaches ~50 (straight beam,
-   transverse force). Computed under ``stop_gradient``.
+   more than ``pi/2 + |m| L/(EI K)`` (a jump to another branch) marks the solve as failed. With
+   the default ``K = 8`` loads up to ``|F| L^2/EI ~ 30`` are followed, ``K = 16`` reaches ~50
+   (straight beam, transverse force). Computed under ``stop_gradient``.
 2. a final ``optimistix.root_find`` (Newton) at the full load from that guess. Optimistix's
    implicit adjoint differentiates the root, so forward- and reverse-mode derivatives with
    respect to ``length, EI, kappa0, force, moment`` are exact derivatives of the discrete
@@ -152,7 +152,8 @@ def _rk4_interval(u, p, h, substeps):
 
 
 def _integrate(mu0, p, n_nodes, substeps, save):
-    """Integrate from s=0 with M(0)L/EI = mu0. Returns the node states (n_nodes, 4) or the end state."""
+    """Integrate from s=0 with M(0)L/EI = mu0. Returns the node states (n_nodes, 4) or the end
+    state."""
     h = 1.0 / ((n_nodes - 1) * substeps)
     u0 = jnp.stack([jnp.zeros_like(mu0), jnp.zeros_like(mu0), jnp.zeros_like(mu0), mu0])
 
@@ -228,12 +229,14 @@ def _continuation_guess(args, n_nodes, substeps, n_continuation, n_newton):
 
 @functools.partial(jax.jit, static_argnames=("n_nodes", "substeps", "n_continuation", "n_newton"))
 def _solve_core(length, EI, kappa0, fx, fy, m, *, n_nodes, substeps, n_continuation, n_newton):
-    length, EI, kappa0, fx, fy, m = (jnp.asarray(v, jnp.float64) for v in (length, EI, kappa0, fx, fy, m))
+    length, EI, kappa0, fx, fy, m = (jnp.asarray(v, jnp.float64)
+                                     for v in (length, EI, kappa0, fx, fy, m))
     # Nondimensional load: f = F L^2/EI, m~ = m L/EI.
     fxn, fyn, mn = fx * length**2 / EI, fy * length**2 / EI, m * length / EI
     args = (kappa0, fxn, fyn, mn)
 
-    guess, path_ok = jax.lax.stop_gradient(_continuation_guess(args, n_nodes, 1, n_continuation, n_newton))
+    guess, path_ok = jax.lax.stop_gradient(
+        _continuation_guess(args, n_nodes, 1, n_continuation, n_newton))
     sol = optx.root_find(
         lambda mu0, a: _residual(mu0, a, n_nodes, substeps),
         optx.Newton(rtol=1e-13, atol=1e-13),
@@ -298,11 +301,12 @@ def solve_cantilever(
         length: beam length ``L`` [m], scalar > 0.
         EI: bending stiffness [N m^2], scalar > 0.
         kappa0: nondimensional initial curvature ``L/R`` (0: straight; > 0 curves towards +y).
-        force: end force ``(fx, fy)`` [N] in the clamp tangent frame, constant direction (dead load).
-            A pair of scalars or an array of shape ``(2,)``.
+        force: end force ``(fx, fy)`` [N] in the clamp tangent frame, constant direction (dead
+            load). A pair of scalars or an array of shape ``(2,)``.
         moment: end moment ``m`` [N m], counterclockwise positive.
         n_nodes: number of output nodes of the fixed arclength grid (static).
-        substeps: RK4 steps per grid interval (static); the RK4 step is ``L/((n_nodes-1) substeps)``.
+        substeps: RK4 steps per grid interval (static); the RK4 step is
+            ``L/((n_nodes-1) substeps)``.
         n_continuation: number of load-continuation steps for the initial guess (static).
         n_newton: Newton iterations per continuation step (static).
         throw: raise on bad input or non-convergence (default). With ``throw=False`` the result is
@@ -314,7 +318,8 @@ def solve_cantilever(
     Raises:
         PPRError (a ValueError): ``length <= 0`` or ``EI <= 0`` (or non-finite inputs), when inputs
             are concrete.
-        ElasticaConvergenceError: non-convergence, when inputs are concrete (message gives the load).
+        ElasticaConvergenceError: non-convergence, when inputs are concrete (message gives the
+            load).
         equinox's runtime error (``eqx.error_if``): the same two failures under ``jit``/``vmap``.
 
     All scalar inputs may be traced; the function is jit-able, vmappable and differentiable in
@@ -329,22 +334,28 @@ def solve_cantilever(
         for name, v in concrete.items():
             if v.shape != ():
                 raise PPRError(
-                    f"solve_cantilever: {name} must be a scalar (got shape {v.shape}); use jax.vmap for batches."
+                    f"solve_cantilever: {name} must be a scalar (got shape {v.shape}); "
+                    "use jax.vmap for batches."
                 )
             if not np.isfinite(v):
                 raise PPRError(f"solve_cantilever: {name} must be finite (got {float(v)}).")
         for name in ("length", "EI"):
             if not concrete[name] > 0:
                 raise PPRError(
-                    f"solve_cantilever: {name} must be > 0 (allowed range (0, inf)); got {float(concrete[name])}."
+                    f"solve_cantilever: {name} must be > 0 (allowed range (0, inf)); "
+                    f"got {float(concrete[name])}."
                 )
-    kwargs = dict(n_nodes=n_nodes, substeps=substeps, n_continuation=n_continuation, n_newton=n_newton)
+    kwargs = dict(n_nodes=n_nodes, substeps=substeps, n_continuation=n_continuation,
+                  n_newton=n_newton)
     if n_nodes < 2 or substeps < 1 or n_continuation < 1 or n_newton < 1:
-        raise PPRError("solve_cantilever: need n_nodes >= 2 and substeps, n_continuation, n_newton >= 1.")
+        raise PPRError("solve_cantilever: need n_nodes >= 2 and substeps, n_continuation, "
+                       "n_newton >= 1.")
     if not eager and throw:
         length, EI = jnp.asarray(length, jnp.float64), jnp.asarray(EI, jnp.float64)
-        length = eqx.error_if(length, ~(length > 0), "solve_cantilever: length must be > 0 (allowed range (0, inf)).")
-        EI = eqx.error_if(EI, ~(EI > 0), "solve_cantilever: EI must be > 0 (allowed range (0, inf)).")
+        length = eqx.error_if(length, ~(length > 0),
+                              "solve_cantilever: length must be > 0 (allowed range (0, inf)).")
+        EI = eqx.error_if(EI, ~(EI > 0),
+                          "solve_cantilever: EI must be > 0 (allowed range (0, inf)).")
     sol = _solve_core(length, EI, kappa0, fx, fy, moment, **kwargs)
     if not throw:
         return sol
@@ -358,10 +369,11 @@ def solve_cantilever(
         L, ei = float(c["length"]), float(c["EI"])
         raise ElasticaConvergenceError(
             "solve_cantilever: the elastica shooting solver did not converge for the load "
-            f"force=({float(c['fx'])}, {float(c['fy'])}) N, moment={float(c['moment'])} N m on a beam with "
-            f"length={L} m, EI={ei} N m^2, kappa0={float(c['kappa0'])} (nondimensional |F| L^2/EI = "
-            f"{float(np.hypot(c['fx'], c['fy'])) * L**2 / ei:.6g}, |m| L/EI = {abs(float(c['moment'])) * L / ei:.6g}; "
-            f"residual {float(sol.residual):.3g}). The load is too large for the solver: reduce it, or "
-            "increase n_nodes/substeps and n_continuation."
+            f"force=({float(c['fx'])}, {float(c['fy'])}) N, moment={float(c['moment'])} N m "
+            f"on a beam with length={L} m, EI={ei} N m^2, kappa0={float(c['kappa0'])} "
+            f"(nondimensional |F| L^2/EI = {float(np.hypot(c['fx'], c['fy'])) * L**2 / ei:.6g}, "
+            f"|m| L/EI = {abs(float(c['moment'])) * L / ei:.6g}; "
+            f"residual {float(sol.residual):.3g}). The load is too large for the solver: "
+            "reduce it, or increase n_nodes/substeps and n_continuation."
         )
     return sol

@@ -19,7 +19,8 @@ FLOORS = [
     ("dynamics and kinematics", ["_dynamics", "_kinematics", "_paper_eom"]),
     ("models", ["_models"]),
     ("chain geometry", ["_geometry", "_linalg"]),
-    ("robot and joint", ["_robot", "_prb", "_params", "_params_file", "_prb_table", "_prb_fit", "elastica"]),
+    ("robot and joint", ["_robot", "_prb", "_params", "_params_file", "_prb_table", "_prb_fit",
+                         "elastica"]),
     ("infrastructure", ["_errors", "_custom_types", "_data", "_cache", "_devices", "_programs"]),
 ]
 FLOOR = {room: len(FLOORS) - i for i, (_, rooms) in enumerate(FLOORS) for room in rooms}

@@ -4,9 +4,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import raises_in_compiled_code
 
 import ppr_jax as pj
-from helpers import raises_in_compiled_code
 from ppr_jax._errors import raise_if
 
 

@@ -1,9 +1,10 @@
-"""Batched scenes finish on a multi-core CPU, unpinned (issue: a batch of 64 L1 robots hung forever).
+"""Batched scenes finish on a multi-core CPU, unpinned (issue: a batch of 64 L1 robots hung
+forever).
 
 The cause was XLA's intra-op thread pool deadlocking on two concurrent batched LAPACK
-factorizations (see `ppr_jax/_linalg.py` and `scripts/repro_lapack_deadlock.py`). The runs happen in a fresh subprocess with a deadline,
-so a regression fails this test instead of hanging the suite; the process is not pinned to a core
-and uses every thread XLA gives it.
+factorizations (see `ppr_jax/_linalg.py` and `scripts/repro_lapack_deadlock.py`). The runs happen
+in a fresh subprocess with a deadline, so a regression fails this test instead of hanging the
+suite; the process is not pinned to a core and uses every thread XLA gives it.
 """
 
 import json

@@ -11,11 +11,9 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from ppr_jax._models.beam import Beam, solve_strip, strip_constants
 from ppr_jax._geometry import BETA, base_points, e
+from ppr_jax._models.beam import Beam, solve_strip, strip_constants
 from ppr_jax.elastica import solve_cantilever
-
-
 
 # ---------------------------------------------------------------------------------------------
 # Geometry and kinematics
@@ -63,7 +61,8 @@ def test_layout_and_closure(params, robot):
     X = jnp.array([0.47, 0.24, 0.02])
     z = m.coords_from_pose(robot, X) + 0.01 * jnp.sin(jnp.arange(15.0))
     k = m.kinematics(robot, z)
-    assert k.th.shape == (3, 6) and k.deflection.shape == (15,) and k.body_p.shape == (3 + 12 + 3 + 1, 2)
+    assert (k.th.shape == (3, 6) and k.deflection.shape == (15,)
+            and k.body_p.shape == (3 + 12 + 3 + 1, 2))
     assert np.all(k.margin > 0.1)
     assert np.abs(m.loop_residual(robot, k)).max() < 1e-14
     np.testing.assert_allclose(k.th_a, z[3:6])

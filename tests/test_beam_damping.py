@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from ppr_jax._errors import PPRError
 from ppr_jax._dynamics import passive_force
+from ppr_jax._errors import PPRError
 from ppr_jax._models import get_model
 from ppr_jax._models.beam import Beam
 

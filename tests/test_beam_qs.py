@@ -9,12 +9,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import fd_jvp
 
 import ppr_jax as pj
 from ppr_jax._models import strip
 from ppr_jax._models.strip import kkt_residual, solve_kkt, strip_equilibrium
-
-from helpers import fd_jvp
 
 WRENCH = jnp.array([0.4, -0.3, 0.004])  # N, N, N m
 

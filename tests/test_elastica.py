@@ -6,17 +6,14 @@ so the tip deflects towards -y: ``v = -y_tip``); global moment balance; central 
 differences; a Python loop for vmap.
 """
 
-import jax
-
-
 import equinox as eqx  # noqa: E402
+import jax
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from helpers import raises_in_compiled_code  # noqa: E402
 
 from ppr_jax import PPRError, elastica  # noqa: E402
-
-from helpers import raises_in_compiled_code  # noqa: E402
 
 L, EI = 1.7, 2.3  # deliberately not 1: checks the nondimensionalization
 
@@ -47,14 +44,16 @@ def test_zero_load_gives_initial_arc():
         sol = elastica.solve_cantilever(L, EI, kappa0)
         R = L / kappa0 if kappa0 else np.inf
         if kappa0:
-            np.testing.assert_allclose(sol.tip, [R * np.sin(kappa0), R * (1 - np.cos(kappa0)), kappa0], atol=1e-12)
+            np.testing.assert_allclose(
+                sol.tip, [R * np.sin(kappa0), R * (1 - np.cos(kappa0)), kappa0], atol=1e-12)
         else:
             np.testing.assert_allclose(sol.tip, [L, 0.0, 0.0], atol=1e-12)
         assert abs(float(sol.clamp_moment)) < 1e-12
 
 
 # Mattiasson (1981) Table 1: load index alpha^2 = F L^2/EI -> (v/L, (L - x_tip)/L).
-MATTIASSON = {1.0: (0.30172, 0.05643), 2.0: (0.49346, 0.16064), 5.0: (0.71379, 0.38763), 10.0: (0.81061, 0.55500)}
+MATTIASSON = {1.0: (0.30172, 0.05643), 2.0: (0.49346, 0.16064), 5.0: (0.71379, 0.38763),
+              10.0: (0.81061, 0.55500)}
 
 
 @pytest.mark.parametrize("alpha2", sorted(MATTIASSON))
@@ -119,7 +118,8 @@ def test_vmap_equals_loop():
 
 
 @pytest.mark.parametrize(
-    "name,kwargs", [("length", dict(length=0.0)), ("length", dict(length=-1.0)), ("EI", dict(EI=-2.0))]
+    "name,kwargs",
+    [("length", dict(length=0.0)), ("length", dict(length=-1.0)), ("EI", dict(EI=-2.0))],
 )
 def test_bad_inputs_raise_eagerly(name, kwargs):
     args = dict(length=L, EI=EI, kappa0=0.5) | kwargs
@@ -159,7 +159,8 @@ def test_curved_beam_oblique_load_vs_scipy():
         def rhs(s, u):
             return [np.cos(u[2]), np.sin(u[2]), k0 + u[3], fx * np.sin(u[2]) - fy * np.cos(u[2])]
 
-        return solve_ivp(rhs, (0, 1), [0, 0, 0, mu0], method="DOP853", rtol=1e-13, atol=1e-13).y[:, -1]
+        return solve_ivp(rhs, (0, 1), [0, 0, 0, mu0], method="DOP853", rtol=1e-13,
+                         atol=1e-13).y[:, -1]
 
     sol = elastica.solve_cantilever(L, EI, k0, (fx * EI / L**2, fy * EI / L**2), m * EI / L)
     mu0 = float(sol.clamp_moment) * L / EI

@@ -285,7 +285,8 @@ def test_bad_requests_raise_clear_errors(truth, clean):
         pj.identify(exp, ("t",), fixed={"t": 5e-4})
     with pytest.raises(pj.PPRError, match=r"bounds of 't' must satisfy"):
         pj.identify(exp, ("t",), bounds={"t": (1e-3, 1e-4)})
-    with pytest.raises(pj.PPRError, match=r"initial value of 't' = 0.0005 m is not strictly inside"):
+    with pytest.raises(pj.PPRError,
+                       match=r"initial value of 't' = 0.0005 m is not strictly inside"):
         pj.identify(exp, ("t",), bounds={"t": (1e-4, 4e-4)})
     with pytest.raises(pj.PPRError, match=r"initial values given for \['E'\]"):
         pj.identify(exp, ("t",), initial={"E": 70e9})

@@ -2,12 +2,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import fd_jvp, rotate_pose
 
 import ppr_jax as pj
 from ppr_jax import _geometry as K
 from ppr_jax._paper_eom import paper_jacobian
-
-from helpers import fd_jvp, rotate_pose
 
 POSES = [
     [0.45, 0.2598076, 0.0],
@@ -250,3 +249,44 @@ def test_servo_circle_through_a_type2_singularity_is_a_status_code():
     ok = pj.servo_circle(p, trajectory=pj.Circle(radius=jnp.asarray(0.02),
                                                  phi_amp=jnp.asarray(0.78)), **kw)
     np.testing.assert_allclose(ok.X, ok.X_nominal, atol=1e-9)
+
+
+def test_paper_circle_through_a_type2_singularity_names_the_singular_path():
+    """paper_circle's torques are L1's inverse dynamics along the nominal path, unbounded where
+    that path meets L1's type-II singularity. Before, the circle through it failed as "input
+    table too coarse" (the wrong cause); now `singular_path`, judged before the table, with the
+    time of the crossing: phi = -0.85 sin(5t/6) passes the base centre's singular phi (about
+    -0.814) near 5t/6 = asin(0.814/0.85), t = 1.54 s. A circle short of it runs, on the circle."""
+    p = pj.scene_params("paper-circle")
+    kw = dict(model="reduced", t_end=2.0, n_out=201)
+    through = pj.Circle(radius=jnp.asarray(0.02), phi_amp=jnp.asarray(0.85))
+    r = pj.paper_circle(p, trajectory=through, throw=False, **kw)
+    assert int(r.result._value) == int(pj.RESULTS.singular_path._value)
+    assert "between t = 1.53 and 1.54 s" in r.failures(p)[None]
+    with pytest.raises(pj.SimulationError,
+                       match=r"type-II singularity.*L1's \(reduced\) type-II singularity between"):
+        pj.paper_circle(p, trajectory=through, **kw)
+    ok = pj.paper_circle(p, trajectory=pj.Circle(radius=jnp.asarray(0.02),
+                                                 phi_amp=jnp.asarray(0.78)), **kw)
+    np.testing.assert_allclose(ok.X, ok.X_nominal, atol=1e-8)
+
+
+def test_servo_circle_L0_near_the_singularity_is_its_own_regular_motion():
+    """The issue also saw L0 on the circle through L1's singularity end "ok with phi 0.13 rad
+    off". That is L0's motion, not a fold: L0's pins sit elsewhere, so L1's angles there are a
+    regular motion of L0. Its poses reproduce the commanded angles, det S of L0 keeps one sign
+    and stays far from 0 (no singularity of L0 is approached, so the continuous solution is
+    unique), and four times finer output gives the same poses."""
+    from ppr_jax._kinematics import det3
+
+    p = pj.scene_params("servo-circle")
+    through = pj.Circle(radius=jnp.asarray(0.02), phi_amp=jnp.asarray(0.85))
+    r = pj.servo_circle(p, model="rigid", trajectory=through, t_end=2.0, n_out=201)
+    assert float(np.max(np.abs(r.X[:, 2] - r.X_nominal[:, 2]))) > 0.1  # the deviation is real
+    ik0 = pj.inverse_kinematics(p, r.X, model=pj.Rigid())
+    np.testing.assert_allclose(ik0.th_a, pj.inverse_kinematics(p, r.X_nominal).th_a,
+                               rtol=0, atol=1e-10)
+    det = np.asarray(det3(ik0.S))
+    assert np.all(det < -0.2) and float(np.min(ik0.singularity)) > 0.02
+    fine = pj.servo_circle(p, model="rigid", trajectory=through, t_end=2.0, n_out=801)
+    np.testing.assert_allclose(fine.X[::4], r.X, rtol=0, atol=1e-10)

@@ -54,7 +54,8 @@ def test_small_lu_in_optimistix_newton_and_implicit_gradient():
     solver) matches the closed form: x^3 = p  ->  dx/dp = 1 / (3 x^2)."""
 
     def root(p):
-        sol = optx.root_find(lambda x, p: x**3 - p, optx.Newton(1e-13, 1e-13, linear_solver=SmallLU()),
+        sol = optx.root_find(lambda x, p: x**3 - p,
+                             optx.Newton(1e-13, 1e-13, linear_solver=SmallLU()),
                              jnp.ones(2), args=p, max_steps=50)
         return sol.value
 

@@ -19,9 +19,8 @@ pytest.importorskip("mujoco")
 import mujoco  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from benchmarks.contenders import mujoco_l2  # noqa: E402
-
 import ppr_jax as pj  # noqa: E402
+from benchmarks.contenders import mujoco_l2  # noqa: E402
 
 GEOMETRIES = ["centerline", "strip"]
 

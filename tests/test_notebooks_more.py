@@ -2,7 +2,6 @@
 that the suite's workers can run the two halves side by side."""
 
 import pytest
-
 from test_notebooks import NOTEBOOK_GROUPS, run_notebook
 
 

@@ -76,7 +76,8 @@ def test_explicit_rho_overrides(params):
 
 
 @pytest.mark.parametrize(
-    "name,value", [("t", -0.3e-3), ("E", 0.0), ("theta_c", 4.0), ("gamma", 1.5), ("a", float("nan"))]
+    "name,value",
+    [("t", -0.3e-3), ("E", 0.0), ("theta_c", 4.0), ("gamma", 1.5), ("a", float("nan"))],
 )
 def test_out_of_range_parameter_names_parameter_and_range(name, value):
     with pytest.raises(pj.PPRError, match=rf"'{name}'.*range \["):

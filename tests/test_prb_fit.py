@@ -6,18 +6,17 @@ scipy's not-a-knot CubicSpline for the interpolant; central finite differences f
 """
 
 import jax
-
-
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import scipy.interpolate  # noqa: E402
-
-from ppr_jax import PPRError  # noqa: E402
-
 from helpers import raises_in_compiled_code  # noqa: E402
-from ppr_jax import _prb_fit as prb  # noqa: E402
-from ppr_jax import _prb_table as tab  # noqa: E402
+
+from ppr_jax import (
+    PPRError,  # noqa: E402
+    _prb_fit as prb,  # noqa: E402
+    _prb_table as tab,  # noqa: E402
+)
 
 
 @pytest.fixture(scope="session")
@@ -77,7 +76,8 @@ def test_prb_error_reproduces_fit(fit0):
     for dg in (-0.02, 0.02):
         assert prb.prb_error(0.0, fit0.gamma + dg).tip_error_max > fit0.tip_error_max
     # K_theta is the least-squares optimum: the default (None) equals it.
-    assert prb.prb_error(0.0, fit0.gamma).load_error_rms == pytest.approx(fit0.load_error_rms, rel=1e-12)
+    assert prb.prb_error(0.0, fit0.gamma).load_error_rms == pytest.approx(fit0.load_error_rms,
+                                                                          rel=1e-12)
 
 
 def test_interpolant_reproduces_nodes():
@@ -96,7 +96,8 @@ def test_spline_matches_scipy_not_a_knot(name):
     knots, coef = tab._splines()
     np.testing.assert_allclose(knots, ref.x, rtol=0, atol=0)
     np.testing.assert_allclose(coef[name], ref.c, rtol=0, atol=1e-12 * np.abs(ref.c).max())
-    k = np.concatenate([np.linspace(0.0, 2.0, 2001), np.random.default_rng(0).uniform(0.0, 2.0, 500)])
+    k = np.concatenate([np.linspace(0.0, 2.0, 2001),
+                        np.random.default_rng(0).uniform(0.0, 2.0, 500)])
     g, _, K = tab.prb_parameters(k)
     value = {"gamma": g, "K_theta": K}[name]
     np.testing.assert_allclose(value, ref(k), rtol=0, atol=1e-12)

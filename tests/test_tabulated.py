@@ -198,7 +198,8 @@ def test_spline_pieces_cubic_exact_smooth_fourth_order_and_padding():
     errs = []
     for n in (41, 81):
         ts = np.linspace(0.0, 2.0, n)
-        g = PiecewiseCubic(jnp.asarray(ts), jnp.asarray(spline_pieces(ts, ts, np.sin(3 * ts)[:, None])))
+        g = PiecewiseCubic(jnp.asarray(ts),
+                           jnp.asarray(spline_pieces(ts, ts, np.sin(3 * ts)[:, None])))
         tt = np.linspace(0.0, 2.0, 2001)
         errs.append(float(np.max(np.abs(np.asarray(jax.vmap(g)(jnp.asarray(tt)))[:, 0]
                                         - np.sin(3 * tt)))))

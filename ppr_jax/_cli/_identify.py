@@ -29,9 +29,8 @@ def _bounds(items):
 
 def cmd_identify(args):
     from .._data import load_experiments
-    from .._studies import identify
-    from .._studies import identification_figures
     from .._scenes import scene_params
+    from .._studies import identification_figures, identify
     from ._common import model_from_args
 
     exps = load_experiments(args.data, time_unit=args.time_unit, length_unit=args.length_unit,
@@ -39,7 +38,8 @@ def cmd_identify(args):
     for e in exps:
         if e.dropped_lines:
             _log(f"{e.name}: dropped {len(e.dropped_lines)} NaN rows (lines "
-                 f"{', '.join(map(str, e.dropped_lines[:10]))}{', ...' if len(e.dropped_lines) > 10 else ''})")
+                 f"{', '.join(map(str, e.dropped_lines[:10]))}"
+                 f"{', ...' if len(e.dropped_lines) > 10 else ''})")
     params = scene_params(args.scene)
     if getattr(args, "params_file", None):
         from .._params_file import load_params
@@ -56,7 +56,8 @@ def cmd_identify(args):
     if args.commands_set:
         commands = params.replace(**_name_values(args.commands_set, "--commands-set"))
     fit = identify(exps, unknowns, model=model_from_args(args, args.model), scene=args.scene,
-                   actuation=args.actuation, commands=commands, initial_state=args.initial_state, params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
+                   actuation=args.actuation, commands=commands, initial_state=args.initial_state,
+                   params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
                    noise=(args.noise_pos, args.noise_phi), loss=args.loss,
                    loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
                    ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
@@ -122,9 +123,9 @@ def _units(p):
 
 
 def add_identify(sub, parents, fmt):
-    from .._studies import ACTUATIONS, ID_SCENES, INITIAL_STATES, LOSSES, SOLVERS
     from .._models import MODELS
     from .._params import PARAM_RANGES
+    from .._studies import ACTUATIONS, ID_SCENES, INITIAL_STATES, LOSSES, SOLVERS
 
     p = sub.add_parser(
         "identify", formatter_class=fmt,

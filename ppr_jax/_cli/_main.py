@@ -1,4 +1,5 @@
-"""Command line interface `ppr-jax` (docs/cli.md): the parser of every command and the entry point."""
+"""Command line interface `ppr-jax` (docs/cli.md): the parser of every command and the entry
+point."""
 
 from __future__ import annotations
 
@@ -30,7 +31,9 @@ COMMANDS = [
 
 def build_parser():
     fmt = argparse.ArgumentDefaultsHelpFormatter
-    p = argparse.ArgumentParser(prog="ppr-jax", description="Command line interface of ppr_jax (docs/cli.md).", formatter_class=fmt)
+    p = argparse.ArgumentParser(prog="ppr-jax",
+                                description="Command line interface of ppr_jax (docs/cli.md).",
+                                formatter_class=fmt)
     sub = p.add_subparsers(dest="cmd", required=True)
     parents = parent_parsers()
     for add in COMMANDS:

@@ -70,8 +70,7 @@ def cmd_sensitivity(args):
 
 def add_sensitivity(sub, parents, fmt):
     from .._models import MODELS
-    from .._studies import SENSITIVITY_METRICS
-    from .._studies import SWEEP_SCENES
+    from .._studies import SENSITIVITY_METRICS, SWEEP_SCENES
 
     kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
     s = sub.add_parser(

@@ -31,8 +31,7 @@ def _reference(scene):
 
 
 def cmd_simulate(args):
-    from .._scenes import run_scene
-    from .._scenes import check_scene_args, modes_scene
+    from .._scenes import check_scene_args, modes_scene, run_scene
     from ._figures import scene_figures
 
     scene = args.scene
@@ -93,7 +92,8 @@ def cmd_simulate(args):
             _log(f"      {m} failed: {failed[m]}")
             write()
             continue
-        _log(f"      done in {time.perf_counter() - t0:.1f} s (compile {r.timing['compile_s']:.1f} s, "
+        _log(f"      done in {time.perf_counter() - t0:.1f} s "
+             f"(compile {r.timing['compile_s']:.1f} s, "
              f"run {r.timing['run_s'] * 1e3:.1f} ms, {r.metrics['num_steps']} steps)")
         results.append(r)
         write()
@@ -122,21 +122,27 @@ def _print_table(scene, results, args):
     print(units)
     for r in results:
         m = r.metrics
-        print(f"{r.model:>10s} {m['radial_error_max_m'] * 1e3:9.4f} {m['radial_error_min_m'] * 1e3:9.4f} "
-              f"{m['radial_error_mean_m'] * 1e3:9.4f} {m['radial_error_max_relative_percent']:10.4f} "
+        print(f"{r.model:>10s} {m['radial_error_max_m'] * 1e3:9.4f} "
+              f"{m['radial_error_min_m'] * 1e3:9.4f} {m['radial_error_mean_m'] * 1e3:9.4f} "
+              f"{m['radial_error_max_relative_percent']:10.4f} "
               f"{m['phi_error_max_rad'] * 1e3:10.4f} {m['end_rotation_diff_max_deg']:9.4f} "
               f"{m['end_rotation_diff_min_deg']:9.4f} {m['end_rotation_diff_mean_deg']:10.4f} "
               f"{m['end_rotation_diff_max_relative_percent']:6.2f} "
-              f"{m['constraint_residual_max_m']:8.1e} {m['num_steps']:6d} {r.timing['run_s'] * 1e3:8.2f}")
+              f"{m['constraint_residual_max_m']:8.1e} {m['num_steps']:6d} "
+              f"{r.timing['run_s'] * 1e3:8.2f}")
     if ref:
-        print(f"{'paper':>10s} {ref['radial_error_max_m'] * 1e3:9.4f} {ref['radial_error_min_m'] * 1e3:9.4f} "
-              f"{ref['radial_error_mean_m'] * 1e3:9.4f} {ref['radial_error_max_relative_percent']:10.4f}"
+        print(f"{'paper':>10s} {ref['radial_error_max_m'] * 1e3:9.4f} "
+              f"{ref['radial_error_min_m'] * 1e3:9.4f} "
+              f"{ref['radial_error_mean_m'] * 1e3:9.4f} "
+              f"{ref['radial_error_max_relative_percent']:10.4f}"
               f"   ({ref['source']})")
     for r in results:
         if r.metrics["radial_error_max_relative_percent"] > 20:
-            print(f"note: {r.model} runs far off the circle ({r.metrics['radial_error_max_relative_percent']:.0f}% "
-                  f"of R): open-loop torques of another model amplify the mismatch (L0's pin is about "
-                  f"half as stiff as the double-1R joint); use --torque-model {r.model} for its own torques")
+            print(f"note: {r.model} runs far off the circle "
+                  f"({r.metrics['radial_error_max_relative_percent']:.0f}% "
+                  f"of R): open-loop torques of another model amplify the mismatch "
+                  f"(L0's pin is about half as stiff as the double-1R joint); "
+                  f"use --torque-model {r.model} for its own torques")
 
 
 def _write_csv(path, results):

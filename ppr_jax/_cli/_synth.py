@@ -13,8 +13,8 @@ from ._common import (
 
 def cmd_synth(args):
     from .._data import write_csv
-    from .._studies import check_synth_args, synthesize
     from .._scenes import scene_params
+    from .._studies import check_synth_args, synthesize
     from ._common import model_from_args
 
     params = scene_params(args.scene)
@@ -43,8 +43,8 @@ def cmd_synth(args):
 
 
 def add_synth(sub, parents, fmt):
-    from .._studies import ID_SCENES
     from .._models import MODELS
+    from .._studies import ID_SCENES
 
     p = sub.add_parser(
         "synth", formatter_class=fmt,

@@ -32,8 +32,8 @@ class Kin(eqx.Module):
 
     X (3,) platform pose; th (3, k) chain link angles (k = 3 for L1/L2: th_i1, th_i2, th_i3;
     k = 2 for L0: th_i1, th_i3; N + 2 for L3); body_p (nb, 2) body centres of mass; body_ang
-    (nb,) body angles; deflection (ns,) spring deflections (rad); th_a (3,) actuated angles; margin (3,)
-    reach margin of each chain's closed-form closure (<= 0: out of reach / singular).
+    (nb,) body angles; deflection (ns,) spring deflections (rad); th_a (3,) actuated angles; margin
+    (3,) reach margin of each chain's closed-form closure (<= 0: out of reach / singular).
     """
 
     X: Array
@@ -84,11 +84,12 @@ class AbstractModel(eqx.Module):
 
     @abc.abstractmethod
     def stiffness(self, robot: Robot) -> Array:
-        """Torsion stiffness of the springs (N m/rad): a scalar, or one per entry of `Kin.deflection`."""
+        """Torsion stiffness of the springs (N m/rad): a scalar, or one per entry of
+        `Kin.deflection`."""
 
     def damping(self, robot: Robot) -> Array:
-        """Viscous damping of the springs (N m s/rad): a scalar, or one per entry of `Kin.deflection`.
-        `params.c_spring` on every spring (MODEL.md section 1)."""
+        """Viscous damping of the springs (N m s/rad): a scalar, or one per entry of
+        `Kin.deflection`. `params.c_spring` on every spring (MODEL.md section 1)."""
         return robot.c_spring
 
     @abc.abstractmethod

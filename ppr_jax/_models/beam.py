@@ -24,13 +24,12 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from .._errors import PPRError
 from .._custom_types import Array, Float
+from .._errors import PPRError
 from .._geometry import base_points, e, ik_reduced, platform_points, two_link, wrap
 from .._linalg import SmallLU, solve
 from .._robot import Robot
 from .base import AbstractModel, Kin, rotor_inertia
-
 
 # ---------------------------------------------------------------------------------------------
 # Strip constants
@@ -207,7 +206,8 @@ class Beam(AbstractBeam):
 
     def __check_init__(self):
         v = self.strip_loss
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0 or v == float("inf"):
+        if (isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0
+                or v == float("inf")):
             raise PPRError(f"strip_loss (Kelvin-Voigt retardation time of the strips) must be a "
                            f"finite number of seconds in [0, inf), got {v!r}")
 

@@ -47,7 +47,6 @@ from .base import Kin, rotor_inertia
 from .beam import AbstractBeam, strip_constants
 from .strip import apply_K, shape_sensitivity, strip_equilibrium
 
-
 #: above this nondimensional residual of the strip's equilibrium equations the shape is not used:
 #: the chain's margin goes to -1 and its loop-closure residual shows the failure
 STRIP_TOL = 1e-10

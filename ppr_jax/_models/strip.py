@@ -162,7 +162,6 @@ def _solve_kkt_q(y, q, R):
     u = y[:N]
     C = jnp.stack([-jnp.sin(u), jnp.cos(u)])
     diag = jnp.asarray(_K_diag(N)) + q
-    k = R.shape[1]
     g = _pivots(diag)
     # apart, not as one right-hand side: W_R is linear in R (transposed in reverse mode), W_C not
     W_R, W_C = _sweeps(g, R[:N]), _sweeps(g, C.T)

@@ -25,10 +25,12 @@ from ._servo_circle import ServoCircle
 from ._torques import nominal_torques
 
 __all__ = [
-    "ATOL", "AbstractScene", "DEFAULT_SOLVER", "MAX_STEPS", "N_OUT", "RTOL", "T_END", "MEMBER_CHUNK", "PaperCircle", "RUN_SCENES", "SCENES", "SceneReport",
+    "ATOL", "AbstractScene", "DEFAULT_SOLVER", "MAX_STEPS", "N_OUT", "RTOL", "T_END",
+    "MEMBER_CHUNK", "PaperCircle", "RUN_SCENES", "SCENES", "SceneReport",
     "SCENE_CLASSES", "SCENE_THICKNESS", "SceneCall", "SceneInput", "SceneOptions",
     "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
-    "kinematic_motion", "map_members", "modes_scene", "nominal_torques", "paper_circle", "path_out_of_reach",
-    "prepare", "result_template", "run_scene", "scene_metrics", "scene_params", "servo_circle", "solve_scene", "tabulated",
+    "kinematic_motion", "map_members", "modes_scene", "nominal_torques", "paper_circle",
+    "path_out_of_reach", "prepare", "result_template", "run_scene", "scene_metrics",
+    "scene_params", "servo_circle", "solve_scene", "tabulated",
 ]

@@ -22,7 +22,7 @@ from .._actuation import AbstractActuation, MotionDriven
 from .._custom_types import Array
 from .._dynamics import inverse_dynamics
 from .._errors import RESIDUAL_TOL, RESULTS, first_failure
-from .._kinematics import det3, fold_flags
+from .._kinematics import det3, fold_flags, path_singular
 from .._metrics import outputs
 from .._models import AbstractModel
 from .._params import RobotParams, params_invalid
@@ -38,11 +38,13 @@ from ._result import SceneResult
 class SceneInput(eqx.Module):
     """A scene's input for one robot: the actuation, and what building it found (traced bools,
     None where not checked): `out_of_reach`, the nominal path leaves the reach of the model that
-    computed the input; `coarse`, its table is too coarse for the horizon."""
+    computed the input; `singular`, the nominal path meets a type-II singularity of that model
+    (`path_singular_at`); `coarse`, its table is too coarse for the horizon."""
 
     actuation: AbstractActuation
     out_of_reach: Optional[Array] = None
     coarse: Optional[Array] = None
+    singular: Optional[Array] = None
 
 
 def tabulated(fn, ts, panels: int):
@@ -63,6 +65,20 @@ def path_out_of_reach(ref_model, robot, traj, ts):
         return jnp.max(jnp.linalg.norm(ref_model.loop_residual(robot, k), axis=-1))
 
     return ~(jnp.max(jax.vmap(resid)(ts)) <= RESIDUAL_TOL)
+
+
+#: samples of the nominal path per output time at which `path_singular_at` looks for a crossing
+SINGULAR_SAMPLES = 4
+
+
+def path_singular_at(ref_model, robot, traj, ts):
+    """The nominal path meets a type-II singularity of `ref_model` (L0 or L1, whose inverse
+    dynamics or kinematics gives the input) over [ts[0], ts[-1]]: det S changes sign, or S is
+    singular, on `SINGULAR_SAMPLES` samples per output time (`path_singular`). There the
+    inverse-dynamics torques are unbounded, and the input table would only be judged too
+    coarse."""
+    grid = jnp.linspace(ts[0], ts[-1], SINGULAR_SAMPLES * ts.shape[0])
+    return jnp.any(path_singular(ref_model, robot, jax.vmap(traj)(grid)))
 
 
 def _open_at(model, robot, z):
@@ -167,7 +183,8 @@ class AbstractScene(eqx.Module):
             zero = jnp.asarray(0)
             sol = Solution(ts=ts, z=X, zdot=Xd, tau=tau, result=result, num_steps=zero,
                            num_accepted=zero, num_rejected=zero)
-            return self._result(model, robot, traj, sol, ref_open=inp.out_of_reach)
+            return self._result(model, robot, traj, sol, ref_open=inp.out_of_reach,
+                                singular=inp.singular)
         z0, zd0, failed = quasi_static_core(model, robot, traj, ts[0], act)
         if initial_offset is not None:
             # the platform pose and its rate are z[:3] in every model
@@ -176,20 +193,24 @@ class AbstractScene(eqx.Module):
         sol = simulate_core(
             model, robot, act, z0, zd0, ts, options.solver, options.controller, None,
             options.max_steps, jnp.zeros(3), False, diffrax.NoProgressMeter(), options.adjoint,
-            _any(failed, open0, inp.out_of_reach, inp.coarse, params_invalid(robot.params)),
+            _any(failed, open0, inp.out_of_reach, inp.singular, inp.coarse,
+                 params_invalid(robot.params)),
         )
-        return self._result(model, robot, traj, sol, failed, open0, inp.out_of_reach, inp.coarse)
+        return self._result(model, robot, traj, sol, failed, open0, inp.out_of_reach, inp.coarse,
+                            inp.singular)
 
     def _result(self, model, robot, traj, sol: Solution, qs_failed=None, open0=None,
-                ref_open=None, coarse=None) -> SceneResult:
+                ref_open=None, coarse=None, singular=None) -> SceneResult:
         out = outputs(model, robot, sol.z, sol.zdot)
         # Every precondition as a status code (most fundamental cause first): invalid
-        # parameters, the input out of reach or too coarse, no initial state, the solver's
+        # parameters, the input out of reach, through a singularity (where it is unbounded,
+        # so before its table is judged) or too coarse, no initial state, the solver's
         # failure, a chain that does not close at some output time (an L0/L1 pose out of reach
         # integrates happily on an open chain).
         result = first_failure(
             (params_invalid(robot.params), RESULTS.invalid_parameter),
             (ref_open, RESULTS.trajectory_out_of_reach),
+            (singular, RESULTS.singular_path),
             (coarse, RESULTS.input_table_too_coarse),
             (qs_failed, RESULTS.initial_state_failed),
             (open0, RESULTS.loop_not_closed),

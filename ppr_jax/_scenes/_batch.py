@@ -47,8 +47,7 @@ def map_members(member: Callable, devices: Sequence = ()) -> Callable:
 
     if len(devices) <= 1:
         return local
-    from jax.sharding import Mesh
-    from jax.sharding import PartitionSpec as P
+    from jax.sharding import Mesh, PartitionSpec as P
 
     mesh = Mesh(np.asarray(devices), ("batch",))
 

@@ -9,14 +9,16 @@ import equinox as eqx
 from .._actuation import InverseDynamicsTorque, TorqueDriven
 from .._models import AbstractModel, Reduced
 from .._trajectory import Circle
-from ._base import AbstractScene, SceneInput, tabulated
+from ._base import AbstractScene, SceneInput, path_singular_at, tabulated
 
 
 class PaperCircle(AbstractScene):
     """Torques from `torque_model`'s inverse dynamics along eq 55 (default L1; `Rigid()` gives
     the paper's "simplified model" torques), tabulated over the horizon; the model simulated
     torque-driven from its quasi-static state at t = 0. Default thickness 0.3 mm (the paper's
-    simulation); `reference` holds its section 2.2 numbers (theory vs ADAMS-ANSYS)."""
+    simulation); `reference` holds its section 2.2 numbers (theory vs ADAMS-ANSYS). A nominal
+    path through a type-II singularity of `torque_model` (where its torques are unbounded) is
+    `RESULTS.singular_path`."""
 
     torque_model: AbstractModel = eqx.field(static=True, default_factory=Reduced)
 
@@ -42,7 +44,9 @@ class PaperCircle(AbstractScene):
     def commands(self, model, robot, traj, ts, panels):
         torque, coarse, out = tabulated(InverseDynamicsTorque(self.torque_model, robot, traj),
                                         ts, panels)
-        return SceneInput(TorqueDriven(torque), out_of_reach=out, coarse=coarse)
+        singular = path_singular_at(self.torque_model, robot, traj, ts)
+        return SceneInput(TorqueDriven(torque), out_of_reach=out, coarse=coarse,
+                          singular=singular)
 
     def follows_its_input(self, model):
         if model.name == self.torque_model.name:

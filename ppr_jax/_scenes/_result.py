@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import numpy as np
 
 from .._custom_types import Array
 from .._errors import RESIDUAL_TOL, RESULTS, check_result, failure_reasons, is_traced
+from .._kinematics import path_singular
+from .._models import Reduced, Rigid
 from .._params import PARAM_RANGES
+from .._robot import Robot
 
 
 class SceneResult(eqx.Module):
@@ -77,12 +81,38 @@ def _bad_params(params, i) -> str:
     return "; ".join(out)
 
 
+_path_singular_jit = eqx.filter_jit(path_singular)
+
+
+def _singular_time(params, i, ts, X_nominal) -> str:
+    """Where the nominal path `X_nominal` (at times `ts`) of member i meets a type-II
+    singularity of L1 or L0 (the models whose inverse kinematics or dynamics give the scenes'
+    inputs), or "" if not between two output times."""
+    if params is None:
+        return ""
+    member = params if i is None else jax.tree_util.tree_map(
+        lambda a: a[i] if np.ndim(a) else a, params)
+    robot = Robot(member)
+    for name, model in (("L1", Reduced()), ("L0", Rigid())):
+        flags = np.asarray(_path_singular_jit(model, robot, np.asarray(X_nominal)))
+        bad = np.flatnonzero(flags & np.isfinite(ts))
+        if bad.size:
+            k = bad[0]
+            when = f"at t = {ts[k]:.4g} s" if k == 0 else (
+                f"between t = {ts[k - 1]:.4g} and {ts[k]:.4g} s")
+            return (f"the nominal path meets {name}'s ({model.name}) type-II singularity {when}, "
+                    f"near x, y, phi = " + ", ".join(f"{v:.4g}" for v in X_nominal[k]))
+    return ""
+
+
 def failure_detail(res: SceneResult, params=None):
     """detail(i): host-side particulars of failed member i (None for one robot), told only where
     they describe the failure: the parameters out of range (given `params`), how far and when the
-    loop opened, or where the solver stopped."""
+    loop opened, where the solver stopped, or when the nominal path meets a type-II singularity
+    (given `params`)."""
     result = res.result
     invalid = np.asarray(result == RESULTS.invalid_parameter)
+    singular = np.asarray(result == RESULTS.singular_path)
     # how far and when the loop is open: for a chain that opened, and for a path out of reach
     open_loop = np.asarray((result == RESULTS.loop_not_closed)
                            | (result == RESULTS.trajectory_out_of_reach))
@@ -95,12 +125,15 @@ def failure_detail(res: SceneResult, params=None):
             stopped |= np.asarray(result == getattr(RESULTS, name))
     resid = np.asarray(res.residual)
     ts = np.asarray(res.ts)
+    X_nominal = np.asarray(res.X_nominal)
 
     def detail(i):
         pick = (lambda a: a) if i is None else (lambda a: a[i])
         r, t = pick(resid), pick(ts)
         if pick(invalid):
             return _bad_params(params, i) if params is not None else ""
+        if pick(singular):
+            return _singular_time(params, i, t, pick(X_nominal))
         if pick(open_loop):
             bad = np.flatnonzero(~(r <= RESIDUAL_TOL) & np.isfinite(t))
             if bad.size == 0:

@@ -43,7 +43,8 @@ __all__ = [
     "ACTUATIONS", "DEFAULT_NOISE", "FLOAT_PARAMS", "ID_SCENES", "INITIAL_STATES", "LOSSES",
     "METRICS", "POOR_FIT_SCALE", "SENSITIVITY_METRICS", "SOLVERS", "SWEEP_SCENES",
     "Identification", "IdentificationError", "Sensitivity", "SweepResult", "base_frequency",
-    "check_synth_args", "design_members", "identification_figures", "profile_figure", "explicit_params", "identify", "library_digest",
+    "check_synth_args", "design_members", "identification_figures", "profile_figure",
+    "explicit_params", "identify", "library_digest",
     "metric_function", "sensitivity", "shard_batch", "sweep", "synthesize", "traced_metrics",
     "validate_members",
 ]

@@ -243,8 +243,7 @@ def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
     over `devices` (default: all local devices) along its leading axis: each device holds its
     slice. The sweep does this itself through `shard_map`; use it to feed your own jitted,
     vmapped functions."""
-    from jax.sharding import Mesh, NamedSharding
-    from jax.sharding import PartitionSpec as P
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
     devices = list(jax.local_devices() if devices is None else devices)
     mesh = Mesh(np.asarray(devices), ("batch",))

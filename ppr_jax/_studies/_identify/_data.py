@@ -1,4 +1,5 @@
-"""Experiments to the problem's arrays: padding, weights, the actuation each experiment is driven by."""
+"""Experiments to the problem's arrays: padding, weights, the actuation each experiment is driven
+by."""
 
 from __future__ import annotations
 

@@ -124,21 +124,23 @@ def identify(
     model: "double1r" (L2, default), "reduced" (L1), "rigid" (L0) or a model instance.
     scene: the experiment's actuation, "servo-circle" (default) or "paper-circle" (module
     docstring). actuation: "auto" (default: the data's th_1..th_3 drive the model when every
-    experiment holds them and no `commands` are named, else the commands), "commanded" (the scene's commands, or torques,
-    computed for `commands`, the parameters of the model that computed them: default the
-    nominal robot `params` with `fixed`, never the unknowns' initial values) or "measured"
-    (servo-circle: the data's angles). `Identification.actuation` says which drove the fit.
+    experiment holds them and no `commands` are named, else the commands), "commanded" (the
+    scene's commands, or torques, computed for `commands`, the parameters of the model that
+    computed them: default the nominal robot `params` with `fixed`, never the unknowns' initial
+    values) or "measured" (servo-circle: the data's angles). `Identification.actuation` says which
+    drove the fit.
     initial_state: "scene" (default), "pose" or "pose-velocity": what of each experiment's initial
-    state is estimated (module docstring). params: the robot (default `scene_params(scene)`), `fixed` ({name: value})
-    overrides applied to it; `initial` ({name: value}) start values of unknowns (default: the
-    robot's); `bounds` ({name: (lo, hi)}) default `PARAM_RANGES`. noise: (position m, phi rad),
-    the residual weights (their scale is estimated from the fit; the report compares the RMS of
-    the residuals to them). loss: "linear", "huber" or "cauchy" with `loss_scale` in noise units.
-    solver: "lm" (host Levenberg-Marquardt on the compiled Jacobian), "optimistix-lm",
-    "optimistix-gn". xtol, ftol: stop when the step in z or the relative cost change is below
-    them; "lm" also stops when an accepted step is shorter than `stat_tol` standard errors
-    (measured with the information matrix J^T J / s^2, so that steps along undetermined
-    directions do not count). ode_solver, rtol, atol, max_steps: the simulation's (default tsit5, 1e-8, 1e-10).
+    state is estimated (module docstring). params: the robot (default `scene_params(scene)`),
+    `fixed` ({name: value}) overrides applied to it; `initial` ({name: value}) start values of
+    unknowns (default: the robot's); `bounds` ({name: (lo, hi)}) default `PARAM_RANGES`. noise:
+    (position m, phi rad), the residual weights (their scale is estimated from the fit; the report
+    compares the RMS of the residuals to them). loss: "linear", "huber" or "cauchy" with
+    `loss_scale` in noise units. solver: "lm" (host Levenberg-Marquardt on the compiled Jacobian),
+    "optimistix-lm", "optimistix-gn". xtol, ftol: stop when the step in z or the relative cost
+    change is below them; "lm" also stops when an accepted step is shorter than `stat_tol` standard
+    errors (measured with the information matrix J^T J / s^2, so that steps along undetermined
+    directions do not count). ode_solver, rtol, atol, max_steps: the simulation's (default tsit5,
+    1e-8, 1e-10).
 
     Returns an `Identification`. Raises `IdentificationError` for unknown or fixed names that
     are not leaves, bounds outside the physical range, an initial value outside its bounds or a

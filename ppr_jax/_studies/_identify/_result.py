@@ -32,17 +32,17 @@ from ._problem import (
 class Identification(eqx.Module):
     """The result of `identify` (SI units; P unknowns, E experiments).
 
-    names (P,) unknowns; estimate, initial, std (P,); ci95 (P, 2) 95 % confidence intervals
-    (Student t on the Gauss-Newton standard errors); ci95_log (P, 2) the same for log p,
-    p exp(+-q std/p), positive (the better reading when std/p is not small); covariance, correlation (P, P); params the
-    fitted `RobotParams`; sigma2 the estimated variance of the weighted residuals (about 1 when
-    the noise is as stated: s^2 = sum r^2/(N - P)); jacobian (N, P) d(weighted residual)/d(p)
-    at the estimate; residuals (N,) weighted residuals (after the loss) at the estimate;
-    fitted (E, m, 3) and measured (E, m, 3) poses, ts (E, m) their times, mask (E, m) real
-    samples (padding False); identifiability (dict: singular values of the relative
-    sensitivities, condition number, the combinations the data determine and those they do
-    not); residual_stats (dict: RMS per experiment and channel in m / rad against the stated
-    noise); history (dict: iterations, cost, convergence, compile_s, run_s)."""
+    names (P,) unknowns; estimate, initial, std (P,); ci95 (P, 2) 95 % confidence intervals (Student
+    t on the Gauss-Newton standard errors); ci95_log (P, 2) the same for log p, p exp(+-q std/p),
+    positive (the better reading when std/p is not small); covariance, correlation (P, P); params
+    the fitted `RobotParams`; sigma2 the estimated variance of the weighted residuals (about 1 when
+    the noise is as stated: s^2 = sum r^2/(N - P)); jacobian (N, P) d(weighted residual)/d(p) at the
+    estimate; residuals (N,) weighted residuals (after the loss) at the estimate; fitted (E, m, 3)
+    and measured (E, m, 3) poses, ts (E, m) their times, mask (E, m) real samples (padding False);
+    identifiability (dict: singular values of the relative sensitivities, condition number, the
+    combinations the data determine and those they do not); residual_stats (dict: RMS per experiment
+    and channel in m / rad against the stated noise); history (dict: iterations, cost, convergence,
+    compile_s, run_s)."""
 
     names: tuple
     estimate: Array
