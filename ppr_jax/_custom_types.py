@@ -1,18 +1,7 @@
-"""Type aliases used across ppr_jax (jaxtyping shapes).
+"""The jaxtyping names used in the annotations across ppr_jax.
 
 Shape names: ``batch`` a leading parameter-batch axis, ``n`` generalized coordinates of a model,
-``times`` output times, ``bodies`` rigid bodies of a model.
+``m`` output times, ``N`` elements of a strip.
 """
 
-from typing import Union
-
-import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int  # noqa: F401
-
-Scalar = Float[Array, ""]
-ScalarLike = Union[float, int, Float[ArrayLike, ""]]
-Pose = Float[Array, "3"]  # platform pose X = (x [m], y [m], phi [rad])
-PoseLike = Union[Float[ArrayLike, "3"], tuple, list, np.ndarray]
-Angles3 = Float[Array, "3"]  # one value per chain
-ChainAngles = Float[Array, "3 3"]  # [chain i, (th_i1, th_i2, th_i3)]
-Coords = Float[Array, " n"]
