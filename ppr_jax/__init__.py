@@ -34,6 +34,7 @@ from ._models import (  # noqa: E402
     STRIP_DYNAMICS as STRIP_DYNAMICS,
     get_model as get_model,
 )
+from ._mjcf import to_mjcf as to_mjcf  # noqa: E402
 from ._models.beam import (  # noqa: E402
     Beam as Beam,
     solve_strip as solve_strip,

@@ -102,6 +102,36 @@ def test_intervals_shrink_with_noise(fits):
     assert np.all(np.diff(b.ci95, axis=1) < np.diff(a.ci95, axis=1))
 
 
+def test_validation_holds_out_samples_and_flags_a_model_that_does_not_generalise(truth, clean):
+    """Fit the first 70 % of a run, predict the last 30 %: on data the model explains, the
+    held-out residual scale is the noise's (about 1, as the fit's). When the last 30 % of the
+    data drift away (x offset by 20 noise std there, which no parameter of the model makes),
+    the fit of the first 70 % is as good as before but its prediction is not, and the fit says
+    so: a problem in `quality`, the stop reason, the table."""
+    start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
+    good = _noisy(clean, 1.0, seed=5)
+    fit = pj.identify(good, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
+                      validation=0.3)
+    v = fit.validation
+    assert 17 <= v["samples"] <= 19 and int(fit.mask.sum()) == N - v["samples"]
+    assert 0.7 < v["residual_scale"] < 1.4 and v["generalises"] and fit.quality["ok"], v
+    ts, X = good.ts, np.array(good.X)
+    X[ts > 0.7 * T_END, 0] += 20 * NOISE[0]
+    drifted = pj.experiment(ts, X, name="drifted")
+    fit2 = pj.identify(drifted, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
+                       validation=0.3)
+    np.testing.assert_allclose(fit2.estimate, fit.estimate, rtol=1e-6)  # the same fitted part
+    v2 = fit2.validation
+    assert v2["residual_scale"] > 10 and not v2["generalises"], v2
+    assert not fit2.quality["ok"] and fit2.history["stop"] == "does not generalise"
+    assert "does NOT generalise" in fit2.table()
+    assert fit2.to_dict()["validation"]["generalises"] is False
+    for bad, match in [(1.5, "in \\(0, 1\\)"), (["nope"], "not one of the experiments"),
+                       ([0], "every experiment")]:
+        with pytest.raises(pj.IdentificationError, match=match):
+            pj.identify(good, ("t", "K_theta"), model="double1r", validation=bad)
+
+
 def test_covariance_against_finite_difference_jacobian(fits):
     """Rebuild the Jacobian with respect to the physical parameters by central differences of
     the residuals (the fit's own residual function at points along each parameter) and
@@ -352,6 +382,18 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
         assert os.path.getsize(f"{out}/{f}") > 0
     lines = open(f"{out}/fitted.csv").read().splitlines()
     assert lines[0].startswith("experiment,time,x_measured") and len(lines) == N + 1
+    # the identified robot, read back: the parameter file holds the estimates exactly, and its
+    # MJCF (when MuJoCo is installed) carries the identified strip's spring stiffness
+    back = pj.load_params(f"{out}/identified.toml")
+    for name in ("t", "K_theta"):
+        assert float(getattr(back, name)) == summary["unknowns"][name]["estimate"]
+    try:
+        import mujoco
+    except ImportError:
+        return
+    m = mujoco.MjModel.from_xml_path(f"{out}/identified_l2.xml")
+    np.testing.assert_allclose(m.jnt_stiffness[m.joint("B0").id], float(pj.Robot(back).K),
+                               rtol=1e-15)
 
 
 def test_cli_user_errors_exit_2(tmp_path, capsys):

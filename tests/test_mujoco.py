@@ -102,3 +102,17 @@ def test_paper_circle_window_matches_library():
     # the window shows the model's own error (not a trivially small signal)
     assert e_lib.min() < -1e-5
     assert mj["constraint_residual_max_m"] < 1e-9
+
+
+def test_export_draws_weightless_geoms_and_refuses_a_batch():
+    """`to_mjcf` as users get it: the drawn links and platform (12 capsules, no contact) change
+    no mass, centre of mass or inertia of any body; a batch of robots is refused by name."""
+    p = pj.RobotParams()
+    drawn = mujoco.MjModel.from_xml_string(pj.to_mjcf(p))
+    bare = mujoco.MjModel.from_xml_string(pj.to_mjcf(p, visual=False))
+    assert drawn.ngeom == 12 and bare.ngeom == 0
+    assert not drawn.geom_contype.any() and not drawn.geom_conaffinity.any()
+    for field in ("body_mass", "body_ipos", "body_inertia"):
+        np.testing.assert_array_equal(getattr(drawn, field), getattr(bare, field))
+    with pytest.raises(pj.PPRError, match="one robot"):
+        pj.to_mjcf(pj.stack_params([p, p]))

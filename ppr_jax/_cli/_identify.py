@@ -61,7 +61,7 @@ def cmd_identify(args):
                    noise=(args.noise_pos, args.noise_phi), loss=args.loss,
                    loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
                    ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
-                   max_steps=args.max_steps)
+                   max_steps=args.max_steps, validation=_validation(args.validation))
     _log(f"driven by {fit.actuation}")
     _log(f"done in {time.perf_counter() - t0:.1f} s ({fit.history.get('iterations')} iterations, "
          f"stop: {fit.history.get('stop')})")
@@ -89,14 +89,39 @@ def cmd_identify(args):
                       + extra)
     with open(os.path.join(args.out, "estimates.txt"), "w") as f:
         f.write(table + "\n")
+    robot_files = _write_robot(args.out, fit)
     print(table)
     print(f"wrote {args.out}/estimates.json, estimates.txt, fitted.csv, "
           + ("profiles.json, " if args.profile else "")
-          + ", ".join(os.path.basename(p) for p in figs))
+          + ", ".join(os.path.basename(p) for p in figs + robot_files))
     if args.strict and not fit.quality["ok"]:
         _log("--strict: the fit cannot be trusted: " + "; ".join(fit.quality["problems"]))
         return 3
     return 0
+
+
+def _validation(text):
+    """--validation: None, a fraction, or experiment names."""
+    if text is None:
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return [n.strip() for n in text.split(",") if n.strip()]
+
+
+def _write_robot(out, fit) -> list:
+    """The identified robot: `identified.toml` (every command's `--params-file` reads it) and
+    `identified_l2.xml`, its L2 as MJCF (`to_mjcf`; `python -m mujoco.viewer
+    --mjcf=identified_l2.xml` shows it)."""
+    from .._mjcf import to_mjcf
+    from .._params_file import save_params
+
+    paths = [save_params(fit.params, os.path.join(out, "identified.toml")),
+             os.path.join(out, "identified_l2.xml")]
+    with open(paths[1], "w", encoding="utf-8") as f:
+        f.write(to_mjcf(fit.params))
+    return paths
 
 
 def _write_fitted(path, fit):
@@ -174,7 +199,12 @@ def add_identify(sub, parents, fmt):
     p.add_argument("--drop-nan", action="store_true", help="drop NaN rows (reported)")
     p.add_argument("--strict", action="store_true",
                    help="exit 3 when the fit cannot be trusted: it does not explain the data "
-                        "(residual scale s > 3) or an unknown ends at a bound")
+                        "(residual scale s > 3), an unknown ends at a bound, or it does not "
+                        "generalise to the --validation samples")
+    p.add_argument("--validation", default=None, metavar="FRACTION|NAME[,NAME...]",
+                   help="hold samples out of the fit and report how the fitted model predicts "
+                        "them: a fraction in (0, 1) holds out the last part of every "
+                        "experiment; experiment names (file stems) hold out those files")
     p.add_argument("--profile", action="store_true",
                    help="also profile-likelihood intervals of every unknown (a re-fit of the "
                         "others per point): profiles.json, profiles.png")

@@ -117,6 +117,7 @@ def identify(
     atol: float = 1e-10,
     max_steps: int = 100_000,
     n_elements: Optional[int] = None,
+    validation=None,
 ) -> Identification:
     """Fit `unknowns` (names of `RobotParams` float leaves) to measured experiments.
 
@@ -140,7 +141,12 @@ def identify(
     change is below them; "lm" also stops when an accepted step is shorter than `stat_tol` standard
     errors (measured with the information matrix J^T J / s^2, so that steps along undetermined
     directions do not count). ode_solver, rtol, atol, max_steps: the simulation's (default tsit5,
-    1e-8, 1e-10).
+    1e-8, 1e-10). validation: samples held out of the fit and predicted by it: a fraction in
+    (0, 1), the last part of every experiment's time span (by time: the model must extrapolate
+    its own motion), or a sequence of experiment names or indices held out whole (with
+    initial_state "scene" only). `Identification.validation` reports their residual scale
+    against the fit's; above twice the fit's (or 1) the model does not generalise, which
+    `quality` reports as a problem.
 
     Returns an `Identification`. Raises `IdentificationError` for unknown or fixed names that
     are not leaves, bounds outside the physical range, an initial value outside its bounds or a
@@ -228,6 +234,11 @@ def identify(
         raise IdentificationError(f"bounds given for parameters that are not unknowns: "
                                   f"{sorted(bounds)}")
     ts, X, W, tau, th, mask = _pack(exps, float(noise[0]), float(noise[1]), scene, actuation)
+    held = _held_out(validation, ts, mask, [e.name for e in exps], n_init)
+    if held is not None:
+        W_all = W
+        mask = mask & ~held[0]
+        W = W * mask[..., None]
     n_res = int(mask.sum()) * 3
     n_unknown = len(names) + n_init * len(exps)
     if n_res <= n_unknown:
@@ -269,5 +280,50 @@ def identify(
         z, hist = _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol)
     else:
         z, hist = _optimistix(prob, z0, solver, max_iter, xtol, ftol)
-    return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise), drive)
+    return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise), drive,
+                   held=None if held is None else (W_all, held[0], held[1]))
+
+
+def _held_out(validation, ts, mask, names, n_init):
+    """(held (E, m) bool, description) of the samples `validation` holds out, or None: a
+    fraction in (0, 1) holds out that last part of every experiment's time span; a sequence of
+    experiment names or indices holds out those experiments whole."""
+    if validation is None:
+        return None
+    if isinstance(validation, (int, float)) and not isinstance(validation, bool):
+        v = float(validation)
+        if not 0.0 < v < 1.0:
+            raise IdentificationError(f"validation: a fraction of each experiment's time span "
+                                      f"must be in (0, 1), got {validation!r}")
+        held = np.zeros_like(mask)
+        for k in range(mask.shape[0]):
+            t = ts[k][mask[k]]
+            held[k] = mask[k] & (ts[k] > t[0] + (1.0 - v) * (t[-1] - t[0]))
+        what = f"the last {v:.0%} of each experiment"
+    else:
+        sel = set()
+        for item in validation:
+            if isinstance(item, str) and item in names:
+                sel.add(names.index(item))
+            elif isinstance(item, (int, np.integer)) and 0 <= int(item) < len(names):
+                sel.add(int(item))
+            else:
+                raise IdentificationError(
+                    f"validation: {item!r} is not one of the experiments ({', '.join(names)}) "
+                    f"or their indices 0..{len(names) - 1}")
+        if len(sel) == len(names):
+            raise IdentificationError("validation holds out every experiment: nothing is left "
+                                      "to fit")
+        if n_init:
+            raise IdentificationError(
+                "validation by whole experiments with an estimated initial state: a held-out "
+                "experiment's initial state would be unknown; hold out the last part of each "
+                "experiment instead (validation=0.3), or initial_state='scene'")
+        held = np.zeros_like(mask)
+        for k in sel:
+            held[k] = mask[k]
+        what = "experiments " + ", ".join(names[k] for k in sorted(sel))
+    if not held.any():
+        raise IdentificationError("validation holds out no sample")
+    return held, what
 

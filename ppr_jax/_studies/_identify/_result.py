@@ -76,6 +76,12 @@ class Identification(eqx.Module):
     #: whether the fit can be trusted: {"ok", "residual_scale", "explains_data", "at_bound",
     #: "problems" (list of sentences)}
     quality: Optional[dict] = None
+    #: the held-out samples' check (`identify(..., validation=...)`): {"held_out", "samples",
+    #: "residual_scale", "train_residual_scale", "generalises", "experiments" (RMS per
+    #: experiment)}; None without validation
+    validation: Optional[dict] = None
+    #: (E, m) the held-out samples (`validation`), None without validation
+    held_out: Optional[Array] = None
 
     def residuals_at(self, values) -> np.ndarray:
         """Weighted residuals (N,) (after the loss) at parameter values (P,) (physical units,
@@ -240,6 +246,12 @@ class Identification(eqx.Module):
             lines.append(f"  {e['name']}: RMS x {e['rms_x_m'] * 1e3:.4g} mm, y "
                          f"{e['rms_y_m'] * 1e3:.4g} mm, phi {e['rms_phi_rad'] * 1e3:.4g} mrad "
                          f"(noise {self.noise[0] * 1e3:.3g} mm, {self.noise[1] * 1e3:.3g} mrad)")
+        v = self.validation
+        if v:
+            lines.append(f"  validation ({v['held_out']}, {v['samples']} samples): s = "
+                         f"{v['residual_scale']:.4g} against {v['train_residual_scale']:.4g} "
+                         f"on the fitted samples ("
+                         + ("generalises" if v["generalises"] else "does NOT generalise") + ")")
         return "\n".join(lines)
 
     def figures(self, out_dir: str) -> list:
@@ -272,6 +284,7 @@ class Identification(eqx.Module):
             "residual_stats": self.residual_stats,
             "initial_state": self.initial_state,
             "quality": self.quality,
+            "validation": self.validation,
             "history": self.history,
         })
 
@@ -331,7 +344,36 @@ def _identifiability(names, p, J, s2):
             "combinations": combos, "note": note}
 
 
-def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="") -> Identification:
+def _validation(X, Xm, W, held, exps, s_fit, what) -> dict:
+    """The fitted model's residuals on the held-out samples `held` (E, m) with the full weights
+    W (E, m, 3): their scale s_val (RMS of the weighted residuals: 1 = noise as stated) against
+    the fit's. The model generalises when s_val <= `GENERALISES_FACTOR` max(s_fit, 1): with
+    noise alone both are about 1 (s_val of n samples spreads by 1/sqrt(2 n))."""
+    d = X - Xm
+    wv = (d * W)[held]
+    s_val = float(np.sqrt(np.mean(wv ** 2)))
+    rows = []
+    for k, e in enumerate(exps):
+        m = held[k]
+        if m.any():
+            rows.append({"name": e.name, "n": int(m.sum()),
+                         "rms_position_m": float(np.sqrt(np.mean(np.sum(d[k][m, :2] ** 2, -1)
+                                                                 / 2))),
+                         "rms_phi_rad": float(np.sqrt(np.mean(d[k][m, 2] ** 2)))})
+    return {"held_out": what, "samples": int(held.sum()), "residual_scale": s_val,
+            "train_residual_scale": s_fit,
+            "generalises": bool(s_val <= GENERALISES_FACTOR * max(s_fit, 1.0)),
+            "experiments": rows}
+
+
+#: a validation residual scale above this many times the fit's (or 1) is a model that does not
+#: generalise to the held-out samples
+GENERALISES_FACTOR = 2.0
+
+
+def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Identification:
+    """The `Identification` of the fit `zrj` = (z, r, J, X). `held`: None, or (W, held (E, m),
+    description) of the held-out samples (`_validation`)."""
     from scipy import stats
 
     z, r, Jz, X = zrj
@@ -397,12 +439,22 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="") -> Identification:
             c["status"] = "not trustworthy (poor fit)"
     if at_bound:
         problems.append(f"{', '.join(at_bound)} at a bound")
+    validation = None
+    if held is not None:
+        validation = _validation(np.asarray(X), np.asarray(prob.X), held[0], held[1], exps,
+                                 s_fit, held[2])
+        if not validation["generalises"]:
+            problems.append(f"the model does not generalise: residual scale "
+                            f"{validation['residual_scale']:.3g} on the held-out samples "
+                            f"({validation['held_out']}) against {s_fit:.3g} on the fitted ones")
     hist = dict(hist)
     hist["optimizer_stop"] = hist.get("stop")
     if problems and hist.get("stop") == "converged":
-        hist["stop"] = "poor fit" if not s_fit <= POOR_FIT_SCALE else "at bound"
+        hist["stop"] = ("poor fit" if not s_fit <= POOR_FIT_SCALE else
+                        "at bound" if at_bound else "does not generalise")
     quality = {"residual_scale": s_fit, "explains_data": bool(s_fit <= POOR_FIT_SCALE),
                "at_bound": at_bound, "ok": not problems,
+               "generalises": None if validation is None else validation["generalises"],
                "problems": problems}
     raw = np.where(np.asarray(prob.w) > 0, (X - np.asarray(prob.X)) * np.asarray(prob.w), 0.0)
     rs = []
@@ -428,6 +480,7 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="") -> Identification:
         residual_stats=stats_, history=hist, model=prob.model.name, scene=prob.scene,
         experiment_names=tuple(e.name for e in exps), noise=noise, problem=prob,
         initial_state=init, z=np.asarray(z), actuation=drive, quality=quality,
+        validation=validation, held_out=None if held is None else held[1],
     )
 
 
