@@ -471,3 +471,46 @@ def test_recovers_truth_from_data_of_an_independent_formulation(truth):
     assert "nominal robot" in wrong.actuation
     assert math.sqrt(wrong.sigma2) > 5, wrong.table()
     assert wrong.history["stop"] == "poor fit" and not wrong.quality["ok"]
+
+
+def test_tracker_bias_and_delay_estimated_as_nuisance(truth):
+    """A tracker whose frame is offset by (0.3 mm, -0.2 mm, 2 mrad) and whose samples lag the
+    actuation by 4 ms: samples of the independent scipy L2 (benchmarks/contenders) at t - 4 ms,
+    stamped t. With the measurement model estimated (`nuisance=("bias", "delay")`) the fit
+    explains the data to the noise and recovers the bias, the delay and t^3 K_theta within
+    3 standard deviations each; without it the same data cannot be explained (s >> 1). The
+    fit without nuisances has the module's shapes (the compiled Jacobian is reused)."""
+    import os
+    import sys
+
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    from benchmarks.contenders import known_truth
+
+    robot = truth.replace(K_theta=1.15 * float(truth.K_theta))
+    nominal = truth.replace(gamma=0.81)
+    bias, delay = np.array([3e-4, -2e-4, 2e-3]), 4e-3
+    stamps = np.arange(1, N) / ((N - 1) / T_END)  # the first stamp would need t < 0
+    _, X, _ = known_truth.servo_data(robot, nominal, times=stamps - delay)
+    rng = np.random.default_rng(11)
+    X = X + bias[None, :]
+    X[:, :2] += NOISE[0] * rng.standard_normal((N - 1, 2))
+    X[:, 2] += NOISE[1] * rng.standard_normal(N - 1)
+    exp = pj.experiment(stamps, X, name="biased, late")
+    start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
+    kw = dict(model="double1r", initial=start, noise=NOISE, commands=nominal)
+    plain = pj.identify(exp, ("t", "K_theta"), **kw)
+    assert math.sqrt(plain.sigma2) > 5 and not plain.quality["ok"], plain.table()
+    fit = pj.identify(exp, ("t", "K_theta"), nuisance=("bias", "delay"), **kw)
+    assert 0.75 < math.sqrt(fit.sigma2) < 1.3, fit.table()
+    got = fit.measurement["values"]
+    for name, true in zip(("bias_x", "bias_y", "bias_phi", "delay"), (*bias, delay)):
+        assert abs(got[name]["estimate"] - true) < 3 * got[name]["std"], (name, fit.table())
+    assert got["delay"]["std"] < 0.5e-3  # the delay is determined, not merely bounded
+    c0 = fit.identifiability["combinations"][0]
+    e = dict(zip(fit.names, c0["exponents"]))
+    true_c = float(robot.t) ** e["t"] * float(robot.K_theta) ** e["K_theta"]
+    assert abs(math.log(c0["value"] / true_c)) < 3 * c0["relative_std"], fit.table()
+    assert "measurement: bias_x" in fit.table() and fit.to_dict()["measurement"]
+    with pytest.raises(pj.IdentificationError, match="unknown nuisance"):
+        pj.identify(exp, ("t",), nuisance=("offset",))
+

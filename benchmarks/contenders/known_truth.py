@@ -25,8 +25,9 @@ from . import scipy_l2
 
 
 def servo_data(truth: pj.RobotParams, nominal: pj.RobotParams, *, t_end: float = 2.0,
-               rate: float = 100.0, rtol: float = 1e-11, atol: float = 1e-13):
-    """Noise-free tracker samples of the L2 robot `truth` under the commands of `nominal`.
+               rate: float = 100.0, rtol: float = 1e-11, atol: float = 1e-13, times=None):
+    """Noise-free tracker samples of the L2 robot `truth` under the commands of `nominal`, at
+    `rate` Hz over [0, t_end], or at the increasing `times` (s, >= 0) when given.
 
     **Returns:** (ts (n,) s, X (n, 3) pose (m, m, rad), th (n, 3) actuated angles (rad))."""
     angles = pj.InverseKinematicsAngles(pj.Reduced(), pj.Robot(nominal), pj.Circle())
@@ -36,8 +37,11 @@ def servo_data(truth: pj.RobotParams, nominal: pj.RobotParams, *, t_end: float =
     z0, zd0 = pj.quasi_static_state(pj.Double1R(), pj.Robot(truth), pj.Circle(), 0.0,
                                     pj.MotionDriven(angles))
     m = scipy_l2.L2Model(truth, None, angles=spline)
-    n = int(round(t_end * rate)) + 1
-    ts = np.arange(n) / rate
+    if times is None:
+        ts = np.arange(int(round(t_end * rate)) + 1) / rate
+    else:
+        ts = np.asarray(times, dtype=np.float64)
+        t_end = float(ts[-1])
     sol = scipy_l2.simulate(m, m.state_from_library(np.asarray(z0), np.asarray(zd0)), ts,
                             "DOP853", rtol, atol)
     if sol.status != 0:

@@ -61,7 +61,8 @@ def cmd_identify(args):
                    noise=(args.noise_pos, args.noise_phi), loss=args.loss,
                    loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
                    ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
-                   max_steps=args.max_steps, validation=_validation(args.validation))
+                   max_steps=args.max_steps, validation=_validation(args.validation),
+                   nuisance=tuple(args.nuisance))
     _log(f"driven by {fit.actuation}")
     _log(f"done in {time.perf_counter() - t0:.1f} s ({fit.history.get('iterations')} iterations, "
          f"stop: {fit.history.get('stop')})")
@@ -201,6 +202,10 @@ def add_identify(sub, parents, fmt):
                    help="exit 3 when the fit cannot be trusted: it does not explain the data "
                         "(residual scale s > 3), an unknown ends at a bound, or it does not "
                         "generalise to the --validation samples")
+    p.add_argument("--nuisance", action="append", default=[], choices=["bias", "delay"],
+                   help="also estimate the tracker's measurement model, shared by every file: "
+                        "'bias' (an offset of x, y, phi) or 'delay' (its lag behind the "
+                        "actuation); repeat for both")
     p.add_argument("--validation", default=None, metavar="FRACTION|NAME[,NAME...]",
                    help="hold samples out of the fit and report how the fitted model predicts "
                         "them: a fraction in (0, 1) holds out the last part of every "

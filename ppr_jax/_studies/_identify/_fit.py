@@ -36,7 +36,7 @@ def _initial_state_guess(prob, z0, mask):
         dt = ts[j, i[1]] - ts[j, i[0]]
         d[j, 3:] = ((Xm[j, i[1]] - Xm[j, i[0]]) - (X[j, i[1]] - X[j, i[0]])) / dt
     z0 = np.array(z0, dtype=np.float64)
-    z0[P:] = (d[:, :k] / np.asarray(INIT_SCALE[:k])).reshape(-1)
+    z0[P:P + X.shape[0] * k] = (d[:, :k] / np.asarray(INIT_SCALE[:k])).reshape(-1)
     return z0
 
 

@@ -84,6 +84,7 @@ from ._problem import (
     INIT_SCALE,
     INITIAL_STATES,
     LOSSES,
+    NUISANCE,
     SOLVERS,
     _Problem,
     _to_z,
@@ -118,6 +119,7 @@ def identify(
     max_steps: int = 100_000,
     n_elements: Optional[int] = None,
     validation=None,
+    nuisance: Sequence[str] = (),
 ) -> Identification:
     """Fit `unknowns` (names of `RobotParams` float leaves) to measured experiments.
 
@@ -146,7 +148,13 @@ def identify(
     its own motion), or a sequence of experiment names or indices held out whole (with
     initial_state "scene" only). `Identification.validation` reports their residual scale
     against the fit's; above twice the fit's (or 1) the model does not generalise, which
-    `quality` reports as a problem.
+    `quality` reports as a problem. nuisance: measurement parameters estimated with the unknowns
+    and reported apart, shared by every experiment: "bias" (an offset of each pose channel x,
+    y, phi: the tracker's frame against the robot's) and "delay" (the tracker's time delay
+    against the actuation: the pose sampled at t is the robot's at t - delay, interpolated
+    between the simulated samples by a cubic Hermite of their poses and rates; up to one sample
+    spacing). Their uncertainty is marginalised out of the parameters' intervals, as the
+    initial state's is.
 
     Returns an `Identification`. Raises `IdentificationError` for unknown or fixed names that
     are not leaves, bounds outside the physical range, an initial value outside its bounds or a
@@ -177,6 +185,13 @@ def identify(
         raise IdentificationError(f"unknown initial_state {initial_state!r}; allowed: "
                                   f"{', '.join(INITIAL_STATES)}")
     n_init = INITIAL_STATES[initial_state]
+    nuisance = tuple(nuisance)
+    for item in nuisance:
+        if item not in NUISANCE:
+            raise IdentificationError(f"unknown nuisance {item!r}; allowed: "
+                                      f"{', '.join(NUISANCE)}")
+    meas = tuple(sorted(({0, 1, 2} if "bias" in nuisance else set())
+                        | ({3} if "delay" in nuisance else set())))
     if loss not in LOSSES:
         raise IdentificationError(f"unknown loss {loss!r}; allowed: {', '.join(LOSSES)}")
     if solver not in SOLVERS:
@@ -240,7 +255,7 @@ def identify(
         mask = mask & ~held[0]
         W = W * mask[..., None]
     n_res = int(mask.sum()) * 3
-    n_unknown = len(names) + n_init * len(exps)
+    n_unknown = len(names) + n_init * len(exps) + len(meas)
     if n_res <= n_unknown:
         raise DataError(f"{n_res} residuals cannot determine {n_unknown} unknowns")
     from ..._robot import equal_links_of
@@ -271,9 +286,10 @@ def identify(
         max_steps=int(max_steps), loss=jnp.asarray(LOSSES.index(loss)),
         loss_scale=jnp.asarray(float(loss_scale), dtype=jnp.float64),
         n_init=n_init, init_scale=jnp.asarray(INIT_SCALE[:n_init]) if n_init else None,
+        meas=meas,
     )
     p0 = np.array([float(getattr(base, n)) for n in names])
-    z0 = np.concatenate([_to_z(lg, lo, hi, p0), np.zeros(n_init * len(exps))])
+    z0 = np.concatenate([_to_z(lg, lo, hi, p0), np.zeros(n_init * len(exps) + len(meas))])
     if n_init:
         z0 = _initial_state_guess(prob, z0, mask)
     if solver == "lm":

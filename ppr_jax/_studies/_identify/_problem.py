@@ -51,6 +51,16 @@ INIT_NAMES = ("x0", "y0", "phi0", "xd0", "yd0", "phid0")
 INIT_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s")
 
 
+#: measurement nuisance parameters, shared by every experiment (one tracker, one set-up): a
+#: bias of each pose channel (the tracker's frame against the robot's) and the tracker's time
+#: delay against the actuation (a pose sampled at t is the robot's at t - delay)
+NUISANCE = ("bias", "delay")
+MEAS_NAMES = ("bias_x", "bias_y", "bias_phi", "delay")
+MEAS_UNITS = ("m", "m", "rad", "s")
+#: their scale in z (a unit step: 1 mm, 1 mm, 10 mrad, 10 ms)
+MEAS_SCALE = (1e-3, 1e-3, 1e-2, 1e-2)
+
+
 ID_SCENES = ("servo-circle", "paper-circle")
 
 
@@ -88,6 +98,9 @@ class _Problem(eqx.Module):
     #: parameters in z, as offsets in units of `init_scale` (m, m, rad, m/s, m/s, rad/s)
     n_init: int = eqx.field(static=True, default=0)
     init_scale: Optional[Array] = None
+    #: indices into MEAS_NAMES of the measurement nuisance parameters estimated, the last
+    #: entries of z, in units of MEAS_SCALE
+    meas: tuple = eqx.field(static=True, default=())
 
 
 def _to_p(prob: _Problem, z):
@@ -128,9 +141,42 @@ def _offsets(prob: _Problem, z):
     E = prob.ts.shape[0]
     d = jnp.zeros((E, 6))
     if prob.n_init:
-        P = len(prob.names)
-        d = d.at[:, :prob.n_init].set(z[P:].reshape(E, prob.n_init) * prob.init_scale[None, :])
+        P, k = len(prob.names), prob.n_init
+        d = d.at[:, :k].set(z[P:P + E * k].reshape(E, k) * prob.init_scale[None, :])
     return d
+
+
+def _measurement(prob: _Problem, z):
+    """(bias (3,) m, m, rad; delay s) from the last entries of z (zeros where not estimated)."""
+    b = jnp.zeros(4)
+    if prob.meas:
+        k = len(prob.meas)
+        scale = jnp.asarray([MEAS_SCALE[i] for i in prob.meas])
+        b = b.at[jnp.array(prob.meas)].set(z[-k:] * scale)
+    return b[:3], b[3]
+
+
+def _hermite(x0, v0, x1, v1, h, u):
+    """Cubic Hermite interpolation on [t0, t0 + h] at t0 + u h from values and rates."""
+    u, h = u[..., None], h[..., None]
+    u2, u3 = u * u, u * u * u
+    return ((2 * u3 - 3 * u2 + 1) * x0 + (u3 - 2 * u2 + u) * h * v0 + (3 * u2 - 2 * u3) * x1
+            + (u3 - u2) * h * v1)
+
+
+def _delayed(X, V, ts, delay):
+    """The simulated poses at ts - delay (E, m, 3) from X and their rates V at ts: a cubic Hermite
+    on the sample interval that holds ts - delay (exact to O(h^4); for |delay| up to one sample
+    spacing, beyond it the cubic extrapolates), first order at the first (delay > 0) or last
+    (delay < 0) sample, which has no neighbour on that side."""
+    h = ts[:, 1:] - ts[:, :-1]
+    h = jnp.where(h > 0, h, 1.0)  # padding repeats the last time
+    x0, v0, x1, v1 = X[:, :-1], V[:, :-1], X[:, 1:], V[:, 1:]
+    later = jnp.concatenate([X[:, :1] - delay * V[:, :1],
+                             _hermite(x0, v0, x1, v1, h, 1.0 - delay / h)], axis=1)
+    earlier = jnp.concatenate([_hermite(x0, v0, x1, v1, h, -delay / h),
+                               X[:, -1:] - delay * V[:, -1:]], axis=1)
+    return jnp.where(delay >= 0, later, earlier)
 
 
 def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
@@ -154,7 +200,8 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
         act = scene.commands(model, base_robot, traj, ts, options.panels).actuation
     robot = Robot(params, equal_links=prob.equal_links)
     res = scene.run(model, robot, options, act, ts=ts, initial_offset=d0)
-    return res.X, res.result == RESULTS.successful
+    # z[:3] is the platform pose in every model: its rates are the pose's
+    return res.X, res.zdot[:, :3], res.result == RESULTS.successful
 
 
 def _robust(r, loss, c):
@@ -167,23 +214,29 @@ def _robust(r, loss, c):
     return jnp.select([loss == 0, loss == 1], [r, huber], cauchy)
 
 
-def _weighted_residuals(prob: _Problem, p, d0):
-    """(E, m, 3) weighted residuals (simulated - measured) / noise, raw (before the loss), and
-    the success flag of every experiment's simulation; d0 (E, 6) initial-state offsets."""
+def _weighted_residuals(prob: _Problem, p, d0, meas=None):
+    """(E, m, 3) weighted residuals (predicted - measured) / noise, raw (before the loss), the
+    predicted poses and the success flag of every experiment's simulation; d0 (E, 6)
+    initial-state offsets; meas (bias (3,), delay) the measurement model: the pose predicted at
+    t is the simulated one at t - delay, plus the bias."""
     params = _params_at(prob, p)
     base_robot = Robot(jax.lax.stop_gradient(prob.commands))
     tau, th = prob.tau, prob.th
-    X, ok = jax.vmap(
+    X, V, ok = jax.vmap(
         lambda ts, tau, th, d0: _pose_one(prob, params, base_robot, ts, tau, th, d0),
         in_axes=(0, None if tau is None else 0, None if th is None else 0, 0),
     )(prob.ts, tau, th, d0)
+    if prob.meas:
+        bias, delay = meas
+        X = _delayed(X, V, prob.ts, delay) + bias[None, None, :]
     # Padding rows have weight 0; a failed simulation may be NaN there, keep it out of sums.
     r = jnp.where(prob.w > 0, (X - prob.X) * prob.w, 0.0)
     return r, X, jnp.all(ok)
 
 
 def _residual_vector(prob: _Problem, z):
-    r, X, ok = _weighted_residuals(prob, _to_p(prob, z), _offsets(prob, z))
+    r, X, ok = _weighted_residuals(prob, _to_p(prob, z), _offsets(prob, z),
+                                   _measurement(prob, z))
     return _robust(r.reshape(-1), prob.loss, prob.loss_scale), (ok, X)
 
 

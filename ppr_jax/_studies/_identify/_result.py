@@ -19,6 +19,9 @@ from ._problem import (
     INIT_NAMES,
     INIT_SCALE,
     INIT_UNITS,
+    MEAS_NAMES,
+    MEAS_SCALE,
+    MEAS_UNITS,
     POOR_FIT_SCALE,
     _dp_dz,
     _params_at,
@@ -82,6 +85,9 @@ class Identification(eqx.Module):
     validation: Optional[dict] = None
     #: (E, m) the held-out samples (`validation`), None without validation
     held_out: Optional[Array] = None
+    #: the measurement nuisance parameters (`identify(..., nuisance=...)`): {"estimated",
+    #: "values" {name: {"estimate", "std", "unit"}}}; None when none was estimated
+    measurement: Optional[dict] = None
 
     def residuals_at(self, values) -> np.ndarray:
         """Weighted residuals (N,) (after the loss) at parameter values (P,) (physical units,
@@ -246,6 +252,10 @@ class Identification(eqx.Module):
             lines.append(f"  {e['name']}: RMS x {e['rms_x_m'] * 1e3:.4g} mm, y "
                          f"{e['rms_y_m'] * 1e3:.4g} mm, phi {e['rms_phi_rad'] * 1e3:.4g} mrad "
                          f"(noise {self.noise[0] * 1e3:.3g} mm, {self.noise[1] * 1e3:.3g} mrad)")
+        if self.measurement:
+            parts = [f"{n} {v['estimate']:+.4g} +- {v['std']:.2g} {v['unit']}"
+                     for n, v in self.measurement["values"].items()]
+            lines.append("  measurement: " + ", ".join(parts))
         v = self.validation
         if v:
             lines.append(f"  validation ({v['held_out']}, {v['samples']} samples): s = "
@@ -285,6 +295,7 @@ class Identification(eqx.Module):
             "initial_state": self.initial_state,
             "quality": self.quality,
             "validation": self.validation,
+            "measurement": self.measurement,
             "history": self.history,
         })
 
@@ -389,15 +400,23 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
         J = Jz[:, :P] / np.maximum(dpdz, 1e-300)[None, :]  # d r / d p (physical)
     J = np.where(np.isfinite(J), J, 0.0)
     N = int(mask.sum()) * 3  # padding rows are exact zeros
-    scale = np.tile(np.asarray(INIT_SCALE[:prob.n_init]), E)
-    Ji = Jz[:, P:] / scale[None, :] if prob.n_init else np.zeros((Jz.shape[0], 0))
-    dof = max(N - P - Ji.shape[1], 1)
+    # the nuisance unknowns after the parameters: initial states, then measurement parameters
+    scale = np.concatenate([np.tile(np.asarray(INIT_SCALE[:prob.n_init]), E),
+                            np.asarray([MEAS_SCALE[i] for i in prob.meas])])
+    Jn = np.asarray(Jz)[:, P:] / scale[None, :]
+    Ji, Jm = Jn[:, :E * prob.n_init], Jn[:, E * prob.n_init:]
+    dof = max(N - P - Jn.shape[1], 1)
     s2 = float(r @ r) / dof
-    init = _initial_state_report(prob, z, X, J * p[None, :], Ji, s2, exps) if prob.n_init else None
-    if prob.n_init:
-        # The initial state is a nuisance: the parameters' marginal covariance is that of their
-        # Jacobian with the initial-state directions projected out (the Schur complement).
-        Qi = _range_basis(Ji)
+    Jr = J * p[None, :]
+    init = (_initial_state_report(prob, z, X, np.hstack([Jr, Jm]), Ji, s2, exps)
+            if prob.n_init else None)
+    measurement = (_measurement_report(prob, z, np.hstack([Jr, Ji]), Jm, s2)
+                   if prob.meas else None)
+    if Jn.shape[1]:
+        # The initial state and the measurement parameters are nuisances: the parameters'
+        # marginal covariance is that of their Jacobian with the nuisance directions projected
+        # out (the Schur complement).
+        Qi = _range_basis(Jn)
         J = J - Qi @ (Qi.T @ J)
     # Relative (scaled) normal equations: better conditioned than J^T J in SI units.
     Jr = J * p[None, :]
@@ -481,6 +500,7 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
         experiment_names=tuple(e.name for e in exps), noise=noise, problem=prob,
         initial_state=init, z=np.asarray(z), actuation=drive, quality=quality,
         validation=validation, held_out=None if held is None else held[1],
+        measurement=measurement,
     )
 
 
@@ -492,19 +512,41 @@ def _range_basis(A, rtol=1e-12):
     return U[:, sv > rtol * max(float(sv[0]) if sv.size else 0.0, 1e-300)]
 
 
+def _marginal_std(Jo, Jn, s2):
+    """Standard deviations of the unknowns of the columns Jn, marginal over those of Jo (their
+    directions projected out), with residual variance s2."""
+    Qp = _range_basis(Jo) if Jo.shape[1] else np.zeros((Jn.shape[0], 0))
+    Jne = Jn - Qp @ (Qp.T @ Jn)
+    nrm = np.linalg.norm(Jne, axis=0)
+    nrm = np.where(nrm > 0, nrm, 1.0)
+    A = (Jne / nrm).T @ (Jne / nrm)
+    Ci = np.linalg.pinv(A) / np.outer(nrm, nrm) * s2
+    return np.sqrt(np.maximum(np.diag(Ci), 0.0))
+
+
+def _measurement_report(prob, z, Jo, Jm, s2):
+    """The measurement nuisance parameters (bias of x, y, phi; delay) with standard deviations
+    marginal over the parameters and initial states."""
+    k = len(prob.meas)
+    values = np.asarray(z)[-k:] * np.asarray([MEAS_SCALE[i] for i in prob.meas])
+    sd = _marginal_std(Jo, Jm, s2)
+    return {"estimated": [MEAS_NAMES[i] for i in prob.meas],
+            "values": {MEAS_NAMES[i]: {"estimate": float(values[j]), "std": float(sd[j]),
+                                       "unit": MEAS_UNITS[i]}
+                       for j, i in enumerate(prob.meas)},
+            "note": "the tracker's offsets of x, y, phi and its delay against the actuation "
+                    "(shared by every experiment); std marginal over the parameters and the "
+                    "initial states"}
+
+
 def _initial_state_report(prob, z, X, Jr, Ji, s2, exps):
     """Per experiment: the estimated initial platform pose (absolute: the fitted pose at t = 0)
     and the velocity offset from the scene's quasi-static initial velocity, with standard
     deviations marginal over the parameters (their directions projected out)."""
-    Qp = _range_basis(Jr)
-    Jie = Ji - Qp @ (Qp.T @ Ji)
-    nrm = np.linalg.norm(Jie, axis=0)
-    nrm = np.where(nrm > 0, nrm, 1.0)
-    A = (Jie / nrm).T @ (Jie / nrm)
-    Ci = np.linalg.pinv(A) / np.outer(nrm, nrm) * s2
-    sd = np.sqrt(np.maximum(np.diag(Ci), 0.0))
+    sd = _marginal_std(Jr, Ji, s2)
     k = prob.n_init
-    d = np.asarray(z)[len(prob.names):].reshape(len(exps), k) * np.asarray(INIT_SCALE[:k])
+    P = len(prob.names)
+    d = np.asarray(z)[P:P + len(exps) * k].reshape(len(exps), k) * np.asarray(INIT_SCALE[:k])
     out = {}
     for j, e in enumerate(exps):
         row = {}
