@@ -126,6 +126,12 @@ def test_validation_holds_out_samples_and_flags_a_model_that_does_not_generalise
     assert not fit2.quality["ok"] and fit2.history["stop"] == "does not generalise"
     assert "does NOT generalise" in fit2.table()
     assert fit2.to_dict()["validation"]["generalises"] is False
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        html = open(fit2.report(f"{d}/report.html", figures=fit2.figures(d)),
+                    encoding="utf-8").read()
+    assert "does not generalise" in html and "held out" in html.lower()
     for bad, match in [(1.5, "in \\(0, 1\\)"), (["nope"], "not one of the experiments"),
                        ([0], "every experiment")]:
         with pytest.raises(pj.IdentificationError, match=match):
@@ -384,6 +390,13 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
     assert lines[0].startswith("experiment,time,x_measured") and len(lines) == N + 1
     # the identified robot, read back: the parameter file holds the estimates exactly, and its
     # MJCF (when MuJoCo is installed) carries the identified strip's spring stiffness
+    # the report: one file, figures inside, the data file named with its sha256, the command
+    import hashlib
+
+    report = open(f"{out}/report.html", encoding="utf-8").read()
+    assert hashlib.sha256(open(path, "rb").read()).hexdigest() in report
+    assert report.count("data:image/png;base64,") == 3 and "95 % (profile)" in report
+    assert "ppr-jax identify --data" in report and "jax=" in report
     back = pj.load_params(f"{out}/identified.toml")
     for name in ("t", "K_theta"):
         assert float(getattr(back, name)) == summary["unknowns"][name]["estimate"]
@@ -513,4 +526,28 @@ def test_tracker_bias_and_delay_estimated_as_nuisance(truth):
     assert "measurement: bias_x" in fit.table() and fit.to_dict()["measurement"]
     with pytest.raises(pj.IdentificationError, match="unknown nuisance"):
         pj.identify(exp, ("t",), nuisance=("offset",))
+
+
+def test_multi_start_escapes_the_minimum_of_a_far_start():
+    """A torque-driven fit of t (L1 open loop under the file's torques) from a start 30 times
+    off, 9 mm against 0.3 mm, ends in a distant minimum (s about 1e4) and is reported as a poor
+    fit. With `starts=6` (a Latin hypercube of log t within its bounds, on the same compiled
+    function) half the starts reach the truth: the result is the best (s about 1, the truth
+    within its interval), and the table says that the given start ended elsewhere."""
+    truth = pj.scene_params("paper-circle")
+    exp = pj.synthesize("paper-circle", "reduced", truth, noise_pos=NOISE[0],
+                        noise_phi=NOISE[1], rate=100, t_end=T_END, seed=2)
+    kw = dict(model="reduced", scene="paper-circle", initial={"t": 30 * float(truth.t)},
+              noise=NOISE)
+    one = pj.identify(exp, ("t",), **kw)
+    assert math.sqrt(one.sigma2) > 100 and one.history["stop"] == "poor fit", one.table()
+    ms = pj.identify(exp, ("t",), starts=6, **kw)
+    lo, hi = ms.ci95[0]
+    assert lo <= float(truth.t) <= hi and 0.7 < math.sqrt(ms.sigma2) < 1.3, ms.table()
+    st = ms.quality["starts"]
+    assert st["n"] == 6 and st["reached_best"] >= 2 and not st["given_start_reached_best"]
+    assert ms.history["starts"][0]["estimate"][0] > 10 * float(truth.t)
+    assert "the given start ended in another minimum" in ms.table()
+    with pytest.raises(pj.IdentificationError, match="starts"):
+        pj.identify(exp, ("t",), starts=0, **kw)
 

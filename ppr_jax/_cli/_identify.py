@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shlex
 import time
 
 import numpy as np
@@ -62,7 +63,7 @@ def cmd_identify(args):
                    loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
                    ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
                    max_steps=args.max_steps, validation=_validation(args.validation),
-                   nuisance=tuple(args.nuisance))
+                   nuisance=tuple(args.nuisance), starts=args.starts)
     _log(f"driven by {fit.actuation}")
     _log(f"done in {time.perf_counter() - t0:.1f} s ({fit.history.get('iterations')} iterations, "
          f"stop: {fit.history.get('stop')})")
@@ -91,10 +92,13 @@ def cmd_identify(args):
     with open(os.path.join(args.out, "estimates.txt"), "w") as f:
         f.write(table + "\n")
     robot_files = _write_robot(args.out, fit)
+    report = fit.report(os.path.join(args.out, "report.html"), figures=figs,
+                        data_files=args.data, profiles=profiles if args.profile else None,
+                        command=" ".join(["ppr-jax", *map(shlex.quote, args.argv)]))
     print(table)
     print(f"wrote {args.out}/estimates.json, estimates.txt, fitted.csv, "
           + ("profiles.json, " if args.profile else "")
-          + ", ".join(os.path.basename(p) for p in figs + robot_files))
+          + ", ".join(os.path.basename(p) for p in figs + robot_files + [report]))
     if args.strict and not fit.quality["ok"]:
         _log("--strict: the fit cannot be trusted: " + "; ".join(fit.quality["problems"]))
         return 3
@@ -202,6 +206,10 @@ def add_identify(sub, parents, fmt):
                    help="exit 3 when the fit cannot be trusted: it does not explain the data "
                         "(residual scale s > 3), an unknown ends at a bound, or it does not "
                         "generalise to the --validation samples")
+    p.add_argument("--starts", type=int, default=1, metavar="N",
+                   help="fit from the given start and N - 1 more points of a Latin hypercube "
+                        "within the bounds; the lowest cost wins, and the table says whether "
+                        "the given start ended in another minimum")
     p.add_argument("--nuisance", action="append", default=[], choices=["bias", "delay"],
                    help="also estimate the tracker's measurement model, shared by every file: "
                         "'bias' (an offset of x, y, phi) or 'delay' (its lag behind the "

@@ -58,6 +58,8 @@ def main(argv=None) -> int:
     import jax
 
     args = build_parser().parse_args(argv)
+    # the command as typed, for reports that say how they were made
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     args.program_dir = None
     if args.cmd == "sweep" and os.environ.get("PPR_JAX_CPU_DEFAULTS", "1") != "0":
         from .._devices import configure_cpu

@@ -132,6 +132,52 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None):
     return (z, r, J, np.asarray(X)), hist
 
 
+def _latin_hypercube(dim: int, n: int, seed: int) -> np.ndarray:
+    """n points (n, dim) of a Latin hypercube in (0.05, 0.95)^dim: away from the bounds, where
+    the reparametrisation is flat."""
+    from scipy.stats import qmc
+
+    return 0.05 + 0.9 * qmc.LatinHypercube(d=dim, seed=seed).random(n)
+
+
+def _multi_start(prob, z0, starts, seed, fit_one, guess=None):
+    """Fit from z0 and from `starts` - 1 points of a Latin hypercube of the unknowns within
+    their bounds (uniform in the bounded scale: log for a log-bounded unknown; the nuisance
+    unknowns as `guess(z)` puts them, else as in z0), by `fit_one(z) -> (zrj, hist)`; the
+    best (lowest cost) wins. A start whose simulation fails is recorded and skipped.
+    `hist["starts"]` lists every start: its parameters, where it ended, its cost and stop."""
+    P = len(prob.names)
+    points = [np.array(z0, dtype=np.float64)]
+    for u in _latin_hypercube(P, starts - 1, seed):
+        z = points[0].copy()
+        z[:P] = np.log(u) - np.log1p(-u)
+        points.append(z)
+    best, runs = None, []
+    for k, z in enumerate(points):
+        row = {"start": k, "initial": [float(v) for v in np.asarray(_to_p(prob, z[:P]))]}
+        try:
+            if guess is not None and k:
+                z = guess(z)
+            zrj, hist = fit_one(z)
+        except IdentificationError as err:
+            runs.append({**row, "cost": None, "stop": f"failed: {err}"})
+            continue
+        cost = float(np.asarray(zrj[1]) @ np.asarray(zrj[1]))
+        runs.append({**row, "estimate": [float(v) for v in
+                                         np.asarray(_to_p(prob, jnp.asarray(zrj[0])[:P]))],
+                     "cost": cost, "stop": hist["stop"]})
+        if best is None or cost < best[2]:
+            best = (zrj, hist, cost, k)
+    if best is None:
+        raise IdentificationError(f"every one of the {starts} starts failed: "
+                                  + "; ".join(r["stop"] for r in runs))
+    zrj, hist, _, k = best
+    hist = dict(hist)
+    hist["starts"] = runs
+    hist["best_start"] = k
+    return zrj, hist
+
+
 def _optimistix(prob, z0, solver, max_iter, xtol, ftol):
     import optimistix as optx
 

@@ -76,7 +76,7 @@ from ..._params import PARAM_RANGES, RobotParams
 from ..._scenes import scene_params
 from ..._simulate import get_solver
 from ._data import _fill_prb, _pack
-from ._fit import _initial_state_guess, _levenberg_marquardt, _optimistix
+from ._fit import _initial_state_guess, _levenberg_marquardt, _multi_start, _optimistix
 from ._problem import (
     ACTUATIONS,
     DEFAULT_NOISE,
@@ -120,6 +120,8 @@ def identify(
     n_elements: Optional[int] = None,
     validation=None,
     nuisance: Sequence[str] = (),
+    starts: int = 1,
+    seed: int = 0,
 ) -> Identification:
     """Fit `unknowns` (names of `RobotParams` float leaves) to measured experiments.
 
@@ -154,7 +156,10 @@ def identify(
     against the actuation: the pose sampled at t is the robot's at t - delay, interpolated
     between the simulated samples by a cubic Hermite of their poses and rates; up to one sample
     spacing). Their uncertainty is marginalised out of the parameters' intervals, as the
-    initial state's is.
+    initial state's is. starts: fits from the given start and from `starts` - 1 points of a
+    Latin hypercube of the unknowns within their bounds (seeded by `seed`), every one on the
+    same compiled function; the lowest cost wins, and `history["starts"]` and `quality` say
+    whether the given start ended in a local minimum.
 
     Returns an `Identification`. Raises `IdentificationError` for unknown or fixed names that
     are not leaves, bounds outside the physical range, an initial value outside its bounds or a
@@ -185,6 +190,9 @@ def identify(
         raise IdentificationError(f"unknown initial_state {initial_state!r}; allowed: "
                                   f"{', '.join(INITIAL_STATES)}")
     n_init = INITIAL_STATES[initial_state]
+    if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or not (
+            1 <= starts <= 1000):
+        raise IdentificationError(f"starts must be an integer in [1, 1000], got {starts!r}")
     nuisance = tuple(nuisance)
     for item in nuisance:
         if item not in NUISANCE:
@@ -292,10 +300,18 @@ def identify(
     z0 = np.concatenate([_to_z(lg, lo, hi, p0), np.zeros(n_init * len(exps) + len(meas))])
     if n_init:
         z0 = _initial_state_guess(prob, z0, mask)
-    if solver == "lm":
-        z, hist = _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol)
+
+    def fit_one(z):
+        if solver == "lm":
+            return _levenberg_marquardt(prob, z, max_iter, xtol, ftol, stat_tol)
+        return _optimistix(prob, z, solver, max_iter, xtol, ftol)
+
+    if starts > 1:
+        z, hist = _multi_start(prob, z0, starts, seed, fit_one,
+                               (lambda z: _initial_state_guess(prob, z, mask)) if n_init
+                               else None)
     else:
-        z, hist = _optimistix(prob, z0, solver, max_iter, xtol, ftol)
+        z, hist = fit_one(z0)
     return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise), drive,
                    held=None if held is None else (W_all, held[0], held[1]))
 

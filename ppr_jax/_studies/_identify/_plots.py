@@ -29,6 +29,14 @@ def identification_figures(fit, out_dir: str) -> list[str]:
         axs[0].plot(Xf[:, 0], Xf[:, 1], "-", color=c, lw=1.2, label=f"{name} fitted")
         axs[1].plot(t, Xm[:, 2] * 1e3, ".", color=c, ms=2.5, alpha=0.6)
         axs[1].plot(t, Xf[:, 2] * 1e3, "-", color=c, lw=1.2)
+        h = _held(fit, k)
+        if h.any():  # the held-out samples and the fit's prediction of them
+            th, Xh, Xp = (np.asarray(fit.ts[k])[h], np.asarray(fit.measured[k])[h],
+                          np.asarray(fit.fitted[k])[h])
+            axs[0].plot(Xh[:, 0], Xh[:, 1], "x", color=c, ms=3, label=f"{name} held out")
+            axs[0].plot(Xp[:, 0], Xp[:, 1], "--", color=c, lw=1.2, label=f"{name} predicted")
+            axs[1].plot(th, Xh[:, 2] * 1e3, "x", color=c, ms=3)
+            axs[1].plot(th, Xp[:, 2] * 1e3, "--", color=c, lw=1.2)
     axs[0].set_xlabel("x (m)")
     axs[0].set_ylabel("y (m)")
     axs[0].set_aspect("equal", adjustable="datalim")
@@ -47,12 +55,13 @@ def identification_figures(fit, out_dir: str) -> list[str]:
     labels = ("x residual (mm)", "y residual (mm)", "phi residual (mrad)")
     noise = (fit.noise[0], fit.noise[0], fit.noise[1])
     for k, name in enumerate(names):
-        m = np.asarray(fit.mask[k])
-        t = np.asarray(fit.ts[k])[m]
-        d = (np.asarray(fit.fitted[k]) - np.asarray(fit.measured[k]))[m]
-        for j in range(3):
-            axs[j].plot(t, d[:, j] * scale[j], ".-", color=f"C{k % 10}", ms=2, lw=0.5,
-                        label=name if j == 0 else None)
+        for m, style, tag in ((np.asarray(fit.mask[k]), ".-", ""),
+                              (_held(fit, k), "x--", " held out")):
+            t = np.asarray(fit.ts[k])[m]
+            d = (np.asarray(fit.fitted[k]) - np.asarray(fit.measured[k]))[m]
+            for j in range(3):
+                axs[j].plot(t, d[:, j] * scale[j], style, color=f"C{k % 10}", ms=2, lw=0.5,
+                            label=name + tag if j == 0 and m.any() else None)
     for j in range(3):
         axs[j].axhspan(-2 * noise[j] * scale[j], 2 * noise[j] * scale[j], color="0.85", zorder=0)
         axs[j].set_ylabel(labels[j])
@@ -63,6 +72,12 @@ def identification_figures(fit, out_dir: str) -> list[str]:
     fig.tight_layout()
     paths.append(_save(fig, out_dir, "fit_residuals.png"))
     return paths
+
+
+def _held(fit, k):
+    """(m,) the held-out samples of experiment k (none without validation)."""
+    held = getattr(fit, "held_out", None)
+    return np.zeros(np.shape(fit.mask)[1], bool) if held is None else np.asarray(held[k])
 
 
 def _save(fig, out_dir, name):

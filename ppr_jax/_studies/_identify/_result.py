@@ -252,6 +252,10 @@ class Identification(eqx.Module):
             lines.append(f"  {e['name']}: RMS x {e['rms_x_m'] * 1e3:.4g} mm, y "
                          f"{e['rms_y_m'] * 1e3:.4g} mm, phi {e['rms_phi_rad'] * 1e3:.4g} mrad "
                          f"(noise {self.noise[0] * 1e3:.3g} mm, {self.noise[1] * 1e3:.3g} mrad)")
+        st = (self.quality or {}).get("starts")
+        if st:
+            lines.append(f"  starts: {st['n']} (Latin hypercube), {st['reached_best']} reached the "
+                         f"best minimum" + (f"; {st['note']}" if st["note"] else ""))
         if self.measurement:
             parts = [f"{n} {v['estimate']:+.4g} +- {v['std']:.2g} {v['unit']}"
                      for n, v in self.measurement["values"].items()]
@@ -263,6 +267,18 @@ class Identification(eqx.Module):
                          f"on the fitted samples ("
                          + ("generalises" if v["generalises"] else "does NOT generalise") + ")")
         return "\n".join(lines)
+
+    def report(self, path: str, *, figures=(), data_files=(), command=None,
+               profiles=None) -> str:
+        """Write one self-contained HTML report (`report.html`): the estimates with their
+        linearised, log and (given `profiles`) profile intervals, correlations,
+        identifiability, measurement model, initial states, residuals, validation, the PNG
+        `figures` embedded, and the provenance: the `data_files` with their sha256, the versions
+        of ppr_jax and its numerical dependencies, the `command`. Returns the path."""
+        from ._report import write_report
+
+        return write_report(self, path, figures=figures, data_files=data_files,
+                            command=command, profiles=profiles)
 
     def figures(self, out_dir: str) -> list:
         """Write fit_trajectory.png and fit_residuals.png to `out_dir` (matplotlib, Agg);
@@ -353,6 +369,33 @@ def _identifiability(names, p, J, s2):
                      "little t alone); fix one of them (e.g. --fix t=...) to identify the other")
     return {"singular_values": [float(v) for v in sv], "condition_number": cond,
             "combinations": combos, "note": note}
+
+
+#: a start whose cost exceeds the best by more than this many s^2 ended elsewhere (the 95 %
+#: point of chi^2 with one degree of freedom: a likelihood-ratio test of the two minima)
+DISTINCT_MINIMUM = 3.84
+
+
+def _starts_summary(hist, s2) -> dict:
+    """How the starts of a multi-start fit ended: how many reached the best minimum (cost
+    within `DISTINCT_MINIMUM` s^2 of it), and whether the given start (start 0) did."""
+    runs = hist["starts"]
+    costs = [r["cost"] for r in runs]
+    best = min(c for c in costs if c is not None)
+    reached = [c is not None and c - best <= DISTINCT_MINIMUM * s2 for c in costs]
+    out = {"n": len(runs), "reached_best": int(sum(reached)), "best_start": hist["best_start"],
+           "given_start_reached_best": bool(reached[0]),
+           "failed": int(sum(c is None for c in costs))}
+    notes = []
+    if not reached[0]:
+        c0 = costs[0]
+        notes.append("the given start ended in another minimum"
+                     + ("" if c0 is None else f" (cost {c0:.4g} against {best:.4g})")
+                     + f"; the result is start {hist['best_start']}'s")
+    if out["reached_best"] == 1 and len(runs) > 1:
+        notes.append("only one start reached the best minimum: more starts may find a lower one")
+    out["note"] = "; ".join(notes)
+    return out
 
 
 def _validation(X, Xm, W, held, exps, s_fit, what) -> dict:
@@ -467,6 +510,7 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
                             f"{validation['residual_scale']:.3g} on the held-out samples "
                             f"({validation['held_out']}) against {s_fit:.3g} on the fitted ones")
     hist = dict(hist)
+    starts = _starts_summary(hist, s2) if "starts" in hist else None
     hist["optimizer_stop"] = hist.get("stop")
     if problems and hist.get("stop") == "converged":
         hist["stop"] = ("poor fit" if not s_fit <= POOR_FIT_SCALE else
@@ -474,6 +518,7 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
     quality = {"residual_scale": s_fit, "explains_data": bool(s_fit <= POOR_FIT_SCALE),
                "at_bound": at_bound, "ok": not problems,
                "generalises": None if validation is None else validation["generalises"],
+               "starts": starts,
                "problems": problems}
     raw = np.where(np.asarray(prob.w) > 0, (X - np.asarray(prob.X)) * np.asarray(prob.w), 0.0)
     rs = []
