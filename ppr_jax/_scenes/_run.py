@@ -74,15 +74,16 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
     scene = get_scene(scene, torque_model)
     model = get_model(model)
     params = scene.default_params() if params is None else params
-    if options.auto_solver:
+    kinematic = scene.name == "servo-circle" and model.actuated_index is None
+    if kinematic:
+        solver_name = "none (kinematics + inverse dynamics)"
+    elif options.auto_solver:
         # decided here, on the concrete parameters, before anything is traced
         name, why = choose_solver(model, params, options.rtol, DEFAULT_SOLVER[model.name])
         options = dataclasses.replace(options, solver=name)
         solver_name = f"{name} (auto: {why})"
     else:
         solver_name = options.solver_name(model)
-    if scene.name == "servo-circle" and model.actuated_index is None:
-        solver_name = "none (kinematics + inverse dynamics)"
     # Built here, outside any trace when params are concrete: the derived quantities once and
     # the structural choices (equal links, elbow) static, so a batch is branch-free.
     robot = Robot(params)
