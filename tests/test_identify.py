@@ -421,6 +421,19 @@ def test_cli_user_errors_exit_2(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
     assert main(["synth", "--rate", "0", "--out", str(tmp_path / "s.csv")]) == 2
     assert "rate and t_end must be > 0" in capsys.readouterr().err
+    # the options of validation, several starts and the measurement model reach `identify`
+    # and are checked there, before anything is compiled
+    good = tmp_path / "good.csv"
+    good.write_text("time,x,y,phi\n" + "".join(f"{0.01 * k},0.55,0.26,0.0\n"
+                                                for k in range(20)))
+    for extra, msg in [(["--validation", "1.5"], "validation: a fraction"),
+                       (["--validation", "nope"], "not one of the experiments"),
+                       (["--starts", "0"], "starts must be an integer in [1, 1000]")]:
+        assert main(["identify", "--data", str(good), "--out", str(tmp_path / "o"),
+                     *extra]) == 2
+        assert msg in capsys.readouterr().err, extra
+    with pytest.raises(SystemExit):  # argparse: bias or delay only
+        main(["identify", "--data", str(good), "--nuisance", "offset"])
 
 
 @pytest.mark.slow
