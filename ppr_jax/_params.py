@@ -199,10 +199,14 @@ def stack_params(params_list: list[RobotParams]) -> RobotParams:
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *params_list)
 
 
+def member_params(params: RobotParams, i: int) -> RobotParams:
+    """Member i of a batch of parameters (`stack_params`); unbatched leaves are shared."""
+    return jax.tree_util.tree_map(lambda x: x[i] if np.ndim(x) else x, params)
+
+
 def unstack_params(params: RobotParams) -> list[RobotParams]:
     """Inverse of `stack_params`."""
-    n = params.a.shape[0]
-    return [jax.tree_util.tree_map(lambda x: x[i], params) for i in range(n)]
+    return [member_params(params, i) for i in range(params.a.shape[0])]
 
 
 def parse_value(name: str, text: str):

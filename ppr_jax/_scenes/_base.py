@@ -67,18 +67,15 @@ def path_out_of_reach(ref_model, robot, traj, ts):
     return ~(jnp.max(jax.vmap(resid)(ts)) <= RESIDUAL_TOL)
 
 
-#: samples of the nominal path per output time at which `path_singular_at` looks for a crossing
-SINGULAR_SAMPLES = 4
-
-
 def path_singular_at(ref_model, robot, traj, ts):
     """The nominal path meets a type-II singularity of `ref_model` (L0 or L1, whose inverse
-    dynamics or kinematics gives the input) over [ts[0], ts[-1]]: det S changes sign, or S is
-    singular, on `SINGULAR_SAMPLES` samples per output time (`path_singular`). There the
-    inverse-dynamics torques are unbounded, and the input table would only be judged too
-    coarse."""
-    grid = jnp.linspace(ts[0], ts[-1], SINGULAR_SAMPLES * ts.shape[0])
-    return jnp.any(path_singular(ref_model, robot, jax.vmap(traj)(grid)))
+    dynamics or kinematics gives the input) over [ts[0], ts[-1]]: det S changes sign between
+    two output times, or S is singular at one (`path_singular`). There the inverse-dynamics
+    torques are unbounded, and the input table would only be judged too coarse. The output
+    times suffice (det S is continuous: a crossing changes its sign) unless the path crosses
+    twice within one output interval; four samples per output time cost 4.2 ms a run against
+    1.0 ms (755 output times, 2-core CPU), on every paper-circle run."""
+    return jnp.any(path_singular(ref_model, robot, jax.vmap(traj)(ts)))
 
 
 def _open_at(model, robot, z):

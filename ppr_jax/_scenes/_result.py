@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 import numpy as np
 
 from .._custom_types import Array
 from .._errors import RESIDUAL_TOL, RESULTS, check_result, failure_reasons, is_traced
 from .._kinematics import path_singular
 from .._models import Reduced, Rigid
-from .._params import PARAM_RANGES
+from .._params import PARAM_RANGES, member_params
 from .._robot import Robot
 
 
@@ -90,9 +89,7 @@ def _singular_time(params, i, ts, X_nominal) -> str:
     inputs), or "" if not between two output times."""
     if params is None:
         return ""
-    member = params if i is None else jax.tree_util.tree_map(
-        lambda a: a[i] if np.ndim(a) else a, params)
-    robot = Robot(member)
+    robot = Robot(params if i is None else member_params(params, i))
     for name, model in (("L1", Reduced()), ("L0", Rigid())):
         flags = np.asarray(_path_singular_jit(model, robot, np.asarray(X_nominal)))
         bad = np.flatnonzero(flags & np.isfinite(ts))

@@ -36,8 +36,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import PPRError
-from .._params import unstack_params
+from .._errors import PPRError, is_traced
+from .._params import member_params
 
 #: h omega_max at Tsit5's stability-bound step (module docstring)
 EXPLICIT_STABILITY = 2.2
@@ -60,7 +60,7 @@ def highest_frequency(model, params) -> float:
 
     if np.ndim(params.t) == 1:
         k = int(np.argmax(np.asarray(params.E) * np.asarray(params.t) ** 3))
-        params = unstack_params(params)[k]
+        params = member_params(params, k)
     try:
         f = np.asarray(modes(model, params, actuators="free").freq_hz)
     except PPRError:
@@ -73,10 +73,9 @@ def choose_solver(model, params, rtol, default: str) -> tuple:
     rate omega_max / `EXPLICIT_STABILITY` exceeds `IMPLICIT_STEP_COST` x
     `implicit_step_rate(rtol)`, else `default` (module docstring). A traced rtol or no
     equilibrium to linearise about leaves the default."""
-    try:
-        rtol = float(rtol)
-    except Exception:  # traced: no decision before tracing
+    if is_traced(rtol):  # no decision before tracing
         return default, "rtol traced, model default"
+    rtol = float(rtol)
     w = highest_frequency(model, params)
     if not np.isfinite(w):
         return default, "no static equilibrium to estimate stiffness, model default"
