@@ -34,6 +34,7 @@ from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
 from ._robot import RobotLike, as_robot
+from ._rosw import Ros34PW2
 
 #: Most iterations of an implicit stage's nonlinear solve (diffrax's `root_find_max_steps`).
 CHORD_MAX_STEPS = 10
@@ -145,6 +146,7 @@ SOLVERS = {
     "dopri8": diffrax.Dopri8,
     "kvaerno5": _implicit(diffrax.Kvaerno5),
     "kvaerno3": _implicit(diffrax.Kvaerno3),
+    "ros34pw2": Ros34PW2,
 }
 
 
@@ -160,16 +162,23 @@ IMPLICIT_PI = {"pcoeff": 0.2, "icoeff": 0.4}
 def default_controller(solver, rtol, atol) -> diffrax.PIDController:
     """The adaptive step-size controller at (rtol, atol) (arrays: changing them does not
     recompile): diffrax's I controller for explicit solvers, the PI controller `IMPLICIT_PI`
-    for implicit ones."""
-    kw = IMPLICIT_PI if isinstance(solver, diffrax.AbstractImplicitSolver) else {}
+    for implicit ones (and the linearly implicit `Ros34PW2`)."""
+    kw = IMPLICIT_PI if is_stiff_solver(solver) else {}
     return diffrax.PIDController(
         rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64),
         **kw,
     )
 
 
+def is_stiff_solver(solver) -> bool:
+    """Whether `solver` is one for stiff problems: diffrax's implicit Runge-Kutta methods or the
+    Rosenbrock-W `Ros34PW2`."""
+    return isinstance(solver, (diffrax.AbstractImplicitSolver, Ros34PW2))
+
+
 def get_solver(solver) -> diffrax.AbstractSolver:
-    """A diffrax solver from a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5) or an instance.
+    """A diffrax solver from a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5, ros34pw2) or an
+    instance.
     The implicit ones by name solve their stages with `StageChord`; an instance whose root
     finder is diffrax's own `VeryChord` gets `StageChord` with the same kappa and linear solver
     (see `StageChord` for why); any other instance is used as given."""
@@ -204,7 +213,7 @@ class Solution(eqx.Module):
     num_rejected: Array
 
 
-def _split(model: AbstractModel, actuation: AbstractActuation):
+def split_coordinates(model: AbstractModel, actuation: AbstractActuation):
     """(free, prescribed) coordinate indices under `actuation` (static)."""
     if not isinstance(actuation, AbstractActuation):
         raise TypeError(
@@ -225,7 +234,7 @@ def _split(model: AbstractModel, actuation: AbstractActuation):
 
 
 def _full_state(model, actuation, t, zf, zfd):
-    free, pres = _split(model, actuation)
+    free, pres = split_coordinates(model, actuation)
     if not pres:
         return zf, zfd, None
     tha, thad, thadd = actuation.angles_at(t)
@@ -235,9 +244,9 @@ def _full_state(model, actuation, t, zf, zfd):
     return z, zd, thadd
 
 
-def _accel(model, robot, actuation, wrench, t, zf, zfd):
+def accelerations(model, robot, actuation, wrench, t, zf, zfd):
     """(z, z', z'', tau) at time t from the free state."""
-    free, pres = _split(model, actuation)
+    free, pres = split_coordinates(model, actuation)
     z, zd, thadd = _full_state(model, actuation, t, zf, zfd)
     eom = eom_terms(model, robot, z, zd)
     if not pres:
@@ -258,9 +267,9 @@ def _outputs(model, robot, actuation, wrench, t, zf, zfd):
     """(z, z', tau) at an output time: torque-driven, tau is the actuation's own (kinematics
     and its rate only: no mass matrix, which at every output time would cost as much as a
     fifth of the integration); motion-driven, the reaction torques need the dynamics."""
-    free, pres = _split(model, actuation)
+    free, pres = split_coordinates(model, actuation)
     if pres:
-        z, zd, _, tau = _accel(model, robot, actuation, wrench, t, zf, zfd)
+        z, zd, _, tau = accelerations(model, robot, actuation, wrench, t, zf, zfd)
         return z, zd, tau
     k, kd = jax.jvp(lambda z: model.kinematics(robot, z), (zf,), (zfd,))
     return zf, zfd, actuation.torque_at(t, k.th_a, kd.th_a)
@@ -273,8 +282,8 @@ def _vector_field(model, robot, actuation, wrench, skip, t, y):
     stages, and reverse mode's forward, residual and backward passes), and one cached jaxpr
     means JAX linearises and transposes it once instead of once per trace (the L1 gradient of
     `paper-circle` traced in 16 s before, mostly re-linearising this function)."""
-    free, _ = _split(model, actuation)
-    _, _, zdd, _ = _accel(model, robot, actuation, wrench, t, *y)
+    free, _ = split_coordinates(model, actuation)
+    _, _, zdd, _ = accelerations(model, robot, actuation, wrench, t, *y)
     dy = (y[1], zdd[jnp.array(free)])
     if skip is not None:
         # A member already known to have failed (for example an open chain at t = 0) is
@@ -289,7 +298,7 @@ def simulate_core(
     throw, progress_meter, adjoint=None, skip=None,
 ):
     robot = as_robot(robot)
-    free, _ = _split(model, actuation)
+    free, _ = split_coordinates(model, actuation)
     f = jnp.array(free)
     y0 = (z0[f], zdot0[f])
 

@@ -157,3 +157,69 @@ def test_auto_solver_follows_the_work_precision_measurements():
                             n_out=21)
     assert int(auto.num_steps) == int(named.num_steps) < 100
     np.testing.assert_array_equal(auto.X, named.X)
+
+
+def _forced_pendulum(t, y, args):
+    x, v = y
+    return v, -4.0 * jnp.sin(x) - 0.3 * v + jnp.cos(3.0 * t)
+
+
+def test_ros34pw2_is_third_order_with_a_fresh_and_a_lagged_jacobian():
+    """ROS34PW2 on a forced, damped pendulum (nonlinear and non-autonomous) with constant steps,
+    against Dopri8 at rtol 1e-13: the error falls as h^3 with a Jacobian evaluated at every step
+    (a Rosenbrock method) and with one kept over 4 steps (a W-method keeps its order with any
+    Jacobian). A wrong coefficient, a missing f_t term or a Jacobian misused in the stages
+    drops the order."""
+    y0 = (jnp.asarray(0.5), jnp.asarray(0.0))
+    ref = _solve(_forced_pendulum, y0, 2.0, diffrax.Dopri8(),
+                 diffrax.PIDController(rtol=1e-13, atol=1e-13)).ys[0][-1]
+    for every in (1, 4):
+        errs = []
+        for n in (20, 40, 80):
+            sol = _solve(_forced_pendulum, y0, 2.0, pj.Ros34PW2(jacobian_every=every),
+                         diffrax.ConstantStepSize(), dt0=2.0 / n)
+            errs.append(abs(float(sol.ys[0][-1] - ref)))
+        orders = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
+        assert np.all((orders > 2.8) & (orders < 3.3)), (every, errs, orders)
+
+
+def test_ros34pw2_on_a_stiff_forced_oscillator_matches_the_closed_form():
+    """The stiff oscillator of the Kvaerno5 test through `get_solver("ros34pw2")` and
+    `default_controller`: steps set by the slow forcing (Tsit5 needs about 2,000), few rejected,
+    the closed form matched, and the dense output (cubic Hermite) between steps as well."""
+    w = 2 * np.pi * 300.0
+    a = w**2 / (w**2 - 1)
+
+    def vf(t, y, args):
+        x, v = y
+        return v, -(w**2) * (x - jnp.sin(t))
+
+    ts = jnp.linspace(0.0, 1.0, 101)
+    solver = get_solver("ros34pw2")
+    sol = _solve(vf, (jnp.asarray(0.0), jnp.asarray(a)), 1.0, solver,
+                 default_controller(solver, 1e-6, 1e-9), ts=ts)
+    steps, rejected = int(sol.stats["num_steps"]), int(sol.stats["num_rejected_steps"])
+    np.testing.assert_allclose(sol.ys[0], a * np.sin(ts), atol=1e-7)
+    # the velocity (about 1 m/s) is held to rtol 1e-6 per step: 1.4e-6 globally
+    np.testing.assert_allclose(sol.ys[1], a * np.cos(ts), atol=5e-6)
+    assert steps < 400, steps
+    assert rejected <= 0.15 * steps, (steps, rejected)
+
+
+def test_ros34pw2_rejects_an_invalid_jacobian_age():
+    with np.testing.assert_raises(ValueError):
+        pj.Ros34PW2(jacobian_every=0)
+
+
+def test_full_l3_defaults_to_the_rosenbrock_w_solver():
+    """The full L3 (`Beam`) runs on `Ros34PW2` by default and under "auto" (without the
+    stiffness estimate: its default is for stiff problems already); the quasi-static L3 and
+    L2 keep their explicit defaults."""
+    from ppr_jax._scenes._options import SceneOptions, default_solver
+
+    assert default_solver(pj.Beam(4)) == "ros34pw2"
+    assert default_solver(pj.QuasiStaticBeam(4)) == "dopri8"
+    assert default_solver(pj.Double1R()) == "tsit5"
+    assert isinstance(SceneOptions().prepared(pj.Beam(4)).solver, pj.Ros34PW2)
+    name, why = choose_solver(pj.Beam(4), pj.scene_params("paper-circle"), 1e-4, "ros34pw2")
+    assert name == "ros34pw2" and "stiff" in why

@@ -11,6 +11,7 @@ import numpy as np
 
 from .._custom_types import Array
 from .._errors import check_number, is_traced
+from .._models import Beam
 from .._simulate import default_controller, get_solver
 from .._tabulated import scene_panels
 from .._trajectory import Circle
@@ -25,6 +26,16 @@ ATOL = 1e-10
 MAX_STEPS = 200_000
 #: default solver per model level (docs/which_model.md)
 DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "dopri8"}
+#: default solver of the full L3 (`Beam`: strips with their own inertia, modes up to 5e5 rad/s
+#: at N = 16), where an explicit solver is bound by stability to microsecond steps
+#: (docs/theory/strips.md)
+FULL_L3_SOLVER = "ros34pw2"
+
+
+def default_solver(model) -> str:
+    """The name of `model`'s default solver: `DEFAULT_SOLVER` by level, `FULL_L3_SOLVER` for
+    the full L3 (decided on the model's type, in Python)."""
+    return FULL_L3_SOLVER if isinstance(model, Beam) else DEFAULT_SOLVER[model.name]
 
 
 def check_scene_args(t_end, n_out, rtol, atol, max_steps) -> None:
@@ -65,8 +76,9 @@ class SceneOptions(eqx.Module):
     - `t_end`: horizon (s); the output times are `n_out` equal steps over [0, t_end].
     - `n_out`: number of output times (static: a shape).
     - `solver`: a diffrax solver or its name (`tsit5`, `dopri5`, `dopri8`, `kvaerno3`,
-      `kvaerno5`); None: the model's default (`DEFAULT_SOLVER`); `"auto"`: Kvaerno5 where a
-      stiffness estimate says the problem is stiff, else the default, decided on the concrete
+      `kvaerno5`, `ros34pw2`); None: the model's default (`default_solver`); `"auto"`:
+      Kvaerno5 where a stiffness estimate says the problem is stiff, else the default (the
+      full L3's default is for stiff problems already), decided on the concrete
       parameters by the scene functions and `run_scene` (`_solver_choice`; where the
       parameters are not at hand, as in sweeps, the default).
     - `rtol`, `atol`: the step-size controller's tolerances (arrays inside a program, so
@@ -112,7 +124,7 @@ class SceneOptions(eqx.Module):
         if traj is None:
             traj = Circle() if default_trajectory is None else default_trajectory
         default = self.solver is None or self.auto_solver
-        solver = get_solver(DEFAULT_SOLVER[model.name] if default else self.solver)
+        solver = get_solver(default_solver(model) if default else self.solver)
         controller = (default_controller(solver, self.rtol, self.atol)
                       if self.controller is None else self.controller)
         panels = (input_panels(traj, self.t_end, self.n_out) if self.panels is None
@@ -132,5 +144,5 @@ class SceneOptions(eqx.Module):
 
     def solver_name(self, model) -> str:
         """The solver's name as reports print it."""
-        s = DEFAULT_SOLVER[model.name] if self.solver is None or self.auto_solver else self.solver
+        s = default_solver(model) if self.solver is None or self.auto_solver else self.solver
         return str(s) if isinstance(s, str) else type(s).__name__

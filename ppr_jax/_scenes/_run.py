@@ -14,7 +14,7 @@ from .._params import RobotParams
 from .._robot import Robot
 from ._base import AbstractScene
 from ._batch import batch_devices, map_members
-from ._options import ATOL, DEFAULT_SOLVER, MAX_STEPS, N_OUT, RTOL, T_END, SceneOptions
+from ._options import ATOL, MAX_STEPS, N_OUT, RTOL, T_END, SceneOptions, default_solver
 from ._registry import get_scene, scene_params
 from ._result import SceneResult, finish, result_template
 from ._solver_choice import choose_solver
@@ -79,7 +79,7 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
         solver_name = "none (kinematics + inverse dynamics)"
     elif options.auto_solver:
         # decided here, on the concrete parameters, before anything is traced
-        name, why = choose_solver(model, params, options.rtol, DEFAULT_SOLVER[model.name])
+        name, why = choose_solver(model, params, options.rtol, default_solver(model))
         options = dataclasses.replace(options, solver=name)
         solver_name = f"{name} (auto: {why})"
     else:

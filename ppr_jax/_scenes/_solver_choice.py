@@ -38,6 +38,7 @@ import numpy as np
 
 from .._errors import PPRError, is_traced
 from .._params import member_params
+from .._simulate import get_solver, is_stiff_solver
 
 #: h omega_max at Tsit5's stability-bound step (module docstring)
 EXPLICIT_STABILITY = 2.2
@@ -73,6 +74,8 @@ def choose_solver(model, params, rtol, default: str) -> tuple:
     rate omega_max / `EXPLICIT_STABILITY` exceeds `IMPLICIT_STEP_COST` x
     `implicit_step_rate(rtol)`, else `default` (module docstring). A traced rtol or no
     equilibrium to linearise about leaves the default."""
+    if is_stiff_solver(get_solver(default)):
+        return default, "the model's default solver is one for stiff problems"
     if is_traced(rtol):  # no decision before tracing
         return default, "rtol traced, model default"
     rtol = float(rtol)
