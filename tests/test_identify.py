@@ -650,6 +650,11 @@ def test_auto_starts_escape_the_far_start_and_leave_a_good_fit_alone():
     assert not fit.quality["starts"]["given_start_reached_best"]
     assert "starts auto: the given start does not explain the data" in fit.table()
     assert fit.to_dict()["quality"]["escalated"] == fit.quality["escalated"]
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        html = open(fit.report(f"{d}/report.html"), encoding="utf-8").read()
+    assert "Starts (auto): the given start does not explain the data" in html
     good = pj.identify(exp, initial={"t": 0.8 * float(truth.t)}, **kw)  # default unknowns
     assert good.names == ("t",) and good.history["preflight"]["refused"] == []
     assert good.history["escalation"] is None and "starts" not in good.history
