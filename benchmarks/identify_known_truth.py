@@ -11,7 +11,9 @@ the truth, once per seed; the noise-free fit gives the bias. Reported per case: 
 of the linearised 95 % intervals (the fraction of seeds whose interval holds the truth; 0.90 to
 0.99 expected with 50 seeds). The case `gamma-auto-bias-delay` has a tracker offset by `TRACKER`
 (0.3 mm, -0.2 mm, 2 mrad) and 4 ms late, and fits its measurement model too (`nuisance`); its
-row adds the mean of those estimates.
+row adds the mean of those estimates. The case `c_spring-auto` simulates a robot whose springs
+have the viscous damping `DAMPING` (the others have none) and fits it, the strip and PRB
+parameters known.
 
 Writes `results/identify_known_truth.json`. Run: `python benchmarks/identify_known_truth.py
 [--seeds 50] [--t-end 2] [--cases gamma-auto,...]` (a warm fit of one unknown over 2 s of data
@@ -47,9 +49,14 @@ NOMINAL_GAMMA = 0.81
 TRACKER = ((3e-4, -2e-4, 2e-3), 4e-3)
 
 
+#: the viscous damping of each spring (N m s/rad) of the robot of the damping case
+DAMPING = 1.0
+
+
 def cases(truth, nominal):
     """name -> (unknowns, identify keyword arguments, whether the file holds the angles,
-    whether its tracker has `TRACKER`'s offsets and delay)."""
+    [whether its tracker has `TRACKER`'s offsets and delay, [the robot's parameters that differ
+    from `truth`]])."""
     fixed = {"t": float(truth.t), "K_theta": float(truth.K_theta)}
     return {
         # the default call on a file with angles: they drive the model
@@ -67,6 +74,12 @@ def cases(truth, nominal):
         "K_theta-auto": (("K_theta",), dict(fixed={"t": float(truth.t),
                                                    "gamma": float(truth.gamma)},
                                             initial={"K_theta": 2.0}), True),
+        # the springs' viscous damping, everything else known; bounds above 0 so that it is
+        # fitted in log (relative steps)
+        "c_spring-auto": (("c_spring",), dict(fixed=fixed | {"gamma": float(truth.gamma)},
+                                              initial={"c_spring": 0.5 * DAMPING},
+                                              bounds={"c_spring": (1e-3, 10.0)}),
+                          True, False, {"c_spring": DAMPING}),
     }
 
 
@@ -88,15 +101,20 @@ def main(argv=None):
     all_cases = cases(truth, nominal)
     rows = []
     for name in a.cases.split(","):
-        unknowns, kw, with_th, *late = all_cases[name]
+        unknowns, kw, with_th, *extra = all_cases[name]
+        late = extra[:1]
         kw = dict(model="double1r", noise=NOISE, **kw)
         ts, X, th = ts0, X0, th0
+        robot = truth
+        if len(extra) > 1:  # a robot that differs from `truth`: its own data
+            robot = truth.replace(**extra[1])
+            ts, X, th = known_truth.servo_data(robot, nominal, t_end=a.t_end)
         if late and late[0]:
             # samples stamped t hold the robot at t - delay, offset (the first stamp, 0,
             # would need t < 0 and is left out)
             bias, delay = np.asarray(TRACKER[0]), TRACKER[1]
             ts = ts0[1:]
-            _, X, _ = known_truth.servo_data(truth, nominal, times=ts - delay)
+            _, X, _ = known_truth.servo_data(robot, nominal, times=ts - delay)
             X, th = X + bias[None, :], th0[1:]
         clean = pj.experiment(ts, X, th=th if with_th else None, name="noise-free")
         t0 = time.perf_counter()
@@ -110,7 +128,7 @@ def main(argv=None):
             t0 = time.perf_counter()
             fit = pj.identify(exp, unknowns, **kw)
             fit_s.append(time.perf_counter() - t0)
-            true = np.array([float(getattr(truth, n)) for n in unknowns])
+            true = np.array([float(getattr(robot, n)) for n in unknowns])
             est.append(np.asarray(fit.estimate))
             std.append(np.asarray(fit.std))
             lo, hi = np.asarray(fit.ci95).T
@@ -121,7 +139,7 @@ def main(argv=None):
             print(f"{name} seed {seed}: {fit.estimate} +- {fit.std} "
                   f"({'in' if cover[-1].all() else 'OUT'}) {fit_s[-1]:.1f} s", flush=True)
         est, std, cover = np.array(est), np.array(std), np.array(cover)
-        true = np.array([float(getattr(truth, n)) for n in unknowns])
+        true = np.array([float(getattr(robot, n)) for n in unknowns])
         rows.append({
             "case": name, "unknowns": list(unknowns), "actuation": fit.actuation,
             "truth": true.tolist(),
@@ -154,7 +172,8 @@ def _write(a, truth, data_s, rows):
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {jax.devices()[0].platform}",
         "versions": {"ppr_jax": pj.__version__, "jax": jax.__version__},
         "data": {"formulation": "independent scipy L2 (benchmarks/contenders/scipy_l2.py)",
-                 "truth": TRUTH | {"t": float(truth.t)}, "commands_from": "L1 with gamma = "
+                 "truth": TRUTH | {"t": float(truth.t)}, "damping_case_c_spring": DAMPING,
+                 "commands_from": "L1 with gamma = "
                  f"{NOMINAL_GAMMA}", "t_end_s": a.t_end, "rate_hz": 100.0,
                  "noise": {"position_m": NOISE[0], "phi_rad": NOISE[1]},
                  "simulation_s": data_s},

@@ -261,18 +261,20 @@ def known_truth() -> str:
     d = _load("identify_known_truth.json")
     if d is None:
         return ""
-    rows = [[r["case"], ", ".join(r["unknowns"]), r["actuation"],
-             " / ".join(f"{b:.2g}" for b in r["bias_in_std"]),
+    rows = [[r["case"], ", ".join(r["unknowns"]), " / ".join(f"{v:.4g}" for v in r["truth"]),
+             r["actuation"], " / ".join(f"{b:.2g}" for b in r["bias_in_std"]),
              " / ".join(f"{v:.2f}" for v in r["mean_abs_error_in_std"]),
              " / ".join(f"{100 * c:.1f} %" for c in r["coverage_95"]), r["seeds"],
              _ms(r["warm_fit_s_median"])] for r in d["rows"]]
     dd = d["data"]
     return ("**Known truth on data ppr_jax did not make** (`benchmarks/identify_known_truth.py`:"
-            f" the independent scipy L2, truth {dd['truth']}, commands from {dd['commands_from']},"
+            f" the independent scipy L2, truth {dd['truth']} (and the fitted unknowns' truth"
+            f" in each row), commands from {dd['commands_from']},"
             f" {dd['t_end_s']:g} s at {dd['rate_hz']:g} Hz, noise {dd['noise']}; bias of the "
             "noise-free fit and mean |error| in standard deviations (0.80 expected), coverage of "
             "the linearised 95 % intervals over the noise seeds):\n\n"
-            + _table(["case", "unknowns", "driven by", "bias (std)", "mean abs error (std)",
+            + _table(["case", "unknowns", "truth", "driven by", "bias (std)",
+                      "mean abs error (std)",
                       "coverage 95 %", "seeds", "warm fit"], rows))
 
 

@@ -46,13 +46,15 @@ def _noisy(clean, scale, seed):
 @pytest.fixture(scope="module")
 def fits(truth, clean):
     """t and K_theta with L2 from a start 10 % and 20 % off, at the stated noise and at a
-    tenth of it (the second fit reuses the compiled Jacobian)."""
+    tenth of it (the second fit reuses the compiled Jacobian). The pair is not identifiable
+    (only t^3 K_theta is): the preflight would refuse it, and these fits are forced on purpose,
+    to check what the result reports about it."""
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
     out = {}
     for scale in (1.0, 0.1):
         out[scale] = pj.identify(_noisy(clean, scale, seed=1), ("t", "K_theta"),
                                  model="double1r", initial=start,
-                                 noise=(scale * NOISE[0], scale * NOISE[1]))
+                                 noise=(scale * NOISE[0], scale * NOISE[1]), force=True)
     return out
 
 
@@ -93,6 +95,44 @@ def test_stiffness_combination_identified_not_each_parameter(truth, fits):
     assert fit.correlation[0, 1] < -0.9
 
 
+def test_preflight_refuses_t_with_K_theta_naming_the_combination(truth, clean, fits):
+    """Before fitting, at the initial guess, the preflight finds that t and K_theta are not
+    identifiable apart and refuses, naming the combination, its relative std, a fix and
+    `force=True`. Checked independently of the singular-value analysis: the named
+    combination's exponents must be orthogonal to those of the joint stiffness E w t^3 K_theta
+    (3, 1) (what the data see), and moving the parameters along it must leave the residuals
+    (the fit's own residual function, at the initial guess) almost unchanged, while the same
+    step along the stiffness changes them. The forced fit (the module's `fits`, same data and
+    start) runs and reports the refusal it overrode."""
+    import re
+
+    start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
+    with pytest.raises(pj.IdentificationError) as info:
+        pj.identify(_noisy(clean, 1.0, seed=1), ("t", "K_theta"), model="double1r",
+                    initial=start, noise=NOISE)
+    msg = str(info.value)
+    m = re.search(r"(t\^(-?[\d.]+) \* K_theta\^(-?[\d.]+)) \(relative std ([\d.e+]+) %\)",
+                  msg)
+    assert m, msg
+    e = np.array([float(m[2]), float(m[3])])
+    assert abs(e @ np.array([3.0, 1.0])) < 0.05 * np.linalg.norm(e) * math.sqrt(10), e
+    assert float(m[4]) >= 100
+    assert "fixed={'t': value}" in msg and "force=True" in msg and "E w t^3 K_theta" in msg
+    fit = fits[1.0]
+    assert fit.history["preflight"]["forced"]
+    assert fit.quality["preflight_not_identifiable"] == [m[1]]
+    assert "preflight: not identifiable at the initial guess" in fit.table()
+    # the named direction is flat in the data, the stiffness direction is not
+    p0 = np.array([start["t"], start["K_theta"]])
+    r0 = fit.residuals_at(p0)
+
+    def change(direction):
+        d = np.asarray(direction, dtype=np.float64)
+        return np.linalg.norm(fit.residuals_at(p0 * np.exp(1e-3 * d / np.linalg.norm(d))) - r0)
+
+    assert change(e) < 1e-2 * change([3.0, 1.0]), (change(e), change([3.0, 1.0]))
+
+
 def test_intervals_shrink_with_noise(fits):
     a, b = fits[1.0], fits[0.1]
     ca = a.identifiability["combinations"][0]["relative_std"]
@@ -111,7 +151,7 @@ def test_validation_holds_out_samples_and_flags_a_model_that_does_not_generalise
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
     good = _noisy(clean, 1.0, seed=5)
     fit = pj.identify(good, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
-                      validation=0.3)
+                      validation=0.3, force=True)
     v = fit.validation
     assert 17 <= v["samples"] <= 19 and int(fit.mask.sum()) == N - v["samples"]
     assert 0.7 < v["residual_scale"] < 1.4 and v["generalises"] and fit.quality["ok"], v
@@ -119,7 +159,7 @@ def test_validation_holds_out_samples_and_flags_a_model_that_does_not_generalise
     X[ts > 0.7 * T_END, 0] += 20 * NOISE[0]
     drifted = pj.experiment(ts, X, name="drifted")
     fit2 = pj.identify(drifted, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
-                       validation=0.3)
+                       validation=0.3, force=True)
     np.testing.assert_allclose(fit2.estimate, fit.estimate, rtol=1e-6)  # the same fitted part
     v2 = fit2.validation
     assert v2["residual_scale"] > 10 and not v2["generalises"], v2
@@ -201,12 +241,14 @@ def test_robust_loss_resists_outliers(truth, clean, fits):
         return c["value"], c["relative_std"]
 
     k_ref, rel_ref = stiffness(ref)
-    lin = pj.identify(bad, ("t", "K_theta"), initial=start, noise=NOISE)
+    # (one start: the outliers make a poor fit, which "auto" would refit from more starts)
+    lin = pj.identify(bad, ("t", "K_theta"), initial=start, noise=NOISE, force=True, starts=1)
     assert math.sqrt(lin.sigma2) > 10  # the outliers dominate a linear fit
     err_lin = abs(math.log(stiffness(lin)[0] / k_ref))
     errs = {}
     for loss in ("huber", "cauchy"):
-        rob = pj.identify(bad, ("t", "K_theta"), initial=start, noise=NOISE, loss=loss)
+        rob = pj.identify(bad, ("t", "K_theta"), initial=start, noise=NOISE, loss=loss,
+                          force=True)
         errs[loss] = abs(math.log(stiffness(rob)[0] / k_ref))
     print(f"stiffness error: linear {err_lin:.3g}, {errs} (relative std {rel_ref:.3g})")
     # Cauchy's influence vanishes for gross outliers; Huber's is bounded (each outlier still
@@ -256,7 +298,7 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
     exp, X0 = lagging
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
     fit = pj.identify(exp, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
-                      actuation="measured", initial_state="pose-velocity")
+                      actuation="measured", initial_state="pose-velocity", force=True)
     assert fit.history["stop"] == "converged"
     assert 0.7 < math.sqrt(fit.sigma2) < 1.3, fit.table()
     c = fit.identifiability["combinations"][0]
@@ -274,7 +316,7 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
     assert "initial state of lagging servo" in fit.table()
     # the commanded angles and the scene's initial state (reuses the compiled fit of `fits`)
     bad = pj.identify(exp, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
-                      actuation="commanded")
+                      actuation="commanded", force=True, starts=1)
     assert math.sqrt(bad.sigma2) > 20 * math.sqrt(fit.sigma2)
     # which is reported as a poor fit, never as converged or identifiable
     assert fit.quality["ok"] and bad.history["stop"] == "poor fit", bad.history
@@ -284,7 +326,7 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
     # and by default the file's angles drive the model (the same as the first fit)
     assert "measured" in pj.identify(exp, ("t", "K_theta"), model="double1r", initial=start,
                                      noise=NOISE, initial_state="pose-velocity",
-                                     max_iter=1).actuation
+                                     max_iter=1, starts=1, force=True).actuation
 
 
 def test_profile_likelihood(truth, clean, fits):
@@ -296,6 +338,11 @@ def test_profile_likelihood(truth, clean, fits):
     exp = _noisy(clean, 1.0, seed=1)
     fit = pj.identify(exp, ("K_theta",), model="double1r",
                       initial={"K_theta": 1.2 * float(truth.K_theta)}, noise=NOISE)
+    # one unknown the data determine: the preflight does not refuse it
+    pre = fit.history["preflight"]
+    assert pre["refused"] == [] and not pre["forced"]
+    assert pre["combinations"][0]["status"] == "identifiable", pre
+    assert fit.quality["preflight_not_identifiable"] == []
     pr = fit.profile("K_theta")
     lo, hi = pr["ci"]
     llo, lhi = pr["linearised"]
@@ -349,6 +396,7 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
     outputs exist and the JSON holds the estimates with intervals. Same shapes and options as
     the module's fits, so both commands reuse the compiled functions."""
     import json
+    import os
 
     from ppr_jax._cli import main
 
@@ -360,11 +408,17 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
     exp = pj.load_csv(path)
     assert exp.n == N and exp.th is not None and exp.tau is not None
     out = str(tmp_path / "fit")
-    rc = main(["identify", "--data", path, "--model", "double1r", "--unknown", "t",
-               "--unknown", "K_theta", "--initial", f"t={0.9 * float(truth.t)}",
-               "--noise-pos", str(NOISE[0]), "--noise-phi", str(NOISE[1]),
-               "--actuation", "commanded",  # the module's compiled fit (no angles packed)
-               "--max-steps", "100000", "--profile", "--out", out])
+    args = ["identify", "--data", path, "--model", "double1r", "--unknown", "t",
+            "--unknown", "K_theta", "--initial", f"t={0.9 * float(truth.t)}",
+            "--noise-pos", str(NOISE[0]), "--noise-phi", str(NOISE[1]),
+            "--actuation", "commanded",  # the module's compiled fit (no angles packed)
+            "--max-steps", "100000", "--profile", "--out", out]
+    # the pair is refused by the preflight: exit 2, the combination named, nothing written
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("ppr-jax: error: preflight") and "t^-1.00 * K_theta^3.00" in err
+    assert "--force" in err and not os.path.exists(out)
+    rc = main(args + ["--force"])  # --force reaches identify: the fit runs
     assert rc == 0
     assert "driven by the commanded angles of the nominal robot" in capsys.readouterr().err
     # t and K_theta both unknown: K_theta's profile is open on both sides (t compensates), t's
@@ -381,8 +435,7 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
     for name in ("t", "K_theta"):
         lo, hi = summary["unknowns"][name]["ci95"]
         assert lo <= float(getattr(truth, name)) <= hi
-    import os
-
+    assert summary["quality"]["preflight_not_identifiable"] == ["t^-1.00 * K_theta^3.00"]
     for f in ("estimates.txt", "fitted.csv", "fit_trajectory.png", "fit_residuals.png",
               "profiles.png"):
         assert os.path.getsize(f"{out}/{f}") > 0
@@ -428,7 +481,8 @@ def test_cli_user_errors_exit_2(tmp_path, capsys):
                                                 for k in range(20)))
     for extra, msg in [(["--validation", "1.5"], "validation: a fraction"),
                        (["--validation", "nope"], "not one of the experiments"),
-                       (["--starts", "0"], "starts must be an integer in [1, 1000]")]:
+                       (["--starts", "0"], "starts must be 'auto' or an integer in [1, 1000]"),
+                       (["--starts", "many"], "starts must be 'auto' or an integer")]:
         assert main(["identify", "--data", str(good), "--out", str(tmp_path / "o"),
                      *extra]) == 2
         assert msg in capsys.readouterr().err, extra
@@ -480,7 +534,7 @@ def test_recovers_truth_from_data_of_an_independent_formulation(truth):
     X[:, 2] += NOISE[1] * rng.standard_normal(N)
     exp = pj.experiment(ts, X, name="independent")  # no angles in the file: commanded
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
-    kw = dict(model="double1r", initial=start, noise=NOISE)
+    kw = dict(model="double1r", initial=start, noise=NOISE, force=True)
 
     def miss(fit):
         c0 = fit.identifiability["combinations"][0]
@@ -493,7 +547,8 @@ def test_recovers_truth_from_data_of_an_independent_formulation(truth):
     assert fit.history["stop"] == "converged"
     assert miss(fit) < 1.96, (miss(fit), fit.table())
     assert 0.8 < math.sqrt(fit.sigma2) < 1.25
-    wrong = pj.identify(exp, ("t", "K_theta"), **kw)  # commands of the robot's own gamma
+    # commands of the robot's own gamma (one start: a poor fit on purpose)
+    wrong = pj.identify(exp, ("t", "K_theta"), starts=1, **kw)
     assert "nominal robot" in wrong.actuation
     assert math.sqrt(wrong.sigma2) > 5, wrong.table()
     assert wrong.history["stop"] == "poor fit" and not wrong.quality["ok"]
@@ -523,8 +578,8 @@ def test_tracker_bias_and_delay_estimated_as_nuisance(truth):
     X[:, 2] += NOISE[1] * rng.standard_normal(N - 1)
     exp = pj.experiment(stamps, X, name="biased, late")
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
-    kw = dict(model="double1r", initial=start, noise=NOISE, commands=nominal)
-    plain = pj.identify(exp, ("t", "K_theta"), **kw)
+    kw = dict(model="double1r", initial=start, noise=NOISE, commands=nominal, force=True)
+    plain = pj.identify(exp, ("t", "K_theta"), starts=1, **kw)  # a poor fit on purpose
     assert math.sqrt(plain.sigma2) > 5 and not plain.quality["ok"], plain.table()
     fit = pj.identify(exp, ("t", "K_theta"), nuisance=("bias", "delay"), **kw)
     assert 0.75 < math.sqrt(fit.sigma2) < 1.3, fit.table()
@@ -552,8 +607,9 @@ def test_multi_start_escapes_the_minimum_of_a_far_start():
                         noise_phi=NOISE[1], rate=100, t_end=T_END, seed=2)
     kw = dict(model="reduced", scene="paper-circle", initial={"t": 30 * float(truth.t)},
               noise=NOISE)
-    one = pj.identify(exp, ("t",), **kw)
+    one = pj.identify(exp, ("t",), starts=1, **kw)
     assert math.sqrt(one.sigma2) > 100 and one.history["stop"] == "poor fit", one.table()
+    assert one.history["escalation"] is None and one.quality["escalated"] is None
     ms = pj.identify(exp, ("t",), starts=6, **kw)
     lo, hi = ms.ci95[0]
     assert lo <= float(truth.t) <= hi and 0.7 < math.sqrt(ms.sigma2) < 1.3, ms.table()
@@ -561,6 +617,64 @@ def test_multi_start_escapes_the_minimum_of_a_far_start():
     assert st["n"] == 6 and st["reached_best"] >= 2 and not st["given_start_reached_best"]
     assert ms.history["starts"][0]["estimate"][0] > 10 * float(truth.t)
     assert "the given start ended in another minimum" in ms.table()
-    with pytest.raises(pj.IdentificationError, match="starts"):
-        pj.identify(exp, ("t",), starts=0, **kw)
+    for bad in (0, 1001, "all", 2.5, True):
+        with pytest.raises(pj.IdentificationError, match="starts must be 'auto' or an integer"):
+            pj.identify(exp, ("t",), starts=bad, **kw)
+
+
+def test_auto_starts_escape_the_far_start_and_leave_a_good_fit_alone():
+    """The default `starts="auto"`: the same trap (t from 30 times the truth, torque-driven L1)
+    ends in the distant minimum from the given start, which does not explain the data
+    (s about 1e4); the fit then screens 8 Latin-hypercube points in one vmapped call, refits
+    from the 3 cheapest, and reaches the truth (s about 1, the truth within its interval); the
+    history, `quality`, the table and the JSON say why. A start near the truth, with the
+    default unknowns (t alone), fits once: no escalation, one start."""
+    truth = pj.scene_params("paper-circle")
+    exp = pj.synthesize("paper-circle", "reduced", truth, noise_pos=NOISE[0],
+                        noise_phi=NOISE[1], rate=100, t_end=T_END, seed=2)
+    kw = dict(model="reduced", scene="paper-circle", noise=NOISE)
+    fit = pj.identify(exp, ("t",), initial={"t": 30 * float(truth.t)}, **kw)
+    lo, hi = fit.ci95[0]
+    assert lo <= float(truth.t) <= hi and 0.7 < math.sqrt(fit.sigma2) < 1.3, fit.table()
+    assert fit.quality["ok"] and fit.history["stop"] == "converged"
+    assert "does not explain the data" in fit.quality["escalated"]
+    scr = fit.history["screening"]
+    assert scr["points"] == 8 and len(scr["cost"]) == 8 and len(scr["kept"]) == 3
+    # the kept points are the cheapest screened ones
+    kept_costs = sorted(scr["cost"][k - 1] for k in scr["kept"])
+    assert kept_costs == sorted(c for c in scr["cost"] if c is not None)[:3]
+    runs = fit.history["starts"]
+    assert len(runs) == 4 and runs[0]["start"] == 0 and runs[0]["estimate"][0] > 10 * float(
+        truth.t)
+    assert math.sqrt(runs[0]["cost"] / (3 * exp.n - 1)) > 100  # the given start's s
+    assert not fit.quality["starts"]["given_start_reached_best"]
+    assert "starts auto: the given start does not explain the data" in fit.table()
+    assert fit.to_dict()["quality"]["escalated"] == fit.quality["escalated"]
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        html = open(fit.report(f"{d}/report.html"), encoding="utf-8").read()
+    assert "Starts (auto): the given start does not explain the data" in html
+    good = pj.identify(exp, initial={"t": 0.8 * float(truth.t)}, **kw)  # default unknowns
+    assert good.names == ("t",) and good.history["preflight"]["refused"] == []
+    assert good.history["escalation"] is None and "starts" not in good.history
+    assert good.quality["escalated"] is None and good.quality["starts"] is None
+    lo, hi = good.ci95[0]
+    assert lo <= float(truth.t) <= hi, good.table()
+
+
+@pytest.mark.slow
+def test_default_call_fits_t_and_is_not_refused(truth, clean):
+    """The default call (L2, servo circle, unknowns t alone with K_theta from the PRB table):
+    the preflight finds t identifiable on the module's data, the fit is not refused, does not
+    escalate, and holds the truth (the data's K_theta is the table's). One more compilation:
+    slow."""
+    fit = pj.identify(_noisy(clean, 1.0, seed=2), initial={"t": 0.9 * float(truth.t)},
+                      noise=NOISE)
+    assert fit.names == ("t",)
+    pre = fit.history["preflight"]
+    assert pre["refused"] == [] and pre["combinations"][0]["status"] == "identifiable", pre
+    assert fit.history["escalation"] is None and fit.quality["ok"], fit.table()
+    lo, hi = fit.ci95[0]
+    assert lo <= float(truth.t) <= hi, fit.table()
 

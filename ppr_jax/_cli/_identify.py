@@ -49,7 +49,7 @@ def cmd_identify(args):
     params = params.replace(**_name_values(args.set, "--set"))
     fixed = _name_values(args.fix, "--fix")
     initial = _name_values(args.initial, "--initial")
-    unknowns = args.unknown or ["t", "K_theta"]
+    unknowns = args.unknown or ["t"]
     _log(f"identify {', '.join(unknowns)} with {args.model} from {len(exps)} experiment(s), "
          f"{sum(e.n for e in exps)} samples (compiling the simulation and its Jacobian first) ...")
     t0 = time.perf_counter()
@@ -63,7 +63,8 @@ def cmd_identify(args):
                    loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
                    ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
                    max_steps=args.max_steps, validation=_validation(args.validation),
-                   nuisance=tuple(args.nuisance), starts=args.starts)
+                   nuisance=tuple(args.nuisance), starts=_starts(args.starts),
+                   force=args.force)
     _log(f"driven by {fit.actuation}")
     _log(f"done in {time.perf_counter() - t0:.1f} s ({fit.history.get('iterations')} iterations, "
          f"stop: {fit.history.get('stop')})")
@@ -103,6 +104,17 @@ def cmd_identify(args):
         _log("--strict: the fit cannot be trusted: " + "; ".join(fit.quality["problems"]))
         return 3
     return 0
+
+
+def _starts(text):
+    """--starts: "auto" or an integer (anything else reaches `identify`, which names the
+    allowed values)."""
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        return text
 
 
 def _validation(text):
@@ -183,7 +195,10 @@ def add_identify(sub, parents, fmt):
                    help="estimate each experiment's initial platform pose (and velocity) "
                         "instead of starting from the scene's quasi-static state")
     p.add_argument("--unknown", action="append", metavar="NAME", choices=list(PARAM_RANGES),
-                   help="parameter to identify; repeatable (default: t and K_theta)")
+                   help="parameter to identify; repeatable (default: t alone, K_theta from the "
+                        "PRB table: t and K_theta act through E w t^3 K_theta, so the pair is "
+                        "not identifiable from usual data and the preflight refuses it without "
+                        "--force)")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
                    help="parameter held at a known value (as --set); repeatable")
     p.add_argument("--initial", action="append", metavar="NAME=VALUE",
@@ -206,10 +221,17 @@ def add_identify(sub, parents, fmt):
                    help="exit 3 when the fit cannot be trusted: it does not explain the data "
                         "(residual scale s > 3), an unknown ends at a bound, or it does not "
                         "generalise to the --validation samples")
-    p.add_argument("--starts", type=int, default=1, metavar="N",
-                   help="fit from the given start and N - 1 more points of a Latin hypercube "
-                        "within the bounds; the lowest cost wins, and the table says whether "
-                        "the given start ended in another minimum")
+    p.add_argument("--starts", default="auto", metavar="auto|N",
+                   help="auto (default): fit from the given start, and only when that fit does "
+                        "not explain the data (s > 3) or ends at a bound, refit from the 3 "
+                        "cheapest of 8 Latin-hypercube points within the bounds (screened in "
+                        "one vectorised call); N: fit from the given start and N - 1 more "
+                        "Latin-hypercube points. The lowest cost wins, and the table says "
+                        "whether the given start ended in another minimum")
+    p.add_argument("--force", action="store_true",
+                   help="fit even when the preflight finds a combination of the unknowns not "
+                        "identifiable from the data at the initial guess (otherwise refused, "
+                        "exit 2, naming the combination)")
     p.add_argument("--nuisance", action="append", default=[], choices=["bias", "delay"],
                    help="also estimate the tracker's measurement model, shared by every file: "
                         "'bias' (an offset of x, y, phi) or 'delay' (its lag behind the "

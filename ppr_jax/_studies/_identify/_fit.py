@@ -6,6 +6,7 @@ import math
 import time
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -13,6 +14,7 @@ from ..._errors import IdentificationError
 from ._problem import (
     INIT_SCALE,
     MAX_STEP_Z,
+    POOR_FIT_SCALE,
     _residual_and_jacobian,
     _residual_vector,
     _to_p,
@@ -49,15 +51,20 @@ def _check_ok(ok, z, prob):
                                   f"tolerances or raise max_steps)")
 
 
-def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None):
+def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, first=None):
     """Levenberg-Marquardt (Marquardt's diagonal scaling, Nielsen's damping update) on the host,
     around the one compiled residual-and-Jacobian function. Each trial point costs one call.
     `free` (bool, like z) the unknowns that move (default all; a profile holds one fixed and
-    reuses the same compiled function)."""
+    reuses the same compiled function). `first`: (r, J, ok, X, seconds) already evaluated at z0
+    (the preflight's), reused for the first iteration."""
     t0 = time.perf_counter()
-    r, J, ok, X = _residual_and_jacobian(prob, jnp.asarray(z0))
-    r, J = np.asarray(r), np.asarray(J)
-    compile_s = time.perf_counter() - t0
+    if first is None:
+        r, J, ok, X = _residual_and_jacobian(prob, jnp.asarray(z0))
+        r, J = np.asarray(r), np.asarray(J)
+        compile_s = time.perf_counter() - t0
+    else:
+        r, J, ok, X, compile_s = first
+        r, J = np.asarray(r), np.asarray(J)
     _check_ok(ok, z0, prob)
     t1 = time.perf_counter()
     z = np.array(z0, dtype=np.float64)
@@ -140,25 +147,74 @@ def _latin_hypercube(dim: int, n: int, seed: int) -> np.ndarray:
     return 0.05 + 0.9 * qmc.LatinHypercube(d=dim, seed=seed).random(n)
 
 
-def _multi_start(prob, z0, starts, seed, fit_one, guess=None):
+@eqx.filter_jit
+def _costs(prob, Z):
+    """Costs sum r^2 (K,) at K points Z (K, n) in one vmapped call of the residual (no
+    Jacobian); a point whose simulation fails costs inf."""
+    def one(z):
+        r, (ok, _) = _residual_vector(prob, z)
+        return jnp.where(ok, r @ r, jnp.inf)
+
+    return jax.vmap(one)(Z)
+
+
+def _escalation_reason(prob, zrj, dof):
+    """Why the fit `zrj` = (z, r, J, X) of the given start calls for more starts
+    (`starts="auto"`), or None: it does not explain the data (residual scale s above
+    `POOR_FIT_SCALE`, the threshold `quality` uses) or an unknown ended at a bound."""
+    z, r = np.asarray(zrj[0]), np.asarray(zrj[1])
+    P = len(prob.names)
+    s = math.sqrt(float(r @ r) / max(dof, 1))
+    sz = 1 / (1 + np.exp(-z[:P]))
+    at_bound = [n for n, v in zip(prob.names, sz * (1 - sz)) if v < 1e-9]
+    why = []
+    if not s <= POOR_FIT_SCALE:
+        why.append(f"the given start does not explain the data (residual scale s = {s:.3g} > "
+                   f"{POOR_FIT_SCALE:g})")
+    if at_bound:
+        why.append(f"the given start ended with {', '.join(at_bound)} at a bound")
+    return "; ".join(why) or None
+
+
+def _multi_start(prob, z0, starts, seed, fit_one, guess=None, screen=None, given=None):
     """Fit from z0 and from `starts` - 1 points of a Latin hypercube of the unknowns within
     their bounds (uniform in the bounded scale: log for a log-bounded unknown; the nuisance
     unknowns as `guess(z)` puts them, else as in z0), by `fit_one(z) -> (zrj, hist)`; the
     best (lowest cost) wins. A start whose simulation fails is recorded and skipped.
-    `hist["starts"]` lists every start: its parameters, where it ended, its cost and stop."""
+    `screen` (an int k, or None): first evaluate the cost at every Latin-hypercube point in one
+    vmapped call (`_costs`) and run the fit only from the k cheapest (plus z0); None fits from
+    every point. `given`: the fit from z0, when already made. `hist["starts"]` lists every
+    fitted start: its parameters, where it ended, its cost and stop; `hist["screening"]` the
+    screened points' costs."""
     P = len(prob.names)
     points = [np.array(z0, dtype=np.float64)]
     for u in _latin_hypercube(P, starts - 1, seed):
         z = points[0].copy()
         z[:P] = np.log(u) - np.log1p(-u)
         points.append(z)
+    order = list(range(len(points)))
+    screening = None
+    if screen is not None and len(points) - 1 > screen:
+        t0 = time.perf_counter()
+        c = np.asarray(_costs(prob, jnp.asarray(np.stack(points[1:]))))
+        kept = [1 + int(k) for k in np.argsort(np.where(np.isfinite(c), c, np.inf))[:screen]]
+        order = [0] + kept
+        screening = {"points": len(points) - 1, "kept": kept,
+                     "initial": [[float(v) for v in np.asarray(_to_p(prob, jnp.asarray(z[:P])))]
+                                 for z in points[1:]],
+                     "cost": [float(v) if np.isfinite(v) else None for v in c],
+                     "run_s": time.perf_counter() - t0}
     best, runs = None, []
-    for k, z in enumerate(points):
+    for k in order:
+        z = points[k]
         row = {"start": k, "initial": [float(v) for v in np.asarray(_to_p(prob, z[:P]))]}
         try:
-            if guess is not None and k:
-                z = guess(z)
-            zrj, hist = fit_one(z)
+            if k == 0 and given is not None:
+                zrj, hist = given
+            else:
+                if guess is not None and k:
+                    z = guess(z)
+                zrj, hist = fit_one(z)
         except IdentificationError as err:
             runs.append({**row, "cost": None, "stop": f"failed: {err}"})
             continue
@@ -169,12 +225,14 @@ def _multi_start(prob, z0, starts, seed, fit_one, guess=None):
         if best is None or cost < best[2]:
             best = (zrj, hist, cost, k)
     if best is None:
-        raise IdentificationError(f"every one of the {starts} starts failed: "
+        raise IdentificationError(f"every one of the {len(order)} starts failed: "
                                   + "; ".join(r["stop"] for r in runs))
     zrj, hist, _, k = best
     hist = dict(hist)
     hist["starts"] = runs
     hist["best_start"] = k
+    if screening is not None:
+        hist["screening"] = screening
     return zrj, hist
 
 

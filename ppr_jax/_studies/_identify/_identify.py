@@ -1,6 +1,6 @@
 """Identification of robot parameters from measured platform trajectories (MODEL.md section 7).
 
-`identify(experiments, unknowns=("t", "K_theta"), model="double1r")` fits any subset of the
+`identify(experiments, unknowns=("t",), model="double1r")` fits any subset of the
 float leaves of `RobotParams` to measured poses by least squares through the simulation, and
 reports how well the data determine them: the Gauss-Newton covariance, 95 % intervals,
 correlations, the identifiable combinations (a singular-value analysis of the relative
@@ -64,6 +64,7 @@ Method, and why:
 
 from __future__ import annotations
 
+import time
 from typing import Optional, Sequence, Union
 
 import jax.numpy as jnp
@@ -76,7 +77,14 @@ from ..._params import PARAM_RANGES, RobotParams
 from ..._scenes import scene_params
 from ..._simulate import get_solver
 from ._data import _fill_prb, _pack
-from ._fit import _initial_state_guess, _levenberg_marquardt, _multi_start, _optimistix
+from ._fit import (
+    _check_ok,
+    _escalation_reason,
+    _initial_state_guess,
+    _levenberg_marquardt,
+    _multi_start,
+    _optimistix,
+)
 from ._problem import (
     ACTUATIONS,
     DEFAULT_NOISE,
@@ -87,14 +95,20 @@ from ._problem import (
     NUISANCE,
     SOLVERS,
     _Problem,
+    _residual_and_jacobian,
     _to_z,
 )
-from ._result import Identification, _finish
+from ._result import Identification, _finish, _preflight, _refusal_message
+
+#: starts="auto": when the given start does not explain the data, the Latin hypercube holds
+#: AUTO_STARTS - 1 points besides it, and the fit runs from the AUTO_KEEP cheapest of them
+AUTO_STARTS = 9
+AUTO_KEEP = 3
 
 
 def identify(
     experiments: Union[Experiment, Sequence[Experiment]],
-    unknowns: Sequence[str] = ("t", "K_theta"),
+    unknowns: Sequence[str] = ("t",),
     *,
     model="double1r",
     scene: str = "servo-circle",
@@ -120,50 +134,98 @@ def identify(
     n_elements: Optional[int] = None,
     validation=None,
     nuisance: Sequence[str] = (),
-    starts: int = 1,
+    starts: Union[str, int] = "auto",
     seed: int = 0,
+    force: bool = False,
 ) -> Identification:
     """Fit `unknowns` (names of `RobotParams` float leaves) to measured experiments.
 
-    experiments: one `Experiment` or several (fitted jointly; `load_csv`, `load_experiments`).
-    model: "double1r" (L2, default), "reduced" (L1), "rigid" (L0) or a model instance.
-    scene: the experiment's actuation, "servo-circle" (default) or "paper-circle" (module
-    docstring). actuation: "auto" (default: the data's th_1..th_3 drive the model when every
-    experiment holds them and no `commands` are named, else the commands), "commanded" (the
-    scene's commands, or torques, computed for `commands`, the parameters of the model that
-    computed them: default the nominal robot `params` with `fixed`, never the unknowns' initial
-    values) or "measured" (servo-circle: the data's angles). `Identification.actuation` says which
-    drove the fit.
-    initial_state: "scene" (default), "pose" or "pose-velocity": what of each experiment's initial
-    state is estimated (module docstring). params: the robot (default `scene_params(scene)`),
-    `fixed` ({name: value}) overrides applied to it; `initial` ({name: value}) start values of
-    unknowns (default: the robot's); `bounds` ({name: (lo, hi)}) default `PARAM_RANGES`. noise:
-    (position m, phi rad), the residual weights (their scale is estimated from the fit; the report
-    compares the RMS of the residuals to them). loss: "linear", "huber" or "cauchy" with
-    `loss_scale` in noise units. solver: "lm" (host Levenberg-Marquardt on the compiled Jacobian),
-    "optimistix-lm", "optimistix-gn". xtol, ftol: stop when the step in z or the relative cost
-    change is below them; "lm" also stops when an accepted step is shorter than `stat_tol` standard
-    errors (measured with the information matrix J^T J / s^2, so that steps along undetermined
-    directions do not count). ode_solver, rtol, atol, max_steps: the simulation's (default tsit5,
-    1e-8, 1e-10). validation: samples held out of the fit and predicted by it: a fraction in
-    (0, 1), the last part of every experiment's time span (by time: the model must extrapolate
-    its own motion), or a sequence of experiment names or indices held out whole (with
-    initial_state "scene" only). `Identification.validation` reports their residual scale
-    against the fit's; above twice the fit's (or 1) the model does not generalise, which
-    `quality` reports as a problem. nuisance: measurement parameters estimated with the unknowns
-    and reported apart, shared by every experiment: "bias" (an offset of each pose channel x,
-    y, phi: the tracker's frame against the robot's) and "delay" (the tracker's time delay
-    against the actuation: the pose sampled at t is the robot's at t - delay, interpolated
-    between the simulated samples by a cubic Hermite of their poses and rates; up to one sample
-    spacing). Their uncertainty is marginalised out of the parameters' intervals, as the
-    initial state's is. starts: fits from the given start and from `starts` - 1 points of a
-    Latin hypercube of the unknowns within their bounds (seeded by `seed`), every one on the
-    same compiled function; the lowest cost wins, and `history["starts"]` and `quality` say
-    whether the given start ended in a local minimum.
+    Before fitting, a preflight checks the identifiability of the unknowns at the initial
+    guess, from the data's own sampling and the stated noise (residual scale s = 1): the same
+    singular-value analysis of the relative sensitivities that the result reports
+    (`Identification.identifiability`), on the residual Jacobian at the start (the one the
+    first Levenberg-Marquardt iteration uses anyway), with the nuisance unknowns (initial
+    states, measurement parameters) marginalised out. A combination of the unknowns that is
+    "not identifiable from these data" (relative std >= 1) is refused with an
+    `IdentificationError` naming it, its relative std and what would make it identifiable,
+    unless `force=True`; `history["preflight"]` keeps the verdict.
 
-    Returns an `Identification`. Raises `IdentificationError` for unknown or fixed names that
-    are not leaves, bounds outside the physical range, an initial value outside its bounds or a
-    simulation that fails at the initial values; `DataError` for unusable data."""
+    **Arguments:**
+
+    - `experiments`: one `Experiment` or several (fitted jointly; `load_csv`,
+        `load_experiments`).
+    - `unknowns`: the parameters to fit. Default `("t",)`: the strip thickness, with K_theta
+        from the PRB table. t and K_theta act on the motion through the joint stiffness
+        E w t^3 K_theta (only the strip mass separates them), so the preflight refuses the pair
+        on the usual data: on 0.6 s of the servo circle t^3 K_theta has a relative std of 6 %
+        and t^-1 K_theta^3 of 1e6 % at 5 um / 0.05 mrad of noise. Fit the pair with
+        `force=True` to see the combinations in the result.
+    - `model`: "double1r" (L2, default), "reduced" (L1), "rigid" (L0) or a model instance.
+    - `scene`: the experiment's actuation, "servo-circle" (default) or "paper-circle" (module
+        docstring).
+    - `actuation`: "auto" (default: the data's th_1..th_3 drive the model when every
+        experiment holds them and no `commands` are named, else the commands), "commanded" (the
+        scene's commands, or torques, computed for `commands`) or "measured" (servo-circle: the
+        data's angles). `Identification.actuation` says which drove the fit.
+    - `initial_state`: "scene" (default), "pose" or "pose-velocity": what of each
+        experiment's initial state is estimated (module docstring).
+    - `params`: the robot (default `scene_params(scene)`).
+    - `commands`: the `RobotParams` of the model that computed the commands (default the
+        nominal robot, `params` with `fixed`; never the unknowns' initial values).
+    - `fixed`: {name: value} overrides applied to `params`.
+    - `initial`: {name: value} start values of unknowns (default: the robot's).
+    - `bounds`: {name: (lo, hi)} (default `PARAM_RANGES`).
+    - `noise`: (position m, phi rad), the residual weights (their scale is estimated from the
+        fit; the report compares the RMS of the residuals to them).
+    - `loss`, `loss_scale`: "linear", "huber" or "cauchy", with the scale in noise units.
+    - `solver`: "lm" (host Levenberg-Marquardt on the compiled Jacobian), "optimistix-lm",
+        "optimistix-gn".
+    - `max_iter`, `xtol`, `ftol`, `stat_tol`: stop when the step in z or the relative cost
+        change is below `xtol`, `ftol`; "lm" also stops when an accepted step is shorter than
+        `stat_tol` standard errors (measured with the information matrix J^T J / s^2, so that
+        steps along undetermined directions do not count).
+    - `ode_solver`, `rtol`, `atol`, `max_steps`: the simulation's (default tsit5, 1e-8,
+        1e-10).
+    - `n_elements`: the beam model's element count.
+    - `validation`: samples held out of the fit and predicted by it: a fraction in (0, 1),
+        the last part of every experiment's time span (by time: the model must extrapolate its
+        own motion), or a sequence of experiment names or indices held out whole (with
+        initial_state "scene" only). `Identification.validation` reports their residual scale
+        against the fit's; above twice the fit's (or 1) the model does not generalise, which
+        `quality` reports as a problem.
+    - `nuisance`: measurement parameters estimated with the unknowns and reported apart,
+        shared by every experiment: "bias" (an offset of each pose channel x, y, phi: the
+        tracker's frame against the robot's) and "delay" (the tracker's time delay against the
+        actuation: the pose sampled at t is the robot's at t - delay, interpolated between the
+        simulated samples by a cubic Hermite of their poses and rates; up to one sample
+        spacing). Their uncertainty is marginalised out of the parameters' intervals, as the
+        initial state's is.
+    - `starts`: "auto" (default) or an integer N in [1, 1000]. "auto" fits from the given
+        start, and only when that fit does not explain the data (residual scale s above
+        `POOR_FIT_SCALE`, the threshold of `quality`) or ends with an unknown at a bound, it
+        refits: the cost at 8 points of a Latin hypercube of the unknowns within their bounds
+        (seeded by `seed`) is evaluated in one vmapped call of the compiled residual, and the
+        fit runs from the 3 cheapest; the lowest cost of those and the given start's wins.
+        `history["escalation"]` and `quality["escalated"]` say why it happened (None: it did
+        not). A well-posed fit therefore costs what one start costs. An integer N fits from
+        the given start and from N - 1 Latin-hypercube points, every one (no screening).
+        `history["starts"]` and `quality["starts"]` say whether the given start ended in a
+        local minimum.
+    - `seed`: the Latin hypercube's seed.
+    - `force`: fit even when the preflight refuses (the result's identifiability and
+        `quality["preflight_not_identifiable"]` then report it).
+
+    **Returns:**
+
+    An `Identification`.
+
+    **Raises:**
+
+    `IdentificationError` for unknown or fixed names that are not leaves, bounds outside the
+    physical range, an initial value outside its bounds, a bad option (naming it and its
+    allowed values), a simulation that fails at the initial values, or a preflight refusal;
+    `DataError` for unusable data.
+    """
     exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
     if not exps:
         raise DataError("no experiment given")
@@ -190,9 +252,11 @@ def identify(
         raise IdentificationError(f"unknown initial_state {initial_state!r}; allowed: "
                                   f"{', '.join(INITIAL_STATES)}")
     n_init = INITIAL_STATES[initial_state]
-    if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or not (
-            1 <= starts <= 1000):
-        raise IdentificationError(f"starts must be an integer in [1, 1000], got {starts!r}")
+    if not (isinstance(starts, str) and starts == "auto") and (
+            isinstance(starts, bool) or not isinstance(starts, (int, np.integer))
+            or not 1 <= starts <= 1000):
+        raise IdentificationError(f"starts must be 'auto' or an integer in [1, 1000], got "
+                                  f"{starts!r}")
     nuisance = tuple(nuisance)
     for item in nuisance:
         if item not in NUISANCE:
@@ -301,17 +365,59 @@ def identify(
     if n_init:
         z0 = _initial_state_guess(prob, z0, mask)
 
-    def fit_one(z):
+    # Preflight: the identifiability of the unknowns at the start, from the data's sampling and
+    # the stated noise (s = 1), before anything is fitted. Its residual and Jacobian are the
+    # first Levenberg-Marquardt iteration's.
+    t_pre = time.perf_counter()
+    r0, J0, ok0, X0 = _residual_and_jacobian(prob, jnp.asarray(z0))
+    J0 = np.asarray(J0)
+    pre_s = time.perf_counter() - t_pre
+    _check_ok(ok0, z0, prob)
+    t_an = time.perf_counter()
+    pre = _preflight(prob, z0, J0)
+    an_s = time.perf_counter() - t_an
+    if pre["refused"] and not force:
+        raise IdentificationError(_refusal_message(pre, names))
+    preflight = {"combinations": pre["combinations"], "condition_number":
+                 pre["condition_number"], "refused": [c["expression"] for c in pre["refused"]],
+                 "forced": bool(pre["refused"]) and bool(force),
+                 # the residual and Jacobian at the start (the first call compiles them; the
+                 # first iteration reuses them) and the analysis alone
+                 "run_s": pre_s, "analysis_s": an_s,
+                 "note": "identifiability at the initial guess with the stated noise (s = 1), "
+                         "before the fit"}
+
+    def fit_one(z, first=None):
         if solver == "lm":
-            return _levenberg_marquardt(prob, z, max_iter, xtol, ftol, stat_tol)
+            return _levenberg_marquardt(prob, z, max_iter, xtol, ftol, stat_tol, first=first)
         return _optimistix(prob, z, solver, max_iter, xtol, ftol)
 
-    if starts > 1:
-        z, hist = _multi_start(prob, z0, starts, seed, fit_one,
-                               (lambda z: _initial_state_guess(prob, z, mask)) if n_init
-                               else None)
+    guess = (lambda z: _initial_state_guess(prob, z, mask)) if n_init else None
+    given = fit_one(z0, (r0, J0, ok0, X0, pre_s))
+    escalation = None
+    if starts == "auto":
+        why = _escalation_reason(prob, given[0], n_res - n_unknown)
+        if why:
+            z, hist = _multi_start(prob, z0, AUTO_STARTS, seed, fit_one, guess,
+                                   screen=AUTO_KEEP, given=given)
+            escalation = {"reason": why, "points": AUTO_STARTS - 1, "fitted": AUTO_KEEP,
+                          "note": f"refitted from {AUTO_STARTS - 1} Latin-hypercube points "
+                                  f"within the bounds (their costs screened in one vmapped "
+                                  f"call, the fit run from the {AUTO_KEEP} cheapest) besides "
+                                  f"the given start; the lowest cost wins"}
+        else:
+            z, hist = given
+    elif starts > 1:
+        z, hist = _multi_start(prob, z0, int(starts), seed, fit_one, guess, given=given)
     else:
-        z, hist = fit_one(z0)
+        z, hist = given
+    hist = dict(hist)
+    if "compile_s" in given[1]:  # the first call's (the preflight's), whichever start won
+        hist["compile_s"] = given[1]["compile_s"]
+    hist["total_s"] = time.perf_counter() - t_pre  # preflight, every start and screening
+    hist["starts_option"] = starts
+    hist["escalation"] = escalation
+    hist["preflight"] = preflight
     return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise), drive,
                    held=None if held is None else (W_all, held[0], held[1]))
 

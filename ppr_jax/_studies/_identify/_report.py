@@ -47,6 +47,29 @@ def _image(path: str) -> str:
             f"<figcaption>{name}</figcaption></figure>")
 
 
+def _starts_html(fit) -> str:
+    """The preflight's verdict and the starts: a forced fit past a refusal, an automatic
+    multi-start and why, and how the starts ended."""
+    esc = html.escape
+    q, h = fit.quality or {}, fit.history
+    out = []
+    pre = h.get("preflight")
+    if pre:
+        out.append(f"<p>Preflight (identifiability at the initial guess, noise as stated, "
+                   f"{_g(pre['run_s'], 3)} s): "
+                   + (f"<span class='bad'>not identifiable: {esc(', '.join(pre['refused']))}; "
+                      f"fitted anyway (force)</span>" if pre["refused"] else
+                      "every combination identifiable or poorly identifiable") + ".</p>")
+    if q.get("escalated"):
+        out.append(f"<p>Starts (auto): {esc(q['escalated'])}; "
+                   f"{esc(h['escalation']['note'])}.</p>")
+    st = q.get("starts")
+    if st:
+        out.append(f"<p>Starts: {st['n']} fitted, {st['reached_best']} reached the best "
+                   f"minimum" + (f"; {esc(st['note'])}" if st["note"] else "") + ".</p>")
+    return "\n".join(out)
+
+
 def write_report(fit, path: str, *, figures: Sequence[str] = (), data_files: Sequence[str] = (),
                  command: Optional[str] = None, profiles: Optional[list] = None) -> str:
     """Write `path`, one self-contained HTML file (figures embedded) of the `Identification`
@@ -96,6 +119,7 @@ def write_report(fit, path: str, *, figures: Sequence[str] = (), data_files: Seq
         f"{esc(str(fit.history.get('iterations')))} iterations; compile "
         f"{_g(fit.history.get('compile_s', float('nan')), 3)} s, fit "
         f"{_g(fit.history.get('run_s', float('nan')), 3)} s.</p>",
+        _starts_html(fit),
         "<h2>Estimates</h2>",
         _table(["unknown", "estimate", "std", "95 % (linearised)", "95 % (log)",
                 "95 % (profile)", "initial"], rows),

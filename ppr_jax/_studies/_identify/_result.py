@@ -252,7 +252,15 @@ class Identification(eqx.Module):
             lines.append(f"  {e['name']}: RMS x {e['rms_x_m'] * 1e3:.4g} mm, y "
                          f"{e['rms_y_m'] * 1e3:.4g} mm, phi {e['rms_phi_rad'] * 1e3:.4g} mrad "
                          f"(noise {self.noise[0] * 1e3:.3g} mm, {self.noise[1] * 1e3:.3g} mrad)")
-        st = (self.quality or {}).get("starts")
+        q = self.quality or {}
+        if q.get("escalated"):
+            lines.append(f"  starts auto: {q['escalated']}: "
+                         + self.history["escalation"]["note"])
+        if q.get("preflight_not_identifiable"):
+            lines.append("  preflight: not identifiable at the initial guess: "
+                         + ", ".join(q["preflight_not_identifiable"])
+                         + " (fitted anyway: force=True)")
+        st = q.get("starts")
         if st:
             lines.append(f"  starts: {st['n']} (Latin hypercube), {st['reached_best']} reached the "
                          f"best minimum" + (f"; {st['note']}" if st["note"] else ""))
@@ -369,6 +377,64 @@ def _identifiability(names, p, J, s2):
                      "little t alone); fix one of them (e.g. --fix t=...) to identify the other")
     return {"singular_values": [float(v) for v in sv], "condition_number": cond,
             "combinations": combos, "note": note}
+
+
+def _preflight(prob, z, Jz) -> dict:
+    """The identifiability of the unknowns at the start z, before any fit: `_identifiability` of
+    the residual Jacobian Jz (N, len(z)) = dr/dz at z, with the residual scale s = 1 (the noise as
+    stated: the data's own sampling and weights, nothing fitted yet). The nuisance unknowns
+    (initial states, measurement parameters) are marginalised out as `_finish` does for the
+    intervals: their directions are projected out of the parameters' Jacobian. Returns the
+    `_identifiability` dict with "refused" (the combinations not identifiable from these
+    data)."""
+    P = len(prob.names)
+    z = jnp.asarray(z)
+    Jz = np.asarray(Jz)
+    p = np.asarray(_to_p(prob, z))
+    dpdz = np.asarray(_dp_dz(prob, z))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        J = Jz[:, :P] / np.maximum(dpdz, 1e-300)[None, :]
+    J = np.where(np.isfinite(J), J, 0.0)
+    Jn = Jz[:, P:]
+    if Jn.shape[1]:
+        Qi = _range_basis(Jn)
+        J = J - Qi @ (Qi.T @ J)
+    idf = _identifiability(prob.names, p, J, 1.0)
+    idf["refused"] = [c for c in idf["combinations"]
+                      if c["status"] == "not identifiable from these data"]
+    return idf
+
+
+def _refusal_message(idf, names) -> str:
+    """Why `identify` refuses to fit: the combinations of the unknowns that the data cannot
+    determine at the initial guess, with their relative std, what would make them identifiable
+    and how to fit anyway."""
+    parts = []
+    for c in idf["refused"]:
+        involved = [n for n, e in zip(names, c["exponents"])
+                    if abs(e) > 0.1 * max(abs(x) for x in c["exponents"])]
+        rel = c["relative_std"]
+        what = (f"{c['expression']} (relative std "
+                + (f"{rel * 100:.3g} %" if math.isfinite(rel) else "infinite: the residuals "
+                   "do not depend on it") + ")")
+        if len(involved) > 1:
+            fix = (f"fix one of {', '.join(involved)} at a known value (leave it out of the "
+                   f"unknowns and give fixed={{{involved[0]!r}: value}}; CLI --fix "
+                   f"{involved[0]}=VALUE or --set {involved[0]}=VALUE)")
+        else:
+            fix = (f"fix {involved[0]} at a known value (leave it out of the unknowns; "
+                   f"fixed={{{involved[0]!r}: value}}, CLI --set {involved[0]}=VALUE)")
+        parts.append(f"{what}; to make it identifiable, {fix}, or fit data that excite it "
+                     f"(longer or more experiments, less noise)")
+    msg = ("preflight: at the initial guess, with the data's sampling and the stated noise, "
+           "these combinations of the unknowns are not identifiable from these data (relative "
+           "std >= 100 %): " + "; ".join(parts))
+    if {"t", "K_theta"} <= set(names):
+        msg += ("; note: t and K_theta act through the joint stiffness K = 2 E I rho K_theta / L "
+                "with I = w t^3/12, i.e. through E w t^3 K_theta (the strip mass adds a little "
+                "t alone): fit t with K_theta from the PRB table, or K_theta with t measured")
+    return msg + ("; to fit anyway (the result's identifiability and quality then report it), "
+                  "pass force=True (CLI --force)")
 
 
 #: a start whose cost exceeds the best by more than this many s^2 ended elsewhere (the 95 %
@@ -519,6 +585,12 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
                "at_bound": at_bound, "ok": not problems,
                "generalises": None if validation is None else validation["generalises"],
                "starts": starts,
+               # starts="auto": why the given start's fit called for more starts (None: it
+               # did not, or the option was not "auto")
+               "escalated": (hist.get("escalation") or {}).get("reason"),
+               # the preflight's combinations not identifiable at the initial guess (fitted
+               # anyway with force=True)
+               "preflight_not_identifiable": (hist.get("preflight") or {}).get("refused", []),
                "problems": problems}
     raw = np.where(np.asarray(prob.w) > 0, (X - np.asarray(prob.X)) * np.asarray(prob.w), 0.0)
     rs = []
