@@ -238,10 +238,33 @@ def l3() -> str:
                          "16-core host" if "host" in r else "2-core"])
         out.append("**Full L3 (strip dynamics), the start of paper-circle** "
                    "(`benchmarks/l3_implicit.py`; error against a Dopri8 run at rtol 1e-8 or "
-                   "tighter; compare rows of the same machine only):\n\n"
+                   "tighter; compare rows of the same machine only; these rows started from "
+                   "the quasi-static balance before the strips were moved onto their slow "
+                   "path, so their strip modes rang from t = 0):\n\n"
                    + _table(["N", "strip loss", "window", "solver", "rtol", "run", "steps",
                              "error", "compile", "machine"], rows))
     return "\n\n".join(out)
+
+
+def l3_scene() -> str:
+    w = _load("l3_whole_scene.json")
+    if w is None or not w.get("runs"):
+        return ""
+    rows = [[f"{q['N']}", "quasi-static", q["solver"], f"{q['rtol']:g}", _ms(q["run_s"]), "1",
+             f"{q['steps']}", "-", "-", f"{q['compile_s']:.0f} s"] for q in w["quasi_static"]]
+    rows += [[f"{r['N']}", f"full, loss {r['strip_loss_s']:g} s", r["solver"], f"{r['rtol']:g}",
+              _ms(r["run_s"]), f"{r['run_over_quasi_static']:.1f}",
+              f"{r['steps']} ({r['rejected']} rejected)",
+              f"{100 * r['metrics_max_relative_deviation']:.2g} %",
+              f"{r['platform_distance_max_m']:.1e} m", f"{r['compile_s']:.0f} s"]
+             for r in w["runs"]]
+    return ("**Full L3 over the whole paper-circle (7.54 s)** (`benchmarks/l3_whole_scene.py`; "
+            "the full L3 from its slow-path start against the quasi-static L3 of the same N: "
+            "run time as a multiple of the quasi-static one, largest relative change of a "
+            "trajectory metric, largest platform distance; figure `l3_whole_scene.png`)\n\n"
+            + _machine(w) + "\n\n"
+            + _table(["N", "strips", "solver", "rtol", "run", "x quasi-static", "steps",
+                      "metrics", "platform", "compile"], rows))
 
 
 def implicit() -> str:
@@ -295,6 +318,7 @@ def tables() -> dict:
         "mjx": mjx_batch(),
         "studies": studies(),
         "l3": l3(),
+        "l3-scene": l3_scene(),
         "implicit": implicit(),
         "known-truth": known_truth(),
     }
