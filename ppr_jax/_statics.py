@@ -356,8 +356,9 @@ def quasi_static_core(
 
 #: Newton iterations of the slow-manifold projection (`onto_slow_manifold`): on the full L3
 #: (N = 16, paper-circle) they bring the strip accelerations from up to 280 rad/s^2 off the
-#: quasi-static path's to within 2e-4 rad/s^2 of them (the accuracy of the path's own
-#: finite-difference estimate).
+#: quasi-static path's to its acceleration from the balance's own 5 ms stencil; what is left
+#: against the path's exact acceleration (up to a fifth of it, 0.006 rad/s^2, at N = 8) rings
+#: at mismatch / omega^2, about 1e-11 rad.
 SLOW_NEWTON = 3
 
 
@@ -378,10 +379,10 @@ def onto_slow_manifold(model, robot, actuation, wrench, t, z, zd, fast, target):
     open-loop torque, another model's commands). The light strip segments then start 100-300
     rad/s^2 off their slow path (full L3, N = 16, paper-circle), and the strip modes, up to 5e5
     rad/s and undamped by default, ring through the whole run, which an integrator must then
-    resolve (0.5 us steps). Moving the strip angles by the static deflection of that mismatch
-    (about 1e-9 rad) starts the strips on the robot's slow motion. Newton on the fast
-    coordinates' accelerations, `SLOW_NEWTON` iterations with a forward-mode Jacobian; the
-    velocities are the quasi-static path's already.
+    resolve (0.5 us steps at rtol 1e-6). Moving the strip angles by the static deflection of
+    that mismatch (mismatch / omega^2) starts the strips on the robot's slow motion. Newton on
+    the fast coordinates' accelerations, `SLOW_NEWTON` iterations with a forward-mode
+    Jacobian; the velocities are the quasi-static path's already.
 
     **Arguments:**
 
