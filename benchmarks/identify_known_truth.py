@@ -71,6 +71,11 @@ def cases(truth, nominal):
         "gamma-commanded": (("gamma",), dict(fixed=fixed, commands=nominal), False),
         "gamma-auto-pose-velocity": (("gamma",), dict(fixed=fixed,
                                                        initial_state="pose-velocity"), True),
+        # the strip thickness with K_theta known: the joint stiffness t^3 K_theta (the
+        # identifiable combination of the pair, whose relative std is three times t's)
+        "t-auto": (("t",), dict(fixed={"K_theta": float(truth.K_theta),
+                                       "gamma": float(truth.gamma)},
+                                initial={"t": 0.8 * float(truth.t)}), True),
         "K_theta-auto": (("K_theta",), dict(fixed={"t": float(truth.t),
                                                    "gamma": float(truth.gamma)},
                                             initial={"K_theta": 2.0}), True),
