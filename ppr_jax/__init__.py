@@ -79,6 +79,7 @@ from ._simulate import (  # noqa: E402
     simulate as simulate,
     Solution as Solution,
 )
+from ._esdirk import KeptKvaerno5 as KeptKvaerno5  # noqa: E402
 from ._rosw import Ros34PW2 as Ros34PW2  # noqa: E402
 from ._statics import (  # noqa: E402
     static_equilibrium as static_equilibrium,

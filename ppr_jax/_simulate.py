@@ -34,6 +34,7 @@ from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
 from ._robot import RobotLike, as_robot
+from ._esdirk import KeptKvaerno5
 from ._rosw import Ros34PW2
 
 #: Most iterations of an implicit stage's nonlinear solve (diffrax's `root_find_max_steps`).
@@ -146,6 +147,7 @@ SOLVERS = {
     "dopri8": diffrax.Dopri8,
     "kvaerno5": _implicit(diffrax.Kvaerno5),
     "kvaerno3": _implicit(diffrax.Kvaerno3),
+    "kvaerno5-kept": KeptKvaerno5,
     "ros34pw2": Ros34PW2,
 }
 
@@ -171,14 +173,14 @@ def default_controller(solver, rtol, atol) -> diffrax.PIDController:
 
 
 def is_stiff_solver(solver) -> bool:
-    """Whether `solver` is one for stiff problems: diffrax's implicit Runge-Kutta methods or the
-    Rosenbrock-W `Ros34PW2`."""
+    """Whether `solver` is one for stiff problems: diffrax's implicit Runge-Kutta methods,
+    `KeptKvaerno5` or the Rosenbrock-W `Ros34PW2`."""
     return isinstance(solver, (diffrax.AbstractImplicitSolver, Ros34PW2))
 
 
 def get_solver(solver) -> diffrax.AbstractSolver:
-    """A diffrax solver from a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5, ros34pw2) or an
-    instance.
+    """A diffrax solver from a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5, kvaerno5-kept,
+    ros34pw2) or an instance.
     The implicit ones by name solve their stages with `StageChord`; an instance whose root
     finder is diffrax's own `VeryChord` gets `StageChord` with the same kappa and linear solver
     (see `StageChord` for why); any other instance is used as given."""
@@ -344,10 +346,10 @@ def simulate(
 ) -> Solution:
     """Integrate `model` under `actuation` from (z0, z0') and save at times `ts` (increasing).
 
-    `solver`: a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5) or a diffrax solver; adaptive
-    steps with a PID controller at (rtol, atol) (`default_controller`: PI for the implicit
-    solvers) unless `stepsize_controller` is given (then `dt0`
-    is the constant step). For a motion-driven model the prescribed coordinates of z0 are ignored
+    `solver`: a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5, kvaerno5-kept, ros34pw2) or a
+    diffrax solver; adaptive steps with a PID controller at (rtol, atol) (`default_controller`:
+    PI for the implicit solvers) unless `stepsize_controller` is given (then `dt0` is the
+    constant step). For a motion-driven model the prescribed coordinates of z0 are ignored
     (they follow the actuation). On failure raises `SimulationError`; called under a JAX
     transformation (grad, vmap of the caller) the failure is raised by diffrax inside the trace.
     `adjoint`: how to differentiate: diffrax's default (reverse mode, recursive checkpointing) or
