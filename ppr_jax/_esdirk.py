@@ -22,7 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jax.flatten_util import ravel_pytree
+
+from ._rosw import check_jacobian_every, flat_field
 
 _TAB = diffrax.Kvaerno5.tableau
 _S = _TAB.num_stages  # 7: an explicit first stage, six implicit ones of diagonal gamma
@@ -98,9 +99,7 @@ class KeptKvaerno5(diffrax.AbstractImplicitSolver, diffrax.AbstractAdaptiveSolve
     interpolation_cls: ClassVar = diffrax.ThirdOrderHermitePolynomialInterpolation
 
     def __check_init__(self):
-        if not (isinstance(self.jacobian_every, int) and self.jacobian_every >= 1):
-            raise ValueError(f"jacobian_every must be an integer >= 1, got "
-                             f"{self.jacobian_every!r}")
+        check_jacobian_every(self.jacobian_every)
         if not (isinstance(self.root_find_max_steps, int) and self.root_find_max_steps >= 2):
             raise ValueError(f"root_find_max_steps must be an integer >= 2, got "
                              f"{self.root_find_max_steps!r}")
@@ -113,21 +112,13 @@ class KeptKvaerno5(diffrax.AbstractImplicitSolver, diffrax.AbstractAdaptiveSolve
     def error_order(self, terms):
         return 5
 
-    def _flat(self, terms, y0, args):
-        flat, unravel = ravel_pytree(y0)
-
-        def f(t, y):
-            return ravel_pytree(terms.vf(t, unravel(y), args))[0]
-
-        return flat, unravel, f
-
     def init(self, terms, t0, t1, y0, args):
-        y, _, f = self._flat(terms, y0, args)
+        y, _, f = flat_field(terms, y0, args)
         # age = jacobian_every: the first step computes its own Jacobian
         return f(t0, y), jnp.zeros((y.size, y.size), y.dtype), jnp.asarray(self.jacobian_every)
 
     def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
-        y, unravel, f = self._flat(terms, y0, args)
+        y, unravel, f = flat_field(terms, y0, args)
         f0, J, age = solver_state
         if made_jump is not False:
             f0 = jax.lax.cond(made_jump, lambda: f(t0, y), lambda: f0)

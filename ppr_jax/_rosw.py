@@ -52,6 +52,23 @@ _ALPHA = _A.sum(axis=1)
 _GAMMA_I = _GAMMA + _G.sum(axis=1)
 
 
+def flat_field(terms, y0, args):
+    """(y flat (n,), unravel, f(t, y flat) -> (n,)): the vector field on one vector, for the
+    stiff solvers' linear algebra on any PyTree state."""
+    flat, unravel = ravel_pytree(y0)
+
+    def f(t, y):
+        return ravel_pytree(terms.vf(t, unravel(y), args))[0]
+
+    return flat, unravel, f
+
+
+def check_jacobian_every(every) -> None:
+    """`ValueError` unless `every` (the steps a Jacobian is kept) is an integer >= 1."""
+    if not (isinstance(every, int) and every >= 1):
+        raise ValueError(f"jacobian_every must be an integer >= 1, got {every!r}")
+
+
 class Ros34PW2(diffrax.AbstractAdaptiveSolver):
     """The Rosenbrock-W method ROS34PW2 (Rang and Angermann 2005) for stiff ODEs, with the
     Jacobian reused over `jacobian_every` accepted steps.
@@ -81,23 +98,13 @@ class Ros34PW2(diffrax.AbstractAdaptiveSolver):
     interpolation_cls: ClassVar = diffrax.ThirdOrderHermitePolynomialInterpolation
 
     def __check_init__(self):
-        if not (isinstance(self.jacobian_every, int) and self.jacobian_every >= 1):
-            raise ValueError(f"jacobian_every must be an integer >= 1, got "
-                             f"{self.jacobian_every!r}")
+        check_jacobian_every(self.jacobian_every)
 
     def order(self, terms):
         return 3
 
     def error_order(self, terms):
         return 3
-
-    def _flat(self, terms, y0, args):
-        flat, unravel = ravel_pytree(y0)
-
-        def f(t, y):
-            return ravel_pytree(terms.vf(t, unravel(y), args))[0]
-
-        return flat, unravel, f
 
     def _jacobian(self, f, t, y):
         # One forward-mode pass over (y, t): the last column is f_t.
@@ -108,13 +115,13 @@ class Ros34PW2(diffrax.AbstractAdaptiveSolver):
         return Jt[:, :-1], Jt[:, -1]
 
     def init(self, terms, t0, t1, y0, args):
-        y, _, f = self._flat(terms, y0, args)
+        y, _, f = flat_field(terms, y0, args)
         J, ft = self._jacobian(f, t0, y)
         # age = jacobian_every: the first step computes its own Jacobian at (t0, y0)
         return f(t0, y), J, ft, jnp.asarray(self.jacobian_every)
 
     def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
-        y, unravel, f = self._flat(terms, y0, args)
+        y, unravel, f = flat_field(terms, y0, args)
         f0, J, ft, age = solver_state
         if made_jump is not False:
             f0 = jax.lax.cond(made_jump, lambda: f(t0, y), lambda: f0)

@@ -30,11 +30,11 @@ from ._errors import (
     first_failure,
     is_traced,
 )
+from ._esdirk import KeptKvaerno5
 from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
 from ._robot import RobotLike, as_robot
-from ._esdirk import KeptKvaerno5
 from ._rosw import Ros34PW2
 
 #: Most iterations of an implicit stage's nonlinear solve (diffrax's `root_find_max_steps`).

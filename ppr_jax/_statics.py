@@ -24,7 +24,7 @@ from ._dynamics import eom_terms, generalized_force
 from ._errors import PPRError, raise_if, result_code
 from ._kinematics import fk_solve
 from ._linalg import SmallLU, solve
-from ._models import AbstractModel, Beam, Reduced
+from ._models import AbstractModel, Reduced
 from ._robot import RobotLike, as_robot
 from ._simulate import accelerations, split_coordinates
 from ._trajectory import derivatives
@@ -363,9 +363,10 @@ SLOW_NEWTON = 3
 
 
 def fast_coordinates(model: AbstractModel) -> tuple:
-    """The coordinates of `model` whose own dynamics is far faster than the robot's (static):
-    the full L3's interior strip angles (kHz strip modes), none for the other models."""
-    return tuple(range(6, model.n_dof)) if isinstance(model, Beam) else ()
+    """The coordinates of `model` whose own dynamics is far faster than the robot's (static,
+    `AbstractModel.fast_index`): the full L3's interior strip angles (kHz strip modes), none
+    for the other models."""
+    return tuple(model.fast_index)
 
 
 def onto_slow_manifold(model, robot, actuation, wrench, t, z, zd, fast, target):

@@ -102,12 +102,19 @@ def test_stage_root_finder_reports_a_stalled_iteration():
     assert sol.result != optx.RESULTS.successful
 
 
-def test_a_failed_implicit_step_is_rejected_never_accepted():
+@pytest.mark.parametrize("make", [
+    lambda: diffrax.Kvaerno5(
+        root_finder=diffrax.with_stepsize_controller_tols(StageChord)(max_steps=3),
+        root_find_max_steps=3),
+    lambda: pj.KeptKvaerno5(root_find_max_steps=3),
+], ids=["kvaerno5", "kvaerno5-kept"])
+def test_a_failed_implicit_step_is_rejected_never_accepted(make):
     """diffrax #752 class: a step whose stage solve fails must be retried shorter, never kept.
     A stiff pendulum-like oscillator, x'' = -w^2 sin(x - sin t) (strongly nonlinear at the
     amplitudes a too-long first step reaches), with a first step of 0.5 s, at most 3
-    iterations per stage: the first attempts fail their stage solves. Every such step must be
-    rejected, and the run must still succeed and agree with Tsit5."""
+    iterations per stage: the first attempts fail their stage solves (KeptKvaerno5's with a
+    fresh Jacobian too). Every such step must be rejected, and the run must still succeed and
+    agree with Tsit5."""
     w = 2 * np.pi * 20.0
 
     def vf(t, y, args):
@@ -115,13 +122,9 @@ def test_a_failed_implicit_step_is_rejected_never_accepted():
         return v, -(w**2) * jnp.sin(x - jnp.sin(t)) - 5.0 * v
 
     y0 = (jnp.asarray(1.0), jnp.asarray(0.0))
-    solver = diffrax.Kvaerno5(
-        root_finder=diffrax.with_stepsize_controller_tols(StageChord)(max_steps=3),
-        root_find_max_steps=3,
-    )
     _LOG.steps = []
     ctrl = _Recorder(rtol=1e-6, atol=1e-9, pcoeff=0.2, icoeff=0.4)
-    sol = _solve(vf, y0, 1.0, solver, ctrl, dt0=0.5)
+    sol = _solve(vf, y0, 1.0, make(), ctrl, dt0=0.5)
     ref = _solve(vf, y0, 1.0, diffrax.Tsit5(), diffrax.PIDController(rtol=1e-10, atol=1e-12))
     failed = [kept for f, kept in _LOG.steps if f]
     assert len(failed) > 0, "the test must exercise a failed stage solve"
@@ -223,29 +226,6 @@ def test_kept_kvaerno5_is_fifth_order_with_a_fresh_and_a_kept_jacobian():
     np.testing.assert_allclose(kept.ys[0][-1], kv.ys[0][-1], rtol=0, atol=1e-11)
 
 
-def test_kept_kvaerno5_rejects_a_step_whose_stages_fail():
-    """diffrax #752 class for the kept-Jacobian solver: the stiff nonlinear oscillator of
-    `test_a_failed_implicit_step_is_rejected_never_accepted`, first step 0.5 s, at most 3
-    Newton iterations a stage. Every step with a failed stage is rejected, and the run ends
-    where Tsit5 does."""
-    w = 2 * np.pi * 20.0
-
-    def vf(t, y, args):
-        x, v = y
-        return v, -(w**2) * jnp.sin(x - jnp.sin(t)) - 5.0 * v
-
-    y0 = (jnp.asarray(1.0), jnp.asarray(0.0))
-    _LOG.steps = []
-    ctrl = _Recorder(rtol=1e-6, atol=1e-9, pcoeff=0.2, icoeff=0.4)
-    sol = _solve(vf, y0, 1.0, pj.KeptKvaerno5(root_find_max_steps=3), ctrl, dt0=0.5)
-    ref = _solve(vf, y0, 1.0, diffrax.Tsit5(), diffrax.PIDController(rtol=1e-10, atol=1e-12))
-    failed = [kept for f, kept in _LOG.steps if f]
-    assert len(failed) > 0, "the test must exercise a failed stage solve"
-    assert not any(failed), "a step with a failed stage solve was accepted"
-    assert sol.result == diffrax.RESULTS.successful
-    np.testing.assert_allclose(sol.ys[0][-1], ref.ys[0][-1], atol=1e-4)
-
-
 def test_kept_kvaerno5_differentiates_in_forward_mode():
     """d x(1) / d b of the stiff forced oscillator x'' = -w^2 (x - b sin t) (w = 2 pi 30 Hz,
     started on its forced response x = b w^2 / (w^2 - 1) sin t) through KeptKvaerno5 (its
@@ -278,17 +258,26 @@ def test_kept_kvaerno5_rejects_invalid_settings():
 
 
 def test_full_l3_defaults_to_a_stiff_solver():
-    """The full L3 (`Beam`) runs on Kvaerno5 by default and under "auto" (without the
-    stiffness estimate: its default is for stiff problems already); the quasi-static L3 and
-    L2 keep their explicit defaults."""
+    """The full L3 (`Beam`, the model with fast coordinates) runs on KeptKvaerno5 at rtol 1e-4,
+    atol 1e-6 by default and under "auto" (without the stiffness estimate: its default is for
+    stiff problems already); the quasi-static L3 and L2 keep their explicit defaults and the
+    scenes' tolerances; tolerances given are kept."""
     from ppr_jax._scenes._options import SceneOptions, default_solver
 
-    assert default_solver(pj.Beam(4)) == "kvaerno5"
+    assert pj.Beam(4).fast_index == tuple(range(6, 15))
+    assert pj.QuasiStaticBeam(4).fast_index == pj.Double1R().fast_index == ()
+    assert default_solver(pj.Beam(4)) == "kvaerno5-kept"
     assert default_solver(pj.QuasiStaticBeam(4)) == "dopri8"
     assert default_solver(pj.Double1R()) == "tsit5"
-    assert isinstance(SceneOptions().prepared(pj.Beam(4)).solver, diffrax.Kvaerno5)
-    name, why = choose_solver(pj.Beam(4), pj.scene_params("paper-circle"), 1e-4, "kvaerno5")
-    assert name == "kvaerno5" and "stiff" in why
+    full = SceneOptions().prepared(pj.Beam(4))
+    assert isinstance(full.solver, pj.KeptKvaerno5)
+    assert (float(full.rtol), float(full.atol)) == (1e-4, 1e-6)
+    qs = SceneOptions().prepared(pj.QuasiStaticBeam(4))
+    assert (float(qs.rtol), float(qs.atol)) == (1e-8, 1e-10)
+    given = SceneOptions(rtol=1e-6).prepared(pj.Beam(4))
+    assert (float(given.rtol), float(given.atol)) == (1e-6, 1e-6)
+    name, why = choose_solver(pj.Beam(4), pj.scene_params("paper-circle"), 1e-4, "kvaerno5-kept")
+    assert name == "kvaerno5-kept" and "stiff" in why
 
 
 @pytest.fixture(scope="module")

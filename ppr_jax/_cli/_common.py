@@ -11,6 +11,7 @@ import sys
 
 from .._errors import PPRError
 from .._scenes import ATOL, MAX_STEPS, N_OUT, RTOL, T_END
+from .._scenes._options import FULL_L3_ATOL, FULL_L3_RTOL
 
 
 def _parse_sets(items, scene, path=None):
@@ -98,7 +99,8 @@ def parent_parsers() -> dict:
     model.add_argument("--strip-dynamics", default="quasi-static", choices=["quasi-static", "full"],
                        help="L3's strips: in static equilibrium for their clamp poses (9 "
                             "coordinates, fast) or with their own inertia and kHz modes (3 + 3N "
-                            "coordinates, stiff: hours for a 7.54 s scene at N >= 8)")
+                            "coordinates, stiff: its own default solver and tolerances, about "
+                            "a minute for the 7.54 s paper-circle at N = 16)")
     model.add_argument("--strip-loss", type=float, default=0.0, metavar="SECONDS",
                        help="Kelvin-Voigt material loss of L3's strips with --strip-dynamics "
                             "full: retardation time tau (s), each strip spring damped by "
@@ -109,8 +111,12 @@ def parent_parsers() -> dict:
                        help="ODE solver (default: per model, see the docs' Which model page); "
                             "auto: Kvaerno5 where the robot's highest natural frequency makes "
                             "the explicit solver's stable steps dearer than implicit ones")
-    solve.add_argument("--rtol", type=float, default=RTOL, help="relative tolerance of the solver")
-    solve.add_argument("--atol", type=float, default=ATOL, help="absolute tolerance of the solver")
+    solve.add_argument("--rtol", type=float, default=None,
+                       help=f"relative tolerance of the solver (default {RTOL:g}; "
+                            f"{FULL_L3_RTOL:g} for the full L3 in simulate)")
+    solve.add_argument("--atol", type=float, default=None,
+                       help=f"absolute tolerance of the solver (default {ATOL:g}; "
+                            f"{FULL_L3_ATOL:g} for the full L3 in simulate)")
     solve.add_argument("--max-steps", type=int, default=MAX_STEPS, help="solver step limit")
     times = argparse.ArgumentParser(add_help=False)
     times.add_argument("--t-end", type=float, default=T_END, help="end time (s)")

@@ -57,6 +57,11 @@ class AbstractModel(eqx.Module):
     #: indices of the actuated angles inside z, or None when z = X (the actuated angles are then
     #: functions of X and a motion-driven model has no free coordinate left)
     actuated_index: eqx.AbstractClassVar[Optional[tuple[int, ...]]]
+    #: indices of the coordinates whose own dynamics is far faster than the robot's (kHz modes
+    #: against 10-70 Hz), () for none: they make the model stiff (its default solver implicit
+    #: and its default tolerances looser, `_scenes/_options.py`) and the quasi-static start
+    #: moves them onto their slow path (`_statics.onto_slow_manifold`)
+    fast_index: eqx.AbstractClassVar[tuple[int, ...]]
 
     @abc.abstractmethod
     def kinematics(self, robot: Robot, z: Float[Array, " n"]) -> Kin:

@@ -59,6 +59,7 @@ class QuasiStaticBeam(AbstractBeam):
     spring deflections, so every output of `Beam` applies."""
 
     name = "beam"
+    fast_index = ()
     level = 3
     n_dof = 9
     actuated_index = (3, 4, 5)

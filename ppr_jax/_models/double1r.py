@@ -89,6 +89,7 @@ class Double1R(AbstractDouble1R):
     docstring). z = (x, y, phi, th_11, th_21, th_31) (m, m, rad, rad, rad, rad); 6 DOF."""
 
     name = "double1r"
+    fast_index = ()
     level = 2
     n_dof = 6
     actuated_index = (3, 4, 5)

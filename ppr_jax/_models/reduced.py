@@ -20,6 +20,7 @@ class Reduced(AbstractDouble1R):
     (m, m, rad), 3 DOF; every joint angle from the inverse kinematics under eq 29."""
 
     name = "reduced"
+    fast_index = ()
     level = 1
     n_dof = 3
     actuated_index = None

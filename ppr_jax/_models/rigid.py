@@ -27,6 +27,7 @@ class Rigid(AbstractClosedLoop):
     (m, m, rad), 3 DOF; one pin per compliant joint at the virtual corner."""
 
     name = "rigid"
+    fast_index = ()
     level = 0
     n_dof = 3
     actuated_index = None

@@ -11,7 +11,6 @@ import numpy as np
 
 from .._custom_types import Array
 from .._errors import check_number, is_traced
-from .._models import Beam
 from .._simulate import default_controller, get_solver
 from .._tabulated import scene_panels
 from .._trajectory import Circle
@@ -27,29 +26,43 @@ MAX_STEPS = 200_000
 #: default solver per model level (docs/which_model.md)
 DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "dopri8"}
 #: default solver of the full L3 (`Beam`: strips with their own inertia, modes up to 5e5 rad/s
-#: at N = 16), where an explicit solver is bound by stability to microsecond steps. Over the
-#: whole paper-circle at N = 16 and rtol 1e-4 Kvaerno5 took 2,754 steps (3 % rejected) and
-#: Ros34PW2 65,066 (31 %), in 456 against 638 s on a shared 2-core CPU (docs/theory/strips.md)
-FULL_L3_SOLVER = "kvaerno5"
+#: at N = 16), where an explicit solver is bound by stability to microsecond steps: Kvaerno5
+#: with its Jacobian kept across steps. Over the whole paper-circle at N = 16 and rtol 1e-4 it
+#: took 72 s against diffrax's Kvaerno5's 179 s (the same steps, a Jacobian every step) and
+#: Ros34PW2's 314 s (65,066 steps: order 3) on a 2-core CPU (docs/theory/strips.md)
+FULL_L3_SOLVER = "kvaerno5-kept"
+#: default tolerances of the full L3: rtol 1e-8 (the scenes' default) would resolve the undamped
+#: kHz strip vibration for hours; at rtol 1e-4 the whole paper-circle (N = 16) runs in 72 s on a
+#: 2-core CPU and its platform ends 3.3e-7 m from an rtol-1e-5 run, against the 3.5e-5 m that
+#: the strips' own dynamics puts between it and the quasi-static L3 (docs/theory/strips.md)
+FULL_L3_RTOL = 1e-4
+FULL_L3_ATOL = 1e-6
 
 
 def default_solver(model) -> str:
-    """The name of `model`'s default solver: `DEFAULT_SOLVER` by level, `FULL_L3_SOLVER` for
-    the full L3 (decided on the model's type, in Python)."""
-    return FULL_L3_SOLVER if isinstance(model, Beam) else DEFAULT_SOLVER[model.name]
+    """The name of `model`'s default solver: `DEFAULT_SOLVER` by level, `FULL_L3_SOLVER` for a
+    model with fast coordinates (`AbstractModel.fast_index`: the full L3), decided in Python."""
+    return FULL_L3_SOLVER if model.fast_index else DEFAULT_SOLVER[model.name]
+
+
+def default_tolerances(model) -> tuple:
+    """(rtol, atol) of `model` where the caller gives none: `RTOL`, `ATOL`, or `FULL_L3_RTOL`,
+    `FULL_L3_ATOL` for a model with fast coordinates (the full L3)."""
+    return (FULL_L3_RTOL, FULL_L3_ATOL) if model.fast_index else (RTOL, ATOL)
 
 
 def check_scene_args(t_end, n_out, rtol, atol, max_steps) -> None:
     """Validate a scene's arguments before anything is compiled (`PPRError` naming the argument
     and its allowed range). The tolerance bounds: below 1e-14 the error control chases round-off;
-    above 1e-2 the result is not worth a number."""
+    above 1e-2 the result is not worth a number. A tolerance of None is the model's default
+    (`default_tolerances`)."""
     if not is_traced(t_end):
         check_number("t_end", t_end, 0.0, 1e5, "s", open_lo=True)
     check_number("n_out", n_out, 2, 10_000_000, integer=True)
     check_number("max_steps", max_steps, 1, 10**9, integer=True)
-    if not is_traced(rtol):
+    if rtol is not None and not is_traced(rtol):
         check_number("rtol", rtol, 1e-14, 1e-2)
-    if not is_traced(atol):
+    if atol is not None and not is_traced(atol):
         check_number("atol", atol, 1e-16, 1e-2)
 
 
@@ -77,13 +90,14 @@ class SceneOptions(eqx.Module):
     - `t_end`: horizon (s); the output times are `n_out` equal steps over [0, t_end].
     - `n_out`: number of output times (static: a shape).
     - `solver`: a diffrax solver or its name (`tsit5`, `dopri5`, `dopri8`, `kvaerno3`,
-      `kvaerno5`, `ros34pw2`); None: the model's default (`default_solver`); `"auto"`:
-      Kvaerno5 where a stiffness estimate says the problem is stiff, else the default (the
-      full L3's default is for stiff problems already), decided on the concrete
-      parameters by the scene functions and `run_scene` (`_solver_choice`; where the
-      parameters are not at hand, as in sweeps, the default).
+      `kvaerno5`, `kvaerno5-kept`, `ros34pw2`); None: the model's default
+      (`default_solver`); `"auto"`: Kvaerno5 where a stiffness estimate says the problem is
+      stiff, else the default (the full L3's default is for stiff problems already), decided
+      on the concrete parameters by the scene functions and `run_scene` (`_solver_choice`;
+      where the parameters are not at hand, as in sweeps, the default).
     - `rtol`, `atol`: the step-size controller's tolerances (arrays inside a program, so
-      changing them does not recompile).
+      changing them does not recompile); None: the model's (`default_tolerances`: 1e-8 and
+      1e-10, the full L3 1e-4 and 1e-6).
     - `max_steps`: the solver's step budget (static).
     - `adjoint`: diffrax's adjoint; None: `RecursiveCheckpointAdjoint` (reverse mode);
       `diffrax.ForwardMode()` for `jax.jvp` / `jax.jacfwd` through the scene.
@@ -98,8 +112,8 @@ class SceneOptions(eqx.Module):
     t_end: Union[float, Array] = T_END
     n_out: int = eqx.field(static=True, default=N_OUT)
     solver: Union[str, diffrax.AbstractSolver, None] = None
-    rtol: Union[float, Array] = RTOL
-    atol: Union[float, Array] = ATOL
+    rtol: Union[float, Array, None] = None
+    atol: Union[float, Array, None] = None
     max_steps: int = eqx.field(static=True, default=MAX_STEPS)
     adjoint: Optional[diffrax.AbstractAdjoint] = None
     controller: Optional[diffrax.AbstractStepSizeController] = None
@@ -121,23 +135,30 @@ class SceneOptions(eqx.Module):
         (the model's default where None), the tolerances and horizon arrays (so that changing
         them reuses a compiled program), the controller, adjoint and trajectory built, and the
         input table's panel count fixed."""
+        rtol, atol = self.tolerances(model)
         traj = self.trajectory
         if traj is None:
             traj = Circle() if default_trajectory is None else default_trajectory
         default = self.solver is None or self.auto_solver
         solver = get_solver(default_solver(model) if default else self.solver)
-        controller = (default_controller(solver, self.rtol, self.atol)
+        controller = (default_controller(solver, rtol, atol)
                       if self.controller is None else self.controller)
         panels = (input_panels(traj, self.t_end, self.n_out) if self.panels is None
                   else self.panels)
         return SceneOptions(
             t_end=jnp.asarray(self.t_end, dtype=jnp.float64), n_out=self.n_out, solver=solver,
-            rtol=jnp.asarray(self.rtol, dtype=jnp.float64),
-            atol=jnp.asarray(self.atol, dtype=jnp.float64), max_steps=self.max_steps,
+            rtol=jnp.asarray(rtol, dtype=jnp.float64),
+            atol=jnp.asarray(atol, dtype=jnp.float64), max_steps=self.max_steps,
             adjoint=(diffrax.RecursiveCheckpointAdjoint() if self.adjoint is None
                      else self.adjoint),
             controller=controller, trajectory=traj, panels=panels,
         )
+
+    def tolerances(self, model) -> tuple:
+        """(rtol, atol), None replaced by `model`'s default (`default_tolerances`)."""
+        rtol, atol = default_tolerances(model)
+        return (rtol if self.rtol is None else self.rtol,
+                atol if self.atol is None else self.atol)
 
     def times(self) -> Array:
         """(n_out,) output times (s)."""

@@ -19,7 +19,7 @@ from .._metrics import metric_table
 from .._params import RobotParams
 from .._programs import compiled_program
 from ._base import AbstractScene
-from ._options import ATOL, MAX_STEPS, N_OUT, RTOL, T_END, SceneOptions
+from ._options import MAX_STEPS, N_OUT, T_END, SceneOptions
 from ._registry import SCENE_CLASSES, get_scene
 from ._result import SceneResult, finish
 from ._run import prepare
@@ -96,8 +96,8 @@ def run_scene(
     t_end: float = T_END,
     n_out: int = N_OUT,
     solver=None,
-    rtol: float = RTOL,
-    atol: float = ATOL,
+    rtol: Optional[float] = None,
+    atol: Optional[float] = None,
     max_steps: int = MAX_STEPS,
     repeats: int = 1,
     program_dir: Optional[str] = None,
@@ -142,5 +142,6 @@ def run_scene(
         mm.update(wall_time_s=timing["run_s"], compile_time_s=timing["compile_s"])
     return SceneReport(
         result=jax.tree_util.tree_map(np.asarray, res), metrics=m, timing=timing,
-        solver={"name": c.solver_name, "rtol": rtol, "atol": atol}, params=params,
+        solver={"name": c.solver_name, "rtol": float(c.args[3].rtol),
+                "atol": float(c.args[3].atol)}, params=params,
     )

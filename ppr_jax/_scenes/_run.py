@@ -14,7 +14,7 @@ from .._params import RobotParams
 from .._robot import Robot
 from ._base import AbstractScene
 from ._batch import batch_devices, map_members
-from ._options import ATOL, MAX_STEPS, N_OUT, RTOL, T_END, SceneOptions, default_solver
+from ._options import MAX_STEPS, N_OUT, T_END, SceneOptions, default_solver
 from ._registry import get_scene, scene_params
 from ._result import SceneResult, finish, result_template
 from ._solver_choice import choose_solver
@@ -79,7 +79,8 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
         solver_name = "none (kinematics + inverse dynamics)"
     elif options.auto_solver:
         # decided here, on the concrete parameters, before anything is traced
-        name, why = choose_solver(model, params, options.rtol, default_solver(model))
+        name, why = choose_solver(model, params, options.tolerances(model)[0],
+                                  default_solver(model))
         options = dataclasses.replace(options, solver=name)
         solver_name = f"{name} (auto: {why})"
     else:
@@ -112,7 +113,7 @@ def solve_scene(
       None: the scene's defaults.
     - `model`: a model or its name.
     - `options`: a `SceneOptions` (default horizon 7.54 s, 755 output times, the model's
-      default solver at rtol 1e-8, atol 1e-10).
+      default solver and tolerances).
     - `throw`: raise `SimulationError` naming the failed members; False, or under a JAX
       transformation: check `result` instead (as diffrax's `throw`).
 
@@ -137,8 +138,8 @@ def paper_circle(
     t_end: float = T_END,
     n_out: int = N_OUT,
     solver=None,
-    rtol: float = RTOL,
-    atol: float = ATOL,
+    rtol: Optional[float] = None,
+    atol: Optional[float] = None,
     max_steps: int = MAX_STEPS,
     throw: bool = True,
     adjoint: Optional[diffrax.AbstractAdjoint] = None,
@@ -166,8 +167,8 @@ def servo_circle(
     t_end: float = T_END,
     n_out: int = N_OUT,
     solver=None,
-    rtol: float = RTOL,
-    atol: float = ATOL,
+    rtol: Optional[float] = None,
+    atol: Optional[float] = None,
     max_steps: int = MAX_STEPS,
     throw: bool = True,
     adjoint: Optional[diffrax.AbstractAdjoint] = None,

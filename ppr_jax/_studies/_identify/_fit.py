@@ -158,21 +158,27 @@ def _costs(prob, Z):
     return jax.vmap(one)(Z)
 
 
+def at_bound(prob, z) -> list:
+    """Names of the unknowns of `z` (the fit's unbounded scale) at a bound of theirs: where the
+    reparametrisation is flat (the sigmoid's slope below 1e-9), so the chain rule loses the
+    physical Jacobian there and the fit cannot move the unknown back."""
+    sz = 1 / (1 + np.exp(-np.asarray(z)[:len(prob.names)]))
+    return [n for n, v in zip(prob.names, sz * (1 - sz)) if v < 1e-9]
+
+
 def _escalation_reason(prob, zrj, dof):
     """Why the fit `zrj` = (z, r, J, X) of the given start calls for more starts
     (`starts="auto"`), or None: it does not explain the data (residual scale s above
     `POOR_FIT_SCALE`, the threshold `quality` uses) or an unknown ended at a bound."""
-    z, r = np.asarray(zrj[0]), np.asarray(zrj[1])
-    P = len(prob.names)
+    r = np.asarray(zrj[1])
     s = math.sqrt(float(r @ r) / max(dof, 1))
-    sz = 1 / (1 + np.exp(-z[:P]))
-    at_bound = [n for n, v in zip(prob.names, sz * (1 - sz)) if v < 1e-9]
+    bound = at_bound(prob, zrj[0])
     why = []
     if not s <= POOR_FIT_SCALE:
         why.append(f"the given start does not explain the data (residual scale s = {s:.3g} > "
                    f"{POOR_FIT_SCALE:g})")
-    if at_bound:
-        why.append(f"the given start ended with {', '.join(at_bound)} at a bound")
+    if bound:
+        why.append(f"the given start ended with {', '.join(bound)} at a bound")
     return "; ".join(why) or None
 
 

@@ -7,14 +7,13 @@ import time
 from typing import Optional
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..._custom_types import Array
 from ..._errors import IdentificationError
 from ..._params import RobotParams
-from ._fit import _check_ok, _levenberg_marquardt
+from ._fit import _check_ok, _levenberg_marquardt, at_bound
 from ._problem import (
     INIT_NAMES,
     INIT_SCALE,
@@ -501,10 +500,9 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
     P, E = len(prob.names), len(exps)
     p = np.asarray(_to_p(prob, z))
     dpdz = np.asarray(_dp_dz(prob, z))
-    sz = np.asarray(jax.nn.sigmoid(z[:P]))
     # At a bound the reparametrisation is flat (dp/dz -> 0): the chain rule loses the
     # physical Jacobian there, so such unknowns are reported and their columns kept finite.
-    at_bound = [n for n, v in zip(prob.names, sz * (1 - sz)) if v < 1e-9]
+    bound = at_bound(prob, z)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         J = Jz[:, :P] / np.maximum(dpdz, 1e-300)[None, :]  # d r / d p (physical)
     J = np.where(np.isfinite(J), J, 0.0)
@@ -550,10 +548,10 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = np.where(np.isfinite(np.outer(std, std)), C / np.outer(std, std), np.nan)
     idf = _identifiability(prob.names, p, J, s2)
-    idf["at_bound"] = at_bound
-    if at_bound:
+    idf["at_bound"] = bound
+    if bound:
         idf["note"] = ((idf["note"] + "; ") if idf["note"] else "") + (
-            f"{', '.join(at_bound)} ended at a bound: its interval is not meaningful (widen the "
+            f"{', '.join(bound)} ended at a bound: its interval is not meaningful (widen the "
             f"bounds, or fix it)")
     # A fit that does not explain the data is neither converged nor identifying anything: its
     # intervals measure the misfit, not the noise (a start 30x off once ended at s = 7,166 with
@@ -565,8 +563,8 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
                         f"(> {POOR_FIT_SCALE:g}; 1 = noise as stated)")
         for c in idf["combinations"]:
             c["status"] = "not trustworthy (poor fit)"
-    if at_bound:
-        problems.append(f"{', '.join(at_bound)} at a bound")
+    if bound:
+        problems.append(f"{', '.join(bound)} at a bound")
     validation = None
     if held is not None:
         validation = _validation(np.asarray(X), np.asarray(prob.X), held[0], held[1], exps,
@@ -580,9 +578,9 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
     hist["optimizer_stop"] = hist.get("stop")
     if problems and hist.get("stop") == "converged":
         hist["stop"] = ("poor fit" if not s_fit <= POOR_FIT_SCALE else
-                        "at bound" if at_bound else "does not generalise")
+                        "at bound" if bound else "does not generalise")
     quality = {"residual_scale": s_fit, "explains_data": bool(s_fit <= POOR_FIT_SCALE),
-               "at_bound": at_bound, "ok": not problems,
+               "at_bound": bound, "ok": not problems,
                "generalises": None if validation is None else validation["generalises"],
                "starts": starts,
                # starts="auto": why the given start's fit called for more starts (None: it
