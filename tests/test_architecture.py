@@ -14,7 +14,7 @@ FLOORS = [
     ("command line", ["_cli"]),
     ("studies", ["_studies"]),
     ("scenes", ["_scenes"]),
-    ("solvers and signals", ["_simulate", "_rosw", "_statics", "_modes", "_metrics",
+    ("solvers and signals", ["_simulate", "_rosw", "_esdirk", "_statics", "_modes", "_metrics",
                              "_tabulated"]),
     ("actuation and paths", ["_actuation", "_trajectory"]),
     ("dynamics and kinematics", ["_dynamics", "_kinematics", "_paper_eom"]),

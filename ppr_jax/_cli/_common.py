@@ -10,8 +10,7 @@ import os
 import sys
 
 from .._errors import PPRError
-from .._scenes import ATOL, MAX_STEPS, N_OUT, RTOL, T_END
-from .._scenes._options import FULL_L3_ATOL, FULL_L3_RTOL
+from .._scenes import ATOL, FULL_L3_ATOL, FULL_L3_RTOL, MAX_STEPS, N_OUT, RTOL, T_END
 
 
 def _parse_sets(items, scene, path=None):

@@ -7,6 +7,8 @@ from ._modes_scene import modes_scene
 from ._options import (
     ATOL,
     DEFAULT_SOLVER,
+    FULL_L3_ATOL,
+    FULL_L3_RTOL,
     MAX_STEPS,
     N_OUT,
     RTOL,
@@ -25,7 +27,8 @@ from ._servo_circle import ServoCircle
 from ._torques import nominal_torques
 
 __all__ = [
-    "ATOL", "AbstractScene", "DEFAULT_SOLVER", "MAX_STEPS", "N_OUT", "RTOL", "T_END",
+    "ATOL", "AbstractScene", "DEFAULT_SOLVER", "FULL_L3_ATOL", "FULL_L3_RTOL",
+    "MAX_STEPS", "N_OUT", "RTOL", "T_END",
     "MEMBER_CHUNK", "PaperCircle", "RUN_SCENES", "SCENES", "SceneReport",
     "SCENE_CLASSES", "SCENE_THICKNESS", "SceneCall", "SceneInput", "SceneOptions",
     "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
