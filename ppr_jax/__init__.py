@@ -94,6 +94,8 @@ from ._metrics import (  # noqa: E402
 from ._scenes import (  # noqa: E402
     AbstractScene as AbstractScene,
     PaperCircle as PaperCircle,
+    PathScene as PathScene,
+    register_scene as register_scene,
     SceneInput as SceneInput,
     SceneOptions as SceneOptions,
     SceneResult as SceneResult,

@@ -84,7 +84,10 @@ class RESULTS(diffrax.RESULTS):
         "the scene's input (torques or prescribed angles), interpolated from a table of its "
         "values on panels of the horizon, has an estimated relative error above 1e-8: ask for "
         "more output times (n_out; the table has at least one node per output time) or a "
-        "shorter t_end (with a concrete t_end the table grows with the horizon by itself)"
+        "shorter t_end (with a concrete t_end the table grows with the horizon by itself); "
+        "or the path is not twice continuously differentiable inside the horizon (its "
+        "acceleration jumps, as a rest-to-rest move with a cosine time law does at its ends): "
+        "the torques then jump too"
     )
     kinematics_failed = (
         "forward kinematics did not converge along the prescribed path: the actuated angles "

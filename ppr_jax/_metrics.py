@@ -58,9 +58,42 @@ def radial_error(X, center, radius, xp=jnp):
     return xp.linalg.norm(X[..., :2] - c, axis=-1) - radius
 
 
+def _safe_sqrt(x, xp):
+    """sqrt(x) for x >= 0 whose derivative at 0 is 0 rather than NaN: a model that starts on the
+    path has a zero position error at t0, and a forward-mode tangent through sqrt(0) (or a
+    norm of a zero vector) is NaN even where `max` then discards it."""
+    pos = x > 0
+    return xp.where(pos, xp.sqrt(xp.where(pos, x, 1.0)), 0.0)
+
+
 def _is_circle(trajectory) -> bool:
     return (getattr(trajectory, "center", None) is not None
             and getattr(trajectory, "radius", None) is not None)
+
+
+#: the radial error's metrics: for a circular path alone (`Circle`: a `center` and `radius`)
+CIRCLE_METRICS = (
+    "radial_error_max_m",
+    "radial_error_min_m",
+    "radial_error_mean_m",
+    "radial_error_max_relative_percent",
+)
+#: the tracking error against the commanded pose, for any path: position (m) and orientation
+#: (rad), the largest, the RMS over the output times and at the last one
+TRACKING_METRICS = (
+    "position_error_max_m",
+    "position_error_rms_m",
+    "position_error_end_m",
+    "phi_error_max_rad",
+    "phi_error_rms_rad",
+    "phi_error_end_rad",
+)
+
+
+def path_metrics(trajectory) -> tuple:
+    """The metrics of `metric_table` that measure how far the platform leaves `trajectory`:
+    `CIRCLE_METRICS` for a circle, then `TRACKING_METRICS` (any path)."""
+    return (CIRCLE_METRICS if _is_circle(trajectory) else ()) + TRACKING_METRICS
 
 
 def metric_table(res, trajectory, xp=jnp) -> dict:
@@ -74,16 +107,17 @@ def metric_table(res, trajectory, xp=jnp) -> dict:
     - `res`: a `SceneResult` (or anything with its signals: X, X_nominal, end_rot, residual,
       kinetic, potential, and optionally tau), with any leading batch axes; time is the axis
       after them.
-    - `trajectory`: the nominal path; the radial-error metrics need a circle (`center`,
-      `radius`), the others hold for any path.
+    - `trajectory`: the nominal path; the radial-error metrics (`CIRCLE_METRICS`) need a
+      circle (`center`, `radius`), the others hold for any path (`TRACKING_METRICS`).
     - `xp`: the array namespace (`jax.numpy` or `numpy`).
 
     **Returns:** {name: array over the batch axes}, SI unless the name says otherwise
     (`_deg`, `_percent`). Radial error e_r = |(x, y) - c| - R (m); its max and min are the
     exact max / min over the output samples, whose derivative is that of the arg-max sample (a
     subgradient, exact while the arg-max sample does not change). Position and phi errors
-    against the nominal pose; chain 1's joint end rotations and their difference (deg); the
-    peak actuator torque max |tau| (N m); the largest loop-closure residual (m); the energy.
+    against the nominal pose (the largest, the RMS over the output times, at the last one);
+    chain 1's joint end rotations and their difference (deg); the peak actuator torque
+    max |tau| (N m); the largest loop-closure residual (m); the energy.
     """
     X, Xn = xp.asarray(res.X), xp.asarray(res.X_nominal)
     out = {}
@@ -97,14 +131,19 @@ def metric_table(res, trajectory, xp=jnp) -> dict:
             radial_error_max_relative_percent=xp.max(xp.abs(er), axis=-1) / radius * 100,
         )
     dphi = X[..., 2] - Xn[..., 2]
+    dpos2 = xp.sum((X[..., :2] - Xn[..., :2]) ** 2, axis=-1)
+    dpos = _safe_sqrt(dpos2, xp)
     rot = xp.degrees(xp.asarray(res.end_rot))
     diff = rot[..., 0] - rot[..., 1]
     scale = xp.maximum(xp.max(xp.abs(rot), axis=(-2, -1)), 1e-300)
     E = xp.asarray(res.kinetic) + xp.asarray(res.potential)
     out.update(
-        position_error_max_m=xp.max(xp.linalg.norm(X[..., :2] - Xn[..., :2], axis=-1), axis=-1),
+        position_error_max_m=xp.max(dpos, axis=-1),
+        position_error_rms_m=_safe_sqrt(xp.mean(dpos2, axis=-1), xp),
+        position_error_end_m=dpos[..., -1],
         phi_error_max_rad=xp.max(xp.abs(dphi), axis=-1),
-        phi_error_rms_rad=xp.sqrt(xp.mean(dphi**2, axis=-1)),
+        phi_error_rms_rad=_safe_sqrt(xp.mean(dphi**2, axis=-1), xp),
+        phi_error_end_rad=xp.abs(dphi[..., -1]),
         end_rotation_1_max_deg=xp.max(rot[..., 0], axis=-1),
         end_rotation_1_min_deg=xp.min(rot[..., 0], axis=-1),
         end_rotation_2_max_deg=xp.max(rot[..., 1], axis=-1),

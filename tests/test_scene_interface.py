@@ -31,6 +31,11 @@ class LineScene(pj.AbstractScene):
     name: ClassVar[str] = "line"
     thickness: ClassVar[float] = 0.3e-3
     reference: ClassVar[dict] = {}
+    drive: ClassVar[str] = "torque"
+
+    @property
+    def input_model(self):
+        return pj.Reduced()
 
     def trajectory(self):
         return Line()
@@ -104,6 +109,11 @@ def test_scene_options_name_the_bad_argument():
 def test_unknown_scene_lists_the_known_ones():
     with pytest.raises(pj.PPRError, match="paper-circle, servo-circle"):
         pj.solve_scene("square")
+    for bad in ("paper-circle", "square"):  # by name too: the studies take one registry
+        with pytest.raises(pj.PPRError, match="unknown scene 'square'"):
+            pj.sweep("square", vary={"t": [3e-4]})
+        with pytest.raises(pj.PPRError, match="unknown scene 'square'"):
+            pj.sensitivity("square")
 
 
 def test_a_solver_failure_says_where_it_stopped_not_a_residual():
@@ -122,3 +132,139 @@ def test_an_invalid_parameter_inside_a_program_is_named():
     p = eqx.tree_at(lambda q: q.t, pj.scene_params("paper-circle"), jnp.asarray(-1e-3))
     with pytest.raises(pj.SimulationError, match=r"t = -0\.001 m not in \[1e-06, 0\.01\]"):
         pj.paper_circle(p, model="rigid", t_end=0.5, n_out=11, max_steps=3)
+
+
+# ---------------------------------------------------------------------------------------------
+# PathScene: the scene object on a path nobody here chose, through every study
+# ---------------------------------------------------------------------------------------------
+
+class SmoothLine(eqx.Module):
+    """The line with a quintic rest-to-rest time law (C2: zero velocity and acceleration at both
+    ends), so its inverse-dynamics torques are continuous at the horizon's ends. The cosine
+    law of `Line` starts with a jump of acceleration: its tabulated torques are refused as an
+    input table too coarse, rightly (`test_a_path_that_is_not_c2_is_refused`)."""
+
+    start: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.40, 0.27, 0.0]))
+    end: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.49, 0.24, 0.03]))
+    duration: float = 1.0
+
+    def __call__(self, t):
+        u = jnp.clip(t / self.duration, 0.0, 1.0)
+        return self.start + u**3 * (10 - 15 * u + 6 * u**2) * (self.end - self.start)
+
+
+def _smooth_closed_form(ts):
+    line = SmoothLine()
+    u = np.clip(ts / line.duration, 0.0, 1.0)
+    s = u**3 * (10 - 15 * u + 6 * u**2)
+    return np.asarray(line.start) + s[:, None] * (np.asarray(line.end) - np.asarray(line.start))
+
+
+#: L2 (its strips bend: a physical tracking error) under L1's torques along the line
+PATH_SCENE = pj.PathScene(SmoothLine(), drive="torque", name="my-line")
+PATH_OPTIONS = pj.SceneOptions(t_end=1.0, n_out=21)
+
+
+@pytest.fixture(scope="module")
+def path_report():
+    return pj.run_scene(PATH_SCENE, model="double1r", t_end=PATH_OPTIONS.t_end,
+                        n_out=PATH_OPTIONS.n_out)
+
+
+def test_path_scene_l1_follows_its_own_tabulated_torques():
+    """A `PathScene` tabulates L1's inverse-dynamics torques along the line; L1 driven by them
+    follows the closed-form line to the table's and the integrator's accuracy."""
+    r = pj.run_scene(PATH_SCENE, model="reduced", t_end=1.0, n_out=21)
+    assert r.result.scene == "my-line"
+    ref = _smooth_closed_form(np.asarray(r.ts))
+    np.testing.assert_allclose(r.result.X, ref, rtol=0, atol=1e-8)
+
+
+def test_a_path_that_is_not_c2_is_refused():
+    """The cosine law's acceleration jumps at the horizon's ends (t = 0 and t = duration): the
+    tabulated torques jump too, and the scene says so instead of integrating them."""
+    with pytest.raises(pj.SimulationError, match="not twice continuously differentiable"):
+        pj.solve_scene(pj.PathScene(Line()), model="reduced", options=PATH_OPTIONS)
+
+
+def test_path_scene_metrics_are_the_tracking_errors(path_report):
+    """L2 leaves the line (its strips bend): the tracking metrics are computed here from the
+    signals against the closed-form line, and the circle's radial error is absent."""
+    m, r = path_report.metrics, path_report.result
+    assert "radial_error_max_m" not in m
+    ref = _smooth_closed_form(np.asarray(r.ts))
+    d = np.hypot(*(np.asarray(r.X)[:, :2] - ref[:, :2]).T)
+    dphi = np.asarray(r.X)[:, 2] - ref[:, 2]
+    np.testing.assert_allclose(m["position_error_max_m"], d.max(), rtol=1e-9)
+    np.testing.assert_allclose(m["position_error_rms_m"], np.sqrt(np.mean(d**2)), rtol=1e-9)
+    np.testing.assert_allclose(m["position_error_end_m"], d[-1], rtol=1e-9)
+    np.testing.assert_allclose(m["phi_error_end_rad"], abs(dphi[-1]), rtol=1e-9, atol=1e-15)
+    assert 1e-7 < m["position_error_max_m"] < 1e-3, m["position_error_max_m"]
+
+
+def test_register_scene_runs_by_name(path_report):
+    pj.register_scene("my-line", PATH_SCENE)
+    try:
+        r = pj.solve_scene("my-line", model="double1r", options=PATH_OPTIONS)
+        np.testing.assert_allclose(r.X, path_report.result.X, rtol=0, atol=1e-14)
+        assert pj.scene_params("my-line").t == PATH_SCENE.thickness
+    finally:
+        from ppr_jax._scenes import SCENES
+
+        SCENES.pop("my-line")
+
+
+def test_sweep_of_a_path_scene_matches_single_runs(path_report):
+    """A sweep of the line over t: the member at the scene's thickness reproduces the single
+    run's metrics (batched program against one robot's), a thinner strip leaves the line
+    further, and a member whose chains cannot reach the path is reported, not run."""
+    t0 = float(PATH_SCENE.thickness)
+    res = pj.sweep(PATH_SCENE, vary={"t": [t0, 0.6 * t0]}, model="double1r",
+                   options=PATH_OPTIONS, chunk_size=2)
+    assert [r["status"] for r in res.rows] == ["ok", "ok"], res.rows
+    assert "radial_error_max_m" not in res.columns and "position_error_rms_m" in res.columns
+    row = res.rows[0]
+    for k in ("position_error_max_m", "position_error_rms_m", "phi_error_max_rad",
+              "torque_peak_Nm"):
+        np.testing.assert_allclose(row[k], path_report.metrics[k], rtol=1e-7, err_msg=k)
+    assert res.rows[1]["position_error_max_m"] > 1.5 * row["position_error_max_m"]
+    far = pj.sweep(PATH_SCENE, vary={"l1": [0.05]}, model="double1r", options=PATH_OPTIONS)
+    assert far.rows[0]["status"] == "failed" and "nominal path" in far.rows[0]["reason"]
+
+
+def test_sensitivity_of_a_path_scene_against_finite_differences():
+    """d(position_error_rms)/dt by forward mode through the path scene equals a central
+    difference of two single runs (RMS: smooth in t, no arg-max switching)."""
+    t0 = float(PATH_SCENE.thickness)
+    s = pj.sensitivity(PATH_SCENE, model="double1r", parameters=["t"],
+                       metrics=["position_error_rms_m", "phi_error_rms_rad"],
+                       options=PATH_OPTIONS)
+    assert s.info["scene"] == "my-line"
+    h = 1e-3 * t0
+    vals = []
+    for t in (t0 + h, t0 - h):
+        r = pj.run_scene(PATH_SCENE, PATH_SCENE.default_params(t=t), model="double1r",
+                         t_end=1.0, n_out=21)
+        vals.append([r.metrics["position_error_rms_m"], r.metrics["phi_error_rms_rad"]])
+    fd = (np.asarray(vals[0]) - np.asarray(vals[1])) / (2 * h)
+    np.testing.assert_allclose(s.jacobian[:, 0], fd, rtol=2e-4)
+    assert abs(fd[0]) > 0
+
+
+def test_path_scene_motion_drive_and_synthesize():
+    """The motion drive: L1's angles along the line prescribed; L0 and L1 need no integrator
+    (kinematics), L2 integrates. `synthesize` samples the scene object like a registered one."""
+    scene = pj.PathScene(SmoothLine(), drive="motion", name="my-line-servo", thickness=0.5e-3)
+    assert not scene.needs_integrator(pj.Reduced()) and scene.needs_integrator(pj.Double1R())
+    exp = pj.synthesize(scene, "reduced", noise_pos=0.0, noise_phi=0.0, rate=20.0, t_end=1.0)
+    np.testing.assert_allclose(exp.X, _smooth_closed_form(np.asarray(exp.ts)), rtol=0,
+                               atol=1e-10)
+
+
+def test_path_scene_refuses_bad_members():
+    with pytest.raises(pj.PPRError, match="drive must be one of torque, motion"):
+        pj.PathScene(Line(), drive="servo")
+    with pytest.raises(pj.PPRError, match="input_model must be a kinematic model"):
+        pj.PathScene(Line(), input_model=pj.Double1R())
+    with pytest.raises(pj.PPRError, match="thickness"):
+        pj.PathScene(Line(), thickness=-1.0)

@@ -10,12 +10,13 @@ import os
 import sys
 
 from .._errors import PPRError
-from .._scenes import ATOL, FULL_L3_ATOL, FULL_L3_RTOL, MAX_STEPS, N_OUT, RTOL, T_END
+from .._models import Beam
+from .._scenes import ATOL, MAX_STEPS, N_OUT, RTOL, T_END
 
 
 def _parse_sets(items, scene, path=None):
-    from .._params import parse_value
-    from .._scenes import scene_params
+    from .._params import RobotParams, parse_value
+    from .._scenes import scene_names, scene_params
 
     kw = {}
     for item in items or []:
@@ -24,7 +25,8 @@ def _parse_sets(items, scene, path=None):
         name, value = item.split("=", 1)
         name = name.strip()
         kw[name] = parse_value(name, value)
-    base = scene_params(scene)
+    # `modes` (simulate's static solve) is no scene: Table 1 as the registered scenes' base
+    base = scene_params(scene) if scene in scene_names() else RobotParams()
     if path:
         from .._params_file import load_params
 
@@ -112,10 +114,10 @@ def parent_parsers() -> dict:
                             "the explicit solver's stable steps dearer than implicit ones")
     solve.add_argument("--rtol", type=float, default=None,
                        help=f"relative tolerance of the solver (default {RTOL:g}; "
-                            f"{FULL_L3_RTOL:g} for the full L3 in simulate)")
+                            f"{Beam.default_rtol:g} for the full L3 in simulate)")
     solve.add_argument("--atol", type=float, default=None,
                        help=f"absolute tolerance of the solver (default {ATOL:g}; "
-                            f"{FULL_L3_ATOL:g} for the full L3 in simulate)")
+                            f"{Beam.default_atol:g} for the full L3 in simulate)")
     solve.add_argument("--max-steps", type=int, default=MAX_STEPS, help="solver step limit")
     times = argparse.ArgumentParser(add_help=False)
     times.add_argument("--t-end", type=float, default=T_END, help="end time (s)")

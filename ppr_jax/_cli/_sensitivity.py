@@ -14,7 +14,8 @@ from ._common import (
 
 
 def cmd_sensitivity(args):
-    from .._studies import SENSITIVITY_METRICS, sensitivity
+    from .._scenes import get_scene
+    from .._studies import allowed_metrics, sensitivity
     from ._common import _parse_sets, model_from_args
 
     params = _parse_sets(args.set, args.scene, getattr(args, "params_file", None))
@@ -22,7 +23,7 @@ def cmd_sensitivity(args):
     names = None
     if args.params:
         names = [s.strip() for s in args.params.split(",") if s.strip()]
-    metrics = SENSITIVITY_METRICS
+    metrics = None  # the scene path's default
     if args.metrics:
         metrics = tuple(s.strip() for s in args.metrics.split(",") if s.strip())
     # Names checked before the (long) compilation starts.
@@ -31,9 +32,10 @@ def cmd_sensitivity(args):
     for n in names or []:
         if n not in FLOAT_PARAMS:
             raise ValueError(f"unknown parameter {n!r}; allowed: {', '.join(FLOAT_PARAMS)}")
-    for m in metrics:
-        if m not in SENSITIVITY_METRICS:
-            raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
+    allowed = allowed_metrics(get_scene(args.scene).trajectory())
+    for m in metrics or ():
+        if m not in allowed:
+            raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(allowed)}")
     from .._scenes import check_scene_args
 
     check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
@@ -70,7 +72,8 @@ def cmd_sensitivity(args):
 
 def add_sensitivity(sub, parents, fmt):
     from .._models import MODELS
-    from .._studies import SENSITIVITY_METRICS, SWEEP_SCENES
+    from .._scenes import scene_names
+    from .._studies import SENSITIVITY_METRICS
 
     kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
     s = sub.add_parser(
@@ -80,7 +83,7 @@ def add_sensitivity(sub, parents, fmt):
         description="d(metric)/d(parameter) of " + ", ".join(SENSITIVITY_METRICS) + " by "
                     "automatic differentiation through the scene (forward or reverse mode), "
                     "printed as normalised sensitivities and written to sensitivity.csv/json.")
-    s.add_argument("--scene", default="paper-circle", choices=list(SWEEP_SCENES))
+    s.add_argument("--scene", default="paper-circle", choices=list(scene_names()))
     s.add_argument("--model", default="double1r", choices=list(MODELS),
                    help="the model whose response is measured (L0 or L1 under its own "
                         "torques follows the circle exactly: its radial error is the "

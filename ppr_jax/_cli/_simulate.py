@@ -24,10 +24,8 @@ from ._common import (
 
 def _reference(scene):
     """The values the scene's paper figure reports (`AbstractScene.reference`), or None."""
-    from .._scenes import SCENE_CLASSES
-
-    cls = SCENE_CLASSES.get(scene)
-    return dict(cls.reference) if cls is not None and cls.reference else None
+    ref = get_scene(scene).reference
+    return dict(ref) if ref else None
 
 
 def cmd_simulate(args):
@@ -166,13 +164,14 @@ def _write_csv(path, results):
 
 def _add_simulate(sub, parents, fmt):
     from .._models import MODELS
-    from .._scenes import SCENES
+    from .._scenes import scene_names
 
     kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]  # pose = coordinates
     s = sub.add_parser("simulate", formatter_class=fmt,
         parents=[parents[k] for k in ("params", "model", "solve", "times")],
         help="run a scene and write summary.json, trajectory.csv, figures")
-    s.add_argument("--scene", default="paper-circle", choices=list(SCENES), help="scene to run")
+    s.add_argument("--scene", default="paper-circle", choices=[*scene_names(), "modes"],
+                   help="scene to run")
     s.add_argument("--model", default=None,
                    help="a model (" + ", ".join(MODELS) + ") or a comma list (default: rigid, "
                         "reduced, double1r). beam is L3 with quasi-static strips (see "

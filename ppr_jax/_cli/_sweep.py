@@ -158,7 +158,7 @@ def cmd_sweep(args):
 
 def add_sweep(sub, parents, fmt):
     from .._models import MODELS
-    from .._studies import SWEEP_SCENES
+    from .._scenes import scene_names
 
     kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
     s = sub.add_parser(
@@ -170,7 +170,7 @@ def add_sweep(sub, parents, fmt):
                     "sweep.parquet with pyarrow), failed.csv (members that failed and why), "
                     "summary.json and metrics_vs_NAME.png. Finished chunks are kept in OUT/chunks "
                     "and skipped when the same sweep is run again (resume).")
-    s.add_argument("--scene", default="paper-circle", choices=list(SWEEP_SCENES))
+    s.add_argument("--scene", default="paper-circle", choices=list(scene_names()))
     s.add_argument("--model", default="double1r", choices=list(MODELS),
                    help="the model swept (L0 or L1 under its own torques follows the circle "
                         "exactly: the sweep warns that its radial errors are the solver's)")

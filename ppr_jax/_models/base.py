@@ -26,6 +26,11 @@ from .._custom_types import Array, Float
 from .._linalg import solve_blocks
 from .._robot import Robot
 
+#: the non-stiff levels' default tolerances (`AbstractModel.default_rtol`, `default_atol`):
+#: they put L2's error near 1e-8 m on the paper's scenes
+RTOL = 1e-8
+ATOL = 1e-10
+
 
 class Kin(eqx.Module):
     """Kinematic state of a model at coordinates z.
@@ -62,6 +67,15 @@ class AbstractModel(eqx.Module):
     #: and its default tolerances looser, `_scenes/_options.py`) and the quasi-static start
     #: moves them onto their slow path (`_statics.onto_slow_manifold`)
     fast_index: eqx.AbstractClassVar[tuple[int, ...]]
+    #: the solver a scene uses when the options name none (`SceneOptions.solver`; the names of
+    #: `_simulate.get_solver`): explicit Runge-Kutta for the non-stiff levels (docs/
+    #: which_model.md), an implicit one for a model with fast coordinates
+    default_solver: eqx.AbstractClassVar[str]
+    #: the step-size controller's tolerances when the options name none (`SceneOptions.rtol`,
+    #: `atol`): rtol 1e-8 / atol 1e-10 put L2's error near 1e-8 m on the paper's scenes; the
+    #: full L3 is looser (its undamped kHz strip vibration would be resolved for hours)
+    default_rtol: eqx.AbstractClassVar[float]
+    default_atol: eqx.AbstractClassVar[float]
 
     @abc.abstractmethod
     def kinematics(self, robot: Robot, z: Float[Array, " n"]) -> Kin:

@@ -201,6 +201,18 @@ class Beam(AbstractBeam):
     name = "beam"
     level = 3
     actuated_index = (3, 4, 5)
+    #: strips with their own inertia have modes up to 5e5 rad/s at N = 16, where an explicit
+    #: solver is bound by stability to microsecond steps: Kvaerno5 with its Jacobian kept across
+    #: steps. Over the whole paper-circle at N = 16 and rtol 1e-4 it took 72 s against diffrax's
+    #: Kvaerno5's 179 s (the same steps, a Jacobian every step) and Ros34PW2's 314 s (65,066
+    #: steps: order 3) on a 2-core CPU (docs/theory/strips.md)
+    default_solver = "kvaerno5-kept"
+    #: rtol 1e-8 would resolve the undamped kHz strip vibration for hours; at rtol 1e-4 the
+    #: whole paper-circle (N = 16) runs in 72 s on a 2-core CPU and its platform ends 3.3e-7 m
+    #: from an rtol-1e-5 run, against the 3.5e-5 m that the strips' own dynamics puts between
+    #: it and the quasi-static L3 (docs/theory/strips.md)
+    default_rtol = 1e-4
+    default_atol = 1e-6
 
     strip_loss: float = eqx.field(default=0.0, static=True)
 

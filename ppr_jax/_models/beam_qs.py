@@ -43,7 +43,7 @@ import jax.numpy as jnp
 from .._custom_types import Array, Float
 from .._geometry import base_points, e, ik_reduced, platform_points, wrap
 from .._robot import Robot
-from .base import Kin, rotor_inertia
+from .base import ATOL, RTOL, Kin, rotor_inertia
 from .beam import AbstractBeam, strip_constants
 from .strip import apply_K, shape_sensitivity, strip_equilibrium
 
@@ -60,6 +60,9 @@ class QuasiStaticBeam(AbstractBeam):
 
     name = "beam"
     fast_index = ()
+    default_solver = "dopri8"
+    default_rtol = RTOL
+    default_atol = ATOL
     level = 3
     n_dof = 9
     actuated_index = (3, 4, 5)

@@ -28,7 +28,7 @@ from .._geometry import (
     turn,
 )
 from .._robot import Robot
-from .base import AbstractClosedLoop, Kin, rotor_inertia
+from .base import ATOL, RTOL, AbstractClosedLoop, Kin, rotor_inertia
 
 
 class AbstractDouble1R(AbstractClosedLoop):
@@ -90,6 +90,9 @@ class Double1R(AbstractDouble1R):
 
     name = "double1r"
     fast_index = ()
+    default_solver = "tsit5"
+    default_rtol = RTOL
+    default_atol = ATOL
     level = 2
     n_dof = 6
     actuated_index = (3, 4, 5)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from .._geometry import ik_reduced, loop_residual
+from .base import ATOL, RTOL
 from .double1r import AbstractDouble1R
 
 
@@ -21,6 +22,9 @@ class Reduced(AbstractDouble1R):
 
     name = "reduced"
     fast_index = ()
+    default_solver = "tsit5"
+    default_rtol = RTOL
+    default_atol = ATOL
     level = 1
     n_dof = 3
     actuated_index = None

@@ -19,7 +19,7 @@ from .._geometry import (
     loop_residual_rigid,
     platform_points,
 )
-from .base import AbstractClosedLoop, Kin, rotor_inertia
+from .base import ATOL, RTOL, AbstractClosedLoop, Kin, rotor_inertia
 
 
 class Rigid(AbstractClosedLoop):
@@ -28,6 +28,9 @@ class Rigid(AbstractClosedLoop):
 
     name = "rigid"
     fast_index = ()
+    default_solver = "tsit5"
+    default_rtol = RTOL
+    default_atol = ATOL
     level = 0
     n_dof = 3
     actuated_index = None

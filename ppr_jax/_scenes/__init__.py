@@ -1,14 +1,19 @@
 """The scenes wing: one interface (`AbstractScene`, `SceneOptions`), one file per scene, one
 registry line per scene (`_registry.py`), one batch mapper (`_batch.py`)."""
 
-from ._base import AbstractScene, SceneInput, kinematic_motion, path_out_of_reach, tabulated
+from ._base import (
+    AbstractScene,
+    SceneInput,
+    kinematic_motion,
+    motion_input,
+    path_out_of_reach,
+    tabulated,
+    torque_input,
+)
 from ._batch import MEMBER_CHUNK, batch_devices, chunked_vmap, map_members
 from ._modes_scene import modes_scene
 from ._options import (
     ATOL,
-    DEFAULT_SOLVER,
-    FULL_L3_ATOL,
-    FULL_L3_RTOL,
     MAX_STEPS,
     N_OUT,
     RTOL,
@@ -19,21 +24,24 @@ from ._options import (
     input_panels_at,
 )
 from ._paper_circle import PaperCircle
-from ._registry import SCENE_CLASSES, SCENE_THICKNESS, SCENES, get_scene, scene_params
-from ._report import RUN_SCENES, SceneReport, run_scene, scene_metrics
+from ._path_scene import DRIVES, PathScene
+from ._registry import SCENES, get_scene, register_scene, scene_names, scene_params
+from ._report import SceneReport, run_scene, scene_metrics
 from ._result import SceneResult, failure_detail, finish, result_template
 from ._run import SceneCall, paper_circle, prepare, servo_circle, solve_scene
 from ._servo_circle import ServoCircle
 from ._torques import nominal_torques
 
 __all__ = [
-    "ATOL", "AbstractScene", "DEFAULT_SOLVER", "FULL_L3_ATOL", "FULL_L3_RTOL",
+    "ATOL", "AbstractScene",
     "MAX_STEPS", "N_OUT", "RTOL", "T_END",
-    "MEMBER_CHUNK", "PaperCircle", "RUN_SCENES", "SCENES", "SceneReport",
-    "SCENE_CLASSES", "SCENE_THICKNESS", "SceneCall", "SceneInput", "SceneOptions",
+    "DRIVES", "MEMBER_CHUNK", "PaperCircle", "PathScene", "SCENES", "SceneReport",
+    "SceneCall", "SceneInput", "SceneOptions",
     "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
-    "kinematic_motion", "map_members", "modes_scene", "nominal_torques", "paper_circle",
+    "kinematic_motion", "map_members", "modes_scene", "motion_input", "nominal_torques",
+    "paper_circle",
     "path_out_of_reach", "prepare", "result_template", "run_scene", "scene_metrics",
-    "scene_params", "servo_circle", "solve_scene", "tabulated",
+    "register_scene", "scene_names", "scene_params", "servo_circle", "solve_scene",
+    "tabulated", "torque_input",
 ]

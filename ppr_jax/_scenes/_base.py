@@ -8,8 +8,8 @@ L0/L1 scene is forward kinematics plus inverse dynamics (no ODE); every other ca
 model from its quasi-static state under the input.
 """
 
-from __future__ import annotations
-
+# No `from __future__ import annotations` here: equinox reads `eqx.AbstractVar` from the
+# evaluated annotation; as a string it would make `input_model` a field of every scene.
 import abc
 from typing import Callable, Optional
 
@@ -18,7 +18,13 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._actuation import AbstractActuation, MotionDriven
+from .._actuation import (
+    AbstractActuation,
+    InverseDynamicsTorque,
+    InverseKinematicsAngles,
+    MotionDriven,
+    TorqueDriven,
+)
 from .._custom_types import Array
 from .._dynamics import inverse_dynamics
 from .._errors import RESIDUAL_TOL, RESULTS, first_failure
@@ -78,6 +84,27 @@ def path_singular_at(ref_model, robot, traj, ts):
     return jnp.any(path_singular(ref_model, robot, jax.vmap(traj)(ts)))
 
 
+def torque_input(input_model, robot, traj, ts, panels: int) -> SceneInput:
+    """`input_model`'s inverse-dynamics torques along `traj`, tabulated over `ts`, with the
+    path's reach, the table's fineness and the path's type-II singularities checked (where
+    the torques are unbounded)."""
+    torque, coarse, out = tabulated(InverseDynamicsTorque(input_model, robot, traj), ts, panels)
+    return SceneInput(TorqueDriven(torque), out_of_reach=out, coarse=coarse,
+                      singular=path_singular_at(input_model, robot, traj, ts))
+
+
+def motion_input(model, input_model, robot, traj, ts, panels: int) -> SceneInput:
+    """`input_model`'s inverse-kinematics angles along `traj`: exact for a model whose
+    coordinates are the pose (L0, L1: forward kinematics follows them, no table), tabulated
+    over `ts` for the others (th, th' and th'' at every stage from the table's polynomials)."""
+    angles = InverseKinematicsAngles(input_model, robot, traj)
+    if model.actuated_index is None:
+        return SceneInput(MotionDriven(angles),
+                          out_of_reach=path_out_of_reach(input_model, robot, traj, ts))
+    table, coarse, out = tabulated(angles, ts, panels)
+    return SceneInput(MotionDriven(table), out_of_reach=out, coarse=coarse)
+
+
 def _open_at(model, robot, z):
     """A chain is open at coordinates z (loop-closure residual above `RESIDUAL_TOL`)."""
     k = model.kinematics(robot, z)
@@ -113,17 +140,26 @@ def kinematic_motion(model, robot, angles, X0, ts):
 class AbstractScene(eqx.Module):
     """A scene of MODEL.md section 6, or your own: a nominal motion and the input realising it.
 
-    A concrete scene sets the class variables and implements `commands`; `run` is shared.
+    A concrete scene sets the class variables (or fields: `PathScene`) and implements
+    `commands`; `run` is shared. Everything that differs between scenes is a member of the
+    scene, so that the studies, identification and the command line run any scene one way:
 
-    - `name`: the scene's name (the CLI's and the registry's).
+    - `name`: the scene's name (the CLI's and the registry's; a label in reports).
     - `thickness`: its default strip thickness (m).
     - `reference`: the values its paper figure reports, {metric: value} (may be empty).
+    - `drive`: `"torque"` (the actuators apply a torque history: the robot's response moves
+      the platform off the path) or `"motion"` (the actuated angles are prescribed: a
+      kinematic model, L0 or L1, then needs no integrator).
+    - `input_model`: the model (L0 or L1) whose inverse dynamics or kinematics along the path
+      gives the input; its reach and type-II singularities along the path are checked.
     - `trajectory()`: the nominal path when the options name none.
     """
 
     name: eqx.AbstractClassVar[str]
     thickness: eqx.AbstractClassVar[float]
     reference: eqx.AbstractClassVar[dict]
+    drive: eqx.AbstractClassVar[str]
+    input_model: eqx.AbstractVar[AbstractModel]
 
     @abc.abstractmethod
     def trajectory(self) -> Callable:
@@ -221,6 +257,11 @@ class AbstractScene(eqx.Module):
             num_accepted=sol.num_accepted, num_rejected=sol.num_rejected, scene=self.name,
             model=model.name,
         )
+
+    def needs_integrator(self, model: AbstractModel) -> bool:
+        """False where the scene is forward kinematics and inverse dynamics alone: prescribed
+        angles (`drive="motion"`) of a model whose coordinates are the pose (L0, L1)."""
+        return not (self.drive == "motion" and model.actuated_index is None)
 
     def default_params(self, **overrides) -> RobotParams:
         """Table 1 with the scene's strip thickness, and `overrides` applied."""

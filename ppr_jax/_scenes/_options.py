@@ -11,44 +11,29 @@ import numpy as np
 
 from .._custom_types import Array
 from .._errors import check_number, is_traced
+from .._models.base import ATOL, RTOL  # noqa: F401 (re-exported for the reports)
 from .._simulate import default_controller, get_solver
 from .._tabulated import scene_panels
 from .._trajectory import Circle
 
 #: the scenes' defaults, written once: one turn of the circle of eq 55 (2 pi / omega = 7.54 s),
-#: output every 10 ms, tolerances that put L2's error near 1e-8 m, and a step budget that no
-#: default scene comes near
+#: output every 10 ms, and a step budget that no default scene comes near. The solver and the
+#: tolerances belong to the model (`AbstractModel.default_solver`, `default_rtol`,
+#: `default_atol`); `RTOL` and `ATOL` name the non-stiff levels' for the reports that print them.
 T_END = 7.54
 N_OUT = 755
-RTOL = 1e-8
-ATOL = 1e-10
 MAX_STEPS = 200_000
-#: default solver per model level (docs/which_model.md)
-DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "dopri8"}
-#: default solver of the full L3 (`Beam`: strips with their own inertia, modes up to 5e5 rad/s
-#: at N = 16), where an explicit solver is bound by stability to microsecond steps: Kvaerno5
-#: with its Jacobian kept across steps. Over the whole paper-circle at N = 16 and rtol 1e-4 it
-#: took 72 s against diffrax's Kvaerno5's 179 s (the same steps, a Jacobian every step) and
-#: Ros34PW2's 314 s (65,066 steps: order 3) on a 2-core CPU (docs/theory/strips.md)
-FULL_L3_SOLVER = "kvaerno5-kept"
-#: default tolerances of the full L3: rtol 1e-8 (the scenes' default) would resolve the undamped
-#: kHz strip vibration for hours; at rtol 1e-4 the whole paper-circle (N = 16) runs in 72 s on a
-#: 2-core CPU and its platform ends 3.3e-7 m from an rtol-1e-5 run, against the 3.5e-5 m that
-#: the strips' own dynamics puts between it and the quasi-static L3 (docs/theory/strips.md)
-FULL_L3_RTOL = 1e-4
-FULL_L3_ATOL = 1e-6
 
 
 def default_solver(model) -> str:
-    """The name of `model`'s default solver: `DEFAULT_SOLVER` by level, `FULL_L3_SOLVER` for a
-    model with fast coordinates (`AbstractModel.fast_index`: the full L3), decided in Python."""
-    return FULL_L3_SOLVER if model.fast_index else DEFAULT_SOLVER[model.name]
+    """The name of `model`'s default solver (`AbstractModel.default_solver`)."""
+    return model.default_solver
 
 
 def default_tolerances(model) -> tuple:
-    """(rtol, atol) of `model` where the caller gives none: `RTOL`, `ATOL`, or `FULL_L3_RTOL`,
-    `FULL_L3_ATOL` for a model with fast coordinates (the full L3)."""
-    return (FULL_L3_RTOL, FULL_L3_ATOL) if model.fast_index else (RTOL, ATOL)
+    """(rtol, atol) of `model` where the caller gives none (`AbstractModel.default_rtol`,
+    `default_atol`)."""
+    return model.default_rtol, model.default_atol
 
 
 def check_scene_args(t_end, n_out, rtol, atol, max_steps) -> None:
@@ -119,6 +104,18 @@ class SceneOptions(eqx.Module):
     controller: Optional[diffrax.AbstractStepSizeController] = None
     trajectory: Optional[Callable] = None
     panels: Optional[int] = eqx.field(static=True, default=None)
+
+    def updated(self, **overrides) -> "SceneOptions":
+        """These options with the fields given as not None replaced: the studies and commands
+        take one `SceneOptions` and, for convenience, its fields as keywords that default to
+        None, so that every default is written once, here."""
+        import dataclasses
+
+        unknown = set(overrides) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise TypeError(f"SceneOptions has no field {sorted(unknown)[0]!r}")
+        kw = {k: v for k, v in overrides.items() if v is not None}
+        return dataclasses.replace(self, **kw) if kw else self
 
     @property
     def auto_solver(self) -> bool:

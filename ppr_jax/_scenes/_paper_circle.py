@@ -6,10 +6,9 @@ from typing import ClassVar
 
 import equinox as eqx
 
-from .._actuation import InverseDynamicsTorque, TorqueDriven
 from .._models import AbstractModel, Reduced
 from .._trajectory import Circle
-from ._base import AbstractScene, SceneInput, path_singular_at, tabulated
+from ._base import AbstractScene, torque_input
 
 
 class PaperCircle(AbstractScene):
@@ -23,6 +22,7 @@ class PaperCircle(AbstractScene):
     torque_model: AbstractModel = eqx.field(static=True, default_factory=Reduced)
 
     name: ClassVar[str] = "paper-circle"
+    drive: ClassVar[str] = "torque"
     thickness: ClassVar[float] = 0.3e-3
     reference: ClassVar[dict] = {
         "source": "paper section 2.2, theory vs ADAMS-ANSYS, t = 0.3 mm",
@@ -38,15 +38,15 @@ class PaperCircle(AbstractScene):
         "cosimulation_time_s": 28 * 60.0,
     }
 
+    @property
+    def input_model(self) -> AbstractModel:
+        return self.torque_model
+
     def trajectory(self):
         return Circle()
 
     def commands(self, model, robot, traj, ts, panels):
-        torque, coarse, out = tabulated(InverseDynamicsTorque(self.torque_model, robot, traj),
-                                        ts, panels)
-        singular = path_singular_at(self.torque_model, robot, traj, ts)
-        return SceneInput(TorqueDriven(torque), out_of_reach=out, coarse=coarse,
-                          singular=singular)
+        return torque_input(self.torque_model, robot, traj, ts, panels)
 
     def follows_its_input(self, model):
         if model.name == self.torque_model.name:

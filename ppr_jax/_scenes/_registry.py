@@ -1,8 +1,10 @@
-"""The scenes by name: a new scene is one file and one line here."""
+"""The scenes by name, in one registry: a new scene is one file and one line here, or one call
+of `register_scene` from your own code."""
 
 from __future__ import annotations
 
-from typing import Union
+import dataclasses
+from typing import Callable, Union
 
 from .._errors import PPRError
 from .._models import get_model
@@ -11,35 +13,53 @@ from ._base import AbstractScene
 from ._paper_circle import PaperCircle
 from ._servo_circle import ServoCircle
 
-#: the time-domain scenes by name
-SCENE_CLASSES = {cls.name: cls for cls in (PaperCircle, ServoCircle)}
-#: every scene the command line runs (`modes` is a static solve: `modes_scene`)
-SCENES = (*SCENE_CLASSES, "modes")
-#: strip thickness of each scene (m): the paper's simulation uses 0.3 mm, its experiment 0.5 mm
-SCENE_THICKNESS = {**{n: c.thickness for n, c in SCENE_CLASSES.items()}, "modes": 0.3e-3}
+#: the registry: name -> a factory of the scene (a scene class, or a function returning an
+#: `AbstractScene`); the command line's `--scene` choices
+SCENES: dict[str, Callable[..., AbstractScene]] = {
+    cls.name: cls for cls in (PaperCircle, ServoCircle)
+}
+
+
+def register_scene(name: str, factory: Union[AbstractScene, Callable[..., AbstractScene]]
+                   ) -> None:
+    """Register a scene under `name`, so that `run_scene(name)`, the studies and
+    identification find it: a scene instance (for example a `PathScene` on your path), or a
+    function of no arguments returning one. Replaces an earlier scene of that name."""
+    if not isinstance(name, str) or not name:
+        raise PPRError(f"a scene's name must be a non-empty string, got {name!r}")
+    if isinstance(factory, AbstractScene):
+        scene = factory
+        factory = lambda: scene  # noqa: E731
+    elif not callable(factory):
+        raise PPRError(f"register_scene({name!r}, ...) takes an AbstractScene or a function "
+                       f"returning one, got {type(factory).__name__}")
+    SCENES[name] = factory
+
+
+def scene_names() -> tuple:
+    """The registered scenes' names."""
+    return tuple(SCENES)
 
 
 def get_scene(scene: Union[str, AbstractScene], torque_model=None) -> AbstractScene:
-    """A scene instance from its name (or the instance itself). `torque_model` is the model
-    whose inverse dynamics gives `paper-circle`'s torques (default L1)."""
+    """A scene instance from its registered name (or the instance itself). `torque_model`:
+    the model whose inverse dynamics gives a torque-driven registered scene's torques, for a
+    scene that has that field (`PaperCircle`; default its own)."""
     if isinstance(scene, AbstractScene):
         return scene
-    if scene not in SCENE_CLASSES:
-        allowed = ", ".join(SCENE_CLASSES)
-        raise PPRError(f"unknown scene {scene!r}; allowed: {allowed} (or an AbstractScene)")
-    cls = SCENE_CLASSES[scene]
-    if cls is PaperCircle and torque_model is not None:
-        return PaperCircle(torque_model=get_model(torque_model))
-    return cls()
+    if not isinstance(scene, str) or scene not in SCENES:
+        raise PPRError(f"unknown scene {scene!r}; allowed: {', '.join(SCENES)} (or an "
+                       f"AbstractScene, such as a PathScene)")
+    obj = SCENES[scene]()
+    if not isinstance(obj, AbstractScene):
+        raise PPRError(f"the scene registered as {scene!r} made a {type(obj).__name__}, "
+                       f"not an AbstractScene")
+    if torque_model is not None and "torque_model" in {f.name for f in dataclasses.fields(obj)}:
+        obj = dataclasses.replace(obj, torque_model=get_model(torque_model))
+    return obj
 
 
 def scene_params(scene: Union[str, AbstractScene], **overrides) -> RobotParams:
     """Default parameters of a scene (Table 1 with the scene's strip thickness) with overrides
     applied."""
-    if isinstance(scene, AbstractScene):
-        return scene.default_params(**overrides)
-    if scene not in SCENES:
-        raise PPRError(f"unknown scene {scene!r}; allowed: {', '.join(SCENES)}")
-    kw = {"t": SCENE_THICKNESS[scene]}
-    kw.update(overrides)
-    return RobotParams().replace(**kw)
+    return get_scene(scene).default_params(**overrides)

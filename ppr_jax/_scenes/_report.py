@@ -14,18 +14,14 @@ from typing import Optional, Union
 import jax
 import numpy as np
 
-from .._errors import PPRError
 from .._metrics import metric_table
 from .._params import RobotParams
 from .._programs import compiled_program
 from ._base import AbstractScene
 from ._options import MAX_STEPS, N_OUT, T_END, SceneOptions
-from ._registry import SCENE_CLASSES, get_scene
+from ._registry import get_scene
 from ._result import SceneResult, finish
 from ._run import prepare
-
-#: the scenes `run_scene` runs by name (`modes` has its own report: `ppr_jax.modes_scene`)
-RUN_SCENES = tuple(SCENE_CLASSES)
 
 
 @dataclasses.dataclass
@@ -113,8 +109,6 @@ def run_scene(
     passes one inside its compilation cache): the program is loaded from there, or exported there
     on first use, so that a later process skips tracing too; `timing["program"]` says which
     ("loaded", "exported", or "compiled" where the program cannot be stored)."""
-    if not isinstance(scene, AbstractScene) and scene not in RUN_SCENES:
-        raise PPRError(f"unknown scene {scene!r}; allowed: {', '.join(RUN_SCENES)}")
     scene = get_scene(scene, torque_model)
     params = scene.default_params() if params is None else params
     options = SceneOptions(t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,

@@ -74,8 +74,7 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
     scene = get_scene(scene, torque_model)
     model = get_model(model)
     params = scene.default_params() if params is None else params
-    kinematic = scene.name == "servo-circle" and model.actuated_index is None
-    if kinematic:
+    if not scene.needs_integrator(model):
         solver_name = "none (kinematics + inverse dynamics)"
     elif options.auto_solver:
         # decided here, on the concrete parameters, before anything is traced

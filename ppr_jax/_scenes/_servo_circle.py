@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from .._actuation import InverseKinematicsAngles, MotionDriven
-from .._models import Reduced
+from .._models import AbstractModel, Reduced
 from .._trajectory import Circle
-from ._base import AbstractScene, SceneInput, path_out_of_reach, tabulated
+from ._base import AbstractScene, motion_input
 
 
 class ServoCircle(AbstractScene):
@@ -18,6 +17,7 @@ class ServoCircle(AbstractScene):
     holds its section 3 numbers (theory vs experiment)."""
 
     name: ClassVar[str] = "servo-circle"
+    drive: ClassVar[str] = "motion"
     thickness: ClassVar[float] = 0.5e-3
     reference: ClassVar[dict] = {
         "source": "paper section 3, theory vs experiment (NDI Optotrak), t = 0.5 mm",
@@ -27,16 +27,15 @@ class ServoCircle(AbstractScene):
         "radial_error_max_relative_percent": 4.69,
     }
 
+    @property
+    def input_model(self) -> AbstractModel:
+        return Reduced()
+
     def trajectory(self):
         return Circle()
 
     def commands(self, model, robot, traj, ts, panels):
-        angles = InverseKinematicsAngles(Reduced(), robot, traj)
-        if model.actuated_index is None:
-            return SceneInput(MotionDriven(angles),
-                              out_of_reach=path_out_of_reach(Reduced(), robot, traj, ts))
-        table, coarse, out = tabulated(angles, ts, panels)
-        return SceneInput(MotionDriven(table), out_of_reach=out, coarse=coarse)
+        return motion_input(model, self.input_model, robot, traj, ts, panels)
 
     def follows_its_input(self, model):
         if model.name == "reduced":

@@ -19,9 +19,12 @@ from ._identify import (
                         synthesize,
 )
 from ._sensitivity import (
+                        PATH_SENSITIVITY_METRICS,
                         SENSITIVITY_METRICS,
                         Sensitivity,
+                        allowed_metrics,
                         base_frequency,
+                        default_metrics,
                         explicit_params,
                         metric_function,
                         sensitivity,
@@ -29,22 +32,25 @@ from ._sensitivity import (
 from ._sweep import (
                         FLOAT_PARAMS,
                         METRICS,
-                        SWEEP_SCENES,
+                        ROBOT_METRICS,
                         SweepResult,
                         design_members,
                         library_digest,
                         shard_batch,
                         sweep,
+                        sweep_metrics,
                         traced_metrics,
                         validate_members,
 )
 
 __all__ = [
     "ACTUATIONS", "DEFAULT_NOISE", "FLOAT_PARAMS", "ID_SCENES", "INITIAL_STATES", "LOSSES",
-    "METRICS", "POOR_FIT_SCALE", "SENSITIVITY_METRICS", "SOLVERS", "SWEEP_SCENES",
+    "METRICS", "PATH_SENSITIVITY_METRICS", "POOR_FIT_SCALE", "ROBOT_METRICS",
+    "SENSITIVITY_METRICS", "SOLVERS", "allowed_metrics", "default_metrics",
     "Identification", "IdentificationError", "Sensitivity", "SweepResult", "base_frequency",
     "check_synth_args", "design_members", "identification_figures", "profile_figure",
     "explicit_params", "identify", "library_digest",
-    "metric_function", "sensitivity", "shard_batch", "sweep", "synthesize", "traced_metrics",
+    "metric_function", "sensitivity", "shard_batch", "sweep", "sweep_metrics", "synthesize",
+    "traced_metrics",
     "validate_members",
 ]

@@ -40,26 +40,17 @@ import numpy as np
 from .._dynamics import eom_terms, generalized_force
 from .._errors import RESULTS, PPRError
 from .._geometry import home_pose
+from .._metrics import path_metrics
 from .._models import get_model
 from .._modes import reduced_eigh
 from .._params import RobotParams
 from .._prb import derived
 from .._robot import Robot
-from .._scenes import (
-    ATOL,
-    MAX_STEPS,
-    N_OUT,
-    RTOL,
-    T_END,
-    SceneOptions,
-    check_scene_args,
-    get_scene,
-    scene_params,
-)
+from .._scenes import SceneOptions, get_scene
 from .._statics import assemble, static_equilibrium
-from ._sweep import FLOAT_PARAMS, _plain, traced_metrics
+from ._sweep import FLOAT_PARAMS, _plain, sweep_metrics, traced_metrics
 
-#: the metrics a sensitivity table reports (rows), SI units
+#: the metrics a sensitivity table reports (rows) by default on a circle, SI units
 SENSITIVITY_METRICS = (
     "radial_error_max_m",
     "radial_error_min_m",
@@ -67,10 +58,28 @@ SENSITIVITY_METRICS = (
     "torque_peak_Nm",
     "base_frequency_hz",
 )
+#: ... and on any other path: the tracking error's largest position and orientation error
+PATH_SENSITIVITY_METRICS = (
+    "position_error_max_m",
+    "phi_error_max_rad",
+    "end_rotation_diff_max_deg",
+    "torque_peak_Nm",
+    "base_frequency_hz",
+)
 #: eigenvalues within this relative distance of the lowest are one (repeated) cluster
 CLUSTER_RTOL = 1e-6
-#: the metrics that measure how far the platform leaves the nominal circle
-TRACKING_METRICS = ("radial_error_max_m", "radial_error_min_m")
+
+
+def default_metrics(trajectory) -> tuple:
+    """The sensitivity table's default metrics along `trajectory`: `SENSITIVITY_METRICS` on a
+    circle, `PATH_SENSITIVITY_METRICS` on any other path."""
+    return (SENSITIVITY_METRICS if "radial_error_max_m" in path_metrics(trajectory)
+            else PATH_SENSITIVITY_METRICS)
+
+
+def allowed_metrics(trajectory) -> tuple:
+    """Every metric a sensitivity may ask for along `trajectory`."""
+    return sweep_metrics(trajectory) + ("base_frequency_hz",)
 
 
 def explicit_params(params: RobotParams) -> RobotParams:
@@ -151,43 +160,58 @@ class Sensitivity:
         return out
 
 
-def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] = None, *,
-                    model="double1r", torque_model="reduced", frequency_model="double1r",
-                    parameters: Optional[Sequence[str]] = None, t_end: float = T_END,
-                    n_out: int = N_OUT, solver=None, rtol: float = RTOL, atol: float = ATOL,
-                    max_steps: int = MAX_STEPS, metrics: Sequence[str] = SENSITIVITY_METRICS):
-    """(f, x0, names): `f(x, adjoint)` -> (k,) the `metrics` at parameter values x (p,) (the
-    `parameters`, default every float parameter, in `names` order), x0 the nominal values.
-    Traceable and differentiable; `adjoint` is diffrax's (ForwardMode for forward mode)."""
-    base = explicit_params(scene_params(scene) if params is None else params)
+def metric_function(scene="paper-circle", params: Optional[RobotParams] = None, *,
+                    model="double1r", torque_model=None, frequency_model="double1r",
+                    parameters: Optional[Sequence[str]] = None,
+                    options: Optional[SceneOptions] = None,
+                    metrics: Optional[Sequence[str]] = None, **option_fields):
+    """(f, x0, names): `f(x, adjoint)` -> (k,) the `metrics` (default `default_metrics` of
+    the scene's path) at parameter values x (p,) (the `parameters`, default every float
+    parameter, in `names` order), x0 the nominal values. Traceable and differentiable;
+    `adjoint` is diffrax's (ForwardMode for forward mode). `scene`: a registered name or an
+    `AbstractScene`; `options` and `option_fields` (`SceneOptions`' fields as keywords) as
+    `sweep`'s."""
+    return _metric_function(scene, params, model=model, torque_model=torque_model,
+                            frequency_model=frequency_model, parameters=parameters,
+                            options=options, metrics=metrics, **option_fields)[:3]
+
+
+def _metric_function(scene, params, *, model, torque_model, frequency_model, parameters,
+                     options, metrics, **option_fields):
+    """`metric_function`, and the metrics, the scene and the prepared options it decided."""
+    scene_ = get_scene(scene, torque_model)
+    base = explicit_params(scene_.default_params() if params is None else params)
     if np.ndim(base.a) != 0:
         raise PPRError("sensitivities are computed for one robot, not a batch")
     names = list(FLOAT_PARAMS if parameters is None else parameters)
     for n in names:
         if n not in FLOAT_PARAMS:
             raise PPRError(f"unknown parameter {n!r}; allowed: {', '.join(FLOAT_PARAMS)}")
+    model_ = get_model(model)
+    opts = (SceneOptions() if options is None else options).updated(**option_fields).check()
+    options = opts.prepared(model_, scene_.trajectory())
+    traj = options.trajectory
+    metrics = tuple(default_metrics(traj) if metrics is None else metrics)
+    allowed = allowed_metrics(traj)
     for m in metrics:
-        if m not in SENSITIVITY_METRICS:
-            raise PPRError(f"unknown metric {m!r}; allowed: {', '.join(SENSITIVITY_METRICS)}")
+        if m not in allowed:
+            raise PPRError(f"unknown metric {m!r} for the scene's path; allowed: "
+                           f"{', '.join(allowed)}")
     x0 = jnp.array([float(getattr(base, n)) for n in names])
-    model_, tmodel = get_model(model), get_model(torque_model)
-    scene_ = get_scene(scene, tmodel)
     follows = scene_.follows_its_input(model_)
-    tracking = [m for m in metrics if m in TRACKING_METRICS]
+    tracking = [m for m in metrics if m in path_metrics(traj)]
     if follows and tracking:
         raise PPRError(
-            f"{', '.join(tracking)} of model {model_.name!r} in {scene!r} measure the "
+            f"{', '.join(tracking)} of model {model_.name!r} in {scene_.name!r} measure the "
             f"integrator's error, not the robot: {follows}. Ask for the response of another "
-            f"model (model='double1r' or 'beam', the paper's question; or "
-            f"torque_model='rigid' for L1 under the rigid model's torques), or leave these "
-            f"metrics out")
+            f"model (model='double1r' or 'beam', the paper's question; or a scene driven by "
+            f"another model's input, torque_model='rigid' for L1 under the rigid model's "
+            f"torques), or leave these metrics out")
     fmodel = get_model(frequency_model)
     # The structural choice of the nominal robot, as its single run makes it: with l1 == l3 the
     # closed-form inverse kinematics, whose one Newton step carries the implicit-function
     # derivative in l1 or l3 alone (ppr_jax._robot).
     equal = float(base.l1) == float(base.l3)
-    options = SceneOptions(t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
-                           max_steps=max_steps).prepared(model_, scene_.trajectory())
     scene_metrics_needed = [m for m in metrics if m != "base_frequency_hz"]
 
     def f(x, adjoint=None):
@@ -198,7 +222,7 @@ def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] =
             opts = options if adjoint is None else eqx.tree_at(
                 lambda o: o.adjoint, options, adjoint)
             res = scene_.run(model_, robot, opts)
-            out.update(traced_metrics(res, opts.trajectory))
+            out.update(traced_metrics(res, opts.trajectory, scene_metrics_needed))
             # A failed solve must not pass as a number: NaN through every metric.
             bad = res.result != RESULTS.successful
             out = {k: jnp.where(bad, jnp.nan, v) for k, v in out.items()}
@@ -206,40 +230,44 @@ def metric_function(scene: str = "paper-circle", params: Optional[RobotParams] =
             out["base_frequency_hz"] = base_frequency(fmodel, robot)
         return jnp.stack([out[m] for m in metrics])
 
-    return f, x0, names
+    return f, x0, names, metrics, scene_, options
 
 
 _JIT_CACHE: dict = {}
 
 
-def sensitivity(scene: str = "paper-circle", params: Optional[RobotParams] = None, *,
-                mode: str = "fwd", model="double1r", torque_model="reduced",
+def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
+                mode: str = "fwd", model="double1r", torque_model=None,
                 frequency_model="double1r", parameters: Optional[Sequence[str]] = None,
-                metrics: Sequence[str] = SENSITIVITY_METRICS, t_end: float = T_END,
-                n_out: int = N_OUT, solver=None, rtol: float = RTOL, atol: float = ATOL,
-                max_steps: int = MAX_STEPS, checkpoints: Optional[int] = None) -> Sensitivity:
-    """d(metric)/d(parameter) of `metrics` (`SENSITIVITY_METRICS`) of `scene` to `parameters`
-    (default every float parameter of `RobotParams`), at `params` (default the scene's).
+                metrics: Optional[Sequence[str]] = None, options: Optional[SceneOptions] = None,
+                t_end: Optional[float] = None, n_out: Optional[int] = None, solver=None,
+                rtol: Optional[float] = None, atol: Optional[float] = None,
+                max_steps: Optional[int] = None, checkpoints: Optional[int] = None
+                ) -> Sensitivity:
+    """d(metric)/d(parameter) of `metrics` of `scene` to `parameters` (default every float
+    parameter of `RobotParams`), at `params` (default the scene's).
 
-    mode 'fwd': `jax.jacfwd` with `diffrax.ForwardMode()` (cost grows with the number of
-    parameters); 'rev': `jax.jacrev` with `diffrax.RecursiveCheckpointAdjoint(checkpoints)`
-    (cost grows with the number of metrics; `checkpoints` None = diffrax's default, about
-    log(steps) memory). The base frequency is that of `frequency_model` (locked actuators,
-    home pose; L1 has no mode). Scene settings as `paper_circle`; the default `model` is L2
-    under L1's torques (the paper's question). The radial error of a model that follows its own
-    input (`follows_its_input`: L0 or L1 under its own torques, L1 in servo-circle) is refused
-    with a `PPRError`: it is the integrator's error. Returns `Sensitivity`."""
+    `scene`: a registered name or an `AbstractScene` (a `PathScene` on your own path).
+    `metrics`: default `SENSITIVITY_METRICS` on a circle, `PATH_SENSITIVITY_METRICS` on any
+    other path (`allowed_metrics` lists them all). mode 'fwd': `jax.jacfwd` with
+    `diffrax.ForwardMode()` (cost grows with the number of parameters); 'rev': `jax.jacrev`
+    with `diffrax.RecursiveCheckpointAdjoint(checkpoints)` (cost grows with the number of
+    metrics; `checkpoints` None = diffrax's default, about log(steps) memory). The base
+    frequency is that of `frequency_model` (locked actuators, home pose; L1 has no mode).
+    `options`: a `SceneOptions`, its fields also as keywords (replacing the options' where not
+    None), as `sweep`; the default `model` is L2 under L1's torques (the paper's question).
+    The tracking error of a model that follows its own input (`follows_its_input`: L0 or L1
+    under its own torques, L1 in servo-circle) is refused with a `PPRError`: it is the
+    integrator's error. Returns `Sensitivity`."""
     if mode not in ("fwd", "rev"):
         raise PPRError(f"mode must be 'fwd' or 'rev', got {mode!r}")
-    check_scene_args(t_end, n_out, rtol, atol, max_steps)
-    f, x0, names = metric_function(
+    f, x0, names, metrics, scene_, opts = _metric_function(
         scene, params, model=model, torque_model=torque_model, frequency_model=frequency_model,
-        parameters=parameters, t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
-        max_steps=max_steps, metrics=metrics)
-    base = explicit_params(scene_params(scene) if params is None else params)
-    key = (scene, get_model(model), get_model(torque_model), get_model(frequency_model),
-           tuple(names), tuple(metrics), float(t_end), int(n_out), str(solver), float(rtol),
-           float(atol), int(max_steps), mode, checkpoints,
+        parameters=parameters, options=options, metrics=metrics, t_end=t_end, n_out=n_out,
+        solver=solver, rtol=rtol, atol=atol, max_steps=max_steps)
+    base = explicit_params(scene_.default_params() if params is None else params)
+    key = (eqx.tree_pformat((scene_, opts), short_arrays=False), get_model(model),
+           get_model(frequency_model), tuple(names), tuple(metrics), mode, checkpoints,
            tuple((fl.name, _plain(getattr(base, fl.name))) for fl in dataclasses.fields(base)))
     try:
         cached = _JIT_CACHE.get(key)
@@ -280,9 +308,10 @@ def sensitivity(scene: str = "paper-circle", params: Optional[RobotParams] = Non
         mode=mode,
         timing={"compile_s": max(t3 - t2 - run, 0.0), "run_s": run, "value_run_s": value_run,
                 "value_compile_s": value_compile},
-        info=dict(scene=scene, model=get_model(model).name,
-                  torque_model=get_model(torque_model).name,
-                  frequency_model=get_model(frequency_model).name, t_end=t_end, n_out=n_out,
-                  rtol=rtol, atol=atol, checkpoints=checkpoints),
+        info=dict(scene=scene_.name, model=get_model(model).name,
+                  input_model=scene_.input_model.name,
+                  frequency_model=get_model(frequency_model).name, t_end=float(opts.t_end),
+                  n_out=int(opts.n_out), rtol=float(opts.rtol), atol=float(opts.atol),
+                  checkpoints=checkpoints),
         evaluate=lambda x: np.asarray(value(jnp.asarray(x, dtype=jnp.float64))),
     )

@@ -1,6 +1,7 @@
 """Parameter sweeps: one compiled, vmapped (and optionally sharded) program over many robots.
 
-`sweep` runs a scene (`paper-circle` or `servo-circle`) over a grid or a Latin hypercube of
+`sweep` runs any scene (a registered name or an `AbstractScene`, such as a `PathScene` on
+your own path) over a grid or a Latin hypercube of
 parameter values. The members are validated first (parameter ranges, reach and singularity along
 the whole nominal path) and the invalid ones are reported with their reason, not run. The valid
 ones run in chunks of a fixed size: the last chunk is padded with copies of its first member, so
@@ -35,54 +36,58 @@ import numpy as np
 
 from .._errors import PPRError, RepairWarning, check_number, result_code, result_message
 from .._kinematics import REACH_TOL, SINGULAR_TOL, ik_solve
-from .._metrics import metric_table
-from .._models import Reduced, get_model
+from .._metrics import CIRCLE_METRICS, TRACKING_METRICS, metric_table, path_metrics
+from .._models import get_model
 from .._params import PARAM_RANGES, RobotParams, stack_params
 from .._robot import Robot
 from .._scenes import (
-    ATOL,
-    MAX_STEPS,
-    N_OUT,
-    RTOL,
-    SCENE_CLASSES,
     T_END,
+    AbstractScene,
     SceneOptions,
-    check_scene_args,
     get_scene,
     map_members,
-    scene_params,
 )
 from .._simulate import default_controller
-from .._trajectory import Circle
 
 #: a member whose max loop-closure residual (m) at the output times exceeds this has failed
 RESIDUAL_TOL = 1e-9
-#: the per-member metrics computed inside the program (`traced_metrics`), SI unless named
-METRICS = (
-    "radial_error_max_m",
-    "radial_error_min_m",
-    "radial_error_mean_m",
-    "radial_error_max_relative_percent",
-    "phi_error_max_rad",
+#: the per-member metrics computed inside the program besides the path's (`sweep_metrics`)
+ROBOT_METRICS = (
     "end_rotation_diff_max_deg",
     "end_rotation_diff_min_deg",
     "end_rotation_diff_mean_deg",
     "torque_peak_Nm",
     "constraint_residual_max_m",
 )
-SWEEP_SCENES = tuple(SCENE_CLASSES)
 #: the float parameters a sweep (or a sensitivity) may vary
 FLOAT_PARAMS = tuple(PARAM_RANGES)
 
 
-def traced_metrics(res, trajectory) -> dict:
-    """`METRICS` of one member's `SceneResult` as traced scalars (jit-, vmap- and grad-able):
-    the program-side columns of `metric_table`."""
+def sweep_metrics(trajectory) -> tuple:
+    """The per-member metrics of a sweep along `trajectory`: how far the platform leaves it
+    (`_metrics.path_metrics`: the radial error for a circle, the tracking error for any path)
+    and `ROBOT_METRICS`."""
+    return path_metrics(trajectory) + ROBOT_METRICS
+
+
+#: the metrics of a sweep of the circle scenes (the columns of their tables)
+METRICS = CIRCLE_METRICS + TRACKING_METRICS + ROBOT_METRICS
+
+
+def traced_metrics(res, trajectory, names: Optional[Sequence[str]] = None) -> dict:
+    """The metrics `names` (default `sweep_metrics(trajectory)`) of one member's
+    `SceneResult` as traced scalars (jit-, vmap- and grad-able): the program-side columns of
+    `metric_table`."""
     table = metric_table(res, trajectory)
-    return {k: table[k] for k in METRICS}
+    names = sweep_metrics(trajectory) if names is None else names
+    missing = [k for k in names if k not in table]
+    if missing:
+        raise PPRError(f"metric {missing[0]!r} does not apply to this scene's path; allowed: "
+                       f"{', '.join(table)}")
+    return {k: table[k] for k in names}
 
 
-def follows_its_input(scene, model, torque_model="reduced") -> str:
+def follows_its_input(scene, model, torque_model=None) -> str:
     """`AbstractScene.follows_its_input` of `scene` (a name or a scene) for `model`."""
     return get_scene(scene, torque_model).follows_its_input(get_model(model))
 
@@ -153,15 +158,15 @@ def _path_check(model, robot, Xs):
 _path_check_batch = eqx.filter_jit(eqx.filter_vmap(_path_check, in_axes=(None, 0, None)))
 
 
-def validate_members(scene, base: RobotParams, members: dict, *, torque_model="reduced",
+def validate_members(scene, base: RobotParams, members: dict, *, torque_model=None,
                      trajectory=None, t_end=T_END):
     """Build each member's `RobotParams` and check it before any solve.
 
     Returns (params list with None for invalid members, reasons list: '' or why the member cannot
     run). Checks: parameter ranges (`RobotParams`); every chain closes with margin and the
     actuation is not singular at `N_PATH_CHECK` samples of the nominal path over [0, t_end]
-    (paper-circle: with the torque model's kinematics; servo-circle: L1's, which gives the
-    angles)."""
+    (default the scene's own path), with the kinematics of the scene's `input_model`, which
+    gives the input."""
     names = list(members)
     N = len(members[names[0]])
     plist, reasons = [], []
@@ -176,11 +181,10 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model="r
     ok = [i for i in range(N) if plist[i] is not None]
     if not ok:
         return plist, reasons
-    traj = Circle() if trajectory is None else trajectory
+    scene_ = get_scene(scene, torque_model)
+    traj = scene_.trajectory() if trajectory is None else trajectory
     Xs = jax.vmap(traj)(jnp.linspace(0.0, t_end, N_PATH_CHECK))
-    kin = get_model(torque_model) if scene == "paper-circle" else Reduced()
-    if kin.actuated_index is not None:
-        kin = Reduced()
+    kin = scene_.input_model
     # One vmapped call for all valid members, in fixed-size pieces (a few compiles at most).
     margins, sings = [], []
     for lo in range(0, len(ok), 256):
@@ -192,11 +196,11 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model="r
     margin, sing = np.concatenate(margins), np.concatenate(sings)
     for j, i in enumerate(ok):
         if not np.isfinite(margin[j]) or margin[j] <= REACH_TOL:
-            reasons[i] = ("unreachable path: a chain cannot close along the nominal circle "
+            reasons[i] = ("unreachable path: a chain cannot close along the nominal path "
                           f"(min closure margin {margin[j]:.3g})")
             plist[i] = None
         elif not np.isfinite(sing[j]) or sing[j] < SINGULAR_TOL:
-            reasons[i] = ("singular configuration along the nominal circle (inverse condition "
+            reasons[i] = ("singular configuration along the nominal path (inverse condition "
                           f"number of S {sing[j]:.3g} < {SINGULAR_TOL:g})")
             plist[i] = None
     return plist, reasons
@@ -262,7 +266,7 @@ def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
 class SweepResult:
     """A sweep's tidy table: one row per member (`rows`, a list of dicts with the keys
     `columns`): `member` (index), the varied parameters, `status` ('ok' or 'failed'), `reason`
-    ('' or why), the metrics of `METRICS` (NaN for a failed member), `result_code` (`RESULTS`,
+    ('' or why), the metrics of `sweep_metrics` (NaN for a failed member), `result_code` (`RESULTS`,
     -1 if the member was not run), `num_steps`. `varied` the varied names; `timing`
     {compile_s, run_s, per_member_ms} (s; wall clock); `info` the sweep's settings."""
 
@@ -302,7 +306,7 @@ def _member_rows(idx, members, names, out, codes, steps):
     rows = []
     for j, i in enumerate(idx):
         row = {"member": int(i), **{k: float(members[k][i]) for k in names}}
-        m = {k: float(out[k][j]) for k in METRICS}
+        m = {k: float(out[k][j]) for k in out}
         code = int(codes[j])
         if code != 0:
             reason = result_message(code)
@@ -314,7 +318,7 @@ def _member_rows(idx, members, names, out, codes, steps):
         else:
             reason = ""
         if reason:
-            m = {k: float("nan") for k in METRICS}
+            m = {k: float("nan") for k in out}
         row.update(status="failed" if reason else "ok", reason=reason, **m, result_code=code,
                    num_steps=int(steps[j]))
         rows.append(row)
@@ -332,9 +336,9 @@ def _static_fields(params) -> tuple:
                  if isinstance(getattr(params, f.name), (int, str)))
 
 
-def _failed_row(i, members, names, reason):
+def _failed_row(i, members, names, reason, metrics):
     return {"member": int(i), **{k: float(members[k][i]) for k in names}, "status": "failed",
-            "reason": reason, **{k: float("nan") for k in METRICS}, "result_code": -1,
+            "reason": reason, **{k: float("nan") for k in metrics}, "result_code": -1,
             "num_steps": 0}
 
 
@@ -358,7 +362,7 @@ def _progress(total: int, desc: str):
 
 
 def sweep(
-    scene: str = "paper-circle",
+    scene: Union[str, AbstractScene] = "paper-circle",
     base_params: Optional[RobotParams] = None,
     vary: Optional[dict] = None,
     *,
@@ -366,14 +370,15 @@ def sweep(
     n: Optional[int] = None,
     seed: int = 0,
     model="double1r",
-    torque_model="reduced",
-    trajectory: Optional[Circle] = None,
-    t_end: float = T_END,
-    n_out: int = N_OUT,
+    torque_model=None,
+    options: Optional[SceneOptions] = None,
+    trajectory: Optional[Callable] = None,
+    t_end: Optional[float] = None,
+    n_out: Optional[int] = None,
     solver=None,
-    rtol: float = RTOL,
-    atol: float = ATOL,
-    max_steps: int = MAX_STEPS,
+    rtol: Optional[float] = None,
+    atol: Optional[float] = None,
+    max_steps: Optional[int] = None,
     chunk_size: int = 64,
     devices: Optional[Sequence] = None,
     checkpoint_dir: Optional[str] = None,
@@ -381,24 +386,29 @@ def sweep(
 ) -> SweepResult:
     """Run `scene` over a design of parameter values and return a `SweepResult` table.
 
-    vary: {name: values} of float parameters (`PARAM_RANGES`); `design="grid"` runs their
-    Cartesian product, `design="lhs"` a seeded Latin hypercube of `n` members over each entry's
-    [min, max], `design="list"` the members as listed (`design_members`). Other parameters
-    are `base_params` (default: the scene's). Scene settings (`model`, `torque_model`, times,
-    solver, tolerances, `max_steps`) as `paper_circle`; the default `model` is L2 under L1's
-    torques, as in `sensitivity` (L1 under its own torques follows the circle to the solver's
-    tolerance, and such a sweep warns that its radial errors are the solver's). Members are
-    validated first (`validate_members`; the invalid ones are reported, not run), then run
-    `chunk_size` at a time in one compiled program (the last chunk padded to the same shape).
+    `scene`: a registered scene's name or an `AbstractScene` (a `PathScene` on your own path
+    and drive). vary: {name: values} of float parameters (`PARAM_RANGES`); `design="grid"`
+    runs their Cartesian product, `design="lhs"` a seeded Latin hypercube of `n` members over
+    each entry's [min, max], `design="list"` the members as listed (`design_members`). Other
+    parameters are `base_params` (default: the scene's). `options`: a `SceneOptions` (default
+    horizon, output times, the model's solver and tolerances); its fields may also be given
+    as keywords (`t_end`, `rtol`, ...), which replace the options' where not None.
+    `torque_model`: for a registered torque-driven scene, the model whose inverse dynamics
+    gives the torques (a scene object carries its own). The default `model` is L2 under L1's
+    torques, as in `sensitivity` (a model that follows its own input tracks the path to the
+    solver's tolerance, and such a sweep warns that its tracking errors are the solver's). The
+    columns are `sweep_metrics` of the scene's path (the radial error for a circle, the
+    tracking error for any path). Members are validated first (`validate_members`; the invalid
+    ones are reported, not run), then run `chunk_size` at a time in one compiled program (the
+    last chunk padded to the same shape).
     `devices`: a list of devices to split each chunk over (`chunk_size` must be divisible by
     their number); default one device.
     `checkpoint_dir`: each finished chunk's rows are written there, and a rerun with the same
     settings loads them instead of running them again (resume). `progress`: True for a bar on
     stderr, or a callable `f(done, total)`.
     """
-    if scene not in SWEEP_SCENES:
-        raise PPRError(f"unknown sweep scene {scene!r}; allowed: {', '.join(SWEEP_SCENES)}")
-    base = scene_params(scene) if base_params is None else base_params
+    scene_ = get_scene(scene, torque_model)
+    base = scene_.default_params() if base_params is None else base_params
     if np.ndim(base.a) != 0:
         raise PPRError("base_params must be one robot, not a batch")
     chunk_size = check_number("chunk_size", chunk_size, 1, 10**6, integer=True)
@@ -408,29 +418,41 @@ def sweep(
                        f"({len(devices)})")
     # The scenes' checks (argument named, its allowed range): a NaN rtol would run every member
     # to max_steps, max_steps 0 fail every member inside diffrax.
-    check_scene_args(t_end, n_out, rtol, atol, max_steps)
+    opts = (SceneOptions() if options is None else options).updated(
+        trajectory=trajectory, t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
+        max_steps=max_steps).check()
     members = design_members(vary or {}, design, n, seed)
     names = list(members)
     N = len(members[names[0]])
     model_ = get_model(model)
-    tmodel = get_model(torque_model)
-    follows = follows_its_input(scene, model_, tmodel)
+    follows = scene_.follows_its_input(model_)
     if follows:
         warnings.warn(
-            f"model {model_.name!r} in {scene!r}: {follows}; the radial-error columns of this "
-            f"sweep are the solver's error, not the robot's (sweep double1r or beam, or use "
-            f"torque_model='rigid', for a physical one)", UserWarning, stacklevel=2)
-    traj = Circle() if trajectory is None else trajectory
-    info = dict(scene=scene, model=model_.name, torque_model=tmodel.name, design=design, n=N,
+            f"model {model_.name!r} in {scene_.name!r}: {follows}; the tracking-error columns "
+            f"of this sweep are the solver's error, not the robot's (sweep double1r or beam, "
+            f"or drive it by another model's input, for a physical one)", UserWarning,
+            stacklevel=2)
+    options = opts.prepared(model_, scene_.trajectory())
+    traj = options.trajectory
+    metric_names = sweep_metrics(traj)
+    rtol_, atol_ = opts.tolerances(model_)
+    info = dict(scene=scene_.name, model=model_.name,
+                input_model=scene_.input_model.name, design=design, n=N,
                 seed=seed, vary={k: [float(x) for x in np.atleast_1d(v)] for k, v in
                                  (vary or {}).items()},
-                t_end=float(t_end), n_out=int(n_out), solver=str(solver), rtol=float(rtol),
-                atol=float(atol), max_steps=int(max_steps), chunk_size=chunk_size,
+                t_end=float(opts.t_end), n_out=int(opts.n_out), solver=str(opts.solver),
+                rtol=float(rtol_), atol=float(atol_), max_steps=int(opts.max_steps),
+                chunk_size=chunk_size,
                 base={f.name: _plain(getattr(base, f.name)) for f in dataclasses.fields(base)})
+    if not isinstance(scene, str):
+        # a scene object: its path and input decide the numbers, not its name
+        info["scene_digest"] = hashlib.sha256(eqx.tree_pformat(
+            (scene_, traj), short_arrays=False).encode()).hexdigest()[:16]
     t0 = time.perf_counter()
-    plist, reasons = validate_members(scene, base, members, torque_model=tmodel, trajectory=traj,
-                                      t_end=t_end)
-    rows: dict = {i: _failed_row(i, members, names, reasons[i]) for i in range(N) if reasons[i]}
+    plist, reasons = validate_members(scene_, base, members, trajectory=traj,
+                                      t_end=float(opts.t_end))
+    rows: dict = {i: _failed_row(i, members, names, reasons[i], metric_names)
+                  for i in range(N) if reasons[i]}
     valid = [i for i in range(N) if not reasons[i]]
     # Members grouped by the static structure of their program (equal links or not), so that
     # each runs the same program as its single run; one compilation per group present.
@@ -442,7 +464,7 @@ def sweep(
 
     store = _ChunkStore(checkpoint_dir, info) if checkpoint_dir else None
     if progress is True:
-        update, close = _progress(N, f"sweep {scene} ({model_.name})")
+        update, close = _progress(N, f"sweep {scene_.name} ({model_.name})")
     elif callable(progress):
         done = {"n": 0}
 
@@ -455,9 +477,6 @@ def sweep(
         update, close = (lambda k: None), (lambda: None)
     update(len(rows))
 
-    scene_ = get_scene(scene, tmodel)
-    options = SceneOptions(t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
-                           max_steps=max_steps, trajectory=traj).prepared(model_)
     tol = (options.rtol, options.atol)
     fns = {}
 
@@ -465,8 +484,8 @@ def sweep(
         if equal not in fns:
             sample = Robot(stack_params([plist[i0]] * chunk_size), equal_links=equal)
             robot_static = eqx.partition(sample, eqx.is_array)[1]
-            key = (scene, model_, tmodel, n_out, float(t_end), type(options.solver), max_steps,
-                   equal,
+            key = (eqx.tree_pformat(scene_, short_arrays=False), model_, options.n_out,
+                   float(options.t_end), type(options.solver), options.max_steps, equal,
                    _static_fields(base), chunk_size, tuple(devices or ()),
                    eqx.tree_pformat(traj, short_arrays=False),
                    tuple(sorted(n for n in ("gamma", "rho", "K_theta")
@@ -503,7 +522,8 @@ def sweep(
                         new += _member_rows([i], members, names, out, codes, steps)
                     except Exception as err1:  # noqa: BLE001
                         msg = str(err1).strip().splitlines()[0] if str(err1).strip() else repr(err1)
-                        new.append(_failed_row(i, members, names, f"error: {msg}"))
+                        new.append(_failed_row(i, members, names, f"error: {msg}",
+                                               metric_names))
             dt = time.perf_counter() - t1
             if equal not in compiled:
                 timing["first_chunk_s"] = timing.get("first_chunk_s", 0.0) + dt
@@ -525,7 +545,7 @@ def sweep(
         timing["per_chunk_s"] = per_chunk
         timing["per_member_ms"] = per_chunk / chunk_size * 1e3
         timing["compile_s"] = max(timing["first_chunk_s"] - timing["programs"] * per_chunk, 0.0)
-    columns = ["member", *names, "status", "reason", *METRICS, "result_code", "num_steps"]
+    columns = ["member", *names, "status", "reason", *metric_names, "result_code", "num_steps"]
     return SweepResult(rows=[rows[i] for i in range(N)], columns=columns, varied=names,
                        timing=timing, info=info)
 

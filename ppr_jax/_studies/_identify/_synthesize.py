@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Optional, Union
 
 import equinox as eqx
 import jax
@@ -13,8 +13,7 @@ from ..._data import DataError, Experiment
 from ..._models import get_model
 from ..._params import RobotParams
 from ..._robot import Robot
-from ..._scenes import T_END, scene_params
-from ._problem import ID_SCENES
+from ..._scenes import T_END, AbstractScene, SceneOptions, get_scene, solve_scene
 
 
 @eqx.filter_jit
@@ -35,7 +34,7 @@ def check_synth_args(noise_pos, noise_phi, rate, t_end) -> None:
 
 
 def synthesize(
-    scene: str = "servo-circle",
+    scene: Union[str, AbstractScene] = "servo-circle",
     model="double1r",
     params: Optional[RobotParams] = None,
     *,
@@ -53,19 +52,22 @@ def synthesize(
     standard deviation `noise_pos` (m) on x and y and `noise_phi` (rad) on phi, seeded
     (`numpy.random.default_rng(seed)`). The actuated angles (noise-free: encoders are far finer
     than a tracker) and the torques (applied, or the reactions of a motion-driven scene) are
-    included. `params` defaults to `scene_params(scene)`; `scene_kw` go to the scene function."""
-    from ..._scenes import paper_circle, servo_circle
-
-    if scene not in ID_SCENES:
-        raise DataError(f"unknown scene {scene!r}; allowed: {', '.join(ID_SCENES)}")
+    included. `scene`: a registered name or an `AbstractScene` (a `PathScene` on your own
+    path). `params` defaults to the scene's; `scene_kw`: `torque_model` (a registered
+    torque-driven scene's) and `SceneOptions`' fields (solver, tolerances)."""
+    scene_ = get_scene(scene, scene_kw.pop("torque_model", None))
+    try:
+        options = SceneOptions().updated(**scene_kw)
+    except TypeError as err:
+        raise DataError(f"synthesize: {err}") from None
     check_synth_args(noise_pos, noise_phi, rate, t_end)
     n = int(math.floor(t_end * rate + 1e-9)) + 1
     if n < 2:
         raise DataError(f"t_end = {t_end} s at {rate} Hz gives fewer than 2 samples")
     mdl = get_model(model, n_elements)
-    params = scene_params(scene) if params is None else params
-    fn = servo_circle if scene == "servo-circle" else paper_circle
-    res = fn(params, model=mdl, t_end=(n - 1) / rate, n_out=n, **scene_kw)
+    params = scene_.default_params() if params is None else params
+    res = solve_scene(scene_, params, model=mdl,
+                      options=options.updated(t_end=(n - 1) / rate, n_out=n))
     th = np.asarray(_actuated_angles(mdl, Robot(params), res.z))
     rng = np.random.default_rng(seed)
     X = np.asarray(res.X).copy()
