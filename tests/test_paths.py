@@ -4,6 +4,7 @@ the spline of the SI samples, every refused input with its line and cause, the i
 along a path, and derivatives with respect to the samples against finite differences."""
 
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -414,3 +415,34 @@ def test_loaders_keep_the_reader_s_checks(tmp_path):
         pj.load_commands(str(tmp_path / "missing.csv"))
     assert math.isclose(pj.load_path(_write(tmp_path / "ok.csv", "time,x[mm],y[mm],phi[deg]",
                                             _GOOD)).ts[-1], 2.0)
+
+
+def test_a_command_log_drives_a_scene_of_ones_own(tmp_path, robot):
+    """Angles of L1's inverse kinematics along a `Line`, written as a controller's log and loaded
+    back, drive a scene (motion-driven L1): the platform follows the line."""
+    line = pj.Line([0.42, 0.25, -0.02], [0.48, 0.28, 0.03], 1.0)
+    tt = np.linspace(0.0, 1.0, 201)
+    th = np.asarray(pj.inverse_kinematics(robot, jax.vmap(line)(jnp.asarray(tt))).th_a)
+    log = pj.load_commands(_write(tmp_path / "log.csv", "time,th_1[deg],th_2[deg],th_3[deg]",
+                                  np.column_stack([tt, np.degrees(th)])))
+
+    class LogScene(pj.AbstractScene):
+        name: ClassVar[str] = "log"
+        thickness: ClassVar[float] = 0.3e-3
+        reference: ClassVar[dict] = {}
+
+        def trajectory(self):
+            return line
+
+        def commands(self, model, robot, traj, ts, panels):
+            return pj.SceneInput(log.actuation())
+
+        def follows_its_input(self, model):
+            return ""
+
+    res = pj.solve_scene(LogScene(), model="reduced",
+                         options=pj.SceneOptions(t_end=1.0, n_out=13))
+    assert res.ok
+    err = np.abs(np.asarray(res.X) - np.asarray(jax.vmap(line)(res.ts))).max()
+    assert err < 1e-8, err  # output times between the log's samples: the spline's error
+    assert np.abs(np.asarray(res.X[-1] - res.X[0])).max() > 0.02
