@@ -67,6 +67,15 @@ from ._trajectory import (  # noqa: E402
     Interpolated as Interpolated,
     derivatives as derivatives,
 )
+from ._paths import (  # noqa: E402
+    Line as Line,
+    Waypoints as Waypoints,
+    Fourier as Fourier,
+    CommandLog as CommandLog,
+    load_path as load_path,
+    load_commands as load_commands,
+    check_same_rate as check_same_rate,
+)
 from ._actuation import (  # noqa: E402
     AbstractActuation as AbstractActuation,
     TorqueDriven as TorqueDriven,

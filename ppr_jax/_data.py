@@ -29,7 +29,7 @@ import csv
 import math
 import os
 import re
-from typing import Optional, Sequence
+from typing import NamedTuple, Optional, Sequence
 
 import equinox as eqx
 import numpy as np
@@ -131,11 +131,14 @@ def experiment(ts, X, th=None, tau=None, *, name: str = "experiment",
         raise DataError(f"{_where(name, lines[back + 1].tolist())}: time decreases; times must "
                         f"be strictly increasing (sort the file, or split it into experiments)")
     if check_units:
-        _check_units(name, X)
+        check_pose_units(name, X)
     return Experiment(ts=ts, X=X, th=extra["th"], tau=extra["tau"], name=name)
 
 
-def _check_units(name, X):
+def check_pose_units(name, X):
+    """Raise `DataError` when poses X (n, 3) (m, m, rad) are in the wrong units: the median
+    platform position 30 times farther from (or nearer to) the base origin than the workspace
+    (`WORKSPACE_SCALE`), or |phi| above pi/2. `name` labels the message."""
     # Why a scale test: a tracker exporting mm into a file read as m (or the reverse) gives poses
     # 1000 times off, and a fit would then "succeed" on nonsense.
     d = float(np.median(np.hypot(X[:, 0], X[:, 1])))
@@ -216,21 +219,29 @@ def _lines(path: str, source: str):
                         f"({err.reason}); save it as UTF-8") from None
 
 
-def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optional[str] = None,
-             angle_unit: Optional[str] = None, torque_unit: Optional[str] = None,
-             drop_nan: bool = False, min_samples: int = MIN_SAMPLES,
-             name: Optional[str] = None, check_units: bool = True) -> Experiment:
-    """Read a tracker CSV file (format: module docstring) into an `Experiment` in SI units.
+class Table(NamedTuple):
+    """The columns of a CSV table in SI units (`read_columns`): `columns` maps each column's
+    canonical name (`COLUMNS`) to its (n,) values, `lines` holds the (1-based) file line of each
+    row, `dropped` the lines dropped as NaN rows, `source` the file's base name."""
 
-    Units: column ``name[unit]`` > header ``# units: kind=unit, ...`` > the `*_unit` options > SI;
-    an option that contradicts a declared unit raises `DataError`. NaN (or empty) cells make
-    their rows fail with their line numbers, unless `drop_nan` (then they are dropped and listed
-    in `Experiment.dropped_lines`). Raises `DataError` for: a missing file, missing or unknown
-    columns (the message lists the allowed names), unreadable numbers, fewer than `min_samples`
-    rows, duplicated or decreasing times, poses about 1000 times off the workspace or |phi| >
-    pi/2 (wrong units; `check_units=False` skips this)."""
+    source: str
+    columns: dict
+    lines: np.ndarray
+    dropped: tuple
+
+
+def read_columns(path: str, *, required: Sequence[str] = REQUIRED,
+                 time_unit: Optional[str] = None, length_unit: Optional[str] = None,
+                 angle_unit: Optional[str] = None, torque_unit: Optional[str] = None,
+                 drop_nan: bool = False) -> Table:
+    """Read a CSV table (format and units: module docstring) into its columns in SI units, the
+    reader behind `load_csv` and the path and command-log loaders (`_paths.py`).
+
+    `required` names the columns that must be present; any other known column (`COLUMNS`) may
+    be. Raises `DataError` for a missing file, unknown, duplicated or missing columns, bad
+    units, unreadable numbers and (unless `drop_nan`) NaN, empty or infinite cells, naming the
+    file and the lines. The rows are neither counted nor ordered here: the callers check that."""
     source = os.path.basename(path)
-    name = name or os.path.splitext(source)[0]
     if not os.path.isfile(path):
         raise DataError(f"{path}: no such file")
     options = {"time": time_unit, "length": length_unit, "angle": angle_unit,
@@ -273,7 +284,7 @@ def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optiona
         else:
             rows.append((lineno, cells))
     if header is None:
-        raise DataError(f"{source}: no header row (expected columns {', '.join(REQUIRED)})")
+        raise DataError(f"{source}: no header row (expected columns {', '.join(required)})")
     cols: list[str] = []
     col_units: list[Optional[str]] = []
     for raw in header:
@@ -289,10 +300,13 @@ def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optiona
             raise DataError(f"{source}: column {c!r} appears twice")
         cols.append(c)
         col_units.append(m.group(2) or m.group(3))
-    missing = [c for c in REQUIRED if c not in cols]
+    missing = [c for c in required if c not in cols]
     if missing:
+        groups = {"x, y, phi": ("x", "y", "phi"), "th_1..th_3": ("th_1", "th_2", "th_3"),
+                  "tau_1..tau_3": ("tau_1", "tau_2", "tau_3")}
+        optional = ", ".join(k for k, g in groups.items() if not set(g) & set(required))
         raise DataError(f"{source}: missing column(s) {', '.join(missing)}; required: "
-                        f"{', '.join(REQUIRED)}; optional: th_1..th_3, tau_1..tau_3; found: "
+                        f"{', '.join(required)}; optional: {optional}; found: "
                         f"{', '.join(header)}")
     for group in (("th_1", "th_2", "th_3"), ("tau_1", "tau_2", "tau_3")):
         have = [c for c in group if c in cols]
@@ -334,7 +348,27 @@ def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optiona
                             f"(CLI --drop-nan)")
         dropped = tuple(int(v) for v in lines[bad])
         data, lines = data[~bad], lines[~bad]
-    col = {c: data[:, j] for j, c in enumerate(cols)}
+    return Table(source=source, columns={c: data[:, j] for j, c in enumerate(cols)},
+                 lines=lines, dropped=dropped)
+
+
+def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optional[str] = None,
+             angle_unit: Optional[str] = None, torque_unit: Optional[str] = None,
+             drop_nan: bool = False, min_samples: int = MIN_SAMPLES,
+             name: Optional[str] = None, check_units: bool = True) -> Experiment:
+    """Read a tracker CSV file (format: module docstring) into an `Experiment` in SI units.
+
+    Units: column ``name[unit]`` > header ``# units: kind=unit, ...`` > the `*_unit` options > SI;
+    an option that contradicts a declared unit raises `DataError`. NaN (or empty) cells make
+    their rows fail with their line numbers, unless `drop_nan` (then they are dropped and listed
+    in `Experiment.dropped_lines`). Raises `DataError` for: a missing file, missing or unknown
+    columns (the message lists the allowed names), unreadable numbers, fewer than `min_samples`
+    rows, duplicated or decreasing times, poses about 1000 times off the workspace or |phi| >
+    pi/2 (wrong units; `check_units=False` skips this)."""
+    table = read_columns(path, time_unit=time_unit, length_unit=length_unit,
+                         angle_unit=angle_unit, torque_unit=torque_unit, drop_nan=drop_nan)
+    source, col, lines = table.source, table.columns, table.lines
+    name = name or os.path.splitext(source)[0]
 
     def triple(prefix):
         if f"{prefix}_1" not in col:
@@ -345,7 +379,7 @@ def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optiona
                      triple("th"), triple("tau"), name=source, min_samples=min_samples,
                      lines=lines, check_units=check_units)
     return Experiment(ts=exp.ts, X=exp.X, th=exp.th, tau=exp.tau, name=name,
-                      dropped_lines=dropped)
+                      dropped_lines=table.dropped)
 
 
 def load_experiments(paths: Sequence[str], **kw) -> list[Experiment]:

@@ -16,7 +16,7 @@ FLOORS = [
     ("scenes", ["_scenes"]),
     ("solvers and signals", ["_simulate", "_rosw", "_esdirk", "_statics", "_modes", "_metrics",
                              "_tabulated"]),
-    ("actuation and paths", ["_actuation", "_trajectory"]),
+    ("actuation and paths", ["_actuation", "_trajectory", "_paths"]),
     ("dynamics and kinematics", ["_dynamics", "_kinematics", "_paper_eom"]),
     ("models", ["_models", "_mjcf"]),
     ("chain geometry", ["_geometry", "_linalg"]),

@@ -1,0 +1,448 @@
+"""Paths and command logs (`ppr_jax._paths`): `Line` against its closed-form quintic, `Waypoints`
+against scipy's `CubicSpline`, `Fourier` against the hand-written series, the CSV loaders against
+the spline of the SI samples, every refused input with its line and cause, the inverse kinematics
+along a path, and derivatives with respect to the samples against finite differences."""
+
+import math
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.interpolate import CubicSpline
+
+import ppr_jax as pj
+from ppr_jax import DataError
+
+CENTER = np.array([0.45, 0.26, 0.0])
+
+
+def _d3(path, ts):
+    """(X, X', X'') (m, 3) each at times ts, by `derivatives` under vmap."""
+    return jax.vmap(lambda t: pj.derivatives(path, t))(jnp.asarray(ts, dtype=jnp.float64))
+
+
+def _figure_eight(n=41, T=2.0):
+    """A figure-eight around the workspace centre, within 40 mm and 0.04 rad (SI)."""
+    ts = np.linspace(0.0, T, n)
+    w = 2 * np.pi / T
+    X = CENTER + np.column_stack([0.04 * np.sin(w * ts), 0.02 * np.sin(2 * w * ts),
+                                  0.04 * np.sin(w * ts) * np.cos(w * ts)])
+    return ts, X
+
+
+# ---------------------------------------------------------------------------------------------
+# Line
+
+
+def test_line_matches_the_closed_form_quintic():
+    start = np.array([0.42, 0.25, -0.02])
+    end = np.array([0.48, 0.28, 0.03])
+    T = 1.3
+    path = pj.Line(start, end, T)
+    ts = np.array([-0.4, 0.0, 0.1, 0.37, 0.65, 1.0, 1.29, T, 1.8])
+    X, Xd, Xdd = (np.asarray(v) for v in _d3(path, ts))
+    u = np.clip(ts / T, 0, 1)[:, None]
+    inside = ((ts > 0) & (ts < T))[:, None]
+    s = 10 * u**3 - 15 * u**4 + 6 * u**5
+    sd = np.where(inside, 30 * u**2 * (1 - u) ** 2 / T, 0.0)
+    sdd = np.where(inside, 60 * u * (1 - u) * (1 - 2 * u) / T**2, 0.0)
+    D = end - start
+    np.testing.assert_allclose(X, start + s * D, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(Xd, sd * D, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(Xdd, sdd * D, rtol=0, atol=1e-14)
+    # rest to rest: the end poses exactly, no velocity or acceleration at the ends
+    np.testing.assert_array_equal(X[1], start)
+    np.testing.assert_array_equal(X[-2], end)
+    assert np.all(Xd[[0, 1, -2, -1]] == 0) and np.max(np.abs(Xdd[[0, 1, -2, -1]])) < 1e-16
+
+
+def test_line_refuses_bad_arguments():
+    with pytest.raises(DataError, match="duration must be positive"):
+        pj.Line(CENTER, CENTER, 0.0)
+    with pytest.raises(DataError, match=r"poses \(3,\)"):
+        pj.Line(CENTER[:2], CENTER, 1.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Waypoints
+
+
+@pytest.fixture(scope="module")
+def uneven():
+    rng = np.random.default_rng(3)
+    ts = np.cumsum(rng.uniform(0.03, 0.3, 15)) - 0.2
+    P = CENTER + rng.normal(scale=[0.02, 0.02, 0.02], size=(15, 3))
+    return ts, P
+
+
+@pytest.mark.parametrize("bc", ["clamped", "natural"])
+def test_waypoints_match_scipy_cubic_spline(uneven, bc):
+    ts, P = uneven
+    path = pj.Waypoints(ts, P, bc)
+    ref = CubicSpline(ts, P, bc_type=bc, axis=0)
+    tt = np.concatenate([ts, np.linspace(ts[0], ts[-1], 97)])
+    got = [np.asarray(v) for v in _d3(path, tt)]
+    for d in range(3):
+        want = ref(tt, d)
+        err = np.max(np.abs(got[d] - want)) / np.max(np.abs(want))
+        assert err < 1e-12, (bc, d, err)
+    if bc == "clamped":
+        assert np.max(np.abs(got[1][[0, len(ts) - 1]])) < 1e-13  # at rest at the ends
+    else:
+        assert np.max(np.abs(got[2][[0, len(ts) - 1]])) < 1e-10  # no acceleration at the ends
+
+
+@pytest.mark.parametrize("bc", ["clamped", "natural"])
+def test_waypoints_are_c2_at_the_knots(uneven, bc):
+    ts, P = uneven
+    path = pj.Waypoints(ts, P, bc)
+    knots = ts[1:-1]
+    right = _d3(path, knots)  # the piece starting at the knot
+    left = _d3(path, np.nextafter(knots, -np.inf))  # the piece ending there
+    for d, tol in ((0, 1e-13), (1, 1e-11), (2, 1e-9)):
+        scale = np.max(np.abs(right[d]))
+        assert np.max(np.abs(left[d] - right[d])) <= tol * scale, d
+    # and the third derivative does jump: the knots are really knots
+    third = jax.vmap(jax.jacfwd(lambda t: pj.derivatives(path, t)[2]))
+    assert np.max(np.abs(third(jnp.asarray(knots)) - third(jnp.asarray(
+        np.nextafter(knots, -np.inf))))) > 1e-3
+
+
+def test_waypoints_continue_outside_the_samples(uneven):
+    ts, P = uneven
+    clamped = pj.Waypoints(ts, P, "clamped")
+    X, Xd, Xdd = (np.asarray(v) for v in _d3(clamped, [ts[0] - 1.0, ts[-1] + 1.0]))
+    np.testing.assert_allclose(X, P[[0, -1]], rtol=0, atol=1e-15)
+    assert np.all(Xd == 0) and np.all(Xdd == 0)
+    natural = pj.Waypoints(ts, P, "natural")
+    ref = CubicSpline(ts, P, bc_type="natural", axis=0)
+    X, Xd, _ = _d3(natural, [ts[-1] + 0.5])
+    np.testing.assert_allclose(X[0], P[-1] + 0.5 * ref(ts[-1], 1), rtol=1e-12)
+    np.testing.assert_allclose(Xd[0], ref(ts[-1], 1), rtol=1e-12)
+
+
+def test_waypoints_refuse_bad_arrays():
+    ts, X = _figure_eight(8)
+    bad = X.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(DataError, match=r"Waypoints: sample 4: NaN or infinite"):
+        pj.Waypoints(ts, bad)
+    t2 = ts.copy()
+    t2[5] = t2[4]
+    with pytest.raises(DataError, match=r"sample 6 \(t = .*\): the same time as sample 5"):
+        pj.Waypoints(t2, X)
+    with pytest.raises(DataError, match="unknown boundary condition"):
+        pj.Waypoints(ts, X, "periodic")
+    with pytest.raises(DataError, match="must be concrete"):
+        jax.jit(lambda t: pj.Waypoints(t, X)(0.1))(jnp.asarray(ts))
+
+
+def test_waypoints_gradient_wrt_samples_matches_finite_differences(uneven):
+    ts, P = uneven
+    t = 0.5 * (ts[4] + ts[5]) + 0.01
+    w = jnp.asarray(np.random.default_rng(1).normal(size=9))
+
+    def f(P):
+        X, Xd, Xdd = pj.derivatives(pj.Waypoints(ts, P), t)
+        return jnp.sum(w * jnp.tanh(jnp.concatenate([10 * X, Xd, 0.1 * Xdd])))
+
+    f = jax.jit(f)  # the spline built from traced samples
+    P = jnp.asarray(P)
+    g_rev = jax.grad(f)(P)
+    g_fwd = jax.jacfwd(f)(P)
+    eps = 1e-6
+    fd = np.zeros(P.shape)
+    for i in range(P.shape[0]):
+        for j in range(3):
+            e = jnp.zeros(P.shape).at[i, j].set(eps)
+            fd[i, j] = (f(P + e) - f(P - e)) / (2 * eps)
+    scale = np.max(np.abs(fd))
+    assert scale > 1e-3 and np.count_nonzero(np.abs(fd) > 1e-6 * scale) > 20  # not local
+    np.testing.assert_allclose(g_rev, fd, rtol=0, atol=1e-7 * scale)
+    np.testing.assert_allclose(g_fwd, fd, rtol=0, atol=1e-7 * scale)
+
+
+# ---------------------------------------------------------------------------------------------
+# Fourier
+
+
+def test_fourier_matches_the_series_and_its_derivatives():
+    rng = np.random.default_rng(2)
+    mean = CENTER
+    A = rng.normal(scale=0.01, size=(3, 3))
+    B = rng.normal(scale=0.01, size=(3, 3))
+    w = 1.7
+    path = pj.Fourier(mean, A, B, w)
+    ts = np.array([0.0, 0.3, 1.1, 2.9, -0.7])
+    X, Xd, Xdd = _d3(path, ts)
+    x, xd, xdd = np.tile(mean, (len(ts), 1)), np.zeros((len(ts), 3)), np.zeros((len(ts), 3))
+    for k in (1, 2, 3):
+        c, s = np.cos(k * w * ts)[:, None], np.sin(k * w * ts)[:, None]
+        x = x + A[k - 1] * c + B[k - 1] * s
+        xd = xd + k * w * (-A[k - 1] * s + B[k - 1] * c)
+        xdd = xdd - (k * w) ** 2 * (A[k - 1] * c + B[k - 1] * s)
+    np.testing.assert_allclose(X, x, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(Xd, xd, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(Xdd, xdd, rtol=0, atol=1e-13)
+    # periodic, and K = 0 is the constant mean
+    np.testing.assert_allclose(path(0.4 + 2 * np.pi / w), path(0.4), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(pj.Fourier(mean, np.zeros((0, 3)), np.zeros((0, 3)), w)(1.0),
+                                  mean)
+
+
+def test_fourier_refuses_bad_shapes():
+    with pytest.raises(DataError, match=r"cos and sin \(K, 3\)"):
+        pj.Fourier(CENTER, np.zeros((2, 3)), np.zeros((3, 3)), 1.0)
+    with pytest.raises(DataError, match="omega must be positive"):
+        pj.Fourier(CENTER, np.zeros((1, 3)), np.zeros((1, 3)), -1.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# every path under jit and vmap, and along the robot's inverse kinematics
+
+
+def _paths():
+    ts, X = _figure_eight()
+    return {
+        "line": pj.Line(CENTER + [-0.03, -0.02, -0.03], CENTER + [0.04, 0.03, 0.04], 1.5),
+        "waypoints": pj.Waypoints(ts, X),
+        "fourier": pj.Fourier(CENTER, [[0.03, 0.0, 0.0], [0.0, 0.01, 0.0]],
+                              [[0.0, 0.03, 0.04], [0.0, 0.0, 0.0]], 2.0),
+    }
+
+
+@pytest.mark.parametrize("name", ["line", "waypoints", "fourier"])
+def test_paths_under_jit_and_vmap(name):
+    path = _paths()[name]
+    tt = np.linspace(-0.1, 2.1, 23)
+    jitted = jax.jit(jax.vmap(lambda t: pj.derivatives(path, t)))(jnp.asarray(tt))
+    for i, t in enumerate(tt):
+        eager = pj.derivatives(path, float(t))
+        for a, b in zip(jitted, eager):
+            np.testing.assert_allclose(a[i], b, rtol=1e-14, atol=1e-15)
+    # a path is a pytree of arrays: it crosses jit as an argument
+    call = jax.jit(lambda p, t: p(t))
+    np.testing.assert_allclose(call(path, 0.7), path(0.7), rtol=1e-14)
+
+
+@pytest.mark.parametrize("name", ["line", "waypoints"])
+def test_inverse_kinematics_along_a_non_circular_path(robot, name):
+    path = _paths()[name]
+    tt = jnp.asarray([0.0, 0.35, 0.8, 1.2, 1.5])
+    X = jax.vmap(path)(tt)
+    assert np.max(np.abs(np.asarray(X) - CENTER)) <= 0.05
+    res = pj.inverse_kinematics(robot, X)
+    assert np.all(np.isfinite(res.th_a)) and np.all(np.asarray(res.margin) > 0)
+    assert np.all(np.asarray(res.singularity) > 0.05)
+    # the actuated angles along the path, with their rates, through derivatives
+    angles = pj.InverseKinematicsAngles(pj.Reduced(), robot, path)
+    th, thd, thdd = pj.derivatives(angles, 0.8)
+    np.testing.assert_allclose(th, res.th_a[2], rtol=0, atol=1e-10)
+    assert np.all(np.isfinite(thd)) and np.all(np.isfinite(thdd))
+    _, Xd, _ = pj.derivatives(path, 0.8)
+    np.testing.assert_allclose(thd, res.S[2] @ Xd, rtol=1e-8, atol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# CSV files
+
+
+def _write(path, header, rows, comments=()):
+    with open(path, "w") as f:
+        for c in comments:
+            f.write(f"# {c}\n")
+        f.write(header + "\n")
+        for r in rows:
+            f.write(",".join(r if isinstance(r, str) else f"{v:.17g}" for v in r) + "\n")
+    return str(path)
+
+
+def _pose_rows_mm_deg(ts, X):
+    return np.column_stack([ts, X[:, 0] * 1e3, X[:, 1] * 1e3, np.degrees(X[:, 2])])
+
+
+def test_load_path_in_mm_and_deg_is_the_spline_of_the_si_samples(tmp_path):
+    ts, X = _figure_eight(51)
+    f = _write(tmp_path / "eight.csv", "time,x,y,phi", _pose_rows_mm_deg(ts, X),
+               comments=["figure eight", "units: time=s, length=mm, angle=deg"])
+    path = pj.load_path(f)
+    assert isinstance(path, pj.Waypoints) and path.name == "eight.csv" and path.bc == "clamped"
+    ref = CubicSpline(ts, X, bc_type="clamped", axis=0)
+    tt = np.linspace(0, ts[-1], 37)
+    got = _d3(path, tt)
+    for d in range(3):
+        want = ref(tt, d)
+        assert np.max(np.abs(got[d] - want)) <= 1e-12 * np.max(np.abs(want)), d
+    # the same file with units in the column names, natural ends
+    g = _write(tmp_path / "eight2.csv", "t[s],x[mm],y[mm],phi[deg]", _pose_rows_mm_deg(ts, X))
+    nat = pj.load_path(g, bc="natural")
+    ref = CubicSpline(ts, X, bc_type="natural", axis=0)
+    np.testing.assert_allclose(jax.vmap(nat)(jnp.asarray(tt)), ref(tt), rtol=1e-12, atol=1e-15)
+
+
+def test_load_commands_angles_and_torques(tmp_path):
+    ts = np.linspace(0, 1, 21)
+    th = np.column_stack([0.5 + 0.1 * np.sin(3 * ts), 2.6 + 0.05 * ts, -1.6 + 0.02 * ts**2])
+    f = _write(tmp_path / "angles.csv", "time,th_1[deg],th_2[deg],th_3[deg]",
+               np.column_stack([ts, np.degrees(th)]))
+    log = pj.load_commands(f)
+    assert log.kind == "angles" and log.name == "angles.csv"
+    np.testing.assert_allclose(jax.vmap(log)(jnp.asarray(ts)), th, rtol=1e-13)
+    act = log.actuation()
+    assert isinstance(act, pj.MotionDriven) and act.prescribes_angles
+    ref = CubicSpline(ts, th, bc_type="clamped", axis=0)
+    a, ad, add = act.angles_at(0.43)
+    for d, got in enumerate((a, ad, add)):
+        np.testing.assert_allclose(got, ref(0.43, d), rtol=1e-11, atol=1e-13)
+    servo = log.actuation(Kp=20.0, Kd=0.5)
+    assert isinstance(servo, pj.PDServo)
+    np.testing.assert_allclose(servo.torque_at(0.43, a - 0.01, ad), 20.0 * 0.01, rtol=1e-12)
+
+    tau = np.column_stack([0.1 * np.cos(ts), -0.2 * ts, 0.05 + 0 * ts])
+    g = _write(tmp_path / "torques.csv", "time,tau_1[Nmm],tau_2[Nmm],tau_3[Nmm]",
+               np.column_stack([ts, tau * 1e3]))
+    tlog = pj.load_commands(g)
+    act = tlog.actuation()
+    assert tlog.kind == "torque" and isinstance(act, pj.TorqueDriven)
+    np.testing.assert_allclose(act.torque_at(0.43, None, None),
+                               CubicSpline(ts, tau, bc_type="clamped", axis=0)(0.43), rtol=1e-12)
+    with pytest.raises(DataError, match="servo gains apply to an angle log"):
+        tlog.actuation(Kp=1.0, Kd=0.1)
+    # a file with both: kind picks
+    h = _write(tmp_path / "both.csv", "time,th_1,th_2,th_3,tau_1,tau_2,tau_3",
+               np.column_stack([ts, th, tau]))
+    with pytest.raises(DataError, match="both.csv: the file holds both.*kind="):
+        pj.load_commands(h)
+    assert pj.load_commands(h, kind="torque").kind == "torque"
+
+
+def test_check_same_rate(tmp_path):
+    ts, X = _figure_eight(51)  # 25 Hz
+    poses = pj.load_path(_write(tmp_path / "poses.csv", "time,x[mm],y[mm],phi[deg]",
+                                _pose_rows_mm_deg(ts, X)))
+    t2 = np.linspace(0, 2, 101)  # 50 Hz
+    tau = _write(tmp_path / "tau.csv", "time,tau_1,tau_2,tau_3",
+                 np.column_stack([t2, 0 * t2, 0 * t2, 0 * t2]))
+    same = _write(tmp_path / "tau25.csv", "time,tau_1,tau_2,tau_3",
+                  np.column_stack([ts, 0 * ts, 0 * ts, 0 * ts]))
+    assert pj.check_same_rate(poses, pj.load_commands(same)) == pytest.approx(0.04)
+    with pytest.raises(DataError, match=r"poses.csv is sampled at 25 Hz .* but tau.csv at 50 Hz"):
+        pj.check_same_rate(poses, pj.load_commands(tau))
+
+
+# Each refused input: (file name, header, rows as a function of the good rows, loader options,
+# the expected message). The good file: a comment line and the header, so sample i (0-based)
+# is on line i + 3.
+_GOOD_TS, _GOOD_X = _figure_eight(41)
+_GOOD = _pose_rows_mm_deg(_GOOD_TS, _GOOD_X)
+
+
+def _edit(i, j, value):
+    def f(rows):
+        rows = rows.copy()
+        rows[i, j] = value
+        return rows
+    return f
+
+
+def _angles(rows):
+    """An angle log (rad) with the pose file's times."""
+    one = np.ones_like(rows[:, 0])
+    return np.column_stack([rows[:, 0], 0.5 + 0.1 * rows[:, 1] / 1e3, 2.6 * one, -1.6 * one])
+
+
+BAD = {
+    "duplicated time": ("path", _edit(10, 0, _GOOD[9, 0]),
+                        r"bad.csv: line 13 \(t = 0\.45 s\): the same time as line 12"),
+    "decreasing time": ("path", _edit(10, 0, 0.1),
+                        r"bad.csv: line 13 \(t = 0\.1 s\): an earlier time than line 12 "
+                        r"\(t = 0\.45 s\); times must be strictly increasing"),
+    "gap": ("path", lambda r: np.delete(r, np.s_[20:35], axis=0),
+            r"bad.csv: line 23 \(t = 1\.75 s\): gap of 0\.8 s after line 22 \(t = 0\.95 s\), "
+            r"more than 10 times the median time step 0\.05 s"),
+    "nan": ("path", _edit(7, 2, np.nan), r"bad.csv: line 10: NaN, empty or infinite"),
+    "inf": ("path", _edit(30, 3, np.inf), r"bad.csv: line 33: NaN, empty or infinite"),
+    "too few samples": ("path", lambda r: r[:3],
+                        r"bad.csv: too few samples: 3; a C2 cubic spline.* at least 4"),
+    "pose far outside the workspace": (
+        "path", _edit(17, 1, 450e3),
+        r"bad.csv: line 20 \(t = 0\.85 s\): the platform position is 450 m from the base "
+        r"origin.*millimetres read as metres"),
+    "rotation beyond pi/2": (
+        "path", _edit(5, 3, 120.0),
+        r"bad.csv: line 8 \(t = 0\.25 s\): platform rotation \|phi\| reaches 2\.094 rad"),
+    "angles in degrees read as radians": (
+        "angles", lambda r: _edit(12, 2, 150.0)(_angles(r)),
+        r"bad.csv: line 15 \(t = 0\.6 s\): actuated angle 150 rad, beyond two turns: probably "
+        r"degrees read as radians"),
+    "wrapped angle": (
+        "angles", lambda r: _edit(np.s_[25:], 3, -3.1)(_edit(np.s_[:25], 3, 3.1)(_angles(r))),
+        r"bad.csv: line 28 \(t = 1\.25 s\): an actuated angle jumps by 6\.2 rad from line 27: "
+        r"wrapped at \+-pi\? unwrap it"),
+    "commands without angles or torques": (
+        "commands-none", lambda r: r, r"bad.csv: a command log needs columns th_1, th_2, th_3"),
+}
+
+
+@pytest.mark.parametrize("cause", list(BAD))
+def test_bad_files_raise_data_error_naming_line_and_cause(tmp_path, cause):
+    kind, rows, message = BAD[cause]
+    header = {"path": "time,x[mm],y[mm],phi[deg]", "angles": "time,th_1,th_2,th_3",
+              "commands-none": "time,x[mm],y[mm],phi[deg]"}[kind]
+    f = _write(tmp_path / "bad.csv", header, rows(_GOOD), comments=["a log"])
+    load = pj.load_path if kind == "path" else pj.load_commands
+    with pytest.raises(DataError, match=message):
+        load(f)
+
+
+def test_gap_check_can_be_turned_off_for_uneven_waypoints(tmp_path):
+    rows = np.delete(_GOOD, np.s_[20:35], axis=0)
+    f = _write(tmp_path / "uneven.csv", "time,x[mm],y[mm],phi[deg]", rows)
+    path = pj.load_path(f, max_gap=None)
+    np.testing.assert_allclose(path(rows[22, 0]), _GOOD_X[37], rtol=1e-13)
+
+
+def test_loaders_keep_the_reader_s_checks(tmp_path):
+    f = _write(tmp_path / "cols.csv", "time,x,y", _GOOD[:, :3])
+    with pytest.raises(DataError, match=r"cols.csv: missing column\(s\) phi"):
+        pj.load_path(f)
+    g = _write(tmp_path / "cmd.csv", "time,th_1,th_2", _GOOD[:, :3])
+    with pytest.raises(DataError, match="th_1, th_2, th_3 come as a set of three"):
+        pj.load_commands(g)
+    with pytest.raises(DataError, match="no such file"):
+        pj.load_commands(str(tmp_path / "missing.csv"))
+    assert math.isclose(pj.load_path(_write(tmp_path / "ok.csv", "time,x[mm],y[mm],phi[deg]",
+                                            _GOOD)).ts[-1], 2.0)
+
+
+def test_a_command_log_drives_a_scene_of_ones_own(tmp_path, robot):
+    """Angles of L1's inverse kinematics along a `Line`, written as a controller's log and loaded
+    back, drive a scene (motion-driven L1): the platform follows the line."""
+    line = pj.Line([0.42, 0.25, -0.02], [0.48, 0.28, 0.03], 1.0)
+    tt = np.linspace(0.0, 1.0, 201)
+    th = np.asarray(pj.inverse_kinematics(robot, jax.vmap(line)(jnp.asarray(tt))).th_a)
+    log = pj.load_commands(_write(tmp_path / "log.csv", "time,th_1[deg],th_2[deg],th_3[deg]",
+                                  np.column_stack([tt, np.degrees(th)])))
+
+    class LogScene(pj.AbstractScene):
+        name: ClassVar[str] = "log"
+        thickness: ClassVar[float] = 0.3e-3
+        reference: ClassVar[dict] = {}
+
+        def trajectory(self):
+            return line
+
+        def commands(self, model, robot, traj, ts, panels):
+            return pj.SceneInput(log.actuation())
+
+        def follows_its_input(self, model):
+            return ""
+
+    res = pj.solve_scene(LogScene(), model="reduced",
+                         options=pj.SceneOptions(t_end=1.0, n_out=13))
+    assert res.ok
+    err = np.abs(np.asarray(res.X) - np.asarray(jax.vmap(line)(res.ts))).max()
+    assert err < 1e-8, err  # output times between the log's samples: the spline's error
+    assert np.abs(np.asarray(res.X[-1] - res.X[0])).max() > 0.02
