@@ -62,6 +62,10 @@ class PathScene(AbstractScene):
         if self.command_log is not None and not callable(self.command_log):
             raise PPRError(f"command_log must be a time function t -> (3,) or None, got "
                            f"{type(self.command_log).__name__}")
+        kind = getattr(self.command_log, "kind", None)  # a `CommandLog` says what it holds
+        if (kind, self.drive) in (("angles", "torque"), ("torque", "motion")):
+            raise PPRError(f"command_log holds {kind} but drive={self.drive!r}: an angle log "
+                           f"drives a motion, a torque log a torque drive")
         if not (isinstance(self.thickness, (int, float)) and 0 < self.thickness < 1e-2):
             raise PPRError(f"thickness must be in (0, 0.01) m, got {self.thickness!r}")
 
