@@ -56,3 +56,19 @@ def test_import_ppr_jax_does_not_load_the_offline_fit():
     assert res.stdout.startswith("ok")
     # The interpreter imported this checkout's package, not another installed copy.
     assert pathlib.Path(res.stdout.split()[1]).resolve() == ROOT / "ppr_jax" / "__init__.py"
+
+
+def test_light_names_match_the_registries():
+    """`_names` (what the parser reads) lists the registries' names in their order."""
+    import ppr_jax._names as names
+    from ppr_jax._models import MODELS
+    from ppr_jax._scenes import SCENE_CLASSES, SCENES
+    from ppr_jax._simulate import SOLVERS
+    from ppr_jax._studies import SWEEP_SCENES
+
+    assert names.MODEL_NAMES == tuple(MODELS)
+    assert names.KINEMATIC_MODELS == tuple(n for n, c in MODELS.items()
+                                           if c.actuated_index is None)
+    assert names.SOLVER_NAMES == tuple(SOLVERS)
+    assert names.SCENE_NAMES == tuple(SCENE_CLASSES) == SWEEP_SCENES
+    assert SCENES == (*SCENE_CLASSES, "modes")

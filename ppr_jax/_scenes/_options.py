@@ -11,18 +11,19 @@ import numpy as np
 
 from .._custom_types import Array
 from .._errors import check_number, is_traced
+from .._names import (  # the scenes' defaults and the full L3's tolerances, written there
+    ATOL as ATOL,
+    FULL_L3_ATOL as FULL_L3_ATOL,
+    FULL_L3_RTOL as FULL_L3_RTOL,
+    MAX_STEPS as MAX_STEPS,
+    N_OUT as N_OUT,
+    RTOL as RTOL,
+    T_END as T_END,
+)
 from .._simulate import default_controller, get_solver
 from .._tabulated import scene_panels
 from .._trajectory import Circle
 
-#: the scenes' defaults, written once: one turn of the circle of eq 55 (2 pi / omega = 7.54 s),
-#: output every 10 ms, tolerances that put L2's error near 1e-8 m, and a step budget that no
-#: default scene comes near
-T_END = 7.54
-N_OUT = 755
-RTOL = 1e-8
-ATOL = 1e-10
-MAX_STEPS = 200_000
 #: default solver per model level (docs/which_model.md)
 DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "beam": "dopri8"}
 #: default solver of the full L3 (`Beam`: strips with their own inertia, modes up to 5e5 rad/s
@@ -31,12 +32,6 @@ DEFAULT_SOLVER = {"rigid": "tsit5", "reduced": "tsit5", "double1r": "tsit5", "be
 #: took 72 s against diffrax's Kvaerno5's 179 s (the same steps, a Jacobian every step) and
 #: Ros34PW2's 314 s (65,066 steps: order 3) on a 2-core CPU (docs/theory/strips.md)
 FULL_L3_SOLVER = "kvaerno5-kept"
-#: default tolerances of the full L3: rtol 1e-8 (the scenes' default) would resolve the undamped
-#: kHz strip vibration for hours; at rtol 1e-4 the whole paper-circle (N = 16) runs in 72 s on a
-#: 2-core CPU and its platform ends 3.3e-7 m from an rtol-1e-5 run, against the 3.5e-5 m that
-#: the strips' own dynamics puts between it and the quasi-static L3 (docs/theory/strips.md)
-FULL_L3_RTOL = 1e-4
-FULL_L3_ATOL = 1e-6
 
 
 def default_solver(model) -> str:

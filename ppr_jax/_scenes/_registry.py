@@ -1,4 +1,5 @@
-"""The scenes by name: a new scene is one file and one line here."""
+"""The scenes by name: a new scene is one file, one line here and its name in
+`_names.SCENE_NAMES`."""
 
 from __future__ import annotations
 
@@ -6,15 +7,14 @@ from typing import Union
 
 from .._errors import PPRError
 from .._models import get_model
+from .._names import SCENES as SCENES  # every scene the command line runs, `modes` included
 from .._params import RobotParams
 from ._base import AbstractScene
 from ._paper_circle import PaperCircle
 from ._servo_circle import ServoCircle
 
-#: the time-domain scenes by name
+#: the time-domain scenes by name (their names, in this order, are `_names.SCENE_NAMES`)
 SCENE_CLASSES = {cls.name: cls for cls in (PaperCircle, ServoCircle)}
-#: every scene the command line runs (`modes` is a static solve: `modes_scene`)
-SCENES = (*SCENE_CLASSES, "modes")
 #: strip thickness of each scene (m): the paper's simulation uses 0.3 mm, its experiment 0.5 mm
 SCENE_THICKNESS = {**{n: c.thickness for n, c in SCENE_CLASSES.items()}, "modes": 0.3e-3}
 

@@ -42,6 +42,7 @@ from .._errors import RESULTS, PPRError
 from .._geometry import home_pose
 from .._models import get_model
 from .._modes import reduced_eigh
+from .._names import SENSITIVITY_METRICS as SENSITIVITY_METRICS  # the table's rows, SI units
 from .._params import RobotParams
 from .._prb import derived
 from .._robot import Robot
@@ -59,14 +60,6 @@ from .._scenes import (
 from .._statics import assemble, static_equilibrium
 from ._sweep import FLOAT_PARAMS, _plain, traced_metrics
 
-#: the metrics a sensitivity table reports (rows), SI units
-SENSITIVITY_METRICS = (
-    "radial_error_max_m",
-    "radial_error_min_m",
-    "end_rotation_diff_max_deg",
-    "torque_peak_Nm",
-    "base_frequency_hz",
-)
 #: eigenvalues within this relative distance of the lowest are one (repeated) cluster
 CLUSTER_RTOL = 1e-6
 #: the metrics that measure how far the platform leaves the nominal circle
