@@ -111,6 +111,33 @@ print("ok")
     assert out.strip() == "ok"
 
 
+def test_cli_parser_and_help_import_no_jax():
+    """`ppr-jax --help` (and every command's) answers from plain-Python modules: building the
+    parser imports neither JAX nor numpy."""
+    out = _run("""
+import contextlib
+import io
+import sys
+
+import ppr_jax._cli
+import ppr_jax_cli
+
+parser = ppr_jax._cli.build_parser()
+for argv in (["--help"], ["simulate", "--help"], ["identify", "--help"]):
+    sys.argv = ["ppr-jax", *argv]
+    with contextlib.redirect_stdout(io.StringIO()) as text:
+        try:
+            ppr_jax_cli.main()
+        except SystemExit as err:
+            assert err.code == 0, err.code
+    assert "usage: ppr-jax" in text.getvalue()
+heavy = sorted({m.split(".")[0] for m in sys.modules} & {"jax", "jaxlib", "numpy"})
+assert not heavy, f"the parser imported {heavy}"
+print("ok")
+""")
+    assert out.strip() == "ok"
+
+
 def test_light_names_match_the_registries():
     """`_names` (what the parser reads) lists the registries' names in their order."""
     import ppr_jax._names as names

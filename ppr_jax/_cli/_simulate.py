@@ -6,10 +6,7 @@ import csv
 import os
 import time
 
-import numpy as np
-
-from .._errors import PPRError
-from .._scenes import get_scene
+from .._names import KINEMATIC_MODELS, MODEL_NAMES, SCENES
 from ._common import (
     _derived_dict,
     _log,
@@ -31,7 +28,10 @@ def _reference(scene):
 
 
 def cmd_simulate(args):
-    from .._scenes import check_scene_args, modes_scene, run_scene
+    import numpy as np
+
+    from .._errors import PPRError
+    from .._scenes import check_scene_args, get_scene, modes_scene, run_scene
     from ._figures import scene_figures
 
     scene = args.scene
@@ -146,7 +146,10 @@ def _print_table(scene, results, args):
 
 
 def _write_csv(path, results):
+    import numpy as np
+
     from .._metrics import radial_error
+    from .._scenes import get_scene
 
     c = get_scene(results[0].scene).trajectory()
     center, R = np.asarray(c.center), float(c.radius)
@@ -165,16 +168,13 @@ def _write_csv(path, results):
 
 
 def _add_simulate(sub, parents, fmt):
-    from .._models import MODELS
-    from .._scenes import SCENES
-
-    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]  # pose = coordinates
+    kinematic = list(KINEMATIC_MODELS)  # pose = coordinates
     s = sub.add_parser("simulate", formatter_class=fmt,
         parents=[parents[k] for k in ("params", "model", "solve", "times")],
         help="run a scene and write summary.json, trajectory.csv, figures")
     s.add_argument("--scene", default="paper-circle", choices=list(SCENES), help="scene to run")
     s.add_argument("--model", default=None,
-                   help="a model (" + ", ".join(MODELS) + ") or a comma list (default: rigid, "
+                   help="a model (" + ", ".join(MODEL_NAMES) + ") or a comma list (default: rigid, "
                         "reduced, double1r). beam is L3 with quasi-static strips (see "
                         "--elements, --strip-dynamics)")
     s.add_argument("--torque-model", default="reduced", choices=kinematic,
