@@ -22,6 +22,8 @@ from ._names import PARAM_RANGES, settable_names
 
 
 def _f(x):
+    if isinstance(x, (int, float)):  # through numpy: a host number needs no XLA program
+        x = np.asarray(x, dtype=np.float64)
     return jnp.asarray(x, dtype=jnp.float64)
 
 

@@ -59,9 +59,10 @@ def _params_dict(params):
 def _derived_dict(params):
     import dataclasses
 
-    from .._prb import derived
+    from .._prb import derived_concrete
 
-    dv = derived(params)
+    # one compiled program (the one `Robot` uses), not one per operation
+    dv = derived_concrete(params)
     return {f.name: float(getattr(dv, f.name)) for f in dataclasses.fields(dv)}
 
 

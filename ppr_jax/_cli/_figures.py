@@ -23,7 +23,9 @@ def _pyplot():
 
 
 def _split(results, center, radius):
-    er = {id(r): np.asarray(radial_error(r.X, np.asarray(center), float(radius))) for r in results}
+    # host-side numpy: no XLA program per operation
+    er = {id(r): radial_error(np.asarray(r.X), np.asarray(center), float(radius), xp=np)
+          for r in results}
     far = [r for r in results if np.nanmax(np.abs(er[id(r)])) > FAR_OFF_M]
     near = [r for r in results if r not in far]
     return near, far, er

@@ -56,10 +56,13 @@ def cmd_simulate(args):
     kw = dict(t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol,
               atol=args.atol, max_steps=args.max_steps)
     results, failed = [], {}
-    traj = get_scene(scene).trajectory() if scene != "modes" else None
+    traj = get_scene(scene).trajectory()
+    # the nominal circle as host numbers: the CSV and figures are numpy post-processing
+    center, radius = np.asarray(traj.center), float(traj.radius)
     # Every argument checked before the first compilation.
     objs = [model_from_args(args, m) for m in models]
     check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
+    derived = _derived_dict(params)
 
     def write():
         # After every model: a failing or interrupted later model keeps what finished.
@@ -69,7 +72,7 @@ def cmd_simulate(args):
             "t_end_s": args.t_end,
             "n_out": args.n_out,
             "params": _params_dict(params),
-            "derived": _derived_dict(params),
+            "derived": derived,
             "models": {r.model: dict(r.metrics, solver=r.solver) for r in results},
             "beam": ({"elements": args.elements, "strip_dynamics": args.strip_dynamics,
                       "strip_loss_s": args.strip_loss}
@@ -79,7 +82,7 @@ def cmd_simulate(args):
         }
         _write_json(os.path.join(args.out, "summary.json"), summary)
         if results:
-            _write_csv(os.path.join(args.out, "trajectory.csv"), results)
+            _write_csv(os.path.join(args.out, "trajectory.csv"), results, center, radius)
 
     for i, m in enumerate(models):
         _log(f"[{i + 1}/{len(models)}] {scene}: model {m} (compiling, then running) ...")
@@ -98,7 +101,7 @@ def cmd_simulate(args):
         results.append(r)
         write()
     if results:
-        scene_figures(results, args.out, np.asarray(traj.center), float(traj.radius))
+        scene_figures(results, args.out, center, radius)
         _print_table(scene, results, args)
         print(f"wrote {args.out}/summary.json, trajectory.csv, trajectory.png, angle.png, "
               f"radial_error.png")
@@ -145,24 +148,23 @@ def _print_table(scene, results, args):
                   f"use --torque-model {r.model} for its own torques")
 
 
-def _write_csv(path, results):
+def _write_csv(path, results, center, R):
+    """trajectory.csv: every model's pose, radial error (host side, numpy: no XLA program per
+    operation), torques and joint end rotations."""
     import numpy as np
 
     from .._metrics import radial_error
-    from .._scenes import get_scene
 
-    c = get_scene(results[0].scene).trajectory()
-    center, R = np.asarray(c.center), float(c.radius)
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["model", "t", "x", "y", "phi", "e_r", "tau_1", "tau_2", "tau_3",
                     "end_rot_1", "end_rot_2"])
         r0 = results[0]
-        er = np.asarray(radial_error(r0.X_nominal, center, R))
+        er = radial_error(np.asarray(r0.X_nominal), center, R, xp=np)
         for k in range(len(r0.ts)):
             w.writerow(["nominal", r0.ts[k], *r0.X_nominal[k], er[k], "", "", "", "", ""])
         for r in results:
-            er = np.asarray(radial_error(r.X, center, R))
+            er = radial_error(np.asarray(r.X), center, R, xp=np)
             for k in range(len(r.ts)):
                 w.writerow([r.model, r.ts[k], *r.X[k], er[k], *r.tau[k], *r.end_rot[k]])
 
