@@ -84,8 +84,10 @@ def main(argv=None) -> int:
         from .._programs import PROGRAM_SUBDIR
 
         try:
-            # Exported scene programs beside the compiled ones: a second run skips tracing too.
-            args.program_dir = os.path.join(enable_compilation_cache(), PROGRAM_SUBDIR)
+            # Every program is stored, the small ones too (`enable_compilation_cache`), and the
+            # exported scene programs beside them: a second run skips tracing and compiling.
+            args.program_dir = os.path.join(enable_compilation_cache(min_compile_time_s=0.0),
+                                            PROGRAM_SUBDIR)
         except OSError as err:  # a read-only home: run without the cache, say so once
             _log(f"ppr-jax: note: compilation cache disabled ({err})")
     try:
