@@ -2,159 +2,211 @@
 
 float64 is enabled on import. See the documentation (docs/, `mkdocs serve`) for the model levels,
 scenes and CLI.
+
+The public names are loaded on first access (PEP 562 `__getattr__`): `import ppr_jax` imports
+neither JAX nor the numerical modules, so the command line answers `--help` at once and a
+program loads only what it uses; `from ppr_jax import simulate` imports what `simulate` needs.
+float64 is enabled all the same: where JAX is imported already, at once; otherwise through
+`JAX_ENABLE_X64=1` in the environment, which JAX reads when it is first imported (and which
+child processes inherit).
 """
 
+import os as _os
+import sys as _sys
 from typing import TYPE_CHECKING as _TYPE_CHECKING
 
-import jax as _jax
+if "jax" in _sys.modules and hasattr(_sys.modules["jax"], "config"):
+    _sys.modules["jax"].config.update("jax_enable_x64", True)
+else:
+    _os.environ["JAX_ENABLE_X64"] = "1"
 
-_jax.config.update("jax_enable_x64", True)
+#: module -> the public names it gives, in the order of the floors they come from
+_EXPORTS = {
+    "._names": ("PARAM_RANGES", "STRIP_DYNAMICS"),
+    "._params": ("RobotParams", "stack_params", "unstack_params"),
+    "._params_file": ("load_params", "save_params"),
+    "._prb": ("Derived", "derived"),
+    "._robot": ("Robot", "RobotLike"),
+    "._models": (
+        "MODELS", "AbstractModel", "AbstractClosedLoop", "AbstractDouble1R", "Kin", "Motion",
+        "Rigid", "Reduced", "Double1R", "AbstractBeam", "QuasiStaticBeam", "get_model",
+    ),
+    "._mjcf": ("to_mjcf",),
+    "._models.beam": ("Beam", "solve_strip", "strip_constants"),
+    "._errors": ("PPRError", "RESULTS", "RepairWarning", "SimulationError"),
+    "._geometry": ("home_pose",),
+    "._kinematics": (
+        "IKResult", "inverse_kinematics", "forward_kinematics", "forward_kinematics_path",
+        "jacobians", "predeflection",
+    ),
+    "._dynamics": ("EOM", "eom_terms", "energy", "inverse_dynamics"),
+    "._trajectory": ("Circle", "Hold", "Interpolated", "derivatives"),
+    "._paths": (
+        "Line", "Waypoints", "Fourier", "CommandLog", "load_path", "load_commands",
+        "check_same_rate",
+    ),
+    "._actuation": (
+        "AbstractActuation", "TorqueDriven", "MotionDriven", "PDServo", "InverseDynamicsTorque",
+        "InverseKinematicsAngles",
+    ),
+    "._simulate": ("simulate", "Solution"),
+    "._esdirk": ("KeptKvaerno5",),
+    "._rosw": ("Ros34PW2",),
+    "._statics": ("static_equilibrium", "quasi_static_state"),
+    "._modes": ("Modes", "modes"),
+    "._metrics": ("outputs", "metrics", "metric_table"),
+    "._scenes": (
+        "AbstractScene", "PaperCircle", "PathScene", "register_scene", "SceneInput",
+        "SceneOptions", "SceneResult", "ServoCircle", "solve_scene", "nominal_torques",
+        "paper_circle", "servo_circle", "modes_scene", "scene_params", "SceneReport",
+        "run_scene", "scene_metrics",
+    ),
+    "._cache": ("enable_compilation_cache",),
+    "._devices": ("configure_cpu", "cpu_flags"),
+    "._studies": (
+        "SweepResult", "sweep", "shard_batch", "design_members", "Sensitivity", "sensitivity",
+        "base_frequency", "Identification", "IdentificationError", "identify", "synthesize",
+    ),
+    "._prb_table": ("prb_parameters", "prb_table"),
+    "._data": (
+        "DataError", "Experiment", "experiment", "load_csv", "load_experiments", "write_csv",
+    ),
+}
+#: public name -> its module; `fit_prb`, `prb_error` and the `elastica` module are not in
+#: `__all__` (the offline PRB fit and its scipy.optimize), as before they were lazy
+_LAZY = {name: module for module, names in _EXPORTS.items() for name in names}
+_LAZY.update({"fit_prb": "._prb_fit", "prb_error": "._prb_fit", "elastica": ".elastica"})
 
-from ._params import (  # noqa: E402
-    RobotParams as RobotParams,
-    PARAM_RANGES as PARAM_RANGES,
-    stack_params as stack_params,
-    unstack_params as unstack_params,
-)
-from ._params_file import load_params as load_params, save_params as save_params  # noqa: E402
-from ._prb import Derived as Derived, derived as derived  # noqa: E402
-from ._robot import Robot as Robot, RobotLike as RobotLike  # noqa: E402
-from ._models import (  # noqa: E402
-    MODELS as MODELS,
-    AbstractModel as AbstractModel,
-    AbstractClosedLoop as AbstractClosedLoop,
-    AbstractDouble1R as AbstractDouble1R,
-    Kin as Kin,
-    Motion as Motion,
-    Rigid as Rigid,
-    Reduced as Reduced,
-    Double1R as Double1R,
-    AbstractBeam as AbstractBeam,
-    QuasiStaticBeam as QuasiStaticBeam,
-    STRIP_DYNAMICS as STRIP_DYNAMICS,
-    get_model as get_model,
-)
-from ._mjcf import to_mjcf as to_mjcf  # noqa: E402
-from ._models.beam import (  # noqa: E402
-    Beam as Beam,
-    solve_strip as solve_strip,
-    strip_constants as strip_constants,
-)
-from ._errors import (  # noqa: E402
-    PPRError as PPRError,
-    RESULTS as RESULTS,
-    RepairWarning as RepairWarning,
-    SimulationError as SimulationError,
-)
-from ._geometry import home_pose as home_pose  # noqa: E402
-from ._kinematics import (  # noqa: E402
-    IKResult as IKResult,
-    inverse_kinematics as inverse_kinematics,
-    forward_kinematics as forward_kinematics,
-    forward_kinematics_path as forward_kinematics_path,
-    jacobians as jacobians,
-    predeflection as predeflection,
-)
-from ._dynamics import (  # noqa: E402
-    EOM as EOM,
-    eom_terms as eom_terms,
-    energy as energy,
-    inverse_dynamics as inverse_dynamics,
-)
-from ._trajectory import (  # noqa: E402
-    Circle as Circle,
-    Hold as Hold,
-    Interpolated as Interpolated,
-    derivatives as derivatives,
-)
-from ._paths import (  # noqa: E402
-    Line as Line,
-    Waypoints as Waypoints,
-    Fourier as Fourier,
-    CommandLog as CommandLog,
-    load_path as load_path,
-    load_commands as load_commands,
-    check_same_rate as check_same_rate,
-)
-from ._actuation import (  # noqa: E402
-    AbstractActuation as AbstractActuation,
-    TorqueDriven as TorqueDriven,
-    MotionDriven as MotionDriven,
-    PDServo as PDServo,
-    InverseDynamicsTorque as InverseDynamicsTorque,
-    InverseKinematicsAngles as InverseKinematicsAngles,
-)
-from ._simulate import (  # noqa: E402
-    simulate as simulate,
-    Solution as Solution,
-)
-from ._esdirk import KeptKvaerno5 as KeptKvaerno5  # noqa: E402
-from ._rosw import Ros34PW2 as Ros34PW2  # noqa: E402
-from ._statics import (  # noqa: E402
-    static_equilibrium as static_equilibrium,
-    quasi_static_state as quasi_static_state,
-)
-from ._modes import Modes as Modes, modes as modes  # noqa: E402
-from ._metrics import (  # noqa: E402
-    outputs as outputs,
-    metrics as metrics,
-    metric_table as metric_table,
-)
-from ._scenes import (  # noqa: E402
-    AbstractScene as AbstractScene,
-    PaperCircle as PaperCircle,
-    PathScene as PathScene,
-    register_scene as register_scene,
-    SceneInput as SceneInput,
-    SceneOptions as SceneOptions,
-    SceneResult as SceneResult,
-    ServoCircle as ServoCircle,
-    solve_scene as solve_scene,
-    nominal_torques as nominal_torques,
-    paper_circle as paper_circle,
-    servo_circle as servo_circle,
-    modes_scene as modes_scene,
-    scene_params as scene_params,
-)
-from ._scenes import (  # noqa: E402
-    SceneReport as SceneReport,
-    run_scene as run_scene,
-    scene_metrics as scene_metrics,
-)
+__all__ = [name for names in _EXPORTS.values() for name in names]
 
-from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
-from ._devices import configure_cpu as configure_cpu, cpu_flags as cpu_flags  # noqa: E402
-from ._studies import (  # noqa: E402
-    SweepResult as SweepResult,
-    sweep as sweep,
-    shard_batch as shard_batch,
-    design_members as design_members,
-)
-from ._studies import (  # noqa: E402
-    Sensitivity as Sensitivity,
-    sensitivity as sensitivity,
-    base_frequency as base_frequency,
-)
-
-from ._prb_table import (  # noqa: E402
-    prb_parameters as prb_parameters,
-    prb_table as prb_table,
-)
-
-from ._data import (  # noqa: E402
-    DataError as DataError,
-    Experiment as Experiment,
-    experiment as experiment,
-    load_csv as load_csv,
-    load_experiments as load_experiments,
-    write_csv as write_csv,
-)
-from ._studies import (  # noqa: E402
-    Identification as Identification,
-    IdentificationError as IdentificationError,
-    identify as identify,
-    synthesize as synthesize,
-)
+if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
+    from ._names import PARAM_RANGES as PARAM_RANGES, STRIP_DYNAMICS as STRIP_DYNAMICS
+    from ._params import (
+        RobotParams as RobotParams,
+        stack_params as stack_params,
+        unstack_params as unstack_params,
+    )
+    from ._params_file import load_params as load_params, save_params as save_params
+    from ._prb import Derived as Derived, derived as derived
+    from ._robot import Robot as Robot, RobotLike as RobotLike
+    from ._models import (
+        MODELS as MODELS,
+        AbstractModel as AbstractModel,
+        AbstractClosedLoop as AbstractClosedLoop,
+        AbstractDouble1R as AbstractDouble1R,
+        Kin as Kin,
+        Motion as Motion,
+        Rigid as Rigid,
+        Reduced as Reduced,
+        Double1R as Double1R,
+        AbstractBeam as AbstractBeam,
+        QuasiStaticBeam as QuasiStaticBeam,
+        get_model as get_model,
+    )
+    from ._mjcf import to_mjcf as to_mjcf
+    from ._models.beam import (
+        Beam as Beam,
+        solve_strip as solve_strip,
+        strip_constants as strip_constants,
+    )
+    from ._errors import (
+        PPRError as PPRError,
+        RESULTS as RESULTS,
+        RepairWarning as RepairWarning,
+        SimulationError as SimulationError,
+    )
+    from ._geometry import home_pose as home_pose
+    from ._kinematics import (
+        IKResult as IKResult,
+        inverse_kinematics as inverse_kinematics,
+        forward_kinematics as forward_kinematics,
+        forward_kinematics_path as forward_kinematics_path,
+        jacobians as jacobians,
+        predeflection as predeflection,
+    )
+    from ._dynamics import (
+        EOM as EOM,
+        eom_terms as eom_terms,
+        energy as energy,
+        inverse_dynamics as inverse_dynamics,
+    )
+    from ._trajectory import (
+        Circle as Circle,
+        Hold as Hold,
+        Interpolated as Interpolated,
+        derivatives as derivatives,
+    )
+    from ._paths import (
+        Line as Line,
+        Waypoints as Waypoints,
+        Fourier as Fourier,
+        CommandLog as CommandLog,
+        load_path as load_path,
+        load_commands as load_commands,
+        check_same_rate as check_same_rate,
+    )
+    from ._actuation import (
+        AbstractActuation as AbstractActuation,
+        TorqueDriven as TorqueDriven,
+        MotionDriven as MotionDriven,
+        PDServo as PDServo,
+        InverseDynamicsTorque as InverseDynamicsTorque,
+        InverseKinematicsAngles as InverseKinematicsAngles,
+    )
+    from ._simulate import simulate as simulate, Solution as Solution
+    from ._esdirk import KeptKvaerno5 as KeptKvaerno5
+    from ._rosw import Ros34PW2 as Ros34PW2
+    from ._statics import (
+        static_equilibrium as static_equilibrium,
+        quasi_static_state as quasi_static_state,
+    )
+    from ._modes import Modes as Modes, modes as modes
+    from ._metrics import outputs as outputs, metrics as metrics, metric_table as metric_table
+    from ._scenes import (
+        AbstractScene as AbstractScene,
+        PaperCircle as PaperCircle,
+        PathScene as PathScene,
+        register_scene as register_scene,
+        SceneInput as SceneInput,
+        SceneOptions as SceneOptions,
+        SceneResult as SceneResult,
+        ServoCircle as ServoCircle,
+        solve_scene as solve_scene,
+        nominal_torques as nominal_torques,
+        paper_circle as paper_circle,
+        servo_circle as servo_circle,
+        modes_scene as modes_scene,
+        scene_params as scene_params,
+        SceneReport as SceneReport,
+        run_scene as run_scene,
+        scene_metrics as scene_metrics,
+    )
+    from ._cache import enable_compilation_cache as enable_compilation_cache
+    from ._devices import configure_cpu as configure_cpu, cpu_flags as cpu_flags
+    from ._studies import (
+        SweepResult as SweepResult,
+        sweep as sweep,
+        shard_batch as shard_batch,
+        design_members as design_members,
+        Sensitivity as Sensitivity,
+        sensitivity as sensitivity,
+        base_frequency as base_frequency,
+        Identification as Identification,
+        IdentificationError as IdentificationError,
+        identify as identify,
+        synthesize as synthesize,
+    )
+    from ._prb_table import prb_parameters as prb_parameters, prb_table as prb_table
+    from ._data import (
+        DataError as DataError,
+        Experiment as Experiment,
+        experiment as experiment,
+        load_csv as load_csv,
+        load_experiments as load_experiments,
+        write_csv as write_csv,
+    )
+    from . import elastica as elastica
+    from ._prb_fit import fit_prb as fit_prb, prb_error as prb_error
 
 try:
     from importlib.metadata import PackageNotFoundError as _PackageNotFoundError
@@ -164,25 +216,21 @@ try:
 except _PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0+unknown"
 
-# The offline PRB fit and the elastica solver it uses (and scipy.optimize) are loaded on first
-# access (PEP 562), so that `import ppr_jax` stays light: the robot needs only the shipped table.
-_LAZY = {
-    "fit_prb": "._prb_fit",
-    "prb_error": "._prb_fit",
-    "elastica": ".elastica",
-}
-
-if _TYPE_CHECKING:
-    from . import elastica as elastica  # noqa: F401
-    from ._prb_fit import fit_prb as fit_prb, prb_error as prb_error  # noqa: F401
-
 
 def __getattr__(name):
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     import importlib
 
-    module = importlib.import_module(_LAZY[name], __name__)
+    module_name = _LAZY.get(name)
+    if module_name is None:
+        if name.startswith("_") and not name.startswith("__"):
+            # a private module (`ppr_jax._scenes`), reachable as when the package imported all
+            try:
+                return importlib.import_module(f".{name}", __name__)
+            except ModuleNotFoundError as err:
+                if err.name != f"{__name__}.{name}":
+                    raise
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    module = importlib.import_module(module_name, __name__)
     value = module if name == "elastica" else getattr(module, name)
     globals()[name] = value
     return value

@@ -35,8 +35,11 @@ def default_cache_dir() -> str:
 def enable_compilation_cache(path: Optional[str] = None, min_compile_time_s: float = 0.5) -> str:
     """Store compiled programs under `path` (default `default_cache_dir()`) and reuse them in
     later processes: programs that took at least `min_compile_time_s` to compile are kept. The
-    command line enables it unless `PPR_JAX_CACHE=0`. Returns the directory. Call it before the
-    first compilation; safe to call again."""
+    command line enables it unless `PPR_JAX_CACHE=0`, with `min_compile_time_s=0`: besides its
+    scene programs a command runs a few small ones (the derived quantities, the scene's inputs),
+    each 10-300 ms to compile and below the default threshold, so a second process would compile
+    them all again; read back from the cache they take milliseconds. Returns the directory. Call
+    it before the first compilation; safe to call again."""
     path = default_cache_dir() if path is None else path
     os.makedirs(path, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", path)

@@ -139,7 +139,8 @@ def failure_reasons(result, detail=None) -> dict:
     """{member index (None when not batched): reason} for every failed member of `result` (host
     side); `detail(i)` may add a member's particulars (for example when its loop opened)."""
     result = result if isinstance(result, RESULTS) else RESULTS.promote(result)
-    ok = np.asarray(result == RESULTS.successful)
+    # compared as host integers (numpy: no XLA program for the comparison)
+    ok = np.asarray(result_code(result)) == int(result_code(RESULTS.successful))
     members = [None] if ok.ndim == 0 else np.flatnonzero(~ok).tolist()
     if ok.ndim == 0 and ok:
         return {}
@@ -162,7 +163,7 @@ def check_result(result, what: str = "simulation", detail=None, value=None) -> N
     if None in reasons:
         msg = f"{what} failed: {reasons[None]}"
     else:
-        n = int(np.size(np.asarray(result == RESULTS.successful)))
+        n = int(np.size(np.asarray(result_code(result))))
         shown = "; ".join(f"member {i}: {r}" for i, r in list(reasons.items())[:10])
         more = f"; and {len(reasons) - 10} more" if len(reasons) > 10 else ""
         msg = f"{what} failed ({len(reasons)} of {n} batch members): {shown}{more}"

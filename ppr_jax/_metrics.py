@@ -122,7 +122,8 @@ def metric_table(res, trajectory, xp=jnp) -> dict:
     X, Xn = xp.asarray(res.X), xp.asarray(res.X_nominal)
     out = {}
     if _is_circle(trajectory):
-        radius = trajectory.radius
+        # in xp's arrays (numpy on the host: no XLA program per operation)
+        radius = xp.asarray(trajectory.radius)
         er = radial_error(X, trajectory.center, radius, xp)
         out.update(
             radial_error_max_m=xp.max(er, axis=-1),

@@ -18,9 +18,12 @@ import numpy as np
 
 from ._custom_types import Array
 from ._errors import PPRError, is_traced
+from ._names import PARAM_RANGES, settable_names
 
 
 def _f(x):
+    if isinstance(x, (int, float)):  # through numpy: a host number needs no XLA program
+        x = np.asarray(x, dtype=np.float64)
     return jnp.asarray(x, dtype=jnp.float64)
 
 
@@ -32,29 +35,6 @@ def _optional(x):
     return None if x is None else _f(x)
 
 
-#: Physical ranges of every settable parameter: name -> (low, high, unit, meaning).
-#: Bounds are open at 0 where the quantity must be strictly positive.
-PARAM_RANGES: dict[str, tuple[float, float, str, str]] = {
-    "a": (1e-3, 100.0, "m", "base side"),
-    "h": (1e-4, 10.0, "m", "platform side"),
-    "t_p": (1e-5, 1.0, "m", "platform plate thickness"),
-    "l1": (1e-3, 100.0, "m", "drive link length"),
-    "l3": (1e-3, 100.0, "m", "connecting link length"),
-    "b_r": (1e-5, 1.0, "m", "link width (in plane)"),
-    "t_r": (1e-5, 1.0, "m", "link thickness"),
-    "r": (1e-5, 1.0, "m", "compliant joint radius (actual strip)"),
-    "theta_c": (1e-3, 3.0, "rad", "compliant joint arc angle"),
-    "w": (1e-5, 1.0, "m", "strip width"),
-    "t": (1e-6, 1e-2, "m", "strip thickness"),
-    "E": (1e6, 1e13, "Pa", "Young's modulus"),
-    "rho_m": (1.0, 1e5, "kg/m^3", "density"),
-    "gamma": (0.5, 1.0, "-", "PRB characteristic radius factor"),
-    "rho": (0.1, 1.5, "-", "PRB characteristic radius (fraction of half length)"),
-    "K_theta": (0.5, 5.0, "-", "PRB stiffness coefficient"),
-    "J_rotor": (0.0, 10.0, "kg m^2", "reflected actuator rotor inertia"),
-    "c_spring": (0.0, 100.0, "N m s/rad", "viscous damping of each compliant-joint spring"),
-    "c_act": (0.0, 100.0, "N m s/rad", "viscous friction of each actuated joint"),
-}
 #: `sigma` (elbow orientation) is +1 or -1.
 SIGMA_VALUES = (-1, 1)
 #: where the PRB joint is built (MODEL.md sections 3 and 3a): on the link centre lines, as the
@@ -119,11 +99,6 @@ class RobotParams(eqx.Module):
         kw = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         kw.update(changes)
         return RobotParams(**kw)
-
-
-def settable_names() -> list[str]:
-    """Names accepted by `RobotParams.replace` and the CLI's ``--set``."""
-    return list(PARAM_RANGES) + ["sigma", "joint_geometry"]
 
 
 def check_params(params: RobotParams) -> None:

@@ -141,6 +141,7 @@ def _implicit(cls):
     return make
 
 
+#: the solvers by name (the names, in this order, are `_names.SOLVER_NAMES`: the CLI's choices)
 SOLVERS = {
     "tsit5": diffrax.Tsit5,
     "dopri5": diffrax.Dopri5,

@@ -10,6 +10,7 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._custom_types import Array, Float
 
@@ -31,7 +32,10 @@ class Circle(eqx.Module):
     phi = -phi_amp sin(omega t). Defaults: c = (0.45, 0.15 sqrt 3) m, R = 0.1 m,
     omega = 5/6 rad/s, phi_amp = 0.05 rad, t in [0, 7.54] s (one turn is 2 pi/omega = 7.54 s)."""
 
-    center: Array = eqx.field(default_factory=lambda: jnp.array([0.45, 0.15 * jnp.sqrt(3.0)]))
+    # built in numpy (the same float64 values): no XLA program per operation on the host
+    center: Array = eqx.field(
+        default_factory=lambda: jnp.asarray(np.array([0.45, 0.15 * np.sqrt(3.0)]))
+    )
     radius: Array = eqx.field(default_factory=lambda: jnp.asarray(0.1))
     omega: Array = eqx.field(default_factory=lambda: jnp.asarray(5.0 / 6.0))
     phi_amp: Array = eqx.field(default_factory=lambda: jnp.asarray(0.05))

@@ -22,7 +22,8 @@ FLOORS = [
     ("chain geometry", ["_geometry", "_linalg"]),
     ("robot and joint", ["_robot", "_prb", "_params", "_params_file", "_prb_table", "_prb_fit",
                          "elastica"]),
-    ("infrastructure", ["_errors", "_custom_types", "_data", "_cache", "_devices", "_programs"]),
+    ("infrastructure", ["_errors", "_custom_types", "_data", "_cache", "_devices", "_programs",
+                        "_names"]),
 ]
 FLOOR = {room: len(FLOORS) - i for i, (_, rooms) in enumerate(FLOORS) for room in rooms}
 

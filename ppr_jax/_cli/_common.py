@@ -1,5 +1,6 @@
 """Shared pieces of the commands: parameter parsing, the options every command shares (parent
-parsers), output directories and JSON."""
+parsers), output directories and JSON. The parent parsers read `_names` alone (no JAX); the
+helpers that run a command import the library inside."""
 
 from __future__ import annotations
 
@@ -9,12 +10,24 @@ import json
 import os
 import sys
 
-from .._errors import PPRError
-from .._models import Beam
-from .._scenes import ATOL, MAX_STEPS, N_OUT, RTOL, T_END
+from .._names import (
+    ATOL,
+    DEFAULT_ELEMENTS,
+    FULL_L3_ATOL,
+    FULL_L3_RTOL,
+    MAX_STEPS,
+    MODEL_NAMES,
+    N_OUT,
+    RTOL,
+    SOLVER_NAMES,
+    STRIP_DYNAMICS,
+    T_END,
+    settable_names,
+)
 
 
 def _parse_sets(items, scene, path=None):
+    from .._errors import PPRError
     from .._params import RobotParams, parse_value
     from .._scenes import scene_names, scene_params
 
@@ -47,9 +60,10 @@ def _params_dict(params):
 def _derived_dict(params):
     import dataclasses
 
-    from .._prb import derived
+    from .._prb import derived_concrete
 
-    dv = derived(params)
+    # one compiled program (the one `Robot` uses), not one per operation
+    dv = derived_concrete(params)
     return {f.name: float(getattr(dv, f.name)) for f in dataclasses.fields(dv)}
 
 
@@ -59,17 +73,18 @@ def _log(msg):
 
 def _models(text, default):
     names = [m.strip() for m in (text or default).split(",") if m.strip()]
-    from .._models import MODELS
-
     for m in names:
-        if m not in MODELS:
-            raise PPRError(f"unknown model {m!r}; allowed: {', '.join(MODELS)}")
+        if m not in MODEL_NAMES:
+            from .._errors import PPRError
+
+            raise PPRError(f"unknown model {m!r}; allowed: {', '.join(MODEL_NAMES)}")
     return names
 
 
 def model_from_args(args, name: str):
     """The model `name` with the `model` parent parser's options (--elements, --strip-dynamics,
     --strip-loss)."""
+    from .._errors import PPRError
     from .._models import get_model
 
     loss = getattr(args, "strip_loss", 0.0)
@@ -85,9 +100,6 @@ def parent_parsers() -> dict:
     """Options shared by several commands, as argparse parent parsers (one definition each):
     `params` (--set), `model` (--model, --elements), `solve` (solver, tolerances, step limit,
     times), `out` (--out). A command takes the ones it needs with `parents=[...]`."""
-    from .._params import settable_names
-    from .._simulate import SOLVERS
-
     params = argparse.ArgumentParser(add_help=False)
     params.add_argument("--params-file", dest="params_file", default=None, metavar="FILE",
                         help="read the robot's parameters from a TOML or JSON file (names as "
@@ -96,8 +108,9 @@ def parent_parsers() -> dict:
                         help="override a parameter, NAME=VALUE (SI units); repeatable; names: "
                              + ", ".join(settable_names()))
     model = argparse.ArgumentParser(add_help=False)
-    model.add_argument("--elements", type=int, default=8, help="beam elements per strip (L3)")
-    model.add_argument("--strip-dynamics", default="quasi-static", choices=["quasi-static", "full"],
+    model.add_argument("--elements", type=int, default=DEFAULT_ELEMENTS,
+                       help="beam elements per strip (L3)")
+    model.add_argument("--strip-dynamics", default=STRIP_DYNAMICS[0], choices=list(STRIP_DYNAMICS),
                        help="L3's strips: in static equilibrium for their clamp poses (9 "
                             "coordinates, fast) or with their own inertia and kHz modes (3 + 3N "
                             "coordinates, stiff: its own default solver and tolerances, about "
@@ -108,16 +121,16 @@ def parent_parsers() -> dict:
                             "tau * its stiffness (damping ratio tau*omega/2; 1e-5 damps the "
                             "first strip mode by 7.5%%); default 0 (undamped); the beam's alone")
     solve = argparse.ArgumentParser(add_help=False)
-    solve.add_argument("--solver", default=None, choices=[*SOLVERS, "auto"],
+    solve.add_argument("--solver", default=None, choices=[*SOLVER_NAMES, "auto"],
                        help="ODE solver (default: per model, see the docs' Which model page); "
                             "auto: Kvaerno5 where the robot's highest natural frequency makes "
                             "the explicit solver's stable steps dearer than implicit ones")
     solve.add_argument("--rtol", type=float, default=None,
                        help=f"relative tolerance of the solver (default {RTOL:g}; "
-                            f"{Beam.default_rtol:g} for the full L3 in simulate)")
+                            f"{FULL_L3_RTOL:g} for the full L3 in simulate)")
     solve.add_argument("--atol", type=float, default=None,
                        help=f"absolute tolerance of the solver (default {ATOL:g}; "
-                            f"{Beam.default_atol:g} for the full L3 in simulate)")
+                            f"{FULL_L3_ATOL:g} for the full L3 in simulate)")
     solve.add_argument("--max-steps", type=int, default=MAX_STEPS, help="solver step limit")
     times = argparse.ArgumentParser(add_help=False)
     times.add_argument("--t-end", type=float, default=T_END, help="end time (s)")
@@ -127,6 +140,8 @@ def parent_parsers() -> dict:
 
 def check_out_dir(path: str) -> str:
     """Make sure the output directory can be written before a long run starts (`PPRError`)."""
+    from .._errors import PPRError
+
     if os.path.exists(path) and not os.path.isdir(path):
         raise PPRError(f"--out {path!r} is a file, not a directory")
     try:

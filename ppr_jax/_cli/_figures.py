@@ -4,23 +4,28 @@ from __future__ import annotations
 
 import os
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from .._metrics import radial_error  # noqa: E402
-
-#: a model whose radial error exceeds this (m) is drawn on its own panel
-
+from .._metrics import radial_error
 
 #: a model whose radial error exceeds this (m) is drawn on its own panel
 FAR_OFF_M = 0.02
 
 
+def _pyplot():
+    """matplotlib's pyplot on the Agg backend (files only), imported when a figure is drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def _split(results, center, radius):
-    er = {id(r): np.asarray(radial_error(r.X, np.asarray(center), float(radius))) for r in results}
+    # host-side numpy: no XLA program per operation
+    er = {id(r): radial_error(np.asarray(r.X), np.asarray(center), float(radius), xp=np)
+          for r in results}
     far = [r for r in results if np.nanmax(np.abs(er[id(r)])) > FAR_OFF_M]
     near = [r for r in results if r not in far]
     return near, far, er
@@ -29,7 +34,7 @@ def _split(results, center, radius):
 def _panels(groups, ylabel, title, series):
     """One panel per non-empty group (near models, then far ones on their own scale)."""
     groups = [(name, g) for name, g in groups if g]
-    fig, axs = plt.subplots(len(groups), 1, figsize=(6.5, 3.2 * len(groups)), squeeze=False)
+    fig, axs = _pyplot().subplots(len(groups), 1, figsize=(6.5, 3.2 * len(groups)), squeeze=False)
     for ax, (name, g) in zip(axs[:, 0], groups):
         for r in g:
             t, y = series(r)
@@ -52,7 +57,7 @@ def scene_figures(results, out_dir: str, center, radius) -> list[str]:
     # Trajectory: the whole picture, and the near models' deviation from the nominal pose (mm)
     # where it is visible.
     ncol = 2 if near else 1
-    fig, axs = plt.subplots(1, ncol, figsize=(5.5 * ncol, 5), squeeze=False)
+    fig, axs = _pyplot().subplots(1, ncol, figsize=(5.5 * ncol, 5), squeeze=False)
     ax = axs[0, 0]
     ax.plot(r0.X_nominal[:, 0], r0.X_nominal[:, 1], "k--", lw=1.5, label="nominal (eq 55)")
     for r in results:
@@ -89,5 +94,5 @@ def _save(fig, out_dir, name):
     path = os.path.join(out_dir, name)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _pyplot().close(fig)
     return path

@@ -8,8 +8,15 @@ import os
 import shlex
 import time
 
-import numpy as np
-
+from .._names import (
+    ACTUATIONS,
+    ID_SCENES,
+    ID_SOLVERS,
+    INITIAL_STATES,
+    LOSSES,
+    MODEL_NAMES,
+    PARAM_RANGES,
+)
 from ._common import (
     _log,
     _name_values,
@@ -143,6 +150,8 @@ def _write_robot(out, fit) -> list:
 
 def _write_fitted(path, fit):
     """Measured and fitted pose of every experiment at its sample times (SI units)."""
+    import numpy as np
+
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["experiment", "time", "x_measured", "y_measured", "phi_measured", "x_fitted",
@@ -165,10 +174,6 @@ def _units(p):
 
 
 def add_identify(sub, parents, fmt):
-    from .._models import MODELS
-    from .._params import PARAM_RANGES
-    from .._studies import ACTUATIONS, ID_SCENES, INITIAL_STATES, LOSSES, SOLVERS
-
     p = sub.add_parser(
         "identify", formatter_class=fmt,
         parents=[parents[k] for k in ("params", "model", "solve")],
@@ -179,7 +184,7 @@ def add_identify(sub, parents, fmt):
                     "figures. CSV format: docs/identification.md.")
     p.add_argument("--data", action="append", required=True, metavar="FILE.csv",
                    help="tracker CSV file; repeat for several experiments (fitted jointly)")
-    p.add_argument("--model", default="double1r", choices=list(MODELS),
+    p.add_argument("--model", default="double1r", choices=list(MODEL_NAMES),
                    help="model to fit (beam/L3 is too slow for time-domain fits)")
     p.add_argument("--scene", default="servo-circle", choices=list(ID_SCENES),
                    help="what the motors did during the experiments")
@@ -213,7 +218,7 @@ def add_identify(sub, parents, fmt):
                    help="robust loss for outliers")
     p.add_argument("--loss-scale", type=float, default=3.0,
                    help="robust loss scale in noise units")
-    p.add_argument("--method", default="lm", choices=list(SOLVERS),
+    p.add_argument("--method", default="lm", choices=list(ID_SOLVERS),
                    help="least-squares solver")
     p.add_argument("--max-iter", type=int, default=50, help="iteration limit of the fit")
     p.add_argument("--drop-nan", action="store_true", help="drop NaN rows (reported)")

@@ -1,5 +1,9 @@
 """Command line interface `ppr-jax` (docs/cli.md): the parser of every command and the entry
-point."""
+point.
+
+The parser is built from plain-Python modules only (`_names` for choices and defaults): `--help`
+and a mistyped option answer without importing JAX. Each command imports the library in its
+`cmd_*` function."""
 
 from __future__ import annotations
 
@@ -7,8 +11,7 @@ import argparse
 import os
 import sys
 
-from .._errors import PPRError
-from .._scenes import ATOL, RTOL
+from .._names import ATOL, RTOL
 from ._common import (
     _log,
     parent_parsers,
@@ -56,9 +59,11 @@ def _runtime_message(err: Exception) -> str:
 
 def main(argv=None) -> int:
     """Run the command line; every user error is one line on stderr and exit status 2."""
-    import jax
-
     args = build_parser().parse_args(argv)
+    import jax  # after parsing: --help and a bad option answer without JAX
+
+    from .._errors import PPRError
+
     # the command as typed, for reports that say how they were made
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.program_dir = None
@@ -79,8 +84,10 @@ def main(argv=None) -> int:
         from .._programs import PROGRAM_SUBDIR
 
         try:
-            # Exported scene programs beside the compiled ones: a second run skips tracing too.
-            args.program_dir = os.path.join(enable_compilation_cache(), PROGRAM_SUBDIR)
+            # Every program is stored, the small ones too (`enable_compilation_cache`), and the
+            # exported scene programs beside them: a second run skips tracing and compiling.
+            args.program_dir = os.path.join(enable_compilation_cache(min_compile_time_s=0.0),
+                                            PROGRAM_SUBDIR)
         except OSError as err:  # a read-only home: run without the cache, say so once
             _log(f"ppr-jax: note: compilation cache disabled ({err})")
     try:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+from .._names import MODEL_NAMES
 from ._common import (
     _parse_sets,
     model_from_args,
@@ -26,12 +27,10 @@ def cmd_modes(args):
 
 
 def _add_modes(sub, parents, fmt):
-    from .._models import MODELS
-
     m = sub.add_parser("modes", formatter_class=fmt,
         parents=[parents["params"], parents["model"]],
         help="natural frequencies about a static equilibrium (Hz)")
-    m.add_argument("--model", default="double1r", choices=list(MODELS))
+    m.add_argument("--model", default="double1r", choices=list(MODEL_NAMES))
     m.add_argument("--actuators", default="locked", choices=["locked", "free"])
     m.add_argument("--pose", default=None, help="x,y,phi (default: home)")
     m.add_argument("--json", action="store_true")

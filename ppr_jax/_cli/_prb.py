@@ -7,9 +7,6 @@ import argparse
 import json
 import sys
 
-import numpy as np
-
-from .._errors import PPRError
 from ._common import (
     _derived_dict,
     _log,
@@ -19,6 +16,8 @@ from ._common import (
 
 
 def _prb_at_kappa0(args, tab):
+    import numpy as np
+
     from .._prb_table import prb_parameters
 
     k = float(args.kappa0)
@@ -73,6 +72,7 @@ def _prb_figure(path, tab):
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import numpy as np
 
     from .._prb_table import prb_parameters
 
@@ -93,6 +93,7 @@ def _prb_figure(path, tab):
 
 
 def cmd_prb_table(args):
+    from .._errors import PPRError
     from .._prb_table import prb_table
 
     tab = prb_table()
@@ -108,6 +109,8 @@ def cmd_prb_table(args):
 
 
 def cmd_prb(args):
+    import numpy as np
+
     from .._kinematics import predeflection
 
     if args.kappa0 is not None or args.figure:

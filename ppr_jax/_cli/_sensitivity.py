@@ -6,6 +6,7 @@ import json
 import math
 import os
 
+from .._names import KINEMATIC_MODELS, MODEL_NAMES, SCENE_NAMES, SENSITIVITY_METRICS
 from ._common import (
     _log,
     _out_dir,
@@ -71,11 +72,7 @@ def cmd_sensitivity(args):
 
 
 def add_sensitivity(sub, parents, fmt):
-    from .._models import MODELS
-    from .._scenes import scene_names
-    from .._studies import SENSITIVITY_METRICS
-
-    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
+    kinematic = list(KINEMATIC_MODELS)
     s = sub.add_parser(
         "sensitivity", formatter_class=fmt,
         parents=[parents[k] for k in ("params", "model", "solve", "times")],
@@ -83,14 +80,14 @@ def add_sensitivity(sub, parents, fmt):
         description="d(metric)/d(parameter) of " + ", ".join(SENSITIVITY_METRICS) + " by "
                     "automatic differentiation through the scene (forward or reverse mode), "
                     "printed as normalised sensitivities and written to sensitivity.csv/json.")
-    s.add_argument("--scene", default="paper-circle", choices=list(scene_names()))
-    s.add_argument("--model", default="double1r", choices=list(MODELS),
+    s.add_argument("--scene", default="paper-circle", choices=list(SCENE_NAMES))
+    s.add_argument("--model", default="double1r", choices=list(MODEL_NAMES),
                    help="the model whose response is measured (L0 or L1 under its own "
                         "torques follows the circle exactly: its radial error is the "
                         "solver's, and is refused)")
     s.add_argument("--torque-model", default="reduced", choices=kinematic)
     s.add_argument("--frequency-model", default="double1r",
-                   choices=[n for n in MODELS if n not in kinematic],
+                   choices=[n for n in MODEL_NAMES if n not in kinematic],
                    help="the model whose first locked natural frequency is the base frequency")
     s.add_argument("--mode", default="fwd", choices=["fwd", "rev"],
                    help="forward (jacfwd) or reverse (jacrev) mode")

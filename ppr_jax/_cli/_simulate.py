@@ -6,10 +6,7 @@ import csv
 import os
 import time
 
-import numpy as np
-
-from .._errors import PPRError
-from .._scenes import get_scene
+from .._names import KINEMATIC_MODELS, MODEL_NAMES, SIMULATE_CHOICES
 from ._common import (
     _derived_dict,
     _log,
@@ -24,12 +21,17 @@ from ._common import (
 
 def _reference(scene):
     """The values the scene's paper figure reports (`AbstractScene.reference`), or None."""
+    from .._scenes import get_scene
+
     ref = get_scene(scene).reference
     return dict(ref) if ref else None
 
 
 def cmd_simulate(args):
-    from .._scenes import check_scene_args, modes_scene, run_scene
+    import numpy as np
+
+    from .._errors import PPRError
+    from .._scenes import check_scene_args, get_scene, modes_scene, run_scene
     from ._figures import scene_figures
 
     scene = args.scene
@@ -54,10 +56,13 @@ def cmd_simulate(args):
     kw = dict(t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol,
               atol=args.atol, max_steps=args.max_steps)
     results, failed = [], {}
-    traj = get_scene(scene).trajectory() if scene != "modes" else None
+    traj = get_scene(scene).trajectory()
+    # the nominal circle as host numbers: the CSV and figures are numpy post-processing
+    center, radius = np.asarray(traj.center), float(traj.radius)
     # Every argument checked before the first compilation.
     objs = [model_from_args(args, m) for m in models]
     check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
+    derived = _derived_dict(params)
 
     def write():
         # After every model: a failing or interrupted later model keeps what finished.
@@ -67,7 +72,7 @@ def cmd_simulate(args):
             "t_end_s": args.t_end,
             "n_out": args.n_out,
             "params": _params_dict(params),
-            "derived": _derived_dict(params),
+            "derived": derived,
             "models": {r.model: dict(r.metrics, solver=r.solver) for r in results},
             "beam": ({"elements": args.elements, "strip_dynamics": args.strip_dynamics,
                       "strip_loss_s": args.strip_loss}
@@ -77,7 +82,7 @@ def cmd_simulate(args):
         }
         _write_json(os.path.join(args.out, "summary.json"), summary)
         if results:
-            _write_csv(os.path.join(args.out, "trajectory.csv"), results)
+            _write_csv(os.path.join(args.out, "trajectory.csv"), results, center, radius)
 
     for i, m in enumerate(models):
         _log(f"[{i + 1}/{len(models)}] {scene}: model {m} (compiling, then running) ...")
@@ -96,7 +101,7 @@ def cmd_simulate(args):
         results.append(r)
         write()
     if results:
-        scene_figures(results, args.out, np.asarray(traj.center), float(traj.radius))
+        scene_figures(results, args.out, center, radius)
         _print_table(scene, results, args)
         print(f"wrote {args.out}/summary.json, trajectory.csv, trajectory.png, angle.png, "
               f"radial_error.png")
@@ -143,37 +148,36 @@ def _print_table(scene, results, args):
                   f"use --torque-model {r.model} for its own torques")
 
 
-def _write_csv(path, results):
+def _write_csv(path, results, center, R):
+    """trajectory.csv: every model's pose, radial error (host side, numpy: no XLA program per
+    operation), torques and joint end rotations."""
+    import numpy as np
+
     from .._metrics import radial_error
 
-    c = get_scene(results[0].scene).trajectory()
-    center, R = np.asarray(c.center), float(c.radius)
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["model", "t", "x", "y", "phi", "e_r", "tau_1", "tau_2", "tau_3",
                     "end_rot_1", "end_rot_2"])
         r0 = results[0]
-        er = np.asarray(radial_error(r0.X_nominal, center, R))
+        er = radial_error(np.asarray(r0.X_nominal), center, R, xp=np)
         for k in range(len(r0.ts)):
             w.writerow(["nominal", r0.ts[k], *r0.X_nominal[k], er[k], "", "", "", "", ""])
         for r in results:
-            er = np.asarray(radial_error(r.X, center, R))
+            er = radial_error(np.asarray(r.X), center, R, xp=np)
             for k in range(len(r.ts)):
                 w.writerow([r.model, r.ts[k], *r.X[k], er[k], *r.tau[k], *r.end_rot[k]])
 
 
 def _add_simulate(sub, parents, fmt):
-    from .._models import MODELS
-    from .._scenes import scene_names
-
-    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]  # pose = coordinates
+    kinematic = list(KINEMATIC_MODELS)  # pose = coordinates
     s = sub.add_parser("simulate", formatter_class=fmt,
         parents=[parents[k] for k in ("params", "model", "solve", "times")],
         help="run a scene and write summary.json, trajectory.csv, figures")
-    s.add_argument("--scene", default="paper-circle", choices=[*scene_names(), "modes"],
+    s.add_argument("--scene", default="paper-circle", choices=list(SIMULATE_CHOICES),
                    help="scene to run")
     s.add_argument("--model", default=None,
-                   help="a model (" + ", ".join(MODELS) + ") or a comma list (default: rigid, "
+                   help="a model (" + ", ".join(MODEL_NAMES) + ") or a comma list (default: rigid, "
                         "reduced, double1r). beam is L3 with quasi-static strips (see "
                         "--elements, --strip-dynamics)")
     s.add_argument("--torque-model", default="reduced", choices=kinematic,

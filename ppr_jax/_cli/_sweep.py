@@ -6,14 +6,15 @@ import json
 import math
 import os
 
-import numpy as np
-
+from .._names import KINEMATIC_MODELS, MODEL_NAMES, SCENE_NAMES
 from ._common import _out_dir, _write_rows
 
 
 def parse_vary(items) -> dict:
     """``NAME=LO:HI:N`` (N evenly spaced values, ends included) or ``NAME=V1,V2,...`` ->
     {name: values}."""
+    import numpy as np
+
     from .._studies import FLOAT_PARAMS
 
     out = {}
@@ -61,6 +62,7 @@ def sweep_figures(result, out_dir) -> list:
     """One PNG per varied parameter: every metric against it (failed members left out).
     Returns the paths written."""
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -157,10 +159,7 @@ def cmd_sweep(args):
 
 
 def add_sweep(sub, parents, fmt):
-    from .._models import MODELS
-    from .._scenes import scene_names
-
-    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
+    kinematic = list(KINEMATIC_MODELS)
     s = sub.add_parser(
         "sweep", formatter_class=fmt,
         parents=[parents[k] for k in ("params", "model", "solve", "times")],
@@ -170,8 +169,8 @@ def add_sweep(sub, parents, fmt):
                     "sweep.parquet with pyarrow), failed.csv (members that failed and why), "
                     "summary.json and metrics_vs_NAME.png. Finished chunks are kept in OUT/chunks "
                     "and skipped when the same sweep is run again (resume).")
-    s.add_argument("--scene", default="paper-circle", choices=list(scene_names()))
-    s.add_argument("--model", default="double1r", choices=list(MODELS),
+    s.add_argument("--scene", default="paper-circle", choices=list(SCENE_NAMES))
+    s.add_argument("--model", default="double1r", choices=list(MODEL_NAMES),
                    help="the model swept (L0 or L1 under its own torques follows the circle "
                         "exactly: the sweep warns that its radial errors are the solver's)")
     s.add_argument("--torque-model", default="reduced", choices=kinematic,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from .._scenes import T_END
+from .._names import ID_SCENES, MODEL_NAMES, T_END
 from ._common import (
     _log,
     _name_values,
@@ -43,9 +43,6 @@ def cmd_synth(args):
 
 
 def add_synth(sub, parents, fmt):
-    from .._models import MODELS
-    from .._studies import ID_SCENES
-
     p = sub.add_parser(
         "synth", formatter_class=fmt,
         parents=[parents[k] for k in ("params", "model", "solve")],
@@ -54,7 +51,7 @@ def add_synth(sub, parents, fmt):
                     "platform pose at --rate Hz with Gaussian noise (seeded), the actuated "
                     "angles and torques, in the CSV format that 'identify' reads.")
     p.add_argument("--scene", default="servo-circle", choices=list(ID_SCENES))
-    p.add_argument("--model", default="double1r", choices=list(MODELS))
+    p.add_argument("--model", default="double1r", choices=list(MODEL_NAMES))
     p.add_argument("--noise-pos", type=float, default=0.1e-3, help="position noise std (m)")
     p.add_argument("--noise-phi", type=float, default=1e-3, help="angle noise std (rad)")
     p.add_argument("--rate", type=float, default=100.0, help="sample rate (Hz)")

@@ -5,8 +5,7 @@ from __future__ import annotations
 import csv
 import os
 
-import numpy as np
-
+from .._names import KINEMATIC_MODELS
 from ._common import (
     _parse_sets,
     check_out_dir,
@@ -14,6 +13,8 @@ from ._common import (
 
 
 def cmd_torques(args):
+    import numpy as np
+
     from .._scenes import nominal_torques
 
     params = _parse_sets(args.set, "paper-circle", getattr(args, "params_file", None))
@@ -30,9 +31,7 @@ def cmd_torques(args):
 
 
 def _add_torques(sub, parents, fmt):
-    from .._models import MODELS
-
-    kinematic = [n for n, c in MODELS.items() if c.actuated_index is None]
+    kinematic = list(KINEMATIC_MODELS)
     t = sub.add_parser("torques", formatter_class=fmt,
         parents=[parents["params"], parents["times"]],
         help="inverse-dynamics torques along eq 55 as CSV")

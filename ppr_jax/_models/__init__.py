@@ -1,7 +1,9 @@
 """The model levels of MODEL.md section 5, one file each, and their registry.
 
 To add a level: a final subclass of `AbstractModel` (or `AbstractDouble1R`) in a new file here,
-and one line in `MODELS`. Scenes, the CLI's `--model` choices and the benchmarks read `MODELS`.
+one line in `MODELS`, and its name in `_names.MODEL_NAMES` (which the CLI's parser reads
+without importing JAX; tests/test_imports.py checks the two agree). Scenes, the CLI and the
+benchmarks read `MODELS`.
 """
 
 from __future__ import annotations
@@ -9,6 +11,11 @@ from __future__ import annotations
 from typing import Optional, Union
 
 from .._errors import PPRError, check_number
+from .._names import (
+    DEFAULT_ELEMENTS as DEFAULT_ELEMENTS,
+    MAX_ELEMENTS as MAX_ELEMENTS,
+    STRIP_DYNAMICS as STRIP_DYNAMICS,
+)
 from .base import (
     AbstractClosedLoop as AbstractClosedLoop,
     AbstractModel as AbstractModel,
@@ -28,14 +35,6 @@ MODELS: dict[str, type[AbstractModel]] = {
     Double1R.name: Double1R,
     QuasiStaticBeam.name: QuasiStaticBeam,
 }
-
-#: how L3's strips move: in static equilibrium for their clamp poses (`QuasiStaticBeam`, the
-#: default) or with their own inertia and modes (`Beam`, stiff)
-STRIP_DYNAMICS = ("quasi-static", "full")
-
-#: beam elements per strip of L3 when none is given, and the most allowed
-DEFAULT_ELEMENTS = 8
-MAX_ELEMENTS = 256
 
 
 def get_model(

@@ -24,12 +24,8 @@ import jax.numpy as jnp
 
 from .._custom_types import Array, Float
 from .._linalg import solve_blocks
+from .._names import ATOL, RTOL  # noqa: F401 (the non-stiff levels' defaults)
 from .._robot import Robot
-
-#: the non-stiff levels' default tolerances (`AbstractModel.default_rtol`, `default_atol`):
-#: they put L2's error near 1e-8 m on the paper's scenes
-RTOL = 1e-8
-ATOL = 1e-10
 
 
 class Kin(eqx.Module):

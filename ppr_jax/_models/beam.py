@@ -28,6 +28,7 @@ from .._custom_types import Array, Float
 from .._errors import PPRError
 from .._geometry import base_points, e, ik_reduced, platform_points, two_link, wrap
 from .._linalg import SmallLU, solve
+from .._names import FULL_L3_ATOL, FULL_L3_RTOL
 from .._robot import Robot
 from .base import AbstractModel, Kin, rotor_inertia
 
@@ -207,12 +208,9 @@ class Beam(AbstractBeam):
     #: Kvaerno5's 179 s (the same steps, a Jacobian every step) and Ros34PW2's 314 s (65,066
     #: steps: order 3) on a 2-core CPU (docs/theory/strips.md)
     default_solver = "kvaerno5-kept"
-    #: rtol 1e-8 would resolve the undamped kHz strip vibration for hours; at rtol 1e-4 the
-    #: whole paper-circle (N = 16) runs in 72 s on a 2-core CPU and its platform ends 3.3e-7 m
-    #: from an rtol-1e-5 run, against the 3.5e-5 m that the strips' own dynamics puts between
-    #: it and the quasi-static L3 (docs/theory/strips.md)
-    default_rtol = 1e-4
-    default_atol = 1e-6
+    #: looser than the other levels' (`_names.FULL_L3_RTOL` says why)
+    default_rtol = FULL_L3_RTOL
+    default_atol = FULL_L3_ATOL
 
     strip_loss: float = eqx.field(default=0.0, static=True)
 

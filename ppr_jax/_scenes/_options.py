@@ -11,18 +11,16 @@ import numpy as np
 
 from .._custom_types import Array
 from .._errors import check_number, is_traced
-from .._models.base import ATOL, RTOL  # noqa: F401 (re-exported for the reports)
+from .._names import (  # the scenes' defaults, written there
+    ATOL as ATOL,
+    MAX_STEPS as MAX_STEPS,
+    N_OUT as N_OUT,
+    RTOL as RTOL,
+    T_END as T_END,
+)
 from .._simulate import default_controller, get_solver
 from .._tabulated import scene_panels
 from .._trajectory import Circle
-
-#: the scenes' defaults, written once: one turn of the circle of eq 55 (2 pi / omega = 7.54 s),
-#: output every 10 ms, and a step budget that no default scene comes near. The solver and the
-#: tolerances belong to the model (`AbstractModel.default_solver`, `default_rtol`,
-#: `default_atol`); `RTOL` and `ATOL` name the non-stiff levels' for the reports that print them.
-T_END = 7.54
-N_OUT = 755
-MAX_STEPS = 200_000
 
 
 def default_solver(model) -> str:

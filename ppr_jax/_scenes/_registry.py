@@ -1,5 +1,6 @@
-"""The scenes by name, in one registry: a new scene is one file and one line here, or one call
-of `register_scene` from your own code."""
+"""The scenes by name, in one registry: a new scene is one file, one line here and its name in
+`_names.SCENE_NAMES` (the command line's choices, read without JAX), or one call of
+`register_scene` from your own code."""
 
 from __future__ import annotations
 

@@ -6,7 +6,14 @@ import equinox as eqx
 import numpy as np
 
 from .._custom_types import Array
-from .._errors import RESIDUAL_TOL, RESULTS, check_result, failure_reasons, is_traced
+from .._errors import (
+    RESIDUAL_TOL,
+    RESULTS,
+    check_result,
+    failure_reasons,
+    is_traced,
+    result_code,
+)
 from .._kinematics import path_singular
 from .._models import Reduced, Rigid
 from .._params import PARAM_RANGES, member_params
@@ -107,19 +114,21 @@ def failure_detail(res: SceneResult, params=None):
     they describe the failure: the parameters out of range (given `params`), how far and when the
     loop opened, where the solver stopped, or when the nominal path meets a type-II singularity
     (given `params`)."""
-    result = res.result
-    invalid = np.asarray(result == RESULTS.invalid_parameter)
-    singular = np.asarray(result == RESULTS.singular_path)
+    # the codes as host integers, compared in numpy (no XLA program per comparison)
+    codes = np.asarray(result_code(res.result))
+
+    def is_(*names):
+        return np.isin(codes, [int(result_code(getattr(RESULTS, n))) for n in names
+                               if hasattr(RESULTS, n)])
+
+    invalid = is_("invalid_parameter")
+    singular = is_("singular_path")
     # how far and when the loop is open: for a chain that opened, and for a path out of reach
-    open_loop = np.asarray((result == RESULTS.loop_not_closed)
-                           | (result == RESULTS.trajectory_out_of_reach))
+    open_loop = is_("loop_not_closed", "trajectory_out_of_reach")
     # the solver's own failures: diffrax fills the output times after one with inf
-    stopped = np.zeros(np.shape(invalid), dtype=bool)
-    for name in ("max_steps_reached", "max_steps_rejected", "singular", "breakdown",
-                 "nonlinear_divergence", "nonlinear_max_steps_reached", "dt_min_reached",
-                 "nonfinite"):
-        if hasattr(RESULTS, name):
-            stopped |= np.asarray(result == getattr(RESULTS, name))
+    stopped = is_("max_steps_reached", "max_steps_rejected", "singular", "breakdown",
+                  "nonlinear_divergence", "nonlinear_max_steps_reached", "dt_min_reached",
+                  "nonfinite")
     resid = np.asarray(res.residual)
     ts = np.asarray(res.ts)
     X_nominal = np.asarray(res.X_nominal)

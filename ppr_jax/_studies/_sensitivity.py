@@ -43,6 +43,10 @@ from .._geometry import home_pose
 from .._metrics import path_metrics
 from .._models import get_model
 from .._modes import reduced_eigh
+from .._names import (  # the table's rows, SI units
+    PATH_SENSITIVITY_METRICS as PATH_SENSITIVITY_METRICS,
+    SENSITIVITY_METRICS as SENSITIVITY_METRICS,
+)
 from .._params import RobotParams
 from .._prb import derived
 from .._robot import Robot
@@ -50,22 +54,6 @@ from .._scenes import SceneOptions, get_scene
 from .._statics import assemble, static_equilibrium
 from ._sweep import FLOAT_PARAMS, _plain, sweep_metrics, traced_metrics
 
-#: the metrics a sensitivity table reports (rows) by default on a circle, SI units
-SENSITIVITY_METRICS = (
-    "radial_error_max_m",
-    "radial_error_min_m",
-    "end_rotation_diff_max_deg",
-    "torque_peak_Nm",
-    "base_frequency_hz",
-)
-#: ... and on any other path: the tracking error's largest position and orientation error
-PATH_SENSITIVITY_METRICS = (
-    "position_error_max_m",
-    "phi_error_max_rad",
-    "end_rotation_diff_max_deg",
-    "torque_peak_Nm",
-    "base_frequency_hz",
-)
 #: eigenvalues within this relative distance of the lowest are one (repeated) cluster
 CLUSTER_RTOL = 1e-6
 

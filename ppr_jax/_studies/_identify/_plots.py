@@ -5,17 +5,25 @@ from __future__ import annotations
 
 import os
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+
+def _pyplot():
+    """matplotlib's pyplot on the Agg backend, imported when a figure is drawn (not with the
+    package: `import ppr_jax` and a plain simulation stay without matplotlib)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def identification_figures(fit, out_dir: str) -> list[str]:
     """Write fit_trajectory.png (x-y path and phi(t), measured dots, fitted lines) and
     fit_residuals.png (x, y in mm and phi in mrad over time, with +-2 noise bands) for an
     `Identification`; returns the paths."""
+    plt = _pyplot()
     os.makedirs(out_dir, exist_ok=True)
     paths = []
     names = fit.experiment_names
@@ -83,13 +91,14 @@ def _held(fit, k):
 def _save(fig, out_dir, name):
     path = os.path.join(out_dir, name)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _pyplot().close(fig)
     return path
 
 
 def profile_figure(profiles: list, path: str) -> str:
     """One panel per profile (`Identification.profile`): the cost rise (S - S_min)/s^2 against
     the unknown, the likelihood-ratio threshold, and the profile and linearised intervals."""
+    plt = _pyplot()
     n = len(profiles)
     fig, axs = plt.subplots(1, n, figsize=(4.5 * n, 3.8), squeeze=False)
     for ax, pr in zip(axs[0], profiles):

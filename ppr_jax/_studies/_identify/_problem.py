@@ -14,30 +14,23 @@ import numpy as np
 from ..._actuation import MotionDriven, TorqueDriven
 from ..._custom_types import Array
 from ..._errors import RESULTS
+from ..._names import (  # the choices the command line offers, written there
+    ACTUATIONS as ACTUATIONS,
+    ID_SCENES as ID_SCENES,
+    ID_SOLVERS,
+    INITIAL_STATES as INITIAL_STATES,
+    LOSSES as LOSSES,
+)
 from ..._params import RobotParams
 from ..._robot import Robot
 from ..._scenes import SceneOptions, get_scene, input_panels_at
 from ..._trajectory import Interpolated, PiecewiseCubic
 
-LOSSES = ("linear", "huber", "cauchy")
-
+#: the least-squares solvers (`identify(solver=...)`, the CLI's --method)
+SOLVERS = ID_SOLVERS
 
 #: largest step of the Levenberg-Marquardt loop in the reparametrised unknowns z
 MAX_STEP_Z = 1.0
-
-
-SOLVERS = ("lm", "optimistix-lm", "optimistix-gn")
-
-
-#: what drives a servo-circle model: the measured angles when the data hold them (auto), the
-#: scene's commands for the parameters of the model that computed them, or the measured angles
-ACTUATIONS = ("auto", "commanded", "measured")
-
-
-#: what of each experiment's initial state is estimated (number of unknowns per experiment):
-#: nothing (the scene's quasi-static state), the platform pose (x0, y0, phi0), or the pose and
-#: the platform velocity
-INITIAL_STATES = {"scene": 0, "pose": 3, "pose-velocity": 6}
 
 
 #: the scale of the initial-state unknowns in the fit (m, m, rad, m/s, m/s, rad/s): the size of
@@ -59,9 +52,6 @@ MEAS_NAMES = ("bias_x", "bias_y", "bias_phi", "delay")
 MEAS_UNITS = ("m", "m", "rad", "s")
 #: their scale in z (a unit step: 1 mm, 1 mm, 10 mrad, 10 ms)
 MEAS_SCALE = (1e-3, 1e-3, 1e-2, 1e-2)
-
-
-ID_SCENES = ("servo-circle", "paper-circle")
 
 
 #: residual scale s (1 = noise as stated) above which a fit does not explain the data: its
