@@ -234,22 +234,23 @@ def test_sweep_of_a_path_scene_matches_single_runs(path_report):
 
 def test_sensitivity_of_a_path_scene_against_finite_differences():
     """d(position_error_rms)/dt and d(phi_error_rms)/dt by forward mode through the path scene
-    equal central differences of single runs (RMS: smooth in t, no arg-max switching). Tight
-    tolerances: at rtol 1e-8 the adaptive steps' change between the two runs puts 3e-4 of
-    noise into the difference quotient of phi's RMS."""
+    equal central differences of single runs (RMS: smooth in t, no arg-max switching). The
+    response rings at the robot's modes, whose phase after 1 s moves fast with t: a step of
+    1e-3 t puts 3e-4 of truncation error into the difference quotient of phi (its third
+    derivative), 1e-4 t about 1e-5; tight tolerances keep the solver's noise below that."""
     t0 = float(PATH_SCENE.thickness)
     tight = PATH_OPTIONS.updated(rtol=1e-11, atol=1e-13)
     s = pj.sensitivity(PATH_SCENE, model="double1r", parameters=["t"],
                        metrics=["position_error_rms_m", "phi_error_rms_rad"], options=tight)
     assert s.info["scene"] == "my-line"
-    h = 1e-3 * t0
+    h = 1e-4 * t0
     vals = []
     for t in (t0 + h, t0 - h):
         r = pj.run_scene(PATH_SCENE, PATH_SCENE.default_params(t=t), model="double1r",
                          t_end=1.0, n_out=21, rtol=1e-11, atol=1e-13)
         vals.append([r.metrics["position_error_rms_m"], r.metrics["phi_error_rms_rad"]])
     fd = (np.asarray(vals[0]) - np.asarray(vals[1])) / (2 * h)
-    np.testing.assert_allclose(s.jacobian[:, 0], fd, rtol=5e-5)
+    np.testing.assert_allclose(s.jacobian[:, 0], fd, rtol=1e-4)
     assert abs(fd[0]) > 0
 
 
