@@ -274,3 +274,52 @@ def test_path_scene_refuses_bad_members():
     log = pj.CommandLog(pj.Waypoints(np.linspace(0, 1, 5), np.zeros((5, 3))), "angles")
     with pytest.raises(pj.PPRError, match="command_log holds angles but drive='torque'"):
         pj.PathScene(Line(), drive="torque", command_log=log)
+
+
+def _write_experiment_file(path, scene, rate=100.0):
+    """A controller's file of the smooth line: time, the commanded poses and the actuated
+    angles L1's inverse kinematics commands for them (the file a user brings)."""
+    ts = np.arange(0.0, 1.0 + 1e-9, 1.0 / rate)
+    X = _smooth_closed_form(ts)
+    robot = pj.Robot(scene.default_params())
+    th = np.asarray(jax.vmap(pj.InverseKinematicsAngles(pj.Reduced(), robot, SmoothLine()))(
+        jnp.asarray(ts)))
+    pj.write_csv(str(path), pj.experiment(ts, X, th=th, name="line"))
+    return path
+
+
+def test_cli_simulate_your_own_experiment(tmp_path):
+    """`ppr-jax simulate --path F --angles F`: the commanded poses and the commanded angles of
+    a file drive L2 (no scene of the paper's); the result agrees with the same experiment as
+    a `PathScene` of the exact line and L1's exact angles (the file's splines: 1e-4 relative),
+    and the CSV and figures are the path's (position error, not the circle's radial error)."""
+    import json
+
+    from ppr_jax._cli import main
+
+    scene = pj.PathScene(SmoothLine(), drive="motion", name="line", thickness=0.5e-3)
+    f = _write_experiment_file(tmp_path / "line.csv", scene)
+    out = tmp_path / "out"
+    rc = main(["simulate", "--path", str(f), "--angles", str(f), "--model", "double1r",
+               "--n-out", "21", "--set", "t=0.5e-3", "--out", str(out)])
+    assert rc == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["drive"] == "motion" and summary["t_end_s"] == 1.0
+    got = summary["models"]["double1r"]
+    ref = pj.run_scene(scene, model="double1r", t_end=1.0, n_out=21).metrics
+    assert "radial_error_max_m" not in got
+    for k in ("position_error_max_m", "position_error_rms_m", "phi_error_max_rad"):
+        np.testing.assert_allclose(got[k], ref[k], rtol=1e-4, err_msg=k)
+    assert (out / "position_error.png").exists() and not (out / "radial_error.png").exists()
+    assert (out / "trajectory.csv").read_text().splitlines()[0].split(",")[5] == "e_pos"
+
+
+def test_cli_command_log_options_are_checked(tmp_path, capsys):
+    from ppr_jax._cli import main
+
+    f = _write_experiment_file(tmp_path / "line.csv", PATH_SCENE)
+    assert main(["simulate", "--angles", str(f), "--out", str(tmp_path / "o")]) == 2
+    assert "--angles needs --path" in capsys.readouterr().err
+    assert main(["simulate", "--path", str(f), "--angles", str(f), "--torques", str(f),
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "not both" in capsys.readouterr().err

@@ -39,7 +39,8 @@ def _parse_sets(items, scene, path=None):
         name = name.strip()
         kw[name] = parse_value(name, value)
     # `modes` (simulate's static solve) is no scene: Table 1 as the registered scenes' base
-    base = scene_params(scene) if scene in scene_names() else RobotParams()
+    base = (scene_params(scene) if not isinstance(scene, str) or scene in scene_names()
+            else RobotParams())
     if path:
         from .._params_file import load_params
 
@@ -126,16 +127,79 @@ def parent_parsers() -> dict:
                             "auto: Kvaerno5 where the robot's highest natural frequency makes "
                             "the explicit solver's stable steps dearer than implicit ones")
     solve.add_argument("--rtol", type=float, default=None,
-                       help=f"relative tolerance of the solver (default {RTOL:g}; "
-                            f"{FULL_L3_RTOL:g} for the full L3 in simulate)")
+                       help=f"relative tolerance of the solver (default: the model's, {RTOL:g}; "
+                            f"{FULL_L3_RTOL:g} for the full L3)")
     solve.add_argument("--atol", type=float, default=None,
-                       help=f"absolute tolerance of the solver (default {ATOL:g}; "
-                            f"{FULL_L3_ATOL:g} for the full L3 in simulate)")
+                       help=f"absolute tolerance of the solver (default: the model's, {ATOL:g}; "
+                            f"{FULL_L3_ATOL:g} for the full L3)")
     solve.add_argument("--max-steps", type=int, default=MAX_STEPS, help="solver step limit")
     times = argparse.ArgumentParser(add_help=False)
-    times.add_argument("--t-end", type=float, default=T_END, help="end time (s)")
+    times.add_argument("--t-end", type=float, default=None,
+                       help=f"end time (s); default {T_END:g} (one turn of the paper's circle), "
+                            f"or the last time of a --path file")
     times.add_argument("--n-out", type=int, default=N_OUT, help="number of output times")
-    return {"params": params, "model": model, "solve": solve, "times": times}
+    files = argparse.ArgumentParser(add_help=False)
+    files.add_argument("--path", default=None, metavar="FILE.csv",
+                       help="your own experiment instead of --scene: a CSV of commanded poses "
+                            "(time, x, y, phi; units as the tracker files: docs' Paths page), "
+                            "the nominal path, splined C2")
+    files.add_argument("--angles", default=None, metavar="FILE.csv",
+                       help="with --path: the actuated angles a controller commanded (time, "
+                            "th_1..th_3), which drive the model (a motion drive)")
+    files.add_argument("--torques", default=None, metavar="FILE.csv",
+                       help="with --path: the torques a controller applied (time, "
+                            "tau_1..tau_3), which drive the model (a torque drive)")
+    files.add_argument("--drive", default="torque", choices=["torque", "motion"],
+                       help="with --path and no command log: the torque model's inverse-dynamics "
+                            "torques along the path (torque), or its inverse-kinematics angles "
+                            "(motion)")
+    return {"params": params, "model": model, "solve": solve, "times": times, "files": files}
+
+
+def scene_from_args(args):
+    """The scene the options name: the registered `--scene`, or your own experiment, a
+    `PathScene` of the commanded poses of `--path` driven by `--angles` or `--torques` (or by
+    the torque model's inverse dynamics or kinematics, `--drive`). Sets `args.t_end` where it
+    is None: the path file's last time, else the scenes' `T_END`. Refuses, naming the option,
+    a command log without a path and two logs at once."""
+    import os
+
+    from .._errors import PPRError
+
+    path = getattr(args, "path", None)
+    angles, torques = getattr(args, "angles", None), getattr(args, "torques", None)
+    if path is None:
+        for opt, v in (("--angles", angles), ("--torques", torques)):
+            if v is not None:
+                raise PPRError(f"{opt} needs --path (the commanded poses: the nominal path the "
+                               f"tracking error is measured against)")
+        from .._scenes import get_scene
+
+        if getattr(args, "t_end", T_END) is None:
+            args.t_end = T_END
+        return get_scene(args.scene, getattr(args, "torque_model", None))
+    if angles is not None and torques is not None:
+        raise PPRError("give one command log: --angles (a motion drive) or --torques (a torque "
+                       "drive), not both")
+    from .._models import get_model
+    from .._paths import check_same_rate, load_commands, load_path
+    from .._scenes import PathScene
+
+    traj = load_path(path)
+    log = (load_commands(angles, kind="angles") if angles is not None
+           else load_commands(torques, kind="torque") if torques is not None else None)
+    if log is not None:
+        check_same_rate(traj, log)
+    drive = "motion" if angles is not None else "torque" if torques is not None else args.drive
+    ts = traj.ts
+    if getattr(args, "t_end", None) is None:
+        args.t_end = float(ts[-1] - ts[0])
+    if float(ts[0]) != 0.0:
+        raise PPRError(f"{path}: the path's first time is {float(ts[0]):g} s; the scenes start "
+                       f"at t = 0 (shift the file's times)")
+    return PathScene(traj, drive=drive, command_log=log,
+                     input_model=get_model(getattr(args, "torque_model", None) or "reduced"),
+                     name=os.path.splitext(os.path.basename(path))[0])
 
 
 def check_out_dir(path: str) -> str:

@@ -1,4 +1,5 @@
-"""Figures of a scene run (trajectory, angle, radial error), written by `simulate`."""
+"""Figures of a scene run (trajectory, angle, radial or position error), written by
+`simulate`: the commanded (nominal) path against the simulated one."""
 
 from __future__ import annotations
 
@@ -23,9 +24,15 @@ def _pyplot():
 
 
 def _split(results, center, radius):
-    # host-side numpy: no XLA program per operation
-    er = {id(r): radial_error(np.asarray(r.X), np.asarray(center), float(radius), xp=np)
-          for r in results}
+    """(near, far, error per result): the radial error about a circle's `center`, else (center
+    None) the distance from the commanded position; host-side numpy (no XLA program per
+    operation)."""
+    if center is not None:
+        er = {id(r): radial_error(np.asarray(r.X), np.asarray(center), float(radius), xp=np)
+              for r in results}
+    else:
+        er = {id(r): np.linalg.norm(np.asarray(r.X)[:, :2] - np.asarray(r.X_nominal)[:, :2],
+                                    axis=-1) for r in results}
     far = [r for r in results if np.nanmax(np.abs(er[id(r)])) > FAR_OFF_M]
     near = [r for r in results if r not in far]
     return near, far, er
@@ -48,18 +55,22 @@ def _panels(groups, ylabel, title, series):
 
 
 def scene_figures(results, out_dir: str, center, radius) -> list[str]:
-    """Write trajectory.png, angle.png and radial_error.png for a list of scene reports."""
+    """Write trajectory.png, angle.png and, for a circle (`center`, `radius`), radial_error.png,
+    else position_error.png, for a list of scene reports. Returns the paths."""
     paths = []
     r0 = results[0]
+    circle = center is not None
     near, far, er = _split(results, center, radius)
-    groups = [("", near), (" (far off the circle: own scale)", far)] if near else [("", far)]
+    off = " (far off the circle: own scale)" if circle else " (far off the path: own scale)"
+    groups = [("", near), (off, far)] if near else [("", far)]
 
     # Trajectory: the whole picture, and the near models' deviation from the nominal pose (mm)
     # where it is visible.
     ncol = 2 if near else 1
     fig, axs = _pyplot().subplots(1, ncol, figsize=(5.5 * ncol, 5), squeeze=False)
     ax = axs[0, 0]
-    ax.plot(r0.X_nominal[:, 0], r0.X_nominal[:, 1], "k--", lw=1.5, label="nominal (eq 55)")
+    ax.plot(r0.X_nominal[:, 0], r0.X_nominal[:, 1], "k--", lw=1.5,
+            label="nominal (eq 55)" if circle else "commanded")
     for r in results:
         ax.plot(r.X[:, 0], r.X[:, 1], lw=1, label=r.model)
     ax.set_xlabel("x (m)")
@@ -84,9 +95,14 @@ def scene_figures(results, out_dir: str, center, radius) -> list[str]:
                   lambda r: (r.ts, (r.X[:, 2] - r.X_nominal[:, 2]) * 1e3))
     paths.append(_save(fig, out_dir, "angle.png"))
 
-    fig = _panels(groups, "e_r (mm)", f"{r0.scene}: radial error |(x, y) - c| - R",
-                  lambda r: (r.ts, er[id(r)] * 1e3))
-    paths.append(_save(fig, out_dir, "radial_error.png"))
+    if circle:
+        fig = _panels(groups, "e_r (mm)", f"{r0.scene}: radial error |(x, y) - c| - R",
+                      lambda r: (r.ts, er[id(r)] * 1e3))
+        paths.append(_save(fig, out_dir, "radial_error.png"))
+    else:
+        fig = _panels(groups, "|(x, y) - commanded| (mm)", f"{r0.scene}: position error",
+                      lambda r: (r.ts, er[id(r)] * 1e3))
+        paths.append(_save(fig, out_dir, "position_error.png"))
     return paths
 
 

@@ -11,7 +11,6 @@ import argparse
 import os
 import sys
 
-from .._names import ATOL, RTOL
 from ._common import (
     _log,
     parent_parsers,
@@ -67,11 +66,6 @@ def main(argv=None) -> int:
     # the command as typed, for reports that say how they were made
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.program_dir = None
-    if args.cmd != "simulate" and hasattr(args, "rtol"):
-        # simulate leaves them to each model's default (the full L3's are looser); studies
-        # and identification run the fast models at the scenes' defaults
-        args.rtol = RTOL if args.rtol is None else args.rtol
-        args.atol = ATOL if args.atol is None else args.atol
     if args.cmd == "sweep" and os.environ.get("PPR_JAX_CPU_DEFAULTS", "1") != "0":
         from .._devices import configure_cpu
 

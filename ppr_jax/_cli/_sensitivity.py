@@ -15,11 +15,11 @@ from ._common import (
 
 
 def cmd_sensitivity(args):
-    from .._scenes import get_scene
     from .._studies import allowed_metrics, sensitivity
-    from ._common import _parse_sets, model_from_args
+    from ._common import _parse_sets, model_from_args, scene_from_args
 
-    params = _parse_sets(args.set, args.scene, getattr(args, "params_file", None))
+    scene = scene_from_args(args)
+    params = _parse_sets(args.set, scene, getattr(args, "params_file", None))
     _out_dir(args.out)
     names = None
     if args.params:
@@ -33,17 +33,17 @@ def cmd_sensitivity(args):
     for n in names or []:
         if n not in FLOAT_PARAMS:
             raise ValueError(f"unknown parameter {n!r}; allowed: {', '.join(FLOAT_PARAMS)}")
-    allowed = allowed_metrics(get_scene(args.scene).trajectory())
+    allowed = allowed_metrics(scene.trajectory())
     for m in metrics or ():
         if m not in allowed:
             raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(allowed)}")
     from .._scenes import check_scene_args
 
     check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
-    _log(f"sensitivity {args.scene} ({args.model}, {args.mode} mode): compiling and running ...")
+    _log(f"sensitivity {scene.name} ({args.model}, {args.mode} mode): compiling and running ...")
     s = sensitivity(
-        args.scene, params, mode=args.mode, model=model_from_args(args, args.model),
-        torque_model=args.torque_model, frequency_model=args.frequency_model,
+        scene, params, mode=args.mode, model=model_from_args(args, args.model),
+        frequency_model=args.frequency_model,
         parameters=names, metrics=metrics, t_end=args.t_end, n_out=args.n_out,
         solver=args.solver, rtol=args.rtol, atol=args.atol, max_steps=args.max_steps,
     )
@@ -55,8 +55,8 @@ def cmd_sensitivity(args):
                   for k, v in r.items()} for r in rows]
         json.dump({"settings": s.info, "mode": s.mode, "timing": s.timing, "values": s.values,
                    "parameters": s.param_values, "rows": clean}, f, indent=2)
-    print(f"\nNormalised sensitivities (p / m) dm/dp, scene {args.scene}, model {s.info['model']} "
-          f"(torques of {s.info['torque_model']}; base frequency of {s.info['frequency_model']}, "
+    print(f"\nNormalised sensitivities (p / m) dm/dp, scene {scene.name}, model {s.info['model']} "
+          f"(input of {s.info['input_model']}; base frequency of {s.info['frequency_model']}, "
           f"locked), {s.mode} mode")
     w = max(len(m) for m in s.metrics)
     short = [m.replace("_", " ")[:14] for m in s.metrics]
@@ -75,7 +75,7 @@ def add_sensitivity(sub, parents, fmt):
     kinematic = list(KINEMATIC_MODELS)
     s = sub.add_parser(
         "sensitivity", formatter_class=fmt,
-        parents=[parents[k] for k in ("params", "model", "solve", "times")],
+        parents=[parents[k] for k in ("params", "model", "solve", "times", "files")],
         help="normalised sensitivities (p/m) dm/dp of the paper's metrics to every parameter",
         description="d(metric)/d(parameter) of " + ", ".join(SENSITIVITY_METRICS) + " by "
                     "automatic differentiation through the scene (forward or reverse mode), "

@@ -16,28 +16,24 @@ from ._common import (
     _write_json,
     check_out_dir,
     model_from_args,
+    scene_from_args,
 )
-
-
-def _reference(scene):
-    """The values the scene's paper figure reports (`AbstractScene.reference`), or None."""
-    from .._scenes import get_scene
-
-    ref = get_scene(scene).reference
-    return dict(ref) if ref else None
 
 
 def cmd_simulate(args):
     import numpy as np
 
     from .._errors import PPRError
-    from .._scenes import check_scene_args, get_scene, modes_scene, run_scene
+    from .._metrics import path_metrics
+    from .._scenes import check_scene_args, modes_scene, run_scene, scene_names
     from ._figures import scene_figures
 
-    scene = args.scene
+    # `modes` is a static solve, not a scene; every other choice (and --path) is a scene
+    static = args.path is None and args.scene not in scene_names()
+    scene = args.scene if static else scene_from_args(args)
     params = _parse_sets(args.set, scene, getattr(args, "params_file", None))
     check_out_dir(args.out)
-    if scene == "modes":
+    if static:
         models = _models(args.model, "reduced,double1r")
         res = []
         for m in models:
@@ -45,7 +41,7 @@ def cmd_simulate(args):
                 _log(f"modes: {m}, actuators {act} ...")
                 res.append(modes_scene(params, model=model_from_args(args, m),
                                        actuators=act))
-        summary = {"scene": scene, "params": _params_dict(params), "modes": res}
+        summary = {"scene": args.scene, "params": _params_dict(params), "modes": res}
         _write_json(os.path.join(args.out, "summary.json"), summary)
         for r in res:
             f = ", ".join(f"{x:.4g}" for x in r["frequencies_hz"]) or "none (no free coordinate)"
@@ -56,9 +52,11 @@ def cmd_simulate(args):
     kw = dict(t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol,
               atol=args.atol, max_steps=args.max_steps)
     results, failed = [], {}
-    traj = get_scene(scene).trajectory()
+    traj = scene.trajectory()
+    circle = "radial_error_max_m" in path_metrics(traj)
     # the nominal circle as host numbers: the CSV and figures are numpy post-processing
-    center, radius = np.asarray(traj.center), float(traj.radius)
+    center, radius = ((np.asarray(traj.center), float(traj.radius)) if circle
+                      else (None, None))
     # Every argument checked before the first compilation.
     objs = [model_from_args(args, m) for m in models]
     check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
@@ -67,8 +65,11 @@ def cmd_simulate(args):
     def write():
         # After every model: a failing or interrupted later model keeps what finished.
         summary = {
-            "scene": scene,
-            "torque_model": args.torque_model if scene == "paper-circle" else None,
+            "scene": scene.name,
+            "drive": scene.drive,
+            "input_model": scene.input_model.name,
+            "path_file": args.path,
+            "command_log": args.angles or args.torques,
             "t_end_s": args.t_end,
             "n_out": args.n_out,
             "params": _params_dict(params),
@@ -78,17 +79,17 @@ def cmd_simulate(args):
                       "strip_loss_s": args.strip_loss}
                      if "beam" in models else None),
             "failed": failed,
-            "paper_reference": _reference(scene),
+            "paper_reference": dict(scene.reference) or None,
         }
         _write_json(os.path.join(args.out, "summary.json"), summary)
         if results:
             _write_csv(os.path.join(args.out, "trajectory.csv"), results, center, radius)
 
     for i, m in enumerate(models):
-        _log(f"[{i + 1}/{len(models)}] {scene}: model {m} (compiling, then running) ...")
+        _log(f"[{i + 1}/{len(models)}] {scene.name}: model {m} (compiling, then running) ...")
         t0 = time.perf_counter()
         try:
-            r = run_scene(scene, params, model=objs[i], torque_model=args.torque_model,
+            r = run_scene(scene, params, model=objs[i],
                           program_dir=getattr(args, "program_dir", None), **kw)
         except PPRError as err:
             failed[m] = " ".join(str(err).split())
@@ -101,70 +102,82 @@ def cmd_simulate(args):
         results.append(r)
         write()
     if results:
-        scene_figures(results, args.out, center, radius)
-        _print_table(scene, results, args)
-        print(f"wrote {args.out}/summary.json, trajectory.csv, trajectory.png, angle.png, "
-              f"radial_error.png")
+        figs = scene_figures(results, args.out, center, radius)
+        _print_table(scene, results, circle)
+        print(f"wrote {args.out}/summary.json, trajectory.csv, "
+              + ", ".join(os.path.basename(f) for f in figs))
     if failed:
         raise PPRError(f"{len(failed)} of {len(models)} models failed ({', '.join(failed)}); "
                        f"see above and {args.out}/summary.json")
     return 0
 
 
-def _print_table(scene, results, args):
-    ref = _reference(scene) or {}
-    hdr = (f"{'model':>10s} {'e_r max':>9s} {'e_r min':>9s} {'e_r mean':>9s} {'max|e_r|/R':>10s} "
-           f"{'|dphi| max':>10s} {'d_end max':>9s} {'d_end min':>9s} {'d_end mean':>10s} "
-           f"{'rel':>6s} {'resid':>8s} {'steps':>6s} {'run':>8s}")
-    units = (f"{'':>10s} {'mm':>9s} {'mm':>9s} {'mm':>9s} {'%':>10s} {'mrad':>10s} {'deg':>9s} "
-             f"{'deg':>9s} {'deg':>10s} {'%':>6s} {'m':>8s} {'':>6s} {'ms':>8s}")
-    print(f"\nScene {scene} (t = {float(results[0].params.t) * 1e3:.2f} mm); radial error "
-          f"e_r = |(x,y) - c| - R against the nominal circle (eq 55); d_end = difference of chain "
-          f"1's joint end rotations")
-    print(hdr)
-    print(units)
+def _print_table(scene, results, circle: bool):
+    ref = dict(scene.reference)
+    m0 = results[0].metrics
+    if circle:
+        head = [("e_r max", "mm", "radial_error_max_m", 1e3, 9.4),
+                ("e_r min", "mm", "radial_error_min_m", 1e3, 9.4),
+                ("e_r mean", "mm", "radial_error_mean_m", 1e3, 9.4),
+                ("max|e_r|/R", "%", "radial_error_max_relative_percent", 1, 10.4)]
+        what = "radial error e_r = |(x,y) - c| - R against the nominal circle (eq 55)"
+    else:
+        head = [("pos max", "mm", "position_error_max_m", 1e3, 9.4),
+                ("pos rms", "mm", "position_error_rms_m", 1e3, 9.4),
+                ("pos end", "mm", "position_error_end_m", 1e3, 9.4)]
+        what = "position error |(x,y) - (x,y)_commanded| against the commanded path"
+    head += [("|dphi| max", "mrad", "phi_error_max_rad", 1e3, 10.4),
+             ("d_end max", "deg", "end_rotation_diff_max_deg", 1, 9.4),
+             ("d_end min", "deg", "end_rotation_diff_min_deg", 1, 9.4),
+             ("d_end mean", "deg", "end_rotation_diff_mean_deg", 1, 10.4),
+             ("rel", "%", "end_rotation_diff_max_relative_percent", 1, 6.2)]
+    widths = [int(f) for *_, f in head]
+    print(f"\nScene {scene.name} (t = {float(results[0].params.t) * 1e3:.2f} mm); {what}; "
+          f"d_end = difference of chain 1's joint end rotations")
+    print(f"{'model':>10s} " + " ".join(f"{h:>{w}s}" for (h, *_), w in zip(head, widths))
+          + f" {'resid':>8s} {'steps':>6s} {'run':>8s}")
+    print(f"{'':>10s} " + " ".join(f"{u:>{w}s}" for (_, u, *_), w in zip(head, widths))
+          + f" {'m':>8s} {'':>6s} {'ms':>8s}")
     for r in results:
         m = r.metrics
-        print(f"{r.model:>10s} {m['radial_error_max_m'] * 1e3:9.4f} "
-              f"{m['radial_error_min_m'] * 1e3:9.4f} {m['radial_error_mean_m'] * 1e3:9.4f} "
-              f"{m['radial_error_max_relative_percent']:10.4f} "
-              f"{m['phi_error_max_rad'] * 1e3:10.4f} {m['end_rotation_diff_max_deg']:9.4f} "
-              f"{m['end_rotation_diff_min_deg']:9.4f} {m['end_rotation_diff_mean_deg']:10.4f} "
-              f"{m['end_rotation_diff_max_relative_percent']:6.2f} "
-              f"{m['constraint_residual_max_m']:8.1e} {m['num_steps']:6d} "
+        print(f"{r.model:>10s} " + " ".join(f"{m[k] * s:{f}f}" for _, _, k, s, f in head)
+              + f" {m['constraint_residual_max_m']:8.1e} {m['num_steps']:6d} "
               f"{r.timing['run_s'] * 1e3:8.2f}")
-    if ref:
-        print(f"{'paper':>10s} {ref['radial_error_max_m'] * 1e3:9.4f} "
-              f"{ref['radial_error_min_m'] * 1e3:9.4f} "
-              f"{ref['radial_error_mean_m'] * 1e3:9.4f} "
-              f"{ref['radial_error_max_relative_percent']:10.4f}"
-              f"   ({ref['source']})")
+    if ref and circle:
+        print(f"{'paper':>10s} " + " ".join(f"{ref[k] * s:{f}f}" for _, _, k, s, f in head[:4])
+              + f"   ({ref['source']})")
+    far = "radial_error_max_relative_percent" if circle else None
     for r in results:
-        if r.metrics["radial_error_max_relative_percent"] > 20:
+        if far and r.metrics[far] > 20 and m0 is not None:
             print(f"note: {r.model} runs far off the circle "
-                  f"({r.metrics['radial_error_max_relative_percent']:.0f}% "
-                  f"of R): open-loop torques of another model amplify the mismatch "
-                  f"(L0's pin is about half as stiff as the double-1R joint); "
+                  f"({r.metrics[far]:.0f}% of R): open-loop torques of another model amplify "
+                  f"the mismatch (L0's pin is about half as stiff as the double-1R joint); "
                   f"use --torque-model {r.model} for its own torques")
 
 
 def _write_csv(path, results, center, R):
-    """trajectory.csv: every model's pose, radial error (host side, numpy: no XLA program per
+    """trajectory.csv: every model's pose, its error against the nominal path (the radial
+    error e_r of a circle, else the position error e_pos; host side, numpy: no XLA program per
     operation), torques and joint end rotations."""
     import numpy as np
 
     from .._metrics import radial_error
 
+    def err(r, X):
+        if center is not None:
+            return radial_error(np.asarray(X), center, R, xp=np)
+        return np.linalg.norm(np.asarray(X)[:, :2] - np.asarray(r.X_nominal)[:, :2], axis=-1)
+
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["model", "t", "x", "y", "phi", "e_r", "tau_1", "tau_2", "tau_3",
-                    "end_rot_1", "end_rot_2"])
+        w.writerow(["model", "t", "x", "y", "phi", "e_r" if center is not None else "e_pos",
+                    "tau_1", "tau_2", "tau_3", "end_rot_1", "end_rot_2"])
         r0 = results[0]
-        er = radial_error(np.asarray(r0.X_nominal), center, R, xp=np)
+        er = err(r0, r0.X_nominal)
         for k in range(len(r0.ts)):
             w.writerow(["nominal", r0.ts[k], *r0.X_nominal[k], er[k], "", "", "", "", ""])
         for r in results:
-            er = radial_error(np.asarray(r.X), center, R, xp=np)
+            er = err(r, r.X)
             for k in range(len(r.ts)):
                 w.writerow([r.model, r.ts[k], *r.X[k], er[k], *r.tau[k], *r.end_rot[k]])
 
@@ -172,7 +185,7 @@ def _write_csv(path, results, center, R):
 def _add_simulate(sub, parents, fmt):
     kinematic = list(KINEMATIC_MODELS)  # pose = coordinates
     s = sub.add_parser("simulate", formatter_class=fmt,
-        parents=[parents[k] for k in ("params", "model", "solve", "times")],
+        parents=[parents[k] for k in ("params", "model", "solve", "times", "files")],
         help="run a scene and write summary.json, trajectory.csv, figures")
     s.add_argument("--scene", default="paper-circle", choices=list(SIMULATE_CHOICES),
                    help="scene to run")

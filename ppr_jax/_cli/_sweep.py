@@ -67,23 +67,24 @@ def sweep_figures(result, out_dir) -> list:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .._studies import METRICS
-
+    # the sweep's own metric columns (the radial error for a circle, the tracking error else)
+    fixed = {"member", "status", "reason", "result_code", "num_steps", *result.varied}
+    metric_cols = [c for c in result.columns if c not in fixed]
     ok = result.ok
     paths = []
     ncol = 4
-    nrow = math.ceil(len(METRICS) / ncol)
+    nrow = math.ceil(len(metric_cols) / ncol)
     for name in result.varied:
         fig, axs = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 2.6 * nrow), squeeze=False)
         x = np.array([r[name] for r in ok])
-        for ax, m in zip(axs.flat, METRICS):
+        for ax, m in zip(axs.flat, metric_cols):
             y = np.array([r[m] for r in ok])
             ax.plot(x, y, ".", ms=4)
             ax.set_xlabel(name)
             ax.set_title(m, fontsize=8)
             ax.tick_params(labelsize=7)
             ax.grid(alpha=0.3)
-        for ax in list(axs.flat)[len(METRICS):]:
+        for ax in list(axs.flat)[len(metric_cols):]:
             ax.axis("off")
         fig.suptitle(f"sweep {result.info['scene']} ({result.info['model']}): metrics vs {name} "
                      f"({len(ok)} ok, {len(result.failed)} failed)", fontsize=9)
@@ -100,10 +101,11 @@ def cmd_sweep(args):
 
     from .._scenes import batch_devices
     from .._studies import sweep
-    from ._common import _parse_sets, model_from_args
+    from ._common import _parse_sets, model_from_args, scene_from_args
 
     vary = parse_vary(args.vary)
-    params = _parse_sets(args.set, args.scene, getattr(args, "params_file", None))
+    scene = scene_from_args(args)
+    params = _parse_sets(args.set, scene, getattr(args, "params_file", None))
     _out_dir(args.out)
     design, n = ("lhs", args.lhs) if args.lhs is not None else ("grid", None)
     if args.lhs is not None and args.lhs < 1:
@@ -121,8 +123,8 @@ def cmd_sweep(args):
                 f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices} first")
         devices = avail[: args.devices]
     res = sweep(
-        args.scene, params, vary, design=design, n=n, seed=args.seed,
-        model=model_from_args(args, args.model), torque_model=args.torque_model,
+        scene, params, vary, design=design, n=n, seed=args.seed,
+        model=model_from_args(args, args.model),
         t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol, atol=args.atol,
         max_steps=args.max_steps, chunk_size=args.chunk, devices=devices,
         checkpoint_dir=os.path.join(args.out, "chunks"), progress=True,
@@ -144,7 +146,7 @@ def cmd_sweep(args):
                    "failed": [{c: r[c] for c in fcols} for r in res.failed]}, f, indent=2)
     written.append("summary.json")
     written += [os.path.basename(p) for p in sweep_figures(res, args.out)]
-    print(f"sweep {args.scene} ({res.info['model']}): {len(res.rows)} members, {len(res.ok)} ok, "
+    print(f"sweep {scene.name} ({res.info['model']}): {len(res.rows)} members, {len(res.ok)} ok, "
           f"{len(res.failed)} failed")
     for r in res.failed[:10]:
         print(f"  member {r['member']} ({', '.join(f'{k}={r[k]:.6g}' for k in res.varied)}): "
@@ -162,7 +164,7 @@ def add_sweep(sub, parents, fmt):
     kinematic = list(KINEMATIC_MODELS)
     s = sub.add_parser(
         "sweep", formatter_class=fmt,
-        parents=[parents[k] for k in ("params", "model", "solve", "times")],
+        parents=[parents[k] for k in ("params", "model", "solve", "times", "files")],
         help="run a scene over a grid or Latin hypercube of parameters; tidy table + figures",
         description="Run a scene over a grid (default) or a Latin hypercube (--lhs N) of parameter "
                     "values, in chunks of one compiled vmapped program. Writes sweep.csv (and "

@@ -74,7 +74,7 @@ from ..._data import DataError, Experiment
 from ..._errors import IdentificationError
 from ..._models import get_model
 from ..._params import PARAM_RANGES, RobotParams
-from ..._scenes import scene_params
+from ..._scenes import MAX_STEPS, scene_params
 from ..._simulate import get_solver
 from ._data import _fill_prb, _pack
 from ._fit import (
@@ -128,9 +128,9 @@ def identify(
     ftol: float = 1e-10,
     stat_tol: float = 1e-2,
     ode_solver=None,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 100_000,
+    rtol: Optional[float] = None,
+    atol: Optional[float] = None,
+    max_steps: int = MAX_STEPS,
     n_elements: Optional[int] = None,
     validation=None,
     nuisance: Sequence[str] = (),
@@ -184,8 +184,9 @@ def identify(
         change is below `xtol`, `ftol`; "lm" also stops when an accepted step is shorter than
         `stat_tol` standard errors (measured with the information matrix J^T J / s^2, so that
         steps along undetermined directions do not count).
-    - `ode_solver`, `rtol`, `atol`, `max_steps`: the simulation's (default tsit5, 1e-8,
-        1e-10).
+    - `ode_solver`, `rtol`, `atol`, `max_steps`: the simulation's (default the model's solver
+        and tolerances, `AbstractModel.default_solver`, `default_rtol`, `default_atol`, and the
+        scenes' step budget).
     - `n_elements`: the beam model's element count.
     - `validation`: samples held out of the fit and predicted by it: a fraction in (0, 1),
         the last part of every experiment's time span (by time: the model must extrapolate its
@@ -333,7 +334,9 @@ def identify(
     from ..._robot import equal_links_of
 
     eq = equal_links_of(base) and "l1" not in names and "l3" not in names
-    ode = get_solver("tsit5" if ode_solver is None else ode_solver)
+    ode = get_solver(mdl.default_solver if ode_solver is None else ode_solver)
+    rtol = mdl.default_rtol if rtol is None else rtol
+    atol = mdl.default_atol if atol is None else atol
     if commands is not None and not isinstance(commands, RobotParams):
         raise IdentificationError(f"commands must be the RobotParams of the model that computed "
                                   f"the commands, got {type(commands).__name__}")
