@@ -4,7 +4,6 @@ the spline of the SI samples, every refused input with its line and cause, the i
 along a path, and derivatives with respect to the samples against finite differences."""
 
 import math
-from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -426,22 +425,8 @@ def test_a_command_log_drives_a_scene_of_ones_own(tmp_path, robot):
     log = pj.load_commands(_write(tmp_path / "log.csv", "time,th_1[deg],th_2[deg],th_3[deg]",
                                   np.column_stack([tt, np.degrees(th)])))
 
-    class LogScene(pj.AbstractScene):
-        name: ClassVar[str] = "log"
-        thickness: ClassVar[float] = 0.3e-3
-        reference: ClassVar[dict] = {}
-
-        def trajectory(self):
-            return line
-
-        def commands(self, model, robot, traj, ts, panels):
-            return pj.SceneInput(log.actuation())
-
-        def follows_its_input(self, model):
-            return ""
-
-    res = pj.solve_scene(LogScene(), model="reduced",
-                         options=pj.SceneOptions(t_end=1.0, n_out=13))
+    scene = pj.PathScene(line, drive="motion", command_log=log, name="log")
+    res = pj.solve_scene(scene, model="reduced", options=pj.SceneOptions(t_end=1.0, n_out=13))
     assert res.ok
     err = np.abs(np.asarray(res.X) - np.asarray(jax.vmap(line)(res.ts))).max()
     assert err < 1e-8, err  # output times between the log's samples: the spline's error

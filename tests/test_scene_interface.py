@@ -276,7 +276,7 @@ def test_path_scene_refuses_bad_members():
         pj.PathScene(Line(), drive="torque", command_log=log)
 
 
-def _write_experiment_file(path, scene, rate=100.0):
+def _write_experiment_file(path, scene, rate=1000.0):
     """A controller's file of the smooth line: time, the commanded poses and the actuated
     angles L1's inverse kinematics commands for them (the file a user brings)."""
     ts = np.arange(0.0, 1.0 + 1e-9, 1.0 / rate)
@@ -291,7 +291,9 @@ def _write_experiment_file(path, scene, rate=100.0):
 def test_cli_simulate_your_own_experiment(tmp_path):
     """`ppr-jax simulate --path F --angles F`: the commanded poses and the commanded angles of
     a file drive L2 (no scene of the paper's); the result agrees with the same experiment as
-    a `PathScene` of the exact line and L1's exact angles (the file's splines: 1e-4 relative),
+    a `PathScene` of the exact line and L1's exact angles (the file's splines of 1 kHz samples
+    put an error of order h^2 into the accelerations that bend the strips: 1e-3 relative; at
+    100 Hz it is 2 %),
     and the CSV and figures are the path's (position error, not the circle's radial error)."""
     import json
 
@@ -309,7 +311,7 @@ def test_cli_simulate_your_own_experiment(tmp_path):
     ref = pj.run_scene(scene, model="double1r", t_end=1.0, n_out=21).metrics
     assert "radial_error_max_m" not in got
     for k in ("position_error_max_m", "position_error_rms_m", "phi_error_max_rad"):
-        np.testing.assert_allclose(got[k], ref[k], rtol=1e-4, err_msg=k)
+        np.testing.assert_allclose(got[k], ref[k], rtol=1e-3, err_msg=k)
     assert (out / "position_error.png").exists() and not (out / "radial_error.png").exists()
     assert (out / "trajectory.csv").read_text().splitlines()[0].split(",")[5] == "e_pos"
 
