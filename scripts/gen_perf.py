@@ -129,6 +129,46 @@ def compile_times() -> str:
     return _table(header, rows) + f"\n\n{d['scene']}; {d['what']}. " + _machine(d)
 
 
+def compile_budget() -> str:
+    d = _load("compile_budget.json")
+    if d is None or not d.get("rows"):
+        return "*No compile budget results.*"
+    rows = []
+    for r in d["rows"]:
+        w = r["whole"]
+        name = r["model"] + (f" (N = {r['elements']})" if r.get("elements") else "")
+
+        def part(*names):
+            for n in names:
+                if n in r["parts"]:
+                    lines = w["attribution"].get(n, {}).get("expanded_lines", 0)
+                    return (f"{r['parts'][n]['compile_s']:.1f} s, "
+                            f"{100 * lines / w['expanded_lines']:.0f} %")
+            return "-"
+
+        rows.append([name, r["scene"], f"{w['trace_lower_s']:.1f} s",
+                     f"{w['compile_s']:.1f} s", _ms(w["run_s"]),
+                     f"{w['stablehlo_lines']:,} ({w['expanded_lines']:,})",
+                     f"{w['rhs']['eom']['copies_inlined']}",
+                     f"{w['while_ops_inlined']} / {w['case_ops_inlined']}",
+                     part("input"), part("start"), part("integration", "kinematics"),
+                     part("outputs")])
+    header = ["model", "scene", "trace + lower", "XLA compile", "run", "StableHLO lines "
+              "(inlined)", "EOM copies", "while / case", "input", "start",
+              "integration (or kinematics)", "outputs"]
+    note = ("A fresh process per row (`benchmarks/compile_budget.py`), no persistent cache: the "
+            "whole scene program's tracing and lowering, XLA compilation and run (minimum of "
+            "repeats); its StableHLO lines, and in parentheses with every private function "
+            "counted once per call path (XLA inlines them); the copies of the equations of "
+            "motion (`_eom_terms_jit`) and the loops and branches after inlining. Each part of "
+            "`AbstractScene.run` compiled alone (its XLA seconds) and its share of the whole "
+            "program's inlined lines, attributed by each op's source location; the rest is "
+            "the precondition checks and the jit boundary.")
+    if d.get("note"):
+        note += " " + d["note"]
+    return _table(header, rows) + "\n\n" + note + " " + _machine(d)
+
+
 def batch(backend="cpu") -> str:
     d = _load(backend, "batch.json")
     if d is None:
@@ -330,6 +370,7 @@ def tables() -> dict:
         "work-precision-gpu": work_precision("gpu"),
         "contenders": contenders(),
         "compile": compile_times(),
+        "compile-budget": compile_budget(),
         "batch": batch("cpu"),
         "batch-gpu": batch("gpu"),
         "mjx": mjx_batch(),
