@@ -11,6 +11,7 @@ import argparse
 import os
 import sys
 
+from .._names import T_END
 from ._common import (
     _log,
     parent_parsers,
@@ -66,6 +67,8 @@ def main(argv=None) -> int:
     # the command as typed, for reports that say how they were made
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.program_dir = None
+    if getattr(args, "t_end", T_END) is None and getattr(args, "path", None) is None:
+        args.t_end = T_END  # a --path file's own horizon is read with the file (scene_from_args)
     if args.cmd == "sweep" and os.environ.get("PPR_JAX_CPU_DEFAULTS", "1") != "0":
         from .._devices import configure_cpu
 
