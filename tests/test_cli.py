@@ -132,14 +132,14 @@ def test_modes_json_equals_a_finite_difference_linearization_of_the_paper_equati
     import jax.numpy as jnp
     import scipy.linalg
 
+    import ppr_jax as pj
     from ppr_jax._paper_eom import paper_workspace_eom
-    from ppr_jax._scenes import scene_params
 
     assert main(["modes", "--model", "reduced", "--actuators", "free", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     z = np.array(out["equilibrium_z"])
     np.testing.assert_allclose(z, [0.45, 0.9 * np.sqrt(3) / 6, 0.0], rtol=0, atol=1e-12)
-    p = scene_params("modes")
+    p = pj.RobotParams()  # Table 1, as `modes` runs it
     eom = jax.jit(lambda X: paper_workspace_eom(p, X, jnp.zeros(3)))
     Me, _, spring = (np.asarray(v) for v in eom(jnp.asarray(z)))
     assert np.abs(spring).max() < 1e-12  # an equilibrium with zero actuator torque

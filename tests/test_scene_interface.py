@@ -295,9 +295,9 @@ def _write_experiment_file(path, scene, rate=1000.0):
 def test_cli_simulate_your_own_experiment(tmp_path):
     """`ppr-jax simulate --path F --angles F`: the commanded poses and the commanded angles of
     a file drive L2 (no scene of the paper's); the result agrees with the same experiment as
-    a `PathScene` of the exact line and L1's exact angles (the file's splines of 1 kHz samples
-    put an error of order h^2 into the accelerations that bend the strips: 1e-3 relative; at
-    100 Hz it is 2 %),
+    a `PathScene` of the exact line driven by L1's exact inverse-kinematics angles as its
+    command log (evaluated at every stage: the file's splines of 1 kHz samples against the
+    functions they sample),
     and the CSV and figures are the path's (position error, not the circle's radial error)."""
     import json
 
@@ -312,7 +312,11 @@ def test_cli_simulate_your_own_experiment(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["drive"] == "motion" and summary["t_end_s"] == 1.0
     got = summary["models"]["double1r"]
-    ref = pj.run_scene(scene, model="double1r", t_end=1.0, n_out=21).metrics
+    exact = pj.InverseKinematicsAngles(pj.Reduced(), pj.Robot(scene.default_params()),
+                                       SmoothLine())
+    ref = pj.run_scene(pj.PathScene(SmoothLine(), drive="motion", command_log=exact,
+                                    thickness=0.5e-3),
+                       model="double1r", t_end=1.0, n_out=21).metrics
     assert "radial_error_max_m" not in got
     for k in ("position_error_max_m", "position_error_rms_m", "phi_error_max_rad"):
         np.testing.assert_allclose(got[k], ref[k], rtol=1e-3, err_msg=k)
