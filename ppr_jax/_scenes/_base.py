@@ -55,9 +55,10 @@ class SceneInput(eqx.Module):
 
 def tabulated(fn, ts, panels: int):
     """(table, coarse, out_of_reach): the input `fn` (an `InverseDynamicsTorque` or
-    `InverseKinematicsAngles`) tabulated on [ts[0], ts[-1]] (`_tabulated.scene_input`), whether
-    the table is too coarse, and whether the nominal path leaves the chains' reach at a node
-    (from the table's own evaluations)."""
+    `InverseKinematicsAngles`) tabulated over the output times `ts` and the quasi-static
+    start's reach about ts[0] (`_tabulated.scene_input`), whether the table is too coarse, and
+    whether the nominal path leaves the chains' reach at a node (from the table's own
+    evaluations)."""
     table, resid = scene_input(fn.with_residual, ts, panels, aux=True)
     return table, input_too_coarse(table), ~(jnp.max(resid) <= RESIDUAL_TOL)
 
