@@ -89,13 +89,18 @@ def _values_to_coeffs(m: int) -> np.ndarray:
 
 class Chebyshev(eqx.Module):
     """f(t) (any shape) on [t0, t0 + P H]: P panels of length H, each a Chebyshev series of
-    degree m - 1 (`coeffs` (P, m, ...)). Differentiable in t (so `derivatives` works through it)
-    and in the coefficients (so gradients reach the parameters that made them). Outside the
-    horizon the end panels' polynomials extrapolate."""
+    degree m - 1 (`coeffs` (P, m, ...)), and optionally one more panel of length `pre_H` just
+    before t0 (`pre` (m, ...)), so that t0 is a panel boundary (a motion that starts from rest
+    at t0 has a jump of a higher derivative there, which a polynomial across t0 would smear).
+    Differentiable in t (so `derivatives` works through it) and in the coefficients (so
+    gradients reach the parameters that made them). Outside the table the end panels'
+    polynomials extrapolate."""
 
     t0: Float[Array, ""]
     H: Float[Array, ""]
     coeffs: Float[Array, "P m ..."]
+    pre: Optional[Float[Array, "m ..."]] = None
+    pre_H: Optional[Float[Array, ""]] = None
 
     def __call__(self, t):
         P, m = self.coeffs.shape[:2]
@@ -103,6 +108,10 @@ class Chebyshev(eqx.Module):
         i = jnp.clip(jnp.floor(s), 0, P - 1).astype(jnp.int32)
         x = 2.0 * (s - i.astype(s.dtype)) - 1.0
         c = self.coeffs[i]
+        if self.pre is not None:
+            before = t < self.t0
+            x = jnp.where(before, 2.0 * (t - self.t0) / self.pre_H + 1.0, x)
+            c = jnp.where(jnp.reshape(before, before.shape + (1,) * (c.ndim - 1)), self.pre, c)
         x = jnp.reshape(x, x.shape + (1,) * (c.ndim - 1))
         # Clenshaw: sum_k c_k T_k(x) without evaluating the T_k
         b1, b2 = jnp.zeros_like(c[0]), jnp.zeros_like(c[0])
@@ -115,9 +124,25 @@ class Chebyshev(eqx.Module):
         the two highest Chebyshev coefficients, in the worst panel (for a series that converges
         geometrically the neglected tail is smaller than its last terms)."""
         c = jnp.abs(self.coeffs)
+        if self.pre is not None:
+            c = jnp.concatenate([c, jnp.abs(self.pre)[None]], axis=0)
         scale = jnp.max(jnp.sum(c, axis=1))  # bounds |f| in each panel, and is close to it
         tail = jnp.max(c[:, -1] + c[:, -2])
         return tail / (scale + jnp.finfo(self.coeffs.dtype).tiny)
+
+
+def _nodes(t0, t1, panels: int, m: int):
+    """(nodes (panels, m), H): Chebyshev-Lobatto nodes of `panels` equal panels of [t0, t1]."""
+    t0 = jnp.asarray(t0, float)
+    H = (jnp.asarray(t1, float) - t0) / panels
+    local = jnp.asarray((_lobatto(m) + 1.0) / 2.0)
+    return t0 + H * (jnp.arange(panels, dtype=float)[:, None] + local[None, :]), H
+
+
+def _coeffs(vals, m: int):
+    """Chebyshev coefficients (P, m, ...) from values (P * m, ...) at the panels' nodes."""
+    vals = vals.reshape((-1, m) + vals.shape[1:])
+    return jnp.einsum("kj,pj...->pk...", jnp.asarray(_values_to_coeffs(m)), vals)
 
 
 def tabulate(fn: Callable, t0, t1, panels: int, nodes_per_panel: int = PANEL_NODES,
@@ -129,27 +154,32 @@ def tabulate(fn: Callable, t0, t1, panels: int, nodes_per_panel: int = PANEL_NOD
     m = int(nodes_per_panel)
     if m < 2 or int(panels) < 1:
         raise ValueError(f"need at least 1 panel and 2 nodes per panel, got {panels}, {m}")
-    t0 = jnp.asarray(t0, float)
-    H = (jnp.asarray(t1, float) - t0) / panels
-    local = jnp.asarray((_lobatto(m) + 1.0) / 2.0)
-    tn = t0 + H * (jnp.arange(panels, dtype=float)[:, None] + local[None, :])
+    tn, H = _nodes(t0, t1, panels, m)
     out = jax.vmap(fn)(tn.reshape(-1))
     vals, extra = out if aux else (out, None)
-    vals = vals.reshape((panels, m) + vals.shape[1:])
-    coeffs = jnp.einsum("kj,pj...->pk...", jnp.asarray(_values_to_coeffs(m)), vals)
-    table = Chebyshev(t0=t0, H=H, coeffs=coeffs)
+    table = Chebyshev(t0=jnp.asarray(t0, float), H=H, coeffs=_coeffs(vals, m))
     return (table, extra) if aux else table
 
 
 def scene_input(fn: Callable, ts, panels: Optional[int] = None, aux: bool = False):
     """A scene's input `fn` of time as its integrator and its start call it, for output times
     `ts`: a `Chebyshev` table on `panels` (default `scene_panels(len(ts))`) panels over
-    [ts[0] - `START_MARGIN`, max(ts[-1], ts[0] + `START_MARGIN`)], so that the quasi-static
-    start reads the input's values on both sides of ts[0] whatever the horizon (with `aux`,
-    also fn's auxiliary output at the nodes). Check the table with `input_too_coarse`."""
+    [ts[0], max(ts[-1], ts[0] + `START_MARGIN`)] and one panel over
+    [ts[0] - `START_MARGIN`, ts[0]], so that the quasi-static start reads the input's values on
+    both sides of ts[0] whatever the horizon, and a motion that starts at ts[0] (from rest,
+    with a jump of its third derivative there) is not smeared across it (with `aux`, also fn's
+    auxiliary output at the nodes). All nodes in one vectorised evaluation (one copy of fn in
+    the program). Check the table with `input_too_coarse`."""
     P = scene_panels(ts.shape[0]) if panels is None else int(panels)
-    t1 = jnp.maximum(ts[-1], ts[0] + START_MARGIN)
-    return tabulate(fn, ts[0] - START_MARGIN, t1, P, aux=aux)
+    m = PANEL_NODES
+    t0 = jnp.asarray(ts[0], float)
+    main, H = _nodes(t0, jnp.maximum(ts[-1], t0 + START_MARGIN), P, m)
+    pre, pre_H = _nodes(t0 - START_MARGIN, t0, 1, m)
+    out = jax.vmap(fn)(jnp.concatenate([main.reshape(-1), pre.reshape(-1)]))
+    vals, extra = out if aux else (out, None)
+    c = _coeffs(vals, m)
+    table = Chebyshev(t0=t0, H=H, coeffs=c[:P], pre=c[P], pre_H=pre_H)
+    return (table, extra) if aux else table
 
 
 def input_too_coarse(inp: Callable):

@@ -113,7 +113,7 @@ def test_reach_check_from_the_table_nodes(robot_and_inputs):
         for fn in (pj.InverseDynamicsTorque(pj.Reduced(), r, pj.Circle()),
                    pj.InverseKinematicsAngles(pj.Reduced(), r, pj.Circle())):
             _, resid = scene_input(fn.with_residual, ts, aux=True)
-            assert resid.shape == (scene_panels(755) * PANEL_NODES,)
+            assert resid.shape == ((scene_panels(755) + 1) * PANEL_NODES,)  # + the pre-start panel
             assert lo <= float(jnp.max(resid)) <= hi
 
 
@@ -206,3 +206,23 @@ def test_spline_pieces_cubic_exact_smooth_fourth_order_and_padding():
         h = 2.0 / (n - 1)
         assert errs[-1] < 5 * h ** 4 * 81 / 384, (n, errs[-1])
     assert 10 < errs[0] / errs[1] < 24, errs
+
+
+def test_scene_input_reaches_before_the_start_with_a_panel_boundary_at_t0():
+    """The start reads the input 10 ms on both sides of t0: the table holds it there, exact to
+    interpolation accuracy, and a motion that starts from rest at t0 (max(t, 0)^3: a jump of
+    the third derivative) is not smeared across t0 (t0 is a panel boundary), so the table is
+    not judged too coarse."""
+    from ppr_jax._tabulated import START_MARGIN, input_too_coarse, scene_input
+
+    def f(t):
+        return jnp.stack([jnp.maximum(t, 0.0) ** 3, jnp.cos(3.0 * t)])
+
+    ts = jnp.linspace(0.0, 0.005, 2)  # shorter than the margin: the table reaches t0 + 10 ms
+    tab = scene_input(f, ts)
+    t = jnp.linspace(-START_MARGIN, START_MARGIN, 41)
+    np.testing.assert_allclose(jax.vmap(tab)(t), jax.vmap(f)(t), rtol=0, atol=1e-14)
+    assert not bool(input_too_coarse(tab))
+    # second derivatives where the start takes them, on both sides of t0
+    d2 = jax.vmap(lambda s: jax.grad(jax.grad(lambda u: tab(u)[0]))(s))(t)
+    np.testing.assert_allclose(d2, 6 * np.maximum(np.asarray(t), 0.0), rtol=0, atol=1e-9)
