@@ -241,6 +241,10 @@ def read_columns(path: str, *, required: Sequence[str] = REQUIRED,
     be. Raises `DataError` for a missing file, unknown, duplicated or missing columns, bad
     units, unreadable numbers and (unless `drop_nan`) NaN, empty or infinite cells, naming the
     file and the lines. The rows are neither counted nor ordered here: the callers check that."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise DataError(f"a data file is a path (str or os.PathLike), got {type(path).__name__} "
+                        f"{path!r}")
+    path = os.fspath(path)
     source = os.path.basename(path)
     if not os.path.isfile(path):
         raise DataError(f"{path}: no such file")

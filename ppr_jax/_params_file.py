@@ -80,11 +80,20 @@ def load_params(path: str, base: Optional[RobotParams] = None) -> RobotParams:
         if not ok:
             raise PPRError(f"parameter file {str(path)!r}: {name} = {value!r} is not a "
                            f"{'string' if name == 'joint_geometry' else 'number'}")
-        changes[name] = float(value) if name in PARAM_RANGES else value
+        if name in PARAM_RANGES:
+            try:
+                value = float(value)
+            except OverflowError:  # an integer beyond float's range (TOML reads 1e400 as inf)
+                lo, hi, unit, _ = PARAM_RANGES[name]
+                digits = len(str(abs(value)))
+                raise PPRError(f"parameter file {str(path)!r}: {name} = an integer of {digits} "
+                               f"digits is out of range; allowed: [{lo:g}, {hi:g}] {unit}"
+                               .rstrip()) from None
+        changes[name] = value
     base = RobotParams() if base is None else base
     try:
         return base.replace(**changes)
-    except PPRError as err:
+    except (PPRError, OverflowError) as err:
         raise PPRError(f"parameter file {str(path)!r}: {err}") from None
 
 

@@ -227,6 +227,10 @@ def test_too_few_samples(tmp_path):
 def test_missing_file_and_empty_file(tmp_path):
     with pytest.raises(DataError, match="no such file"):
         pj.load_csv(str(tmp_path / "nope.csv"))
+    with pytest.raises(DataError, match=r"a data file is a path \(str or os.PathLike\), got int"):
+        pj.load_csv(123)
+    with pytest.raises(DataError, match="no such file"):  # a pathlib path is a path
+        pj.load_csv(tmp_path / "nope.csv")
     with pytest.raises(DataError, match="no header row"):
         pj.load_csv(_write(tmp_path, "# only a comment\n"))
 

@@ -389,6 +389,10 @@ def test_bad_requests_raise_clear_errors(truth, clean):
         pj.identify(exp, ("t",), initial_state="all")
     with pytest.raises(pj.PPRError, match="no free initial state"):
         pj.identify(exp, ("t",), model="reduced", initial_state="pose")
+    # argument types: named, not a raw TypeError
+    for bad in (1e-4, ("a", "b"), (1e-4,), (1e-4, float("nan"))):
+        with pytest.raises(pj.IdentificationError, match=r"noise must be \(position m, phi rad"):
+            pj.identify(exp, ("t",), noise=bad)
 
 
 def test_cli_synth_then_identify(tmp_path, truth, capsys):

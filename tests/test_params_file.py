@@ -46,6 +46,10 @@ def test_save_and_load_round_trip_every_field(tmp_path, ext):
     ('thickness = 3e-4\n', r"unknown name.*thickness"),
     ('t = "thin"\n', r"t = 'thin' is not a number"),
     ('t = \n', r"not valid TOML"),
+    # an integer beyond a float's range: named, not an OverflowError traceback
+    ('t = 1' + '0' * 400 + '\n',
+     r"t = an integer of 401 digits is out of range; allowed: \[1e-06, 0\.01\] m"),
+    ('sigma = 1' + '0' * 400 + '\n', r"sigma"),
 ])
 def test_a_bad_file_names_the_cause(tmp_path, text, match):
     path = tmp_path / "bad.toml"

@@ -282,8 +282,13 @@ def identify(
     clash = set(fixed) & set(names)
     if clash:
         raise IdentificationError(f"parameter(s) {sorted(clash)} are both unknown and fixed")
-    if len(noise) != 2 or not all(float(v) > 0 for v in noise):
-        raise IdentificationError(f"noise must be (position m, phi rad), both > 0, got {noise}")
+    try:
+        ok = len(noise) == 2 and all(float(v) > 0 and np.isfinite(float(v)) for v in noise)
+    except (TypeError, ValueError):  # a bare number, or not numbers
+        ok = False
+    if not ok:
+        raise IdentificationError(f"noise must be (position m, phi rad), both finite and > 0, "
+                                  f"got {noise!r}")
     stray = set(initial or {}) - set(names)
     if stray:
         raise IdentificationError(f"initial values given for {sorted(stray)}, which are not "
