@@ -114,7 +114,6 @@ def cmd_simulate(args):
 
 def _print_table(scene, results, circle: bool):
     ref = dict(scene.reference)
-    m0 = results[0].metrics
     if circle:
         head = [("e_r max", "mm", "radial_error_max_m", 1e3, 9.4),
                 ("e_r min", "mm", "radial_error_min_m", 1e3, 9.4),
@@ -148,7 +147,7 @@ def _print_table(scene, results, circle: bool):
               + f"   ({ref['source']})")
     far = "radial_error_max_relative_percent" if circle else None
     for r in results:
-        if far and r.metrics[far] > 20 and m0 is not None:
+        if far and r.metrics[far] > 20:
             print(f"note: {r.model} runs far off the circle "
                   f"({r.metrics[far]:.0f}% of R): open-loop torques of another model amplify "
                   f"the mismatch (L0's pin is about half as stiff as the double-1R joint); "
