@@ -49,8 +49,9 @@ class ElasticaConvergenceError(PPRError, RuntimeError):
 
 class RepairWarning(UserWarning):
     """A stored file this library wrote (an exported scene program, a persistent-cache entry, a
-    sweep's chunk) failed its check (checksum, deserialisation, compilation, or settings digest):
-    it was deleted and its content computed afresh. The run's results are not affected; the
+    sweep's chunk or its settings file) failed its check (checksum, deserialisation,
+    compilation, or settings digest): it was deleted and its content computed afresh (a
+    sweep's settings file: rewritten). The run's results are not affected; the
     warning names the file once. A recurring warning points at a failing disk or at two
     versions of the library sharing one cache directory."""
 

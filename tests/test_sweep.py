@@ -261,3 +261,44 @@ def test_resume_recomputes_a_chunk_that_fails_its_checks(tmp_path, swept, monkey
     assert json.loads(chunk.read_text())["digest"] != json.loads(text)["digest"]
     with pytest.raises(pj.PPRError, match="different sweep"):
         pj.sweep("paper-circle", **dict(kw, t_end=0.4))
+
+
+def test_damaged_sweep_settings_are_rewritten_and_chunks_still_checked(tmp_path, monkeypatch):
+    """A damaged `chunks/sweep_settings.json` (cut short, not JSON, not an object, no digest)
+    blocked every resume (an unnamed JSON error or an AttributeError). It is named in one
+    `RepairWarning` and rewritten; the chunks, which carry their own digest, are still used.
+    The settings are written atomically: a write that fails midway leaves the old file whole.
+    Other settings are still refused. The store alone: nothing is compiled."""
+    import warnings
+
+    from ppr_jax._studies import _sweep
+
+    info = {"scene": "paper-circle", "vary": {"t": [3e-4, 4e-4]}}
+    d = tmp_path / "chunks"
+    rows = [{"member": 0, "status": "ok", "radial_error_max_m": 1.5e-4},
+            {"member": 1, "status": "ok", "radial_error_max_m": 2.5e-4}]
+    _sweep._ChunkStore(str(d), info).save(0, [0, 1], rows)
+    settings = d / "sweep_settings.json"
+    good = json.loads(settings.read_text())
+    for damaged in (b'{"digest": "ab', b"", b"\xff\xfe", b"[1, 2]", b'{"digest": 3}', b"{}"):
+        settings.write_bytes(damaged)
+        with pytest.warns(pj.RepairWarning, match="sweep_settings.json are damaged") as rec:
+            store = _sweep._ChunkStore(str(d), info)
+        assert len([w for w in rec if issubclass(w.category, pj.RepairWarning)]) == 1, damaged
+        assert json.loads(settings.read_text()) == good
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", pj.RepairWarning)
+            assert store.load(0, [0, 1]) == rows  # the chunk proves itself
+    assert sorted(os.listdir(d)) == ["chunk_00000.json", "sweep_settings.json"]
+
+    def fail_midway(obj, f, **kw):
+        f.write('{"digest": ')
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(_sweep.json, "dump", fail_midway)
+    with pytest.raises(OSError):
+        _sweep._ChunkStore(str(d), info)
+    monkeypatch.undo()
+    assert json.loads(settings.read_text()) == good  # the old file, whole
+    with pytest.raises(pj.PPRError, match="different sweep"):
+        _sweep._ChunkStore(str(d), dict(info, scene="servo-circle"))

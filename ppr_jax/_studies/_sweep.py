@@ -563,6 +563,26 @@ def _rows_checksum(rows) -> str:
     return hashlib.sha256(json.dumps(rows, sort_keys=True).encode()).hexdigest()
 
 
+def _read_settings(path):
+    """The sweep settings stored at `path` (a dict with a string "digest"), or None where there
+    are none, or where the file is damaged (then a `RepairWarning` names it: the caller
+    rewrites it)."""
+    try:
+        with open(path, "rb") as f:
+            old = json.loads(f.read().decode("utf-8"))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as err:  # UnicodeDecodeError, JSONDecodeError are ValueErrors
+        why = f"unreadable: {type(err).__name__}"
+    else:
+        if isinstance(old, dict) and isinstance(old.get("digest"), str):
+            return old
+        why = "not a sweep's settings (no digest)"
+    warnings.warn(f"sweep settings {path} are damaged ({why}): rewritten; each chunk is still "
+                  f"checked against its own digest", RepairWarning, stacklevel=4)
+    return None
+
+
 class _ChunkStore:
     """Finished chunks on disk (`chunk_00000.json`, ...) next to the sweep's settings
     (`sweep_settings.json`): a rerun with the same settings skips the chunks found there.
@@ -571,7 +591,13 @@ class _ChunkStore:
     settings and `library_digest`) and the sha256 of its rows. A chunk whose checksum fails,
     whose digest differs (another ppr_jax, its source edited, another dependency version) or
     whose members are not the chunk's is named once in a `RepairWarning` and computed afresh.
-    Other settings in the same directory are refused (`PPRError`), not mixed in."""
+    Other settings in the same directory are refused (`PPRError`), not mixed in.
+
+    The settings file is written atomically (a temporary file, then `os.replace`). One that
+    cannot be read as this library's settings (damaged: not JSON, not an object, no digest) is
+    named in a `RepairWarning` and rewritten: the chunks need it for nothing, since each chunk
+    carries the digest of its sweep's settings and library and is checked against it, so the
+    chunks of this sweep are still used and any other chunk is computed afresh."""
 
     def __init__(self, path, info):
         self.path = path
@@ -582,15 +608,15 @@ class _ChunkStore:
         self.digest = hashlib.sha256(
             (spec + json.dumps(library, sort_keys=True)).encode()).hexdigest()[:16]
         settings = os.path.join(path, "sweep_settings.json")
-        if os.path.exists(settings):
-            with open(settings) as f:
-                old = json.load(f)
-            if old.get("digest") != self.settings_digest:
-                raise PPRError(f"{path} holds the chunks of a different sweep (other settings); "
-                               f"use another output directory or remove it")
-        with open(settings, "w") as f:
+        old = _read_settings(settings)
+        if old is not None and old.get("digest") != self.settings_digest:
+            raise PPRError(f"{path} holds the chunks of a different sweep (other settings); "
+                           f"use another output directory or remove it")
+        tmp = settings + ".tmp"
+        with open(tmp, "w") as f:
             json.dump({"digest": self.settings_digest, "library": library, "settings": info},
                       f, indent=2)
+        os.replace(tmp, settings)  # atomic: an interrupted write leaves the old file or none
 
     def _file(self, c):
         return os.path.join(self.path, f"chunk_{c:05d}.json")
