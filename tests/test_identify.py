@@ -466,6 +466,54 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
                                rtol=1e-15)
 
 
+def test_cli_validation_by_experiment_runs_to_the_end(tmp_path, capsys):
+    """`identify --validation NAME` holds one file out of the fit and predicts it. It crashed
+    after the fit before (the held-out experiment had no fitted sample: "zero-size array ...
+    maximum" in the residual statistics), writing nothing. Now every file is written, the
+    held-out file's rows are in fitted.csv (held_out 1), and the validation's RMS and residual
+    scale equal those recomputed from fitted.csv. L0 torque-driven, 0.3 s: a cheap
+    compilation (t through the strip mass)."""
+    import csv
+    import json
+    import os
+
+    from ppr_jax._cli import main
+
+    truth = pj.scene_params("paper-circle")
+    t_true = float(truth.t)
+    paths = []
+    for k in range(2):
+        paths.append(str(tmp_path / f"run{k}.csv"))
+        pj.write_csv(paths[-1], pj.synthesize("paper-circle", "rigid", truth, noise_pos=NOISE[0],
+                                              noise_phi=NOISE[1], rate=100, t_end=0.3, seed=k))
+    out = str(tmp_path / "fit")
+    assert main(["identify", "--data", paths[0], "--data", paths[1], "--model", "rigid",
+                 "--scene", "paper-circle", "--initial", f"t={0.9 * t_true}", "--noise-pos",
+                 str(NOISE[0]), "--noise-phi", str(NOISE[1]), "--validation", "run1",
+                 "--out", out]) == 0
+    summary = json.load(open(f"{out}/estimates.json"))
+    v = summary["validation"]
+    assert v["held_out"] == "experiments run1" and v["samples"] == 31 and v["generalises"]
+    lo, hi = summary["unknowns"]["t"]["ci95"]
+    assert lo <= t_true <= hi
+    rows = summary["residual_stats"]["experiments"]
+    assert rows[0]["n"] == 31 and rows[1] == dict(rows[1], n=0, held_out=True)
+    with open(f"{out}/fitted.csv") as f:
+        got = list(csv.DictReader(f))
+    held = [r for r in got if r["held_out"] == "1"]
+    assert {r["experiment"] for r in held} == {"run1"} and len(held) == len(got) - 31 == 31
+    d = np.array([[float(r[c + "_fitted"]) - float(r[c + "_measured"]) for c in ("x", "y", "phi")]
+                  for r in held])
+    e = v["experiments"][0]
+    np.testing.assert_allclose(e["rms_position_m"], np.sqrt(np.mean(d[:, :2] ** 2)), rtol=1e-6)
+    np.testing.assert_allclose(e["rms_phi_rad"], np.sqrt(np.mean(d[:, 2] ** 2)), rtol=1e-6)
+    wd = d / np.array([NOISE[0], NOISE[0], NOISE[1]])
+    np.testing.assert_allclose(v["residual_scale"], np.sqrt(np.mean(wd ** 2)), rtol=1e-6)
+    assert "run1: held out of the fit" in open(f"{out}/estimates.txt").read()
+    for name in ("report.html", "identified.toml", "identified_l2.xml", "fit_residuals.png"):
+        assert os.path.getsize(f"{out}/{name}") > 0
+
+
 def test_cli_user_errors_exit_2(tmp_path, capsys):
     from ppr_jax._cli import main
 
@@ -665,6 +713,42 @@ def test_auto_starts_escape_the_far_start_and_leave_a_good_fit_alone():
     assert good.quality["escalated"] is None and good.quality["starts"] is None
     lo, hi = good.ci95[0]
     assert lo <= float(truth.t) <= hi, good.table()
+
+
+def test_a_channel_of_infinite_noise_is_not_counted_as_residuals():
+    """noise = (inf, phi): x and y are not fitted (weight 0) and are no degrees of freedom. The
+    reported s and std are the closed form of one unknown over the phi residuals alone,
+    s^2 = sum r^2 / (n_phi - 1), std = s / |J| (before, the zero-weight x and y rows counted:
+    s and the interval were sqrt(3) too small, s about 0.5 on data with the noise as stated),
+    and they do not change when the unfitted channel's data do (x, y moved by 1 cm). The same
+    compiled function as the tests above (torque-driven L1, t alone)."""
+    truth = pj.scene_params("paper-circle")
+    exp = pj.synthesize("paper-circle", "reduced", truth, noise_pos=NOISE[0],
+                        noise_phi=NOISE[1], rate=100, t_end=T_END, seed=2)
+    kw = dict(model="reduced", scene="paper-circle", initial={"t": 0.9 * float(truth.t)})
+    fits_ = {}
+    for what, noise, e in [
+            ("all", NOISE, exp), ("phi", (math.inf, NOISE[1]), exp),
+            ("phi, x and y moved", (math.inf, NOISE[1]),
+             pj.experiment(exp.ts, np.asarray(exp.X) + np.array([0.01, -0.01, 0.0]),
+                           tau=exp.tau, name="moved"))]:
+        fit = pj.identify(e, ("t",), noise=noise, **kw)
+        keep = np.asarray(fit.problem.w).reshape(-1) > 0
+        r, J = np.asarray(fit.residuals)[keep], np.asarray(fit.jacobian)[keep, 0]
+        n = 3 * exp.n if what == "all" else exp.n
+        assert keep.sum() == n and f"N = {n} residuals" in fit.table()
+        s = math.sqrt(r @ r / (n - 1))
+        np.testing.assert_allclose(math.sqrt(fit.sigma2), s, rtol=1e-12)
+        np.testing.assert_allclose(fit.std[0], s / math.sqrt(J @ J), rtol=1e-9)
+        assert 0.75 < s < 1.25, (what, fit.table())  # the noise as stated: s about 1
+        assert fit.ci95[0, 0] <= float(truth.t) <= fit.ci95[0, 1], fit.table()
+        fits_[what] = fit
+    a, b = fits_["phi"], fits_["phi, x and y moved"]
+    np.testing.assert_allclose([b.estimate[0], b.std[0]], [a.estimate[0], a.std[0]], rtol=1e-9)
+    # phi alone determines t less well than x, y and phi together
+    assert fits_["all"].std[0] < a.std[0]
+    with pytest.raises(pj.IdentificationError, match="noise must be .* not both"):
+        pj.identify(exp, ("t",), noise=(math.inf, math.inf), **kw)
 
 
 @pytest.mark.slow

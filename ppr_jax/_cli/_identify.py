@@ -149,19 +149,22 @@ def _write_robot(out, fit) -> list:
 
 
 def _write_fitted(path, fit):
-    """Measured and fitted pose of every experiment at its sample times (SI units)."""
+    """Measured and fitted pose of every experiment at its sample times (SI units); the samples
+    held out by --validation too (held_out 1: the fit's prediction of them)."""
     import numpy as np
 
+    held = (np.zeros(np.shape(fit.mask), bool) if fit.held_out is None
+            else np.asarray(fit.held_out))
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["experiment", "time", "x_measured", "y_measured", "phi_measured", "x_fitted",
-                    "y_fitted", "phi_fitted"])
+                    "y_fitted", "phi_fitted", "held_out"])
         for k, name in enumerate(fit.experiment_names):
-            m = np.asarray(fit.mask[k])
-            for t, xm, xf in zip(np.asarray(fit.ts[k])[m], np.asarray(fit.measured[k])[m],
-                                 np.asarray(fit.fitted[k])[m]):
+            m = np.asarray(fit.mask[k]) | held[k]
+            for t, xm, xf, h in zip(np.asarray(fit.ts[k])[m], np.asarray(fit.measured[k])[m],
+                                    np.asarray(fit.fitted[k])[m], held[k][m]):
                 w.writerow([name, f"{t:.10g}", *(f"{v:.12g}" for v in xm),
-                            *(f"{v:.12g}" for v in xf)])
+                            *(f"{v:.12g}" for v in xf), int(h)])
 
 
 def _units(p):
@@ -211,9 +214,11 @@ def add_identify(sub, parents, fmt):
     p.add_argument("--bound", action="append", metavar="NAME=LO,HI",
                    help="bounds of an unknown (default: its physical range)")
     p.add_argument("--noise-pos", type=float, default=1e-4,
-                   help="tracker position noise (m): weight of x, y residuals")
+                   help="tracker position noise (m): weight of x, y residuals (inf: x, y "
+                        "not fitted)")
     p.add_argument("--noise-phi", type=float, default=1e-3,
-                   help="platform angle noise (rad): weight of phi residuals")
+                   help="platform angle noise (rad): weight of phi residuals (inf: phi not "
+                        "fitted)")
     p.add_argument("--loss", default="linear", choices=list(LOSSES),
                    help="robust loss for outliers")
     p.add_argument("--loss-scale", type=float, default=3.0,

@@ -70,6 +70,7 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, fi
     z = np.array(z0, dtype=np.float64)
     sel = np.arange(z.size) if free is None else np.flatnonzero(free)
     cost = float(r @ r)
+    n_w = int(np.count_nonzero(np.asarray(prob.w)))  # residuals of weight > 0
     A = J.T @ J
     lam = 1e-3  # dimensionless: the damping term is lam * diag(J^T J) (Marquardt's scaling)
     nu = 2.0
@@ -121,7 +122,7 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, fi
             # would make every step look negligible.
             Jf = J[:, sel]
             A = Jf.T @ Jf
-            s2 = min(cost / max(r.size - sel.size, 1), 1.0)
+            s2 = min(cost / max(n_w - sel.size, 1), 1.0)
             step_se = math.sqrt(max(float(dz @ A @ dz), 0.0) / max(s2, 1e-300))
             if (np.max(np.abs(dz)) < xtol * (1 + np.max(np.abs(z))) or rel < ftol
                     or step_se < stat_tol):

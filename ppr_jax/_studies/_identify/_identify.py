@@ -41,8 +41,9 @@ Which angles drive a servo-circle model (`actuation`, MODEL.md section 7):
 Method, and why:
 - Residuals: simulated minus measured pose at the sample times, each channel divided by its
   stated noise (`noise=(position m, phi rad)`), so x, y and phi weigh alike and the residual
-  variance is about 1 when the noise is as stated. The simulation saves at the sample times
-  directly (no interpolation error).
+  variance is about 1 when the noise is as stated. An infinite noise leaves its channel out
+  (weight 0); residuals of weight 0 (that channel, padding, held-out samples) are not counted
+  in N. The simulation saves at the sample times directly (no interpolation error).
 - Unknowns are reparametrised for their bounds (default `PARAM_RANGES`): p = exp(log lo +
   (log hi - log lo) sigmoid(z)) for lo > 0 (relative steps, so t ~ 5e-4 and E ~ 7e10 are both
   O(1) in z), p = lo + (hi - lo) sigmoid(z) otherwise. Bounds are never crossed.
@@ -60,10 +61,12 @@ Method, and why:
   (as scipy's `least_squares`), with `loss_scale` in noise units (default 3): least squares on
   the transformed residuals minimises the robust cost.
 - Covariance: s^2 (J^T J)^-1 with J the Jacobian with respect to the physical parameters and
-  s^2 = sum r^2 / (N - P) estimated from the (weighted) residuals; intervals use Student's t."""
+  s^2 = sum r^2 / (N - P) estimated from the (weighted) residuals, N those of weight > 0;
+  intervals use Student's t."""
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Optional, Sequence, Union
 
@@ -176,7 +179,8 @@ def identify(
     - `initial`: {name: value} start values of unknowns (default: the robot's).
     - `bounds`: {name: (lo, hi)} (default `PARAM_RANGES`).
     - `noise`: (position m, phi rad), the residual weights (their scale is estimated from the
-        fit; the report compares the RMS of the residuals to them).
+        fit; the report compares the RMS of the residuals to them). Both > 0; one may be
+        infinite: that channel is then not fitted (weight 0, not counted as residuals).
     - `loss`, `loss_scale`: "linear", "huber" or "cauchy", with the scale in noise units.
     - `solver`: "lm" (host Levenberg-Marquardt on the compiled Jacobian), "optimistix-lm",
         "optimistix-gn".
@@ -283,12 +287,13 @@ def identify(
     if clash:
         raise IdentificationError(f"parameter(s) {sorted(clash)} are both unknown and fixed")
     try:
-        ok = len(noise) == 2 and all(float(v) > 0 and np.isfinite(float(v)) for v in noise)
+        ok = (len(noise) == 2 and all(float(v) > 0 for v in noise)  # NaN fails too
+              and not all(math.isinf(float(v)) for v in noise))
     except (TypeError, ValueError):  # a bare number, or not numbers
         ok = False
     if not ok:
-        raise IdentificationError(f"noise must be (position m, phi rad), both finite and > 0, "
-                                  f"got {noise!r}")
+        raise IdentificationError(f"noise must be (position m, phi rad), both > 0 (inf: that "
+                                  f"channel is not fitted; not both), got {noise!r}")
     stray = set(initial or {}) - set(names)
     if stray:
         raise IdentificationError(f"initial values given for {sorted(stray)}, which are not "
@@ -332,7 +337,7 @@ def identify(
         W_all = W
         mask = mask & ~held[0]
         W = W * mask[..., None]
-    n_res = int(mask.sum()) * 3
+    n_res = int(np.count_nonzero(W))  # weight 0 (infinite noise, held out): no information
     n_unknown = len(names) + n_init * len(exps) + len(meas)
     if n_res <= n_unknown:
         raise DataError(f"{n_res} residuals cannot determine {n_unknown} unknowns")
@@ -472,4 +477,3 @@ def _held_out(validation, ts, mask, names, n_init):
     if not held.any():
         raise IdentificationError("validation holds out no sample")
     return held, what
-

@@ -71,7 +71,9 @@ def identification_figures(fit, out_dir: str) -> list[str]:
                 axs[j].plot(t, d[:, j] * scale[j], style, color=f"C{k % 10}", ms=2, lw=0.5,
                             label=name + tag if j == 0 and m.any() else None)
     for j in range(3):
-        axs[j].axhspan(-2 * noise[j] * scale[j], 2 * noise[j] * scale[j], color="0.85", zorder=0)
+        if np.isfinite(noise[j]):  # infinite noise: the channel was not fitted
+            axs[j].axhspan(-2 * noise[j] * scale[j], 2 * noise[j] * scale[j], color="0.85",
+                           zorder=0)
         axs[j].set_ylabel(labels[j])
         axs[j].grid(alpha=0.3)
     axs[0].legend(fontsize=7)

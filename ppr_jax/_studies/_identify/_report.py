@@ -151,6 +151,7 @@ def write_report(fit, path: str, *, figures: Sequence[str] = (), data_files: Seq
               _table(["experiment", "samples", "RMS x (mm)", "RMS y (mm)", "RMS phi (mrad)"],
                      [[e["name"], e["n"], _g(e["rms_x_m"] * 1e3, 4), _g(e["rms_y_m"] * 1e3, 4),
                        _g(e["rms_phi_rad"] * 1e3, 4)]
+                      if not e.get("held_out") else [e["name"], 0, "held out", "", ""]
                       for e in fit.residual_stats["experiments"]]),
               f"<p>Stated noise: {_g(fit.noise[0] * 1e3, 3)} mm, "
               f"{_g(fit.noise[1] * 1e3, 3)} mrad.</p>"]

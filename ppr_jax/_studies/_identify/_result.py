@@ -131,7 +131,7 @@ class Identification(eqx.Module):
         lg = prob.log[i]
         p_hat = float(self.estimate[i])
         n_all = self.z.shape[0]
-        dof = max(int(self.mask.sum()) * 3 - n_all, 1)
+        dof = max(int(np.count_nonzero(np.asarray(prob.w))) - n_all, 1)
         q = float(stats.f.ppf(level, 1, dof))
         s2 = float(self.sigma2)
         s_min = float(self.residuals @ self.residuals)
@@ -229,7 +229,8 @@ class Identification(eqx.Module):
                          f"{float(self.initial[i]):13.6g}")
         idf = self.identifiability
         lines.append(f"model {self.model}, scene {self.scene}, {len(self.experiment_names)} "
-                     f"experiment(s), N = {self.residuals.shape[0]} residuals, s = "
+                     f"experiment(s), N = {np.count_nonzero(np.asarray(self.problem.w))} "
+                     f"residuals, s = "
                      f"{math.sqrt(self.sigma2):.4g} (1 = noise as stated), condition number "
                      f"{idf['condition_number']:.3g}")
         if self.actuation:
@@ -248,6 +249,9 @@ class Identification(eqx.Module):
                          for k, v in row.items()]
                 lines.append(f"  initial state of {en}: " + ", ".join(parts))
         for e in self.residual_stats["experiments"]:
+            if e.get("held_out"):
+                lines.append(f"  {e['name']}: held out of the fit (its prediction: validation)")
+                continue
             lines.append(f"  {e['name']}: RMS x {e['rms_x_m'] * 1e3:.4g} mm, y "
                          f"{e['rms_y_m'] * 1e3:.4g} mm, phi {e['rms_phi_rad'] * 1e3:.4g} mrad "
                          f"(noise {self.noise[0] * 1e3:.3g} mm, {self.noise[1] * 1e3:.3g} mrad)")
@@ -469,7 +473,7 @@ def _validation(X, Xm, W, held, exps, s_fit, what) -> dict:
     the fit's. The model generalises when s_val <= `GENERALISES_FACTOR` max(s_fit, 1): with
     noise alone both are about 1 (s_val of n samples spreads by 1/sqrt(2 n))."""
     d = X - Xm
-    wv = (d * W)[held]
+    wv = (d * W)[held[..., None] & (W > 0)]  # a channel of infinite noise does not count
     s_val = float(np.sqrt(np.mean(wv ** 2)))
     rows = []
     for k, e in enumerate(exps):
@@ -506,7 +510,9 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         J = Jz[:, :P] / np.maximum(dpdz, 1e-300)[None, :]  # d r / d p (physical)
     J = np.where(np.isfinite(J), J, 0.0)
-    N = int(mask.sum()) * 3  # padding rows are exact zeros
+    # The residuals that carry information: padding, held-out samples and a channel of infinite
+    # noise have weight 0 (exact zeros, no degree of freedom)
+    N = int(np.count_nonzero(np.asarray(prob.w)))
     # the nuisance unknowns after the parameters: initial states, then measurement parameters
     scale = np.concatenate([np.tile(np.asarray(INIT_SCALE[:prob.n_init]), E),
                             np.asarray([MEAS_SCALE[i] for i in prob.meas])])
@@ -594,6 +600,11 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
     rs = []
     for k, e in enumerate(exps):
         m = mask[k]
+        if not m.any():  # held out whole (validation by experiment): `validation` has its RMS
+            rs.append({"name": e.name, "n": 0, "held_out": True, "rms_x_m": None,
+                       "rms_y_m": None, "rms_phi_rad": None, "max_abs_position_m": None,
+                       "max_abs_phi_rad": None})
+            continue
         d = (X[k] - np.asarray(prob.X)[k])[m]
         rs.append({"name": e.name, "n": int(m.sum()),
                    "rms_x_m": float(np.sqrt(np.mean(d[:, 0] ** 2))),
@@ -601,7 +612,7 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
                    "rms_phi_rad": float(np.sqrt(np.mean(d[:, 2] ** 2))),
                    "max_abs_position_m": float(np.max(np.hypot(d[:, 0], d[:, 1]))),
                    "max_abs_phi_rad": float(np.max(np.abs(d[:, 2])))})
-    wr = raw[mask]  # (n_real, 3) weighted, before the loss
+    wr = raw[np.asarray(prob.w) > 0]  # the weighted residuals, before the loss
     stats_ = {"experiments": rs,
               "rms_weighted": float(np.sqrt(np.mean(wr ** 2))),
               "note": "RMS of simulated minus measured pose; with the noise as stated and a "
