@@ -395,6 +395,42 @@ def test_bad_requests_raise_clear_errors(truth, clean):
             pj.identify(exp, ("t",), noise=bad)
 
 
+def _still_experiment(n=20):
+    """A platform at rest, n samples at 100 Hz: enough for every check made before compiling."""
+    return pj.experiment(0.01 * np.arange(n), np.tile([0.55, 0.26, 0.0], (n, 1)), name="still")
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(rtol=float("nan")), r"rtol must be finite: nan is not finite \(allowed range "
+                              r"\[1e-14, 0.01\]\)"),
+    (dict(rtol=0.5), r"rtol = 0.5 is out of its allowed range \[1e-14, 0.01\]"),
+    (dict(atol=-1e-9), r"atol = -1e-09 is out of its allowed range \[1e-16, 0.01\]"),
+    (dict(max_steps=0), r"max_steps = 0 is out of its allowed range \[1, 1e\+09\]"),
+    (dict(max_steps=2.5), r"max_steps must be an integer"),
+    (dict(loss_scale=0.0), r"loss_scale = 0.0 is out of its allowed range \(0, 1e\+06\] "
+                           r"noise units"),
+    (dict(loss_scale=float("inf")), r"loss_scale must be finite"),
+    (dict(max_iter=0), r"max_iter = 0 is out of its allowed range \[1, 100000\]"),
+    (dict(xtol="1e-8"), r"xtol must be a number"),
+    (dict(ftol=-1.0), r"ftol = -1.0 is out of its allowed range \[0, 1\]"),
+    (dict(stat_tol=float("nan")), r"stat_tol must be finite"),
+    (dict(seed=-1), r"seed = -1 is out of its allowed range"),
+])
+def test_solver_arguments_checked_before_compiling(kw, match, monkeypatch):
+    """identify's numeric options are checked before anything is compiled (a NaN rtol ran the
+    whole fit, 107 s, and then advised loosening tolerances; a zero loss scale was blamed on the
+    data): one IdentificationError naming the argument and its allowed range. The compiled
+    residual is replaced by a tripwire: no check may reach it."""
+    from ppr_jax._studies._identify import _identify
+
+    def tripwire(*a, **k):
+        raise AssertionError("compiled before the arguments were checked")
+
+    monkeypatch.setattr(_identify, "_residual_and_jacobian", tripwire)
+    with pytest.raises(pj.IdentificationError, match=match):
+        pj.identify(_still_experiment(), ("t",), **kw)
+
+
 def test_cli_synth_then_identify(tmp_path, truth, capsys):
     """`ppr-jax synth` writes a tracker file that `ppr-jax identify` reads back and fits; the
     outputs exist and the JSON holds the estimates with intervals. Same shapes and options as
@@ -515,6 +551,8 @@ def test_cli_validation_by_experiment_runs_to_the_end(tmp_path, capsys):
 
 
 def test_cli_user_errors_exit_2(tmp_path, capsys):
+    import os
+
     from ppr_jax._cli import main
 
     bad = tmp_path / "bad.csv"
@@ -533,11 +571,18 @@ def test_cli_user_errors_exit_2(tmp_path, capsys):
                                                 for k in range(20)))
     for extra, msg in [(["--validation", "1.5"], "validation: a fraction"),
                        (["--validation", "nope"], "not one of the experiments"),
+                       (["--rtol", "nan"], "rtol must be finite: nan is not finite (allowed "
+                                           "range [1e-14, 0.01])"),
+                       (["--loss-scale", "0"], "loss_scale = 0.0 is out of its allowed range "
+                                               "(0, 1e+06] noise units"),
+                       (["--max-steps", "0"], "max_steps = 0 is out of its allowed range"),
                        (["--starts", "0"], "starts must be 'auto' or an integer in [1, 1000]"),
                        (["--starts", "many"], "starts must be 'auto' or an integer")]:
         assert main(["identify", "--data", str(good), "--out", str(tmp_path / "o"),
                      *extra]) == 2
-        assert msg in capsys.readouterr().err, extra
+        err = [ln for ln in capsys.readouterr().err.splitlines() if "error" in ln.lower()]
+        assert len(err) == 1 and err[0].startswith("ppr-jax: error: ") and msg in err[0], extra
+    assert not os.path.exists(tmp_path / "o")  # a refused run writes nothing
     with pytest.raises(SystemExit):  # argparse: bias or delay only
         main(["identify", "--data", str(good), "--nuisance", "offset"])
 

@@ -226,11 +226,15 @@ def identify(
 
     **Raises:**
 
-    `IdentificationError` for unknown or fixed names that are not leaves, bounds outside the
+    `IdentificationError` for unknown or fixed names that are not leaves, a numeric option out
+    of its range (loss_scale in (0, 1e6], max_iter in [1, 1e5], xtol and ftol in [0, 1],
+    stat_tol in [0, 1e3], rtol in [1e-14, 1e-2], atol in [1e-16, 1e-2], max_steps in
+    [1, 1e9], seed in [0, 2^63 - 1]; checked before anything is compiled), bounds outside the
     physical range, an initial value outside its bounds, a bad option (naming it and its
     allowed values), a simulation that fails at the initial values, or a preflight refusal;
     `DataError` for unusable data.
     """
+    _check_solver_args(loss_scale, max_iter, xtol, ftol, stat_tol, rtol, atol, max_steps, seed)
     exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
     if not exps:
         raise DataError("no experiment given")
@@ -477,3 +481,30 @@ def _held_out(validation, ts, mask, names, n_init):
     if not held.any():
         raise IdentificationError("validation holds out no sample")
     return held, what
+
+
+
+def _check_solver_args(loss_scale, max_iter, xtol, ftol, stat_tol, rtol, atol, max_steps,
+                       seed) -> None:
+    """The fit's and the simulation's numeric options, checked before anything is compiled
+    (`IdentificationError` naming the argument and its allowed range): a NaN tolerance would
+    run the whole fit and end in advice about tolerances, a zero loss scale be blamed on the
+    data. The simulation's ranges are the scenes' (`check_scene_args`)."""
+    from ..._errors import PPRError, check_number
+
+    checks = [("loss_scale", loss_scale, 0.0, 1e6, "noise units", False, True),
+              ("max_iter", max_iter, 1, 100_000, "", True, False),
+              ("xtol", xtol, 0.0, 1.0, "", False, False),
+              ("ftol", ftol, 0.0, 1.0, "", False, False),
+              ("stat_tol", stat_tol, 0.0, 1e3, "standard errors", False, False),
+              ("max_steps", max_steps, 1, 10**9, "", True, False),
+              ("seed", seed, 0, 2**63 - 1, "", True, False)]
+    if rtol is not None:
+        checks.append(("rtol", rtol, 1e-14, 1e-2, "", False, False))
+    if atol is not None:
+        checks.append(("atol", atol, 1e-16, 1e-2, "", False, False))
+    for name, value, lo, hi, unit, integer, open_lo in checks:
+        try:
+            check_number(name, value, lo, hi, unit, integer=integer, open_lo=open_lo)
+        except PPRError as err:
+            raise IdentificationError(str(err)) from None
