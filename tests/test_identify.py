@@ -587,6 +587,43 @@ def test_cli_user_errors_exit_2(tmp_path, capsys):
         main(["identify", "--data", str(good), "--nuisance", "offset"])
 
 
+def test_cli_out_checked_before_fitting(tmp_path, capsys):
+    """--out is checked before the data are read or anything is fitted: a directory that
+    cannot be written (or a file in its way) fails at once, one line naming it, instead of
+    losing the fit afterwards. Nothing is created for a run that does not start. As root the
+    permission bits do not bind, so /proc (where nobody creates files) stands in for the
+    read-only directory."""
+    import os
+
+    from ppr_jax._cli import main
+
+    data = str(tmp_path / "none.csv")  # never read: the --out check comes first
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    cases = [(str(ro / "fit"), "its parent"), (str(ro), "the directory is not writable")]
+    try:
+        probe = ro / "probe"
+        probe.write_text("")  # root: the bits do not bind
+        probe.unlink()
+        cases = []
+    except PermissionError:
+        pass
+    if os.path.isdir("/proc/self"):
+        cases.append(("/proc/ppr-jax-out", "its parent '/proc' is not writable"))
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    cases.append((str(blocker / "fit"), "is a file, not a directory"))
+    assert len(cases) >= 2
+    for out, msg in cases:
+        assert main(["identify", "--data", data, "--out", out]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"ppr-jax: error: --out {out!r}") \
+            and msg in err[0], (out, err)
+        assert not os.path.exists(out)
+    ro.chmod(0o755)
+
+
 @pytest.mark.slow
 def test_paper_circle_with_measured_torques_recovers_t():
     """Torque-driven: the file's torques (L1's inverse dynamics at t = 0.3 mm, as `synthesize`

@@ -202,18 +202,41 @@ def scene_from_args(args):
                      name=os.path.splitext(os.path.basename(path))[0])
 
 
-def check_out_dir(path: str) -> str:
-    """Make sure the output directory can be written before a long run starts (`PPRError`)."""
+def check_out_dir(path: str, create: bool = True) -> str:
+    """Make sure the output directory can be written before a long run starts (`PPRError`
+    naming it). It is created; with `create=False` it is not, and its nearest existing parent is
+    checked instead (a run refused later then leaves nothing behind). Writable means a file can
+    be created and removed there (the permission bits say nothing for root, and nothing of a
+    read-only file system)."""
+    import tempfile
+
     from .._errors import PPRError
 
     if os.path.exists(path) and not os.path.isdir(path):
         raise PPRError(f"--out {path!r} is a file, not a directory")
+    where = path
+    if create:
+        try:
+            os.makedirs(path, exist_ok=True)
+        except OSError as err:
+            raise PPRError(f"--out {path!r}: cannot create the directory "
+                           f"({err.strerror})") from None
+    else:
+        while not os.path.isdir(where):
+            if os.path.exists(where):
+                raise PPRError(f"--out {path!r}: {where!r} is a file, not a directory")
+            parent = os.path.dirname(os.path.abspath(where))
+            if parent == os.path.abspath(where):
+                break
+            where = parent
     try:
-        os.makedirs(path, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".ppr-jax-probe-", dir=where)
+        os.close(fd)
+        os.remove(probe)
     except OSError as err:
-        raise PPRError(f"--out {path!r}: cannot create the directory ({err.strerror})") from None
-    if not os.access(path, os.W_OK):
-        raise PPRError(f"--out {path!r}: the directory is not writable")
+        what = "the directory" if where == path else f"its parent {where!r}"
+        raise PPRError(f"--out {path!r}: {what} is not writable "
+                       f"({err.strerror or type(err).__name__})") from None
     return path
 
 

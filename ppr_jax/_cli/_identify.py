@@ -20,6 +20,7 @@ from .._names import (
 from ._common import (
     _log,
     _name_values,
+    check_out_dir,
 )
 
 
@@ -41,6 +42,9 @@ def cmd_identify(args):
     from .._studies import identification_figures, identify
     from ._common import model_from_args
 
+    # before anything is fitted: a directory that cannot be written would lose the fit (it is
+    # created only when there is something to write: a refused fit leaves nothing)
+    check_out_dir(args.out, create=False)
     exps = load_experiments(args.data, time_unit=args.time_unit, length_unit=args.length_unit,
                             angle_unit=args.angle_unit, drop_nan=args.drop_nan)
     for e in exps:
