@@ -12,8 +12,11 @@ import sys
 
 def main() -> int:
     os.environ.setdefault("EQX_ON_ERROR", "nan")
-    from ppr_jax._cli import main as cli_main
-
+    try:
+        from ppr_jax._cli import main as cli_main
+    except KeyboardInterrupt:  # while importing: nothing ran yet
+        print("ppr-jax: interrupted; kept: nothing written", file=sys.stderr)
+        return 130
     return cli_main()
 
 

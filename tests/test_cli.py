@@ -309,3 +309,60 @@ def test_prb_table_fit(capsys):
     assert out["fit"]["kappa0"] == 0.0
     for name in ("gamma", "rho", "K_theta"):
         assert abs(out["fit"][name] - out[name]) < 1e-6, name
+
+
+def test_ctrl_c_is_one_line_naming_what_was_kept(tmp_path, capsys, monkeypatch):
+    """Ctrl-C (KeyboardInterrupt) in any command: exit 130, one line on stderr naming the files
+    the command had written under --out (none: "nothing written"), no traceback. The command is
+    replaced by one that writes a file and is interrupted: nothing is computed."""
+    from ppr_jax._cli import _torques
+
+    def interrupted(args):
+        os.makedirs(args.out, exist_ok=True)
+        with open(os.path.join(args.out, "torques.csv"), "w") as f:
+            f.write("t,tau_1\n")
+        raise KeyboardInterrupt
+
+    def at_once(args):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "run"
+    for func, kept in ((at_once, "nothing written"), (interrupted, f"torques.csv in {out}")):
+        monkeypatch.setattr(_torques, "cmd_torques", func)
+        assert main(["torques", "--out", str(out)]) == 130
+        cap = capsys.readouterr()
+        assert cap.err.splitlines() == [f"ppr-jax: interrupted; kept: {kept}"], cap.err
+    # a file an earlier run wrote under --out is not what this run kept
+    os.utime(out / "torques.csv", (0, 0))
+    monkeypatch.setattr(_torques, "cmd_torques", at_once)
+    assert main(["torques", "--out", str(out)]) == 130
+    assert capsys.readouterr().err.splitlines() == ["ppr-jax: interrupted; kept: nothing written"]
+
+
+def test_sigint_ends_a_running_command_with_one_line(tmp_path):
+    """The real signal: `ppr-jax identify` in a subprocess, sent SIGINT once it says it is
+    compiling: exit 130, the one line, no traceback."""
+    import signal
+    import subprocess
+    import sys
+
+    data = tmp_path / "still.csv"
+    data.write_text("time,x,y,phi\n" + "".join(f"{0.01 * k},0.55,0.26,0.0\n" for k in range(20)))
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PPR_JAX_CACHE="0", PYTHONPATH=root)
+    proc = subprocess.Popen([sys.executable, "-m", "ppr_jax_cli", "identify", "--data",
+                             str(data), "--out", str(tmp_path / "fit")],
+                            stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+                            cwd=root)
+    try:
+        seen = []
+        while not seen or ("compiling" not in seen[-1] and seen[-1]):
+            seen.append(proc.stderr.readline())
+        assert "compiling" in seen[-1], seen
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert err.strip().splitlines() == ["ppr-jax: interrupted; kept: nothing written"], err

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 
 from .._names import T_END
 from ._common import (
@@ -58,8 +59,55 @@ def _runtime_message(err: Exception) -> str:
 
 
 def main(argv=None) -> int:
-    """Run the command line; every user error is one line on stderr and exit status 2."""
+    """Run the command line; every user error is one line on stderr and exit status 2. Ctrl-C
+    (SIGINT) is one line too, naming what the command had written (`kept_files`), and exit
+    status 130 (128 + SIGINT, the shell's convention)."""
+    state = {"started": time.time(), "args": None}
+    try:
+        return _main(argv, state)
+    except KeyboardInterrupt:
+        print(f"ppr-jax: interrupted; kept: {kept_files(state['args'], state['started'])}",
+              file=sys.stderr)
+        return 130
+
+
+#: kept_files names at most this many files, then counts the rest
+KEPT_LISTED = 6
+
+
+def kept_files(args, since: float) -> str:
+    """What an interrupted command leaves: the files under its --out (a directory, or a file)
+    written since `since` (a time.time()), complete ones only (never a `*.tmp` half-write), or
+    "nothing written". A sweep's finished chunks are kept for a rerun to resume from."""
+    out = getattr(args, "out", None)
+    if not out or not os.path.exists(out):
+        return "nothing written"
+    if os.path.isfile(out):
+        paths = [out]
+    else:
+        paths = [os.path.join(d, f) for d, _, files in os.walk(out) for f in files]
+    new = []
+    for p in paths:
+        try:
+            if os.path.getmtime(p) >= since - 1.0 and not p.endswith(".tmp"):
+                new.append(p)
+        except OSError:  # removed meanwhile
+            pass
+    if not new:
+        return "nothing written"
+    new.sort()
+    names = [os.path.relpath(p, out) if p != out else p for p in new]
+    text = ", ".join(names[:KEPT_LISTED]) + (f" and {len(names) - KEPT_LISTED} more"
+                                             if len(names) > KEPT_LISTED else "")
+    text = text if os.path.isfile(out) else f"{text} in {out}"
+    if getattr(args, "cmd", None) == "sweep" and any("chunk_" in n for n in names):
+        text += " (a rerun with the same --out resumes from the finished chunks)"
+    return text
+
+
+def _main(argv, state) -> int:
     args = build_parser().parse_args(argv)
+    state["args"] = args
     import jax  # after parsing: --help and a bad option answer without JAX
 
     from .._errors import PPRError
