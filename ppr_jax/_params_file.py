@@ -6,7 +6,7 @@ import dataclasses
 import json
 import math
 import os
-from typing import Optional
+from typing import Optional, Sequence
 
 from ._errors import PPRError
 from ._params import PARAM_RANGES, RobotParams, settable_names
@@ -97,11 +97,15 @@ def load_params(path: str, base: Optional[RobotParams] = None) -> RobotParams:
         raise PPRError(f"parameter file {str(path)!r}: {err}") from None
 
 
-def save_params(params: RobotParams, path: str) -> str:
+def save_params(params: RobotParams, path: str, *, comments: Sequence[str] = ()) -> str:
     """Write one robot's parameters to a TOML or JSON file (by extension) that `load_params`
     reads back exactly (floats in `repr`'s shortest round-trip form). Parameters left to the PRB
-    table (`gamma`, `rho`, `K_theta` None) are left out. Returns the path."""
+    table (`gamma`, `rho`, `K_theta` None) are left out. `comments`: lines written as TOML
+    comments after the header (where the parameters came from, how far to trust them); JSON has
+    no comments, so they need a .toml path. Returns the path."""
     ext = _format(path)
+    if comments and ext == ".json":
+        raise PPRError(f"save_params: {path}: comments need a .toml file (JSON has none)")
     values = {}
     for f in dataclasses.fields(params):
         v = getattr(params, f.name)
@@ -118,6 +122,7 @@ def save_params(params: RobotParams, path: str) -> str:
         text = json.dumps(values, indent=2) + "\n"
     else:
         lines = ["# ppr_jax robot parameters (SI units)"]
+        lines += [f"# {c}" for text in comments for c in str(text).splitlines()]
         for k, v in values.items():
             lines.append(f'{k} = "{v}"' if isinstance(v, str) else f"{k} = {v!r}")
         text = "\n".join(lines) + "\n"

@@ -490,6 +490,9 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
     assert hashlib.sha256(open(path, "rb").read()).hexdigest() in report
     assert report.count("data:image/png;base64,") == 3 and "95 % (profile)" in report
     assert "ppr-jax identify --data" in report and "jax=" in report
+    # the fit was forced past the preflight: the robot files say so themselves
+    assert "# WARNING: forced past the preflight" in open(f"{out}/identified.toml").read()
+    assert "WARNING: forced past the preflight" in open(f"{out}/identified_l2.xml").read()
     back = pj.load_params(f"{out}/identified.toml")
     for name in ("t", "K_theta"):
         assert float(getattr(back, name)) == summary["unknowns"][name]["estimate"]
@@ -622,6 +625,52 @@ def test_cli_out_checked_before_fitting(tmp_path, capsys):
             and msg in err[0], (out, err)
         assert not os.path.exists(out)
     ro.chmod(0o755)
+
+
+def test_identified_robot_files_marked_when_the_fit_is_poor_or_forced(tmp_path):
+    """identified.toml and identified_l2.xml say in themselves where they come from, and carry a
+    WARNING line when the fit cannot be trusted (quality problems: a poor fit, an unknown at a
+    bound, no generalisation) or was forced past the preflight; a good fit's files carry none.
+    The files stay readable: load_params reads the parameters back exactly, the MJCF is valid
+    XML (MuJoCo loads it where installed). Built from a stand-in result: nothing is fitted."""
+    import types
+    import xml.etree.ElementTree as ET
+
+    from ppr_jax._cli._identify import _write_robot
+
+    params = pj.scene_params("servo-circle").replace(t=4.87e-4)
+    base = dict(names=("t", "K_theta"), model="double1r", experiment_names=("run0",),
+                params=params)
+    good = types.SimpleNamespace(**base, quality={
+        "residual_scale": 0.98, "problems": [], "preflight_not_identifiable": []})
+    poor = types.SimpleNamespace(**base, quality={
+        "residual_scale": 20.3, "problems": [
+            "the model does not explain the data: residual scale s = 20.3 (> 3; 1 = noise as "
+            "stated)", "K_theta at a bound"],
+        "preflight_not_identifiable": ["t^-1.00 * K_theta^3.00"]})
+    for fit, marked in ((good, False), (poor, True)):
+        d = tmp_path / ("poor" if marked else "good")
+        d.mkdir()
+        toml, xml = _write_robot(str(d), fit)
+        texts = [open(toml).read(), open(xml).read()]
+        for text in texts:
+            assert "identified by ppr-jax identify: t, K_theta fitted with the double1r model " \
+                   "to run0" in text
+            assert ("WARNING" in text) == marked and ("fit quality: ok" in text) != marked
+            if marked:
+                assert "WARNING: this fit cannot be trusted: the model does not explain the " \
+                       "data" in text and "K_theta at a bound" in text
+                assert "WARNING: forced past the preflight" in text
+                assert "t^-1.00 * K_theta^3.00" in text
+        assert float(pj.load_params(toml).t) == 4.87e-4
+        assert ET.parse(xml).getroot().tag == "mujoco"
+        try:
+            import mujoco
+        except ImportError:
+            continue
+        mujoco.MjModel.from_xml_path(xml)
+    with pytest.raises(pj.PPRError, match="comments need a .toml file"):
+        pj.save_params(params, str(tmp_path / "robot.json"), comments=["no comments in JSON"])
 
 
 @pytest.mark.slow

@@ -138,17 +138,40 @@ def _validation(text):
         return [n.strip() for n in text.split(",") if n.strip()]
 
 
+def robot_file_notes(fit) -> list:
+    """The lines that head the identified robot's files: where the parameters come from, and a
+    WARNING line when the fit cannot be trusted (`quality["problems"]`: a poor fit, an unknown
+    at a bound, a model that does not generalise) or was forced past the preflight's refusal
+    (combinations not identifiable from the data)."""
+    q = fit.quality or {}
+    notes = [f"identified by ppr-jax identify: {', '.join(fit.names)} fitted with the "
+             f"{fit.model} model to {', '.join(fit.experiment_names)}; residual scale s = "
+             f"{q.get('residual_scale', float('nan')):.4g} (1 = noise as stated)"]
+    if q.get("problems"):
+        notes.append("WARNING: this fit cannot be trusted: " + "; ".join(q["problems"]))
+    if q.get("preflight_not_identifiable"):
+        notes.append("WARNING: forced past the preflight (force): not identifiable from these "
+                     "data at the initial guess: " + ", ".join(q["preflight_not_identifiable"]))
+    if len(notes) == 1:
+        notes.append("fit quality: ok (explains the data, no unknown at a bound)")
+    return notes
+
+
 def _write_robot(out, fit) -> list:
     """The identified robot: `identified.toml` (every command's `--params-file` reads it) and
     `identified_l2.xml`, its L2 as MJCF (`to_mjcf`; `python -m mujoco.viewer
-    --mjcf=identified_l2.xml` shows it)."""
+    --mjcf=identified_l2.xml` shows it). Both begin with `robot_file_notes` (comments): a poor
+    or forced fit is marked WARNING in the files themselves."""
     from .._mjcf import to_mjcf
     from .._params_file import save_params
 
-    paths = [save_params(fit.params, os.path.join(out, "identified.toml")),
+    notes = robot_file_notes(fit)
+    paths = [save_params(fit.params, os.path.join(out, "identified.toml"), comments=notes),
              os.path.join(out, "identified_l2.xml")]
+    # an XML comment may not hold "--"
+    head = "".join(f"<!-- {' '.join(n.split()).replace('--', '- -')} -->\n" for n in notes)
     with open(paths[1], "w", encoding="utf-8") as f:
-        f.write(to_mjcf(fit.params))
+        f.write(head + to_mjcf(fit.params))
     return paths
 
 
