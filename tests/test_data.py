@@ -272,10 +272,18 @@ def test_utf16_and_utf32_with_byte_order_mark(tmp_path, encoding):
 
 
 def test_latin1_degree_sign_in_a_comment(tmp_path):
+    """A Latin-1 byte in a comment (a tracker's "21 °C") goes with the comment, and the rest of
+    the file reads as written: the units line after it is honoured (lengths in mm, scaled to m)
+    and every value equals the table's, not merely the row count."""
+    t, x, y, phi = _good_rows(scale=1e3)  # mm
     p = tmp_path / "latin.csv"
-    p.write_bytes("# room at 21 \u00b0C\n".encode("latin-1") + _good_text().encode())
+    p.write_bytes("# room at 21 \u00b0C\n".encode("latin-1")
+                  + ("# units: length=mm\n" + _table("time,x,y,phi", [t, x, y, phi])).encode())
     e = pj.load_csv(str(p))
-    assert e.n == 8
+    t0, x0, y0, phi0 = _good_rows()
+    np.testing.assert_allclose(e.ts, t0, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(e.X, np.column_stack([x0, y0, phi0]), rtol=1e-15, atol=0)
+    assert e.th is None and e.tau is None
 
 
 def test_random_bytes_are_refused_naming_file_and_encoding(tmp_path):
