@@ -89,6 +89,7 @@ def kept_files(args, since: float) -> str:
     new = []
     for p in paths:
         try:
+            # 1 s of slack: a coarse file-system clock
             if os.path.getmtime(p) >= since - 1.0 and not p.endswith(".tmp"):
                 new.append(p)
         except OSError:  # removed meanwhile

@@ -43,8 +43,9 @@ class Identification(eqx.Module):
     and measured (E, m, 3) poses, ts (E, m) their times, mask (E, m) real samples (padding False);
     identifiability (dict: singular values of the relative sensitivities, condition number, the
     combinations the data determine and those they do not); residual_stats (dict: RMS per experiment
-    and channel in m / rad against the stated noise); history (dict: iterations, cost, convergence,
-    compile_s, run_s)."""
+    and channel in m / rad against the stated noise; an experiment held out whole by `validation`
+    has n = 0, held_out True and no RMS: `validation` has its prediction's); history (dict:
+    iterations, cost, convergence, compile_s, run_s)."""
 
     names: tuple
     estimate: Array
