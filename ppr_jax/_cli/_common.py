@@ -246,12 +246,8 @@ def _write_json(path, obj):
 
 
 def _out_dir(path):
-    """Create the output directory (or check it) before a long run."""
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise ValueError(f"--out {path!r} is a file, not a directory")
-    os.makedirs(path, exist_ok=True)
-    if not os.access(path, os.W_OK):
-        raise ValueError(f"--out {path!r} is not writable")
+    """Create the output directory (or check it) before a long run (`check_out_dir`)."""
+    check_out_dir(path)
 
 
 def _write_rows(path, rows, columns):
