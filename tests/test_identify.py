@@ -878,6 +878,10 @@ def test_a_channel_of_infinite_noise_is_not_counted_as_residuals():
     np.testing.assert_allclose([b.estimate[0], b.std[0]], [a.estimate[0], a.std[0]], rtol=1e-9)
     # phi alone determines t less well than x, y and phi together
     assert fits_["all"].std[0] < a.std[0]
+    assert "(noise x, y not fitted, 0.05 mrad)" in a.table()
+    assert a.to_dict()["noise"] == {"position_m": None, "phi_rad": NOISE[1],
+                                    "not_fitted": ["x", "y"]}
+    assert fits_["all"].to_dict()["noise"]["not_fitted"] == []
     with pytest.raises(pj.IdentificationError, match="noise must be .* not both"):
         pj.identify(exp, ("t",), noise=(math.inf, math.inf), **kw)
 

@@ -87,6 +87,7 @@ def write_report(fit, path: str, *, figures: Sequence[str] = (), data_files: Seq
     **Returns:** `path`.
     """
     from ..._programs import dependency_versions
+    from ._result import noise_text
 
     esc = html.escape
     q = fit.quality or {}
@@ -153,8 +154,7 @@ def write_report(fit, path: str, *, figures: Sequence[str] = (), data_files: Seq
                        _g(e["rms_phi_rad"] * 1e3, 4)]
                       if not e.get("held_out") else [e["name"], 0, "held out", "", ""]
                       for e in fit.residual_stats["experiments"]]),
-              f"<p>Stated noise: {_g(fit.noise[0] * 1e3, 3)} mm, "
-              f"{_g(fit.noise[1] * 1e3, 3)} mrad.</p>"]
+              f"<p>Stated noise: {noise_text(fit.noise)}.</p>"]
     v = fit.validation
     if v:
         verdict = ("<span class='ok'>generalises</span>" if v["generalises"] else

@@ -255,7 +255,7 @@ class Identification(eqx.Module):
                 continue
             lines.append(f"  {e['name']}: RMS x {e['rms_x_m'] * 1e3:.4g} mm, y "
                          f"{e['rms_y_m'] * 1e3:.4g} mm, phi {e['rms_phi_rad'] * 1e3:.4g} mrad "
-                         f"(noise {self.noise[0] * 1e3:.3g} mm, {self.noise[1] * 1e3:.3g} mrad)")
+                         f"(noise {noise_text(self.noise)})")
         q = self.quality or {}
         if q.get("escalated"):
             lines.append(f"  starts auto: {q['escalated']}: "
@@ -307,7 +307,10 @@ class Identification(eqx.Module):
             "scene": self.scene,
             "actuation": self.actuation,
             "experiments": list(self.experiment_names),
-            "noise": {"position_m": self.noise[0], "phi_rad": self.noise[1]},
+            "noise": {"position_m": self.noise[0], "phi_rad": self.noise[1],
+                      # an infinite noise (None above): that channel was not fitted
+                      "not_fitted": ["x", "y"] * (not math.isfinite(self.noise[0]))
+                      + ["phi"] * (not math.isfinite(self.noise[1]))},
             "unknowns": {
                 n: {"estimate": float(self.estimate[i]), "std": float(self.std[i]),
                     "ci95": [float(self.ci95[i, 0]), float(self.ci95[i, 1])],
@@ -326,6 +329,14 @@ class Identification(eqx.Module):
             "measurement": self.measurement,
             "history": self.history,
         })
+
+
+def noise_text(noise) -> str:
+    """The stated noise (position m, phi rad) in words: mm and mrad, or "not fitted" for a
+    channel of infinite noise."""
+    pos = f"{noise[0] * 1e3:.3g} mm" if math.isfinite(noise[0]) else "x, y not fitted"
+    phi = f"{noise[1] * 1e3:.3g} mrad" if math.isfinite(noise[1]) else "phi not fitted"
+    return f"{pos}, {phi}"
 
 
 def _json_safe(x):
