@@ -8,7 +8,7 @@ from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
-from ..._errors import DesignError, check_number
+from ..._errors import DesignError, PPRError, check_number as _check_number
 from ..._models import get_model
 from ..._names import (
     DESIGN_CANDIDATES,
@@ -33,6 +33,14 @@ from ._verify import gradient_check, grid_check, kkt
 KKT_TOL = 1e-5
 #: the finite-difference tolerance where a metric comes from an ODE solve (adaptive steps)
 SCENE_FD_RTOL = 1e-3
+
+
+def check_number(*args, **kwargs):
+    """`_errors.check_number`, its error a `DesignError`."""
+    try:
+        return _check_number(*args, **kwargs)
+    except PPRError as err:
+        raise DesignError(str(err)) from None
 
 
 def design(

@@ -126,7 +126,7 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
         cons = [{"type": "ineq", "fun": scaled.cons, "jac": scaled.cons_jac}] if q else []
         res = so.minimize(scaled.fun, u0, jac=scaled.grad, method="SLSQP",
                           bounds=[(0.0, 1.0)] * p, constraints=cons, callback=callback,
-                          options={"maxiter": max_iter, "ftol": 1e-15})
+                          options={"maxiter": max_iter, "ftol": 1e-12})
     elif method == "trust-constr":
         cons = ([so.NonlinearConstraint(scaled.cons, 0.0, np.inf, jac=scaled.cons_jac,
                                         hess=so.BFGS())] if q else [])
