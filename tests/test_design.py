@@ -192,3 +192,56 @@ def test_infeasible_specification_names_the_constraint():
     assert best.x["r"] == pytest.approx(BOUNDS["r"][1], rel=1e-9)
     assert best.constraints[0]["violation_abs"] == pytest.approx(least - sigma_a, rel=1e-9)
     assert f"{least - sigma_a:.6g}" in msg
+
+
+SPEC = f"""
+[variables]
+t = [1e-4, 1e-3]
+r = [0.01, 0.04]
+w = [0.01, 0.03]
+
+[objective]
+maximize = "pivot_frequency_hz"
+
+[[constraints]]
+metric = "pivot_stress_Pa"
+upper = {SIGMA_A!r}
+
+[settings]
+stroke = {STROKE!r}
+grid = 1000
+"""
+
+
+def test_cli_design_writes_the_report_and_the_designed_robot(tmp_path, capsys):
+    """`ppr-jax design --spec` on tier 1: design.json holds the closed-form optimum, and the
+    designed robot's file, read as --params-file reads it, reproduces the objective."""
+    import json
+
+    from ppr_jax._cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    out = tmp_path / "out"
+    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 0
+    data = json.loads((out / "design.json").read_text())
+    *_, f = tier1_closed_form()
+    assert data["objective"]["value"] == pytest.approx(f, rel=1e-6)
+    assert data["verification"]["ok"] and data["verification"]["grid"]["points"] == 1000
+    p = pj.load_params(str(out / "designed.toml"))
+    assert pivot_frequency(float(p.t), float(p.r), float(p.w)) == pytest.approx(
+        data["objective"]["value"], rel=1e-12)
+    assert "pivot_frequency_hz" in capsys.readouterr().out
+
+
+def test_cli_design_bad_spec_is_one_line(tmp_path, capsys):
+    from ppr_jax._cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC.replace("t = [1e-4, 1e-3]", "t = [0.0, 1e-3]"))
+    assert main(["design", "--spec", str(spec), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "'t'" in err and "[1e-06, 0.01] m" in err and "Traceback" not in err
+    spec.write_text(SPEC + "\n[extra]\nx = 1\n")
+    assert main(["design", "--spec", str(spec), "--out", str(tmp_path / "o")]) == 2
+    assert "unknown section" in capsys.readouterr().err

@@ -1,8 +1,8 @@
 """Design with gradients: design variables with bounds (`_variables`), the objective and
 constraints (`_goals`) on the metrics of one catalogue (`_catalogue`), the compiled problem
 (`_problem`), the constrained optimiser and the starts' screening (`_optimise`), the
-verification of the optimum (`_verify`), the result (`_result`) and the entry point
-(`_design`)."""
+verification of the optimum (`_verify`), the result (`_result`), the entry point
+(`_design`) and the specification file of the command line (`_spec`)."""
 
 from ..._errors import DesignError
 from ._catalogue import (
@@ -16,8 +16,9 @@ from ._catalogue import (
 from ._design import design
 from ._goals import Constraint, Objective
 from ._result import Design
+from ._spec import load_design_spec
 from ._variables import check_variables
 
 __all__ = ["CLOSED_FORM_METRICS", "Constraint", "Design", "DesignError", "Objective",
-           "check_variables", "design", "design_metrics", "moving_mass", "pivot_frequency",
+           "check_variables", "design", "load_design_spec", "design_metrics", "moving_mass", "pivot_frequency",
            "pivot_stress", "strip_stress_peak"]
