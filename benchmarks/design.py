@@ -125,8 +125,9 @@ def main(argv=None):
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(out, indent=2) + "\n")
     for r in rows:
-        print(f"{r['optimizer']}: f* {r['objective']:.10g} Hz, rel error {r['objective_rel_error']:.2e}"
-              f" (t {r['t_rel_error']:.2e}), verification {r['verification_ok']}, first call "
+        print(f"{r['optimizer']}: f* {r['objective']:.10g} Hz, rel error "
+              f"{r['objective_rel_error']:.2e} (t {r['t_rel_error']:.2e}), verification "
+              f"{r['verification_ok']}, first call "
               f"{r['first_call_s']:.2f} s, warm {r['warm_call_s']:.3f} s")
     print(f"wrote {OUT}")
 

@@ -53,7 +53,8 @@ from ._sweep import (
 )
 
 __all__ = [
-    "Constraint", "Design", "DesignError", "Objective", "design", "design_metrics", "load_design_spec",
+    "Constraint", "Design", "DesignError", "Objective", "design", "design_metrics",
+    "load_design_spec",
     "ACTUATIONS", "DEFAULT_NOISE", "FLOAT_PARAMS", "ID_SCENES", "INITIAL_STATES", "LOSSES",
     "METRICS", "PATH_SENSITIVITY_METRICS", "POOR_FIT_SCALE", "ROBOT_METRICS",
     "SENSITIVITY_METRICS", "SOLVERS", "allowed_metrics", "default_metrics",

@@ -20,5 +20,5 @@ from ._spec import load_design_spec
 from ._variables import check_variables
 
 __all__ = ["CLOSED_FORM_METRICS", "Constraint", "Design", "DesignError", "Objective",
-           "check_variables", "design", "load_design_spec", "design_metrics", "moving_mass", "pivot_frequency",
-           "pivot_stress", "strip_stress_peak"]
+           "check_variables", "design", "design_metrics", "load_design_spec", "moving_mass",
+           "pivot_frequency", "pivot_stress", "strip_stress_peak"]
