@@ -165,6 +165,8 @@ def test_bad_goals_are_refused():
         pj.design(BOUNDS, "speed")
     with pytest.raises(pj.DesignError, match="scene="):
         pj.design(BOUNDS, "radial_error_max_m")
+    with pytest.raises(pj.DesignError, match="scene="):
+        pj.design(BOUNDS, "strip_stress_peak_Pa")
     with pytest.raises(pj.DesignError, match="stroke"):
         pj.design(BOUNDS, "pivot_frequency_hz", [pj.Constraint("pivot_stress_Pa", upper=1e8)])
     with pytest.raises(pj.DesignError, match=r"stroke = 4"):
@@ -192,6 +194,7 @@ def test_infeasible_specification_names_the_constraint():
     assert best.x["r"] == pytest.approx(BOUNDS["r"][1], rel=1e-9)
     assert best.constraints[0]["violation_abs"] == pytest.approx(least - sigma_a, rel=1e-9)
     assert f"{least - sigma_a:.6g}" in msg
+    assert "not run" in best.summary() and not best.feasible
 
 
 SPEC = f"""
@@ -245,3 +248,40 @@ def test_cli_design_bad_spec_is_one_line(tmp_path, capsys):
     spec.write_text(SPEC + "\n[extra]\nx = 1\n")
     assert main(["design", "--spec", str(spec), "--out", str(tmp_path / "o")]) == 2
     assert "unknown section" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_designed_robot_reproduces_its_base_frequency_in_ppr_jax_modes(tmp_path, capsys):
+    """The robot's first locked frequency (L2) maximised over t under the strip pivot's stress
+    bound: the frequency grows with t, so t* is the stress bound's closed form
+    2 sigma_a r theta_c/(E stroke); `ppr-jax modes --params-file` of the designed robot gives the
+    optimum's objective."""
+    import json
+
+    from ppr_jax._cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f"""
+[variables]
+t = [2e-4, 4e-4]
+[objective]
+maximize = "base_frequency_hz"
+[[constraints]]
+metric = "pivot_stress_Pa"
+upper = {SIGMA_A!r}
+[settings]
+stroke = {STROKE!r}
+starts = 2
+candidates = 8
+grid = 64
+""")
+    out = tmp_path / "out"
+    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 0
+    data = json.loads((out / "design.json").read_text())
+    t_star = 2 * SIGMA_A * 0.020 * THETA_C / (E * STROKE)
+    assert data["x"]["t"] == pytest.approx(t_star, rel=1e-6)
+    assert data["verification"]["ok"]
+    capsys.readouterr()
+    assert main(["modes", "--params-file", str(out / "designed.toml"), "--json"]) == 0
+    modes = json.loads(capsys.readouterr().out)
+    assert modes["frequencies_hz"][0] == pytest.approx(data["objective"]["value"], rel=1e-6)

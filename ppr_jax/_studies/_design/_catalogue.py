@@ -54,10 +54,11 @@ SCENE_OWN_METRICS = ("strip_stress_peak_Pa",)
 
 def design_metrics(trajectory=None) -> tuple:
     """Every metric a design may name: the catalogue's own (`DESIGN_METRICS`) and, along a
-    scene's `trajectory`, the scene metrics of `allowed_metrics`."""
+    scene's `trajectory`, the scene metrics of `allowed_metrics` and `SCENE_OWN_METRICS`
+    (without a trajectory: the metrics that need no scene)."""
     own = tuple(DESIGN_METRICS)
     if trajectory is None:
-        return own
+        return tuple(m for m in own if m not in SCENE_OWN_METRICS)
     return own + tuple(m for m in allowed_metrics(trajectory) if m not in own)
 
 

@@ -96,6 +96,9 @@ class Design:
             lines.append(f"  bound {b['variable']} {b['side']} {b['bound']:g} active "
                          f"(multiplier {b['multiplier']:.4g})")
         v = self.verification
+        if "grid" not in v:
+            lines.append(f"  verification: not run ({v.get('skipped', 'skipped')})")
+            return "\n".join(lines)
         g = v["grid"]
         lines.append(f"  verification: KKT residual {v['kkt_residual']:.2e}; gradient vs finite "
                      f"differences {v['gradient_check']['worst']:.2e}; {g['kind']} of "
