@@ -22,7 +22,7 @@ else:
 
 #: module -> the public names it gives, in the order of the floors they come from
 _EXPORTS = {
-    "._names": ("PARAM_RANGES", "STRIP_DYNAMICS"),
+    "._names": ("PARAM_RANGES", "STRIP_DYNAMICS", "DESIGN_METRICS"),
     "._params": ("RobotParams", "stack_params", "unstack_params"),
     "._params_file": ("load_params", "save_params"),
     "._prb": ("Derived", "derived"),
@@ -66,6 +66,7 @@ _EXPORTS = {
     "._studies": (
         "SweepResult", "sweep", "shard_batch", "design_members", "Sensitivity", "sensitivity",
         "base_frequency", "Identification", "IdentificationError", "identify", "synthesize",
+        "Design", "DesignError", "Objective", "Constraint", "design", "design_metrics",
     ),
     "._prb_table": ("prb_parameters", "prb_table"),
     "._data": (
@@ -80,7 +81,11 @@ _LAZY.update({"fit_prb": "._prb_fit", "prb_error": "._prb_fit", "elastica": ".el
 __all__ = [name for names in _EXPORTS.values() for name in names]
 
 if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
-    from ._names import PARAM_RANGES as PARAM_RANGES, STRIP_DYNAMICS as STRIP_DYNAMICS
+    from ._names import (
+        PARAM_RANGES as PARAM_RANGES,
+        STRIP_DYNAMICS as STRIP_DYNAMICS,
+        DESIGN_METRICS as DESIGN_METRICS,
+    )
     from ._params import (
         RobotParams as RobotParams,
         stack_params as stack_params,
@@ -195,6 +200,12 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         IdentificationError as IdentificationError,
         identify as identify,
         synthesize as synthesize,
+        Design as Design,
+        DesignError as DesignError,
+        Objective as Objective,
+        Constraint as Constraint,
+        design as design,
+        design_metrics as design_metrics,
     )
     from ._prb_table import prb_parameters as prb_parameters, prb_table as prb_table
     from ._data import (

@@ -42,6 +42,15 @@ class IdentificationError(PPRError):
     """An identification that cannot run as asked (unknown names, bounds, a failed simulation)."""
 
 
+class DesignError(PPRError):
+    """A design that cannot run as asked (unknown variables or metrics, bounds outside a
+    parameter's physical range) or whose specification cannot be met (the message names the
+    constraint and by how much it is violated at the best point found; `result`, when set, is
+    that best `Design`)."""
+
+    result = None
+
+
 class ElasticaConvergenceError(PPRError, RuntimeError):
     """Raised (eagerly) when the shooting solver does not converge for the given load. A
     `PPRError` (as the library's other errors) and, as before, a `RuntimeError`."""

@@ -113,3 +113,30 @@ ACTUATIONS = ("auto", "commanded", "measured")
 #: nothing (the scene's quasi-static state), the platform pose (x0, y0, phi0), or the pose and
 #: the platform velocity
 INITIAL_STATES = {"scene": 0, "pose": 3, "pose-velocity": 6}
+
+# -- design (`_studies._design`) -----------------------------------------------------------
+
+#: the design catalogue's own metrics (SI units; the scene metrics of `allowed_metrics` join
+#: them on any scene): name -> what it measures
+DESIGN_METRICS: dict[str, str] = {
+    "pivot_frequency_hz": "first natural frequency of one strip pivot (K0 = E I/L) carrying the "
+                          "connecting link, the drive link held (Hz)",
+    "pivot_stress_Pa": "the strip's peak bending stress at the joint rotation `stroke` under a "
+                       "pure moment, E t stroke/(2 L) (Pa)",
+    "base_frequency_hz": "the robot's first natural frequency, actuators locked, at home "
+                         "(frequency_model) (Hz)",
+    "moving_mass_kg": "mass of every moving body: three drive links, strips and connecting "
+                      "links, and the platform (kg)",
+    "strip_stress_peak_Pa": "the strips' peak bending stress over the scene, from each spring's "
+                            "moment K d over the strip's section modulus w t^2/6 (Pa)",
+}
+#: the constrained optimisers of a design (scipy.optimize.minimize's methods)
+DESIGN_OPTIMIZERS = ("slsqp", "trust-constr")
+#: a design's defaults: starts run by the optimiser, candidates screened for them, points of
+#: the verification grid, the grid's tolerance on the objective (relative), the finite
+#: difference check's tolerance (relative)
+DESIGN_STARTS = 4
+DESIGN_CANDIDATES = 64
+DESIGN_GRID = 10_000
+DESIGN_GRID_RTOL = 0.01
+DESIGN_FD_RTOL = 1e-5

@@ -17,6 +17,7 @@ from ._common import (
     _log,
     parent_parsers,
 )
+from ._design import add_design
 from ._identify import add_identify
 from ._modes import _add_modes
 from ._prb import _add_prb, _add_prb_table
@@ -30,7 +31,7 @@ from ._torques import _add_torques
 #: is one module in this wing with a function `add(sub, parents, fmt)`, and one line here.
 COMMANDS = [
     _add_simulate, _add_torques, _add_modes, _add_prb, _add_prb_table,
-    add_sweep, add_sensitivity, add_identify, add_synth,
+    add_sweep, add_sensitivity, add_identify, add_synth, add_design,
 ]
 
 

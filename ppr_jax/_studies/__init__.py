@@ -1,7 +1,16 @@
 """The studies wing: what runs many scenes, or one scene many times. Sweeps (`_sweep`),
-sensitivities (`_sensitivity`) and identification (`_identify/`), each through
-`AbstractScene.run` and the one batch mapper of the scenes wing."""
+sensitivities (`_sensitivity`), identification (`_identify/`) and design (`_design/`), each
+through `AbstractScene.run` and the one batch mapper of the scenes wing."""
 
+from ._design import (
+                      Constraint,
+                      Design,
+                      DesignError,
+                      Objective,
+                      design,
+                      design_metrics,
+                      load_design_spec,
+)
 from ._identify import (
                         ACTUATIONS,
                         DEFAULT_NOISE,
@@ -44,6 +53,8 @@ from ._sweep import (
 )
 
 __all__ = [
+    "Constraint", "Design", "DesignError", "Objective", "design", "design_metrics",
+    "load_design_spec",
     "ACTUATIONS", "DEFAULT_NOISE", "FLOAT_PARAMS", "ID_SCENES", "INITIAL_STATES", "LOSSES",
     "METRICS", "PATH_SENSITIVITY_METRICS", "POOR_FIT_SCALE", "ROBOT_METRICS",
     "SENSITIVITY_METRICS", "SOLVERS", "allowed_metrics", "default_metrics",

@@ -1,0 +1,174 @@
+"""Design with gradients (issue 40), tier 1: the closed form.
+
+One strip pivot carrying a link (the catalogue's `pivot_*` metrics, `ppr_jax._studies._design.
+_catalogue`): maximise its first natural frequency f = sqrt(K/J)/(2 pi), K = E w t^3/(12 L),
+L = r theta_c, J the connecting link's inertia about the joint, over the strip's (t, r, w),
+subject to its bending stress sigma = E t stroke/(2 L) <= sigma_a at a given stroke. Closed form
+(derived in tests/test_design.py): the stress bound is active, t* = 2 sigma_a L/(E stroke), and
+r, w on their upper bounds; f* grows as sigma_a^1.5, L and w^0.5, so the multipliers are
+d f*/d sigma_a = 1.5 f*/sigma_a, d f*/d r_hi = f*/r_hi, d f*/d w_hi = f*/(2 w_hi). Assumed:
+the strip massless, pure-moment bending, the drive link held, the link rigid, small strains.
+
+For each optimiser (SLSQP, trust-constr): the relative error of the optimum's objective and
+thickness against the closed form (goal: 1e-6), of the multipliers, the verification (KKT
+residual, gradient against finite differences, the 21^3 grid's gap), iterations and
+evaluations per start, and the time of a whole `design` call: the first in the process (it
+compiles the problem's three programs) and the fastest of `--repeats` after it (every result
+is a NumPy array: the device work has finished when `design` returns).
+`--robot` adds a robot-level design on a scene (no closed form; verified by its own finite
+differences and grid): the first locked frequency (L2) maximised over t in [0.2, 0.6] mm
+subject to the strips' peak PRB stress over the first 0.5 s of servo-circle (51 output times)
+<= 250 MPa, 2 starts from 8 candidates, a 64-point grid; its cold call (compilation of the
+scene's forward-mode Jacobian and batch) and one warm call.
+Writes benchmarks/results/design.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import ppr_jax as pj
+
+OUT = Path(__file__).resolve().parent / "results" / "design.json"
+
+E, RHO_M, L3, B_R, T_R, THETA_C = 71.0e9, 2780.0, 0.366, 0.023, 0.010, 1.88
+SIGMA_A, STROKE = 100e6, 0.3
+BOUNDS = {"t": (1e-4, 1e-3), "r": (0.01, 0.04), "w": (0.01, 0.03)}
+
+
+def closed_form() -> dict:
+    r, w = BOUNDS["r"][1], BOUNDS["w"][1]
+    L = r * THETA_C
+    t = 2 * SIGMA_A * L / (E * STROKE)
+    m3 = RHO_M * L3 * B_R * T_R
+    J = m3 * (L3**2 / 3 + B_R**2 / 12)
+    f = math.sqrt(E * w * t**3 / (12 * L) / J) / (2 * math.pi)
+    return {"t": t, "r": r, "w": w, "f": f, "d_f_d_sigma_a": 1.5 * f / SIGMA_A,
+            "d_f_d_r_hi": f / r, "d_f_d_w_hi": f / (2 * w)}
+
+
+def run(optimizer: str):
+    return pj.design(BOUNDS, "pivot_frequency_hz",
+                     [pj.Constraint("pivot_stress_Pa", upper=SIGMA_A)], stroke=STROKE,
+                     optimizer=optimizer)
+
+
+def tier1(optimizer: str, repeats: int) -> dict:
+    cf = closed_form()
+    t0 = time.perf_counter()
+    d = run(optimizer)
+    first = time.perf_counter() - t0
+    warm = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        d = run(optimizer)
+        warm.append(time.perf_counter() - t0)
+    bounds = {(b["variable"], b["side"]): b["multiplier"] for b in d.active_bounds}
+    (c,) = d.constraints
+    rel = lambda a, b: abs(a / b - 1)  # noqa: E731
+    f_err = rel(d.objective["value"], cf["f"])
+    v = d.verification
+    return {
+        "optimizer": optimizer, "closed_form": cf, "optimum": d.x,
+        "objective": d.objective["value"],
+        "objective_rel_error": f_err, "t_rel_error": rel(d.x["t"], cf["t"]),
+        "stress_active": c["active"], "stress_at_optimum_Pa": c["value"],
+        "multiplier_rel_error": {
+            "sigma_a": rel(c["multiplier"], cf["d_f_d_sigma_a"]) if c["active"] else None,
+            "r_hi": rel(bounds["r", "upper"], cf["d_f_d_r_hi"]) if ("r", "upper") in bounds
+            else None,
+            "w_hi": rel(bounds["w", "upper"], cf["d_f_d_w_hi"]) if ("w", "upper") in bounds
+            else None},
+        "kkt_residual": v["kkt_residual"], "gradient_fd_rel_error": v["gradient_check"]["worst"],
+        "grid": {k: v["grid"][k] for k in ("kind", "points", "best_objective", "gap", "ok")},
+        "verification_ok": v["ok"],
+        "meets_1e-6": bool(f_err <= 1e-6),
+        "starts": [{"iterations": s["iterations"], "evaluations": s["evaluations"],
+                    "message": s["message"]} for s in d.starts],
+        "evaluations_total": d.info["evaluations"], "jacobians_total": d.info["jacobians"],
+        "first_call_s": first, "warm_call_s": min(warm) if warm else None,
+        "warm_timing": d.timing,
+    }
+
+
+def robot_scene() -> dict:
+    def run():
+        return pj.design({"t": (2e-4, 6e-4)}, "base_frequency_hz",
+                         [pj.Constraint("strip_stress_peak_Pa", upper=250e6)],
+                         scene="servo-circle", model="double1r",
+                         options=pj.SceneOptions(t_end=0.5, n_out=51), starts=2, candidates=8,
+                         grid=64)
+    t0 = time.perf_counter()
+    d = run()
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    d = run()
+    warm = time.perf_counter() - t0
+    (c,) = d.constraints
+    v = d.verification
+    return {"optimum": d.x, "objective_hz": d.objective["value"],
+            "start_objective_hz": d.objective["start_value"],
+            "stress_Pa": c["value"], "stress_active": c["active"],
+            "multiplier_hz_per_Pa": c["multiplier"], "kkt_residual": v["kkt_residual"],
+            "gradient_fd_rel_error": v["gradient_check"]["worst"],
+            "grid": {k: v["grid"][k] for k in ("kind", "points", "best_objective", "gap", "ok")},
+            "verification_ok": v["ok"], "mode": d.info["mode"],
+            "starts": [{"iterations": s["iterations"], "evaluations": s["evaluations"]}
+                       for s in d.starts],
+            "first_call_s": first, "warm_call_s": warm, "warm_timing": d.timing}
+
+
+def machine() -> dict:
+    try:
+        load = os.getloadavg()
+    except OSError:
+        load = None
+    return {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+            "backend": jax.default_backend(), "python": platform.python_version(),
+            "load_average_at_start": load,
+            "versions": {"jax": jax.__version__, "numpy": np.__version__,
+                         "scipy": __import__("scipy").__version__}}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--optimizers", default="slsqp,trust-constr")
+    ap.add_argument("--robot", action="store_true", help="add the robot-level design on a scene")
+    args = ap.parse_args(argv)
+    info = machine()
+    rows = [tier1(o, args.repeats) for o in args.optimizers.split(",")]
+    robot = robot_scene() if args.robot else None
+    try:
+        info["load_average_at_end"] = os.getloadavg()
+    except OSError:
+        pass
+    out = {"machine": info, "tier1": rows, "robot_scene": robot,
+           "passed": {r["optimizer"]: r["meets_1e-6"] and r["verification_ok"] for r in rows}}
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(out, indent=2) + "\n")
+    for r in rows:
+        print(f"{r['optimizer']}: f* {r['objective']:.10g} Hz, rel error "
+              f"{r['objective_rel_error']:.2e} (t {r['t_rel_error']:.2e}), verification "
+              f"{r['verification_ok']}, first call "
+              f"{r['first_call_s']:.2f} s, warm {r['warm_call_s']:.3f} s")
+    if robot:
+        print(f"robot on servo-circle: t* {robot['optimum']['t']:.6g} m, f "
+              f"{robot['objective_hz']:.6g} Hz, verification {robot['verification_ok']}, "
+              f"first call {robot['first_call_s']:.1f} s, warm {robot['warm_call_s']:.1f} s")
+    print(f"wrote {OUT}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,54 @@
+"""`ppr-jax design --spec SPEC.toml`: a design with gradients, its report and the designed
+robot's parameter file."""
+
+from __future__ import annotations
+
+import os
+
+from .._names import DESIGN_METRICS
+from ._common import _log, _out_dir
+
+
+def cmd_design(args):
+    from .._params import parse_value
+    from .._scenes import SceneOptions
+    from .._studies import design, load_design_spec
+    from ._common import _parse_sets
+
+    spec = load_design_spec(args.spec)
+    settings = dict(spec["settings"])
+    scene = settings.get("scene")
+    path = args.params_file or spec["params_file"]
+    base = _parse_sets(None, scene if scene is not None else "modes", path)
+    base = base.replace(**spec["params"])
+    sets = {}
+    for item in args.set or []:
+        name, _, value = item.partition("=")
+        sets[name.strip()] = parse_value(name.strip(), value)
+    base = base.replace(**sets)
+    options = SceneOptions().updated(**spec["options"]) if spec["options"] else None
+    _out_dir(args.out)
+    _log(f"design: {', '.join(spec['variables'])} ... compiling and optimising")
+    d = design(spec["variables"], spec["objective"], spec["constraints"], params=base,
+               options=options, **settings)
+    report = d.save(os.path.join(args.out, "design.json"))
+    robot = d.to_params_file(os.path.join(args.out, "designed.toml"))
+    print(d.summary())
+    print(f"wrote {report}, {robot} (ppr-jax ... --params-file {robot})")
+    return 0
+
+
+def add_design(sub, parents, fmt):
+    d = sub.add_parser(
+        "design", formatter_class=fmt, parents=[parents["params"]],
+        help="design with gradients: optimise RobotParams fields against a specification",
+        description="Optimise design variables (RobotParams fields with bounds) for an "
+                    "objective subject to constraints, read from a TOML specification "
+                    "(docs/design.md), verify the optimum, and write design.json and the "
+                    "designed robot's parameter file designed.toml. Catalogue: "
+                    + ", ".join(DESIGN_METRICS) + ", and a scene's metrics.")
+    d.add_argument("--spec", required=True, metavar="SPEC.toml",
+                   help="the design specification ([variables], [objective], [[constraints]], "
+                        "[settings], [params])")
+    d.add_argument("--out", default="design_out", help="output directory")
+    d.set_defaults(func=cmd_design)

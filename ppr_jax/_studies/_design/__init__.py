@@ -1,0 +1,24 @@
+"""Design with gradients: design variables with bounds (`_variables`), the objective and
+constraints (`_goals`) on the metrics of one catalogue (`_catalogue`), the compiled problem
+(`_problem`), the constrained optimiser and the starts' screening (`_optimise`), the
+verification of the optimum (`_verify`), the result (`_result`), the entry point
+(`_design`) and the specification file of the command line (`_spec`)."""
+
+from ..._errors import DesignError
+from ._catalogue import (
+                         CLOSED_FORM_METRICS,
+                         design_metrics,
+                         moving_mass,
+                         pivot_frequency,
+                         pivot_stress,
+                         strip_stress_peak,
+)
+from ._design import design
+from ._goals import Constraint, Objective
+from ._result import Design
+from ._spec import load_design_spec
+from ._variables import check_variables
+
+__all__ = ["CLOSED_FORM_METRICS", "Constraint", "Design", "DesignError", "Objective",
+           "check_variables", "design", "design_metrics", "load_design_spec", "moving_mass",
+           "pivot_frequency", "pivot_stress", "strip_stress_peak"]

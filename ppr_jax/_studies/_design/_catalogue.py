@@ -1,0 +1,149 @@
+"""The design catalogue: every metric an objective or a constraint may name, as traced,
+differentiable functions of the parameters.
+
+Closed forms (no scene): `pivot_frequency_hz`, `pivot_stress_Pa`, `moving_mass_kg`. The robot's
+first locked natural frequency `base_frequency_hz` (`ppr_jax.modes`' linearisation, differentiated
+through the Rayleigh quotient: `_sensitivity.base_frequency`). On a scene (any registered name or
+`AbstractScene`, run with `SceneOptions` through `AbstractScene.run`, as sensitivities run it):
+every metric of `allowed_metrics` (tracking error, torque peak, ...) and `strip_stress_peak_Pa`.
+
+**One strip pivot carrying a link** (`pivot_*`). The compliant joint taken alone as one straight
+strip of length L = r theta_c, width w, thickness t, bent by a pure moment: its rotational
+stiffness is the exact K0 = E I/L, I = w t^3/12 (the L0 pin's, MODEL.md section 5), its curvature
+is uniform, theta/L at a rotation theta, so its surface stress is sigma = E (t/2) theta/L =
+E t theta/(2 L) everywhere along it. The drive link is held; the connecting link (m3, I3 of
+MODEL.md section 1) swings about the joint, J = I3 + m3 (l3/2)^2 = m3 (l3^2/3 + b_r^2/12); the
+strip's own inertia is left out (under a gram against the link's 234 g). Its natural frequency
+is sqrt(K0/J)/(2 pi). A figure of merit of the joint, not a mode of the robot
+(`base_frequency_hz` is that).
+
+**Strip stress over a scene** (`strip_stress_peak_Pa`). A spring of the model with stiffness k
+deflected by d carries the moment M = k d; the strip there is bent by M, and its surface stress
+is M/Z with the section modulus Z = I/(t/2) = w t^2/6. For the double-1R joint (L1, L2;
+MODEL.md section 3) k = K = 2 E I rho K_theta/L, so sigma = E t/(2 L) * 2 rho K_theta |d| at each
+characteristic pivot, d its PRB angle from rest (d_i1, d_i2); for L0's pin k = K0 and
+sigma = E t |d|/(2 L), the pure-moment value above; for L3's beam elements the spring between
+two elements of length h has k = E I/h and sigma = E t |d|/(2 h), the curvature's stress. The
+peak is the exact max over the output times and the springs of all three chains (its
+derivative is the arg-max's, a subgradient, as for the other max metrics). What it assumes: the
+PRB spring's moment is the strip's moment at the characteristic pivot; under tip forces the
+moment varies along the strip and the clamps may carry more than the pivots (L3's curvature,
+with `model="beam"`, is the check).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Optional
+
+import jax
+import jax.numpy as jnp
+
+from ..._errors import RESULTS
+from ..._names import DESIGN_METRICS
+from ..._prb import Derived
+from ..._robot import Robot
+from .._sensitivity import allowed_metrics, base_frequency
+from .._sweep import traced_metrics
+
+#: the catalogue's metrics that need no scene
+CLOSED_FORM_METRICS = ("pivot_frequency_hz", "pivot_stress_Pa", "moving_mass_kg")
+#: the catalogue's metrics that need the scene's run (besides the scene's own metrics)
+SCENE_OWN_METRICS = ("strip_stress_peak_Pa",)
+
+
+def design_metrics(trajectory=None) -> tuple:
+    """Every metric a design may name: the catalogue's own (`DESIGN_METRICS`) and, along a
+    scene's `trajectory`, the scene metrics of `allowed_metrics` and `SCENE_OWN_METRICS`
+    (without a trajectory: the metrics that need no scene)."""
+    own = tuple(DESIGN_METRICS)
+    if trajectory is None:
+        return tuple(m for m in own if m not in SCENE_OWN_METRICS)
+    return own + tuple(m for m in allowed_metrics(trajectory) if m not in own)
+
+
+def pivot_frequency(params, dv: Derived):
+    """First natural frequency (Hz) of one strip pivot carrying the connecting link (module
+    docstring): sqrt(K0/J)/(2 pi), K0 = E w t^3/(12 L), J = I3 + m3 (l3/2)^2.
+
+    **Arguments:**
+
+    - `params`: `RobotParams`.
+    - `dv`: `derived(params)`.
+
+    **Returns:** the frequency (Hz), traced like the parameters.
+    """
+    J = dv.I3 + dv.m3 * (params.l3 / 2) ** 2
+    return jnp.sqrt(dv.K0 / J) / (2 * jnp.pi)
+
+
+def pivot_stress(params, dv: Derived, stroke):
+    """The strip's surface bending stress (Pa) at the joint rotation `stroke` (rad) under a pure
+    moment (module docstring): E t stroke/(2 L), L = r theta_c."""
+    return params.E * params.t * stroke / (2 * dv.L)
+
+
+def moving_mass(dv: Derived):
+    """Mass (kg) of every moving body: 3 (m1 + m2 + m3) + m4 (MODEL.md section 1)."""
+    return 3 * (dv.m1 + dv.m2 + dv.m3) + dv.m4
+
+
+def strip_stress_peak(model, robot: Robot, z):
+    """Peak bending stress (Pa) of the strips over the coordinates z (m, n) of a scene's
+    output times (module docstring): max |k d| 6/(w t^2) over the times and springs."""
+    k = model.stiffness(robot)
+    d = jax.vmap(lambda zz: model.kinematics(robot, zz).deflection)(z)
+    p = robot.params
+    return jnp.max(jnp.abs(k * d)) * 6 / (p.w * p.t**2)
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneContext:
+    """What the scene metrics need: the scene, the model that runs it and its prepared
+    `SceneOptions` (or None: no scene metric asked for), and the model of `base_frequency_hz`."""
+
+    scene: Optional[object]
+    model: Optional[object]
+    options: Optional[object]
+    frequency_model: object
+
+
+def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_links=True):
+    """The metrics `names` (tuple) at `params` as one (k,) traced array.
+
+    **Arguments:**
+
+    - `names`: catalogue names (`design_metrics`).
+    - `params`: `RobotParams` (traced leaves allowed).
+    - `ctx`: `SceneContext`.
+    - `stroke`: the joint rotation (rad) of `pivot_stress_Pa`.
+    - `adjoint`: diffrax's adjoint for the scene's solve (`ForwardMode` under `jax.jacfwd`).
+    - `equal_links`: `Robot`'s static choice of the closed-form inverse kinematics (l1 == l3).
+
+    **Returns:** (k,) values in SI units; NaN for every scene metric where the scene failed.
+    """
+    robot = Robot(params, equal_links=equal_links)
+    dv = robot.dv
+    out = {}
+    scene_names = [n for n in names if n not in CLOSED_FORM_METRICS and n != "base_frequency_hz"]
+    if scene_names:
+        opts = ctx.options if adjoint is None else dataclasses.replace(ctx.options,
+                                                                       adjoint=adjoint)
+        res = ctx.scene.run(ctx.model, robot, opts)
+        table = [n for n in scene_names if n not in SCENE_OWN_METRICS]
+        if table:
+            out.update(traced_metrics(res, opts.trajectory, table))
+        if "strip_stress_peak_Pa" in scene_names:
+            out["strip_stress_peak_Pa"] = strip_stress_peak(ctx.model, robot, res.z)
+        bad = res.result != RESULTS.successful
+        out = {k: jnp.where(bad, jnp.nan, v) for k, v in out.items()}
+    for n in names:
+        if n == "pivot_frequency_hz":
+            out[n] = pivot_frequency(params, dv)
+        elif n == "pivot_stress_Pa":
+            out[n] = pivot_stress(params, dv, stroke)
+        elif n == "moving_mass_kg":
+            out[n] = moving_mass(dv)
+        elif n == "base_frequency_hz":
+            out[n] = base_frequency(ctx.frequency_model, robot)
+    return jnp.stack([jnp.asarray(out[n], dtype=jnp.float64) for n in names])

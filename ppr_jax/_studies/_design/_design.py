@@ -1,0 +1,283 @@
+"""`design`: from variables, an objective and constraints to a verified optimum."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+
+from ..._errors import DesignError, PPRError, check_number as _check_number
+from ..._models import get_model
+from ..._names import (
+    DESIGN_CANDIDATES,
+    DESIGN_FD_RTOL,
+    DESIGN_GRID,
+    DESIGN_GRID_RTOL,
+    DESIGN_OPTIMIZERS,
+    DESIGN_STARTS,
+)
+from ..._params import RobotParams
+from ..._scenes import SceneOptions, get_scene
+from .._sensitivity import explicit_params
+from ._catalogue import CLOSED_FORM_METRICS, SceneContext, design_metrics
+from ._goals import as_constraints, as_objective
+from ._optimise import FEAS_TOL, Scaled, optimise, screen
+from ._problem import Problem
+from ._result import Design
+from ._variables import check_variables
+from ._verify import gradient_check, grid_check, kkt
+
+#: the KKT residual (relative) below which the optimum counts as a stationary point
+KKT_TOL = 1e-5
+#: the finite-difference tolerance where a metric comes from an ODE solve (adaptive steps)
+SCENE_FD_RTOL = 1e-3
+
+
+def check_number(*args, **kwargs):
+    """`_errors.check_number`, its error a `DesignError`."""
+    try:
+        return _check_number(*args, **kwargs)
+    except PPRError as err:
+        raise DesignError(str(err)) from None
+
+
+def design(
+    variables: Mapping,
+    objective,
+    constraints: Sequence = (),
+    *,
+    params: Optional[RobotParams] = None,
+    stroke: Optional[float] = None,
+    scene=None,
+    model="double1r",
+    torque_model=None,
+    frequency_model="double1r",
+    options: Optional[SceneOptions] = None,
+    optimizer: str = "slsqp",
+    mode: Optional[str] = None,
+    starts: int = DESIGN_STARTS,
+    candidates: int = DESIGN_CANDIDATES,
+    max_iter: int = 100,
+    grid: int = DESIGN_GRID,
+    grid_rtol: float = DESIGN_GRID_RTOL,
+    fd_rtol: Optional[float] = None,
+    seed: int = 0,
+) -> Design:
+    """Design a robot with gradients: the `variables` (fields of `RobotParams`) within their
+    bounds that optimise `objective` subject to `constraints`, found by a gradient-based
+    constrained optimiser from several starts and verified.
+
+    The starts: `candidates` points (the base robot's, clipped into the box, and a scrambled
+    Sobol sequence) are evaluated in one batched call and the `starts` best (objective plus a
+    penalty on violated constraints) run scipy's SLSQP or trust-constr, fed the metrics' JAX
+    Jacobian (`jax.jacfwd` where there are no more variables than metrics, `jax.jacrev`
+    otherwise), in variables normalised to [0, 1] and with the objective and constraints
+    scaled to order one. The best feasible optimum is then verified (`Design.verification`):
+    its Karush-Kuhn-Tucker residual with the multipliers of the active constraints and bounds,
+    the JAX gradient against finite differences there, and a dense grid over the box (a Sobol
+    sample beyond four variables) in one batched call, whose best feasible objective the
+    optimum must be within `grid_rtol` of.
+
+    **Arguments:**
+
+    - `variables`: {name: (lo, hi)}: float fields of `RobotParams` and their bounds (SI),
+      inside each parameter's physical range (`PARAM_RANGES`).
+    - `objective`: a metric name (maximised), `Objective(metric, sense)` or
+      {"maximize": name} / {"minimize": name}.
+    - `constraints`: `Constraint(metric, upper=..., lower=...)`s or dicts of those fields.
+    - `params`: the robot whose other fields stay as they are (default: the scene's, else
+      Table 1). Its gamma, rho and K_theta left None follow the PRB table as theta_c changes.
+    - `stroke`: the joint rotation (rad, in (0, pi]) of `pivot_stress_Pa`.
+    - `scene`: a registered scene name or an `AbstractScene`, for the scene metrics; `model`,
+      `torque_model`: the model it runs and the one that computes its torques (as
+      `sensitivity`); `options`: its `SceneOptions`.
+    - `frequency_model`: the model of `base_frequency_hz`.
+    - `optimizer`: 'slsqp' or 'trust-constr'.
+    - `mode`: 'fwd' or 'rev' (default by the counts above).
+    - `starts`, `candidates`: starts run, points screened for them.
+    - `max_iter`: the optimiser's iteration limit per start.
+    - `grid`: points of the verification grid; `grid_rtol`: its tolerance (relative).
+    - `fd_rtol`: the finite-difference check's tolerance (default 1e-5, 1e-3 with a scene).
+    - `seed`: of the Sobol sequences.
+
+    **Returns:** a `Design`.
+
+    **Raises:** `DesignError` for an unknown variable or metric, bounds outside a parameter's
+    physical range, or a specification no start could meet (naming the constraint and by how
+    much it is violated at the best point found; `err.result` is that `Design`).
+    """
+    t_start = time.perf_counter()
+    names, lo, hi = check_variables(variables)
+    obj = as_objective(objective)
+    cons = as_constraints(constraints)
+    if optimizer not in DESIGN_OPTIMIZERS:
+        raise DesignError(f"optimizer must be one of {', '.join(DESIGN_OPTIMIZERS)}, got "
+                          f"{optimizer!r}")
+    starts = check_number("starts", starts, 1, 1000, integer=True)
+    candidates = check_number("candidates", candidates, 1, 100_000, integer=True)
+    max_iter = check_number("max_iter", max_iter, 1, 100_000, integer=True)
+    grid = check_number("grid", grid, 1, 10_000_000, integer=True)
+    grid_rtol = check_number("grid_rtol", grid_rtol, 0.0, 1.0)
+
+    # the scene and what it allows
+    ctx_scene = ctx_model = ctx_opts = None
+    if scene is not None:
+        ctx_scene = get_scene(scene, torque_model)
+        ctx_model = get_model(model)
+        opts = (SceneOptions() if options is None else options).check()
+        ctx_opts = opts.prepared(ctx_model, ctx_scene.trajectory())
+    allowed = design_metrics(None if ctx_opts is None else ctx_opts.trajectory)
+    metrics = list(dict.fromkeys([obj.metric] + [c.metric for c in cons]))
+    for m in metrics:
+        if m not in allowed:
+            more = "" if scene is not None else " (a scene's metrics need scene=...)"
+            raise DesignError(f"unknown design metric {m!r}; allowed: {', '.join(allowed)}{more}")
+    if ctx_scene is not None:
+        scene_metrics = [m for m in metrics if m not in CLOSED_FORM_METRICS
+                         and m not in ("base_frequency_hz", "strip_stress_peak_Pa")]
+        follows = ctx_scene.follows_its_input(ctx_model)
+        if follows and scene_metrics:
+            raise DesignError(f"{', '.join(scene_metrics)} of model {ctx_model.name!r} in "
+                              f"{ctx_scene.name!r} measure the integrator's error, not the robot:"
+                              f" {follows}. Design with another model (double1r or beam)")
+    if "pivot_stress_Pa" in metrics:
+        if stroke is None:
+            raise DesignError("pivot_stress_Pa needs stroke= (the joint rotation, rad, in "
+                              "(0, 3.14159])")
+        stroke = check_number("stroke", stroke, 0.0, math.pi, "rad", open_lo=True)
+    stroke = 0.0 if stroke is None else float(stroke)
+    fmodel = get_model(frequency_model)
+
+    # the base robot
+    if params is None:
+        base = ctx_scene.default_params() if ctx_scene is not None else RobotParams()
+    elif not isinstance(params, RobotParams):
+        raise DesignError(f"params must be RobotParams, got {type(params).__name__}")
+    else:
+        base = params
+    if np.ndim(base.a) != 0:
+        raise DesignError("a design starts from one robot, not a batch")
+    if any(n in ("gamma", "rho", "K_theta") and getattr(base, n) is None for n in names):
+        base = explicit_params(base)
+    equal = ("l1" not in names and "l3" not in names) and float(base.l1) == float(base.l3)
+    k, p = len(metrics), len(names)
+    if mode is None:
+        mode = "fwd" if p <= k else "rev"
+    elif mode not in ("fwd", "rev"):
+        raise DesignError(f"mode must be 'fwd' or 'rev', got {mode!r}")
+
+    ctx = SceneContext(ctx_scene, ctx_model, ctx_opts, fmodel)
+    prob = Problem(names=names, lo=lo, hi=hi, metrics=tuple(metrics), base=base, stroke=stroke,
+                   ctx=ctx, mode=mode, equal_links=equal)
+    sides = [(metrics.index(c.metric), c, side, b) for c in cons for side, b in c.sides()]
+    scaled = Scaled(
+        problem=prob, sign=obj.sign, f_scale=None,
+        rows=np.array([r for r, *_ in sides], dtype=int),
+        bounds=np.array([b for *_, b in sides], dtype=np.float64),
+        upper=np.array([s == "upper" for _, _, s, _ in sides], dtype=bool),
+        scale=np.array([abs(b) if b != 0 else 1.0 for *_, b in sides], dtype=np.float64))
+
+    # screen, optimise from each start, keep the best feasible
+    u_base = prob.u_of([float(getattr(base, n)) for n in names])
+    U0, _, _, screen_s = screen(scaled, u_base, candidates, starts, seed)
+    t1 = time.perf_counter()
+    runs = [optimise(scaled, u0, optimizer, max_iter) for u0 in U0]
+    optimise_s = time.perf_counter() - t1
+    for r, u0 in zip(runs, U0):
+        r["u0"] = u0
+        r["feasible"] = r["max_violation"] <= FEAS_TOL and math.isfinite(r["fun"])
+    feasible = [r for r in runs if r["feasible"]]
+    best = (min(feasible, key=lambda r: r["fun"]) if feasible
+            else min(runs, key=lambda r: (r["max_violation"], r["fun"])))
+
+    t2 = time.perf_counter()
+    if feasible:
+        fd_tol = (SCENE_FD_RTOL if ctx_scene is not None else DESIGN_FD_RTOL) \
+            if fd_rtol is None else check_number("fd_rtol", fd_rtol, 0.0, 1.0)
+        kk = kkt(scaled, best["u"])
+        gc = gradient_check(scaled, best["u"], fd_tol)
+        gr = grid_check(scaled, best["u"], grid, grid_rtol, seed)
+        verification = {"kkt_residual": kk["residual"], "kkt_tol": KKT_TOL,
+                        "gradient_check": gc, "grid": gr,
+                        "ok": bool(kk["residual"] <= KKT_TOL and gc["ok"] and gr["ok"])}
+    else:
+        kk = {"constraints": [], "bounds": []}
+        verification = {"ok": False, "skipped": "no feasible optimum"}
+    verify_s = time.perf_counter() - t2
+
+    result = _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer, mode,
+                       stroke, ctx, {"screen_s": screen_s, "optimise_s": optimise_s,
+                                     "verify_s": verify_s,
+                                     "total_s": time.perf_counter() - t_start})
+    if not feasible:
+        worst = max(result.constraints, key=lambda c: c["violation"])
+        err = DesignError(
+            f"the specification cannot be met: constraint {worst['metric']} "
+            f"{'<=' if worst['side'] == 'upper' else '>='} {worst['bound']:g} is violated by "
+            f"{worst['violation_abs']:.6g} ({worst['violation']:.3g} of the bound) at the best "
+            f"point found ({', '.join(f'{k} = {v:.6g}' for k, v in result.x.items())}); widen "
+            f"the bounds or relax the constraint")
+        err.result = result
+        raise err
+    return result
+
+
+def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer, mode, stroke,
+              ctx, timing) -> Design:
+    names = prob.names
+    fs = scaled.f_scale
+    u = best["u"]
+    x = prob.x_of(u)
+    v = prob.values(x)
+    v0 = prob.values(prob.x_of(best["u0"]))
+    c_scaled = scaled.constraints_of(v) if sides else np.zeros(0)
+    mult_c = dict(kk["constraints"])
+    constraints = []
+    for q, (row, c, side, b) in enumerate(sides):
+        mu = mult_c.get(q, 0.0)
+        # d(optimum)/d(bound): relaxing an upper bound by delta adds delta/scale to c
+        d = -scaled.sign * fs * mu / scaled.scale[q]
+        d = d if side == "upper" else -d
+        constraints.append({"metric": c.metric, "side": side, "bound": b, "value": float(v[row]),
+                            "active": q in mult_c, "multiplier": float(d),
+                            "violation": float(max(0.0, -c_scaled[q])),
+                            "violation_abs": float(max(0.0, -c_scaled[q]) * scaled.scale[q])})
+    active_bounds = []
+    for i, side, mu in kk["bounds"]:
+        width = prob.hi[i] - prob.lo[i]
+        d = -scaled.sign * fs * mu / width
+        d = d if side == "upper" else -d
+        active_bounds.append({"variable": names[i], "side": side,
+                              "bound": float(prob.hi[i] if side == "upper" else prob.lo[i]),
+                              "multiplier": float(d)})
+    history = [{"iteration": h["iteration"],
+                "x": dict(zip(names, map(float, prob.x_of(h["u"])))),
+                "objective": float(scaled.sign * h["objective"] * fs),
+                "max_violation": h["max_violation"]} for h in best["history"]]
+    start_rows = [{"start": dict(zip(names, map(float, prob.x_of(r["u0"])))),
+                   "optimum": dict(zip(names, map(float, prob.x_of(r["u"])))),
+                   "objective": float(scaled.sign * r["fun"] * fs), "feasible": r["feasible"],
+                   "max_violation": r["max_violation"], "iterations": r["nit"],
+                   "evaluations": r["nfev"], "success": r["success"], "message": r["message"],
+                   "seconds": r["seconds"]} for r in runs]
+    params = prob.base.replace(**dict(zip(names, map(float, x))))
+    info = {"optimizer": optimizer, "mode": mode, "stroke_rad": stroke,
+            "scene": None if ctx.scene is None else ctx.scene.name,
+            "model": None if ctx.model is None else ctx.model.name,
+            "frequency_model": ctx.frequency_model.name, "objective_scale": fs,
+            "evaluations": prob.evaluations, "jacobians": prob.jacobians}
+    if ctx.options is not None:
+        info.update(t_end=float(ctx.options.t_end), n_out=int(ctx.options.n_out))
+    return Design(
+        variables=list(names),
+        bounds={n: (float(a), float(b)) for n, a, b in zip(names, prob.lo, prob.hi)},
+        x=dict(zip(names, map(float, x))),
+        x_start=dict(zip(names, map(float, prob.x_of(best["u0"])))),
+        objective={"metric": obj.metric, "sense": obj.sense, "value": float(v[0]),
+                   "start_value": float(v0[0])},
+        constraints=constraints, active_bounds=active_bounds,
+        metrics=dict(zip(prob.metrics, map(float, v))), params=params, history=history,
+        starts=start_rows, verification=verification, info=info, timing=timing,
+        evaluate=prob.values)

@@ -1,0 +1,125 @@
+"""What a design returns: the optimum, its history, the active constraints with their
+multipliers, the verification, and the designed robot as a parameter file."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Callable, Optional
+
+import numpy as np
+
+from ..._params import RobotParams
+from ..._params_file import save_params
+
+
+@dataclasses.dataclass
+class Design:
+    """The result of `ppr_jax.design`.
+
+    **Fields:**
+
+    - `variables`: the design variables' names; `bounds` {name: (lo, hi)} (SI).
+    - `x`: {name: value} the optimum (SI); `x_start`: the start the optimum came from.
+    - `objective`: {metric, sense, value, start_value}, in the metric's unit.
+    - `constraints`: one dict per constraint side: {metric, side ('upper': metric <= bound),
+      bound, value, active, multiplier}; `multiplier` is d(optimal objective)/d(bound) (objective
+      unit per metric unit; 0 where inactive): what relaxing the bound by one unit would gain.
+    - `active_bounds`: [{variable, side, bound, multiplier}] the variables' bounds the optimum
+      lies on, the multiplier d(optimal objective)/d(bound) likewise.
+    - `metrics`: {name: value} every metric evaluated, at the optimum.
+    - `params`: the designed robot's `RobotParams`.
+    - `history`: the optimiser's iterations from the chosen start: [{iteration, x (SI),
+      objective, max_violation (relative to each bound)}].
+    - `starts`: one summary per start run (start, optimum, objective, feasible, iterations,
+      evaluations, message).
+    - `verification`: {kkt_residual, gradient_check, grid, ok} (`_verify`).
+    - `info`: the settings (optimizer, derivative mode, stroke, scene, models); `timing`
+      {screen_s, optimise_s, verify_s, total_s} (s).
+    - `evaluate`: the metrics (in `metrics`' order) at physical variable values (p,) (SI).
+    """
+
+    variables: list
+    bounds: dict
+    x: dict
+    x_start: dict
+    objective: dict
+    constraints: list
+    active_bounds: list
+    metrics: dict
+    params: RobotParams
+    history: list
+    starts: list
+    verification: dict
+    info: dict
+    timing: dict
+    evaluate: Optional[Callable] = dataclasses.field(default=None, repr=False)
+
+    @property
+    def feasible(self) -> bool:
+        """Whether every constraint holds at the optimum (to 1e-8 of its bound)."""
+        return all(c["violation"] <= 1e-8 for c in self.constraints)
+
+    def to_params_file(self, path: str) -> str:
+        """Write the designed robot to a TOML or JSON parameter file (by extension) that
+        `ppr_jax.load_params` and the command line's `--params-file` read. Returns the path."""
+        return save_params(self.params, path)
+
+    def to_dict(self) -> dict:
+        """Everything but `params` and `evaluate`, as JSON-ready values (the designed robot's
+        parameters under "params")."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+               if f.name not in ("params", "evaluate")}
+        out["params"] = {f.name: _plain(getattr(self.params, f.name))
+                         for f in dataclasses.fields(self.params)
+                         if getattr(self.params, f.name) is not None}
+        return _jsonable(out)
+
+    def save(self, path: str) -> str:
+        """Write `to_dict()` as JSON. Returns the path."""
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(self.to_dict(), fh, indent=2)
+            fh.write("\n")
+        return str(path)
+
+    def summary(self) -> str:
+        """A few lines: the optimum, the binding constraints, the verification."""
+        o = self.objective
+        lines = [f"{o['sense']} {o['metric']}: {o['value']:.9g} (start {o['start_value']:.6g})"]
+        lines += [f"  {k} = {v:.9g}" for k, v in self.x.items()]
+        for c in self.constraints:
+            tag = "active" if c["active"] else "inactive"
+            lines.append(f"  {c['metric']} {'<=' if c['side'] == 'upper' else '>='} "
+                         f"{c['bound']:g}: {c['value']:.6g} ({tag}, multiplier "
+                         f"{c['multiplier']:.4g})")
+        for b in self.active_bounds:
+            lines.append(f"  bound {b['variable']} {b['side']} {b['bound']:g} active "
+                         f"(multiplier {b['multiplier']:.4g})")
+        v = self.verification
+        if "grid" not in v:
+            lines.append(f"  verification: not run ({v.get('skipped', 'skipped')})")
+            return "\n".join(lines)
+        g = v["grid"]
+        lines.append(f"  verification: KKT residual {v['kkt_residual']:.2e}; gradient vs finite "
+                     f"differences {v['gradient_check']['worst']:.2e}; {g['kind']} of "
+                     f"{g['points']} points, best {g['best_objective']}, gap {g['gap']}; "
+                     f"{'ok' if v['ok'] else 'NOT ok'}")
+        return "\n".join(lines)
+
+
+def _plain(v):
+    return v if isinstance(v, (int, str)) else float(v)
+
+
+def _jsonable(v):
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _jsonable(v.tolist())
+    if isinstance(v, (np.floating, np.integer, np.bool_)):
+        return v.item()
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    return v

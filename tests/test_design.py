@@ -1,0 +1,287 @@
+"""`ppr_jax.design` against closed forms derived on paper (benchmarks/design.py, tier 1), its
+multipliers against the closed form's derivatives, the refusal of bad bounds and infeasible
+specifications, and the designed robot's parameter file.
+
+Tier 1, one strip pivot carrying a link (the catalogue's `pivot_*` metrics): a straight strip
+of length L = r theta_c, width w, thickness t bent by a pure moment has stiffness K = E I/L,
+I = w t^3/12, and surface stress sigma = E t theta/(2 L) at the rotation theta; it carries the
+connecting link, J = m3 (l3^2/3 + b_r^2/12) about its end, at f = sqrt(K/J)/(2 pi).
+Maximise f over (t, r, w) subject to sigma(stroke) <= sigma_a: at fixed L and w, f grows with
+t as t^(3/2) and sigma as t, so the stress bound is active, t = 2 sigma_a L/(E stroke); there
+K = 2 w sigma_a^3 L^2/(3 E^2 stroke^3) grows with w and L, so r and w sit on their upper
+bounds. f* grows as sigma_a^(3/2), L and w^(1/2), whence the multipliers
+d f*/d sigma_a = 1.5 f*/sigma_a, d f*/d r_hi = f*/r_hi, d f*/d w_hi = f*/(2 w_hi).
+Assumed: the strip massless, the drive link held, the link rigid, small strains.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+import ppr_jax as pj
+
+E, RHO_M, L3, B_R, T_R, THETA_C = 71.0e9, 2780.0, 0.366, 0.023, 0.010, 1.88
+SIGMA_A, STROKE = 100e6, 0.3
+BOUNDS = {"t": (1e-4, 1e-3), "r": (0.01, 0.04), "w": (0.01, 0.03)}
+
+
+def link_inertia(t_r=T_R):
+    m3 = RHO_M * L3 * B_R * t_r
+    return m3 * (L3**2 / 3 + B_R**2 / 12)
+
+
+def pivot_frequency(t, r, w, t_r=T_R):
+    L = r * THETA_C
+    K = E * w * t**3 / (12 * L)
+    return math.sqrt(K / link_inertia(t_r)) / (2 * math.pi)
+
+
+def tier1_closed_form():
+    r, w = BOUNDS["r"][1], BOUNDS["w"][1]
+    t = 2 * SIGMA_A * r * THETA_C / (E * STROKE)
+    return t, r, w, pivot_frequency(t, r, w)
+
+
+@pytest.fixture(scope="module")
+def tier1():
+    return pj.design(BOUNDS, "pivot_frequency_hz",
+                     [pj.Constraint("pivot_stress_Pa", upper=SIGMA_A)], stroke=STROKE)
+
+
+def test_tier1_reaches_the_closed_form(tier1):
+    t, r, w, f = tier1_closed_form()
+    assert BOUNDS["t"][0] < t < BOUNDS["t"][1]  # the closed form's optimum is inside t's box
+    assert tier1.objective["value"] == pytest.approx(f, rel=1e-6)
+    assert tier1.x["t"] == pytest.approx(t, rel=1e-6)
+    assert tier1.x["r"] == pytest.approx(r, rel=1e-9)
+    assert tier1.x["w"] == pytest.approx(w, rel=1e-9)
+    # on the stress bound, and the start was below the optimum
+    (c,) = tier1.constraints
+    assert c["active"] and c["value"] == pytest.approx(SIGMA_A, rel=1e-8)
+    assert tier1.objective["start_value"] < f
+    assert tier1.feasible
+
+
+def test_tier1_multipliers_are_the_closed_forms_derivatives(tier1):
+    *_, f = tier1_closed_form()
+    (c,) = tier1.constraints
+    assert c["multiplier"] == pytest.approx(1.5 * f / SIGMA_A, rel=1e-6)
+    bounds = {(b["variable"], b["side"]): b["multiplier"] for b in tier1.active_bounds}
+    assert set(bounds) == {("r", "upper"), ("w", "upper")}
+    assert bounds["r", "upper"] == pytest.approx(f / BOUNDS["r"][1], rel=1e-6)
+    assert bounds["w", "upper"] == pytest.approx(f / (2 * BOUNDS["w"][1]), rel=1e-6)
+
+
+def test_tier1_gradient_is_the_closed_forms(tier1):
+    """The JAX Jacobian at the optimum against the closed form's derivatives: f ~ t^1.5
+    r^-0.5 w^0.5, sigma ~ t/r."""
+    t, r, w, f = tier1_closed_form()
+    J = np.asarray(tier1.verification["gradient_check"]["jacobian"])
+    np.testing.assert_allclose(J[0], [1.5 * f / t, -0.5 * f / r, 0.5 * f / w], rtol=1e-6)
+    np.testing.assert_allclose(J[1], [SIGMA_A / t, -SIGMA_A / r, 0.0], rtol=1e-6, atol=1e-6)
+
+
+def test_tier1_verification(tier1):
+    v = tier1.verification
+    assert v["ok"]
+    assert v["kkt_residual"] < 1e-8
+    assert v["gradient_check"]["worst"] < 1e-6
+    g = v["grid"]
+    assert g["kind"] == "grid" and g["points"] == 21**3
+    # a grid point is feasible only strictly inside the stress bound: it cannot beat the optimum
+    assert g["best_objective"] <= tier1.objective["value"]
+    assert -g["gap"] <= 0.06 and g["ok"]
+    # the grid's best, checked by hand: the best feasible grid point of the same box
+    axes = [np.linspace(lo, hi, 21) for lo, hi in BOUNDS.values()]
+    best = max(pivot_frequency(t, r, w) for t in axes[0] for r in axes[1] for w in axes[2]
+               if E * t * STROKE / (2 * r * THETA_C) <= SIGMA_A * (1 + 1e-8))
+    assert g["best_objective"] == pytest.approx(best, rel=1e-12)
+
+
+def test_tier1_history_and_starts(tier1):
+    assert len(tier1.starts) == pj._names.DESIGN_STARTS
+    assert all(s["feasible"] for s in tier1.starts)
+    h = tier1.history
+    assert h[0]["x"] == tier1.x_start and len(h) >= 2
+    assert h[-1]["objective"] == pytest.approx(tier1.objective["value"], rel=1e-9)
+
+
+def test_minimum_mass_for_a_frequency_closed_form():
+    """Minimise the moving mass over (t, t_r) subject to pivot_frequency_hz >= f_min: the link
+    thickness t_r goes to its lower bound (mass and inertia fall with it), the strip thickness
+    to the frequency bound, t^3 = 12 L J (2 pi f_min)^2/(E w); the mass's multiplier
+    d m*/d f_min = 3 rho_m w L dt*/df_min = 2 rho_m w L t*/f_min (t* ~ f_min^(2/3))."""
+    f_min, w, r = 2.0, 0.026, 0.020
+    L = r * THETA_C
+    t_r = 0.005
+    t = (12 * L * link_inertia(t_r) * (2 * math.pi * f_min) ** 2 / (E * w)) ** (1 / 3)
+    d = pj.design({"t": (1e-4, 1e-3), "t_r": (t_r, 0.02)},
+                  pj.Objective("moving_mass_kg", "min"),
+                  [{"metric": "pivot_frequency_hz", "lower": f_min}])
+    assert d.x["t"] == pytest.approx(t, rel=1e-6)
+    assert d.x["t_r"] == pytest.approx(t_r, rel=1e-9)
+    (c,) = d.constraints
+    assert c["active"] and c["side"] == "lower"
+    assert c["multiplier"] == pytest.approx(2 * RHO_M * w * L * t / f_min, rel=1e-5)
+    assert d.verification["ok"]
+
+
+def test_designed_robot_parameter_file(tier1, tmp_path):
+    """The designed robot's file, read back as --params-file reads it, gives the optimum's
+    objective by the closed form."""
+    path = tier1.to_params_file(str(tmp_path / "designed.toml"))
+    p = pj.load_params(path)
+    for name, value in tier1.x.items():
+        assert float(getattr(p, name)) == value
+    assert pivot_frequency(float(p.t), float(p.r), float(p.w)) == pytest.approx(
+        tier1.objective["value"], rel=1e-12)
+    # the JSON report holds the same optimum
+    import json
+
+    data = json.loads(open(tier1.save(str(tmp_path / "design.json"))).read())
+    assert data["x"] == tier1.x and data["params"]["t"] == tier1.x["t"]
+
+
+@pytest.mark.parametrize("variables, words", [
+    ({"t": (-1e-4, 1e-3)}, ["'t'", "strip thickness", "[1e-06, 0.01] m"]),
+    ({"t": (0.0, 1e-3)}, ["'t'", "lower bound 0", "[1e-06, 0.01] m"]),
+    ({"theta_c": (1.0, 4.0)}, ["'theta_c'", "upper bound 4", "[0.001, 3] rad"]),
+    ({"t": (1e-3, 1e-4)}, ["'t'", "must be below"]),
+    ({"t": (1e-4, float("nan"))}, ["'t'", "finite"]),
+    ({"thickness": (1e-4, 1e-3)}, ["'thickness'", "allowed"]),
+    ({"sigma": (-1, 1)}, ["'sigma'", "allowed"]),
+    ({}, ["non-empty"]),
+])
+def test_bad_bounds_are_refused(variables, words):
+    with pytest.raises(pj.DesignError) as info:
+        pj.design(variables, "pivot_frequency_hz")
+    for w in words:
+        assert w in str(info.value)
+
+
+def test_bad_goals_are_refused():
+    with pytest.raises(pj.DesignError, match="unknown design metric 'speed'"):
+        pj.design(BOUNDS, "speed")
+    with pytest.raises(pj.DesignError, match="scene="):
+        pj.design(BOUNDS, "radial_error_max_m")
+    with pytest.raises(pj.DesignError, match="scene="):
+        pj.design(BOUNDS, "strip_stress_peak_Pa")
+    with pytest.raises(pj.DesignError, match="stroke"):
+        pj.design(BOUNDS, "pivot_frequency_hz", [pj.Constraint("pivot_stress_Pa", upper=1e8)])
+    with pytest.raises(pj.DesignError, match=r"stroke = 4"):
+        pj.design(BOUNDS, "pivot_frequency_hz", [pj.Constraint("pivot_stress_Pa", upper=1e8)],
+                  stroke=4.0)
+    with pytest.raises(pj.DesignError, match="upper or a lower"):
+        pj.Constraint("pivot_stress_Pa")
+    with pytest.raises(pj.DesignError, match="optimizer"):
+        pj.design(BOUNDS, "pivot_frequency_hz", optimizer="cma")
+
+
+def test_infeasible_specification_names_the_constraint():
+    """An allowable below the least stress the box allows (t and r at their best bounds):
+    the error names the constraint and the violation at that point."""
+    sigma_a = 1e6
+    least = E * BOUNDS["t"][0] * STROKE / (2 * BOUNDS["r"][1] * THETA_C)
+    assert least > sigma_a
+    with pytest.raises(pj.DesignError) as info:
+        pj.design(BOUNDS, "pivot_frequency_hz",
+                  [pj.Constraint("pivot_stress_Pa", upper=sigma_a)], stroke=STROKE)
+    msg = str(info.value)
+    assert "pivot_stress_Pa <= 1e+06" in msg and "cannot be met" in msg
+    best = info.value.result
+    assert best.x["t"] == pytest.approx(BOUNDS["t"][0], rel=1e-9)
+    assert best.x["r"] == pytest.approx(BOUNDS["r"][1], rel=1e-9)
+    assert best.constraints[0]["violation_abs"] == pytest.approx(least - sigma_a, rel=1e-9)
+    assert f"{least - sigma_a:.6g}" in msg
+    assert "not run" in best.summary() and not best.feasible
+
+
+SPEC = f"""
+[variables]
+t = [1e-4, 1e-3]
+r = [0.01, 0.04]
+w = [0.01, 0.03]
+
+[objective]
+maximize = "pivot_frequency_hz"
+
+[[constraints]]
+metric = "pivot_stress_Pa"
+upper = {SIGMA_A!r}
+
+[settings]
+stroke = {STROKE!r}
+grid = 1000
+"""
+
+
+def test_cli_design_writes_the_report_and_the_designed_robot(tmp_path, capsys):
+    """`ppr-jax design --spec` on tier 1: design.json holds the closed-form optimum, and the
+    designed robot's file, read as --params-file reads it, reproduces the objective."""
+    import json
+
+    from ppr_jax._cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    out = tmp_path / "out"
+    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 0
+    data = json.loads((out / "design.json").read_text())
+    *_, f = tier1_closed_form()
+    assert data["objective"]["value"] == pytest.approx(f, rel=1e-6)
+    assert data["verification"]["ok"] and data["verification"]["grid"]["points"] == 1000
+    p = pj.load_params(str(out / "designed.toml"))
+    assert pivot_frequency(float(p.t), float(p.r), float(p.w)) == pytest.approx(
+        data["objective"]["value"], rel=1e-12)
+    assert "pivot_frequency_hz" in capsys.readouterr().out
+
+
+def test_cli_design_bad_spec_is_one_line(tmp_path, capsys):
+    from ppr_jax._cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC.replace("t = [1e-4, 1e-3]", "t = [0.0, 1e-3]"))
+    assert main(["design", "--spec", str(spec), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "'t'" in err and "[1e-06, 0.01] m" in err and "Traceback" not in err
+    spec.write_text(SPEC + "\n[extra]\nx = 1\n")
+    assert main(["design", "--spec", str(spec), "--out", str(tmp_path / "o")]) == 2
+    assert "unknown section" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_designed_robot_reproduces_its_base_frequency_in_ppr_jax_modes(tmp_path, capsys):
+    """The robot's first locked frequency (L2) maximised over t under the strip pivot's stress
+    bound: the frequency grows with t, so t* is the stress bound's closed form
+    2 sigma_a r theta_c/(E stroke); `ppr-jax modes --params-file` of the designed robot gives the
+    optimum's objective."""
+    import json
+
+    from ppr_jax._cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f"""
+[variables]
+t = [2e-4, 4e-4]
+[objective]
+maximize = "base_frequency_hz"
+[[constraints]]
+metric = "pivot_stress_Pa"
+upper = {SIGMA_A!r}
+[settings]
+stroke = {STROKE!r}
+starts = 2
+candidates = 8
+grid = 64
+""")
+    out = tmp_path / "out"
+    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 0
+    data = json.loads((out / "design.json").read_text())
+    t_star = 2 * SIGMA_A * 0.020 * THETA_C / (E * STROKE)
+    assert data["x"]["t"] == pytest.approx(t_star, rel=1e-6)
+    assert data["verification"]["ok"]
+    capsys.readouterr()
+    assert main(["modes", "--params-file", str(out / "designed.toml"), "--json"]) == 0
+    modes = json.loads(capsys.readouterr().out)
+    assert modes["frequencies_hz"][0] == pytest.approx(data["objective"]["value"], rel=1e-6)
