@@ -3,6 +3,7 @@ residual and its Jacobian through the scene's own run."""
 
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 import diffrax
@@ -241,3 +242,10 @@ def _residual_and_jacobian(prob: _Problem, z):
     J, (r, (ok, X)) = jax.jacfwd(fn, has_aux=True)(z)
     return r, J, ok, X
 
+
+def noise_text(noise) -> str:
+    """The stated noise (position m, phi rad) in words: mm and mrad, or "not fitted" for a
+    channel of infinite noise."""
+    pos = f"{noise[0] * 1e3:.3g} mm" if math.isfinite(noise[0]) else "x, y not fitted"
+    phi = f"{noise[1] * 1e3:.3g} mrad" if math.isfinite(noise[1]) else "phi not fitted"
+    return f"{pos}, {phi}"

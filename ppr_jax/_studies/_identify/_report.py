@@ -87,7 +87,7 @@ def write_report(fit, path: str, *, figures: Sequence[str] = (), data_files: Seq
     **Returns:** `path`.
     """
     from ..._programs import dependency_versions
-    from ._result import noise_text
+    from ._problem import noise_text
 
     esc = html.escape
     q = fit.quality or {}

@@ -28,6 +28,7 @@ from ._problem import (
     _residual_and_jacobian,
     _to_p,
     _to_z,
+    noise_text,
 )
 
 
@@ -329,14 +330,6 @@ class Identification(eqx.Module):
             "measurement": self.measurement,
             "history": self.history,
         })
-
-
-def noise_text(noise) -> str:
-    """The stated noise (position m, phi rad) in words: mm and mrad, or "not fitted" for a
-    channel of infinite noise."""
-    pos = f"{noise[0] * 1e3:.3g} mm" if math.isfinite(noise[0]) else "x, y not fitted"
-    phi = f"{noise[1] * 1e3:.3g} mrad" if math.isfinite(noise[1]) else "phi not fitted"
-    return f"{pos}, {phi}"
 
 
 def _json_safe(x):
