@@ -1,5 +1,29 @@
-import jax
-import pytest
+import os
+import pathlib
+
+# One persistent compilation cache for the whole test run, shared by the xdist workers, the
+# in-process command-line tests and the subprocesses (notebooks, console script): a program that
+# several test files compile (a scene, a model's derived quantities) is compiled once. JAX keys
+# an entry on the lowered program, the compile options and its own version, so an entry is only
+# ever read back for the identical program. Set before JAX and equinox are imported, so that
+# subprocesses inherit it too. `PPR_TEST_CACHE_DIR` moves it; `PPR_TEST_CACHE_DIR=0` turns it off.
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+_CACHE = os.environ.get("PPR_TEST_CACHE_DIR", str(ROOT / ".pytest_cache" / "jax"))
+if _CACHE != "0":
+    os.environ["PPR_JAX_CACHE_DIR"] = _CACHE  # the command line's cache: the same directory
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _CACHE)
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+    # a size limit turns on JAX's file lock around reads and writes (two workers, one directory)
+    os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(16 * 2**30))
+    # A program with a host callback (equinox's runtime checks in raise mode) is keyed on the
+    # callback's address and never read back: the suite runs in NaN mode, as the console script
+    # does, and every result is checked from its status codes. Tests of an error raised inside a
+    # compiled program switch to raise mode (`helpers.raises_in_compiled_code`).
+    os.environ.setdefault("EQX_ON_ERROR", "nan")
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 # Strict promotion: an implicit dtype promotion (int with float, float32 with float64) or an
@@ -8,6 +32,11 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
 import ppr_jax as pj  # noqa: E402
+
+if _CACHE != "0":
+    from ppr_jax._cache import enable_compilation_cache  # noqa: E402
+
+    enable_compilation_cache(_CACHE, min_compile_time_s=0.0)
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -42,3 +71,38 @@ def robot(params):
 def paper_circle_L1():
     """The L1 paper-circle scene, as a timed report with metrics (compiled once per session)."""
     return pj.run_scene("paper-circle", model="reduced")
+
+
+
+if os.environ.get("PPR_TEST_COMPILE_STATS"):
+    # Where the suite's time goes: one JSON line per test (its file, wall seconds, XLA
+    # compilation seconds and count, and the shared cache's hits and the compile seconds they
+    # saved), appended as the run goes, one file per worker in the given directory.
+    import json
+    import time
+
+    from jax import monitoring
+
+    _NOW = {}
+
+    def _on_duration(event, duration, **_):
+        if event.endswith("backend_compile_duration"):
+            _NOW["compile_s"] = _NOW.get("compile_s", 0.0) + duration
+            _NOW["compiles"] = _NOW.get("compiles", 0) + 1
+        elif event.endswith("compile_time_saved_sec"):
+            _NOW["saved_s"] = _NOW.get("saved_s", 0.0) + duration
+            _NOW["hits"] = _NOW.get("hits", 0) + 1
+
+    monitoring.register_event_duration_secs_listener(_on_duration)
+
+    @pytest.fixture(autouse=True)
+    def _compile_stats(request):
+        out = pathlib.Path(os.environ["PPR_TEST_COMPILE_STATS"])
+        out.mkdir(parents=True, exist_ok=True)
+        t = time.perf_counter()
+        yield
+        row = dict(_NOW, test=request.node.nodeid, wall_s=time.perf_counter() - t)
+        _NOW.clear()
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(out / f"{worker}.jsonl", "a") as f:
+            f.write(json.dumps(row) + "\n")

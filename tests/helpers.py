@@ -55,9 +55,32 @@ def raises_in_compiled_code(match):
 
     @contextlib.contextmanager
     def ctx():
-        with pytest.raises((jax.errors.JaxRuntimeError, ValueError), match=match) as info:
-            yield info
+        with eqx_raise_mode():
+            with pytest.raises((jax.errors.JaxRuntimeError, ValueError), match=match) as info:
+                yield info
         assert not isinstance(info.value, PPRError), type(info.value)
         assert "EquinoxRuntimeError: " in str(info.value)
+
+    return ctx()
+
+
+def eqx_raise_mode():
+    """A context in which equinox's runtime checks (`eqx.error_if`) raise. The suite runs in NaN
+    mode (conftest.py: programs without host callbacks are shared through the compilation
+    cache); the mode is read when a program is traced, so JAX's trace caches are emptied on the
+    way in and out, and neither mode's traces reach the other."""
+    import contextlib
+
+    from equinox import _errors
+
+    @contextlib.contextmanager
+    def ctx():
+        old, _errors.EQX_ON_ERROR = _errors.EQX_ON_ERROR, "raise"
+        jax.clear_caches()
+        try:
+            yield
+        finally:
+            _errors.EQX_ON_ERROR = old
+            jax.clear_caches()
 
     return ctx()

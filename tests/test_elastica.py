@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-from helpers import raises_in_compiled_code  # noqa: E402
+from helpers import eqx_raise_mode, raises_in_compiled_code  # noqa: E402
 
 from ppr_jax import PPRError, elastica  # noqa: E402
 
@@ -144,7 +144,8 @@ def test_non_convergence_is_reported():
     assert not bool(sol.converged)
     f = eqx.filter_jit(lambda F: elastica.solve_cantilever(L, EI, 0.0, (0.0, -F), 0.0).tip)
     # eqx.filter_jit re-raises eqx.error_if's failure as equinox's own runtime error
-    with pytest.raises(eqx.EquinoxRuntimeError, match="did not converge for this load"):
+    with eqx_raise_mode(), pytest.raises(eqx.EquinoxRuntimeError,
+                                         match="did not converge for this load"):
         jax.block_until_ready(f(F))
 
 
