@@ -101,3 +101,21 @@ def test_failed_simulation_names_the_parameter():
                        r"mm, .*loosen tolerances or raise max_steps; rtol 1e-08"):
         _check_ok(False, z, _prob(), start=False)
     _check_ok(True, z, _prob(), start=True)  # a success passes
+
+
+def test_identified_robot_without_an_assembled_state_keeps_the_toml(tmp_path, capsys):
+    """A fitted robot whose chains cannot reach the home pose has no assembled state for the
+    MJCF: identified.toml is still written, identified_l2.xml is skipped with one line naming
+    why (to_mjcf's PPRError would otherwise end the command after the fit)."""
+    from ppr_jax._cli._identify import _write_robot
+
+    params = pj.scene_params("servo-circle").replace(l1=0.1, l3=0.1)
+    fit = SimpleNamespace(names=("t",), model="double1r", experiment_names=("run0",),
+                          params=params, quality={"residual_scale": 1.0, "problems": [],
+                                                  "preflight_not_identifiable": []})
+    paths = _write_robot(str(tmp_path), fit)
+    assert [p.rsplit("/", 1)[-1] for p in paths] == ["identified.toml"]
+    assert float(pj.load_params(paths[0]).l1) == 0.1
+    assert not (tmp_path / "identified_l2.xml").exists()
+    err = capsys.readouterr().err
+    assert "identified_l2.xml not written" in err and "out of the chains' reach" in err
