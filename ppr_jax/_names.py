@@ -60,6 +60,8 @@ MAX_ELEMENTS = 256
 
 SOLVER_NAMES = ("tsit5", "dopri5", "dopri8", "kvaerno5", "kvaerno3", "kvaerno5-kept",
                 "ros34pw2")
+#: the names among them of solvers for stiff problems (implicit or linearly implicit)
+STIFF_SOLVER_NAMES = ("kvaerno5", "kvaerno3", "kvaerno5-kept", "ros34pw2")
 
 # -- scenes (`_scenes`) --------------------------------------------------------------------
 

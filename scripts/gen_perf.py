@@ -337,6 +337,60 @@ def implicit() -> str:
             + _table(["t (mm)", "solver", "rtol", "steps", "rejected", "run", "error"], rows))
 
 
+#: the day the implicit solvers' stage solve (`StageChord`) and PI controller landed: Kvaerno5
+#: results measured before it show the old stage solve's rejections (git log -S StageChord)
+STAGE_SOLVE_DATE = "2026-11-26"
+
+
+def _percent_range(fractions) -> str:
+    lo, hi = 100 * min(fractions), 100 * max(fractions)
+    return f"{lo:.0f} %" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} %"
+
+
+def kvaerno_l0_l2() -> str:
+    """Kvaerno5 on L0-L2 in words, from the JSON: its rejected steps and its time against the
+    fastest explicit solver at the error it reached (work-precision), its rejected steps in the
+    implicit benchmark (`implicit_l2.json`), and whether the work-precision rows predate the
+    current stage solve."""
+    d = _load("cpu", "work_precision.json")
+    if d is None:
+        return ""
+    rows = [r for r in d["rows"] if r["model"] in MODEL_ORDER[:3]]
+    kv = [r for r in rows if r["solver"] == "kvaerno5" and r.get("steps")]
+    if not kv:
+        return ""
+    ratios = []
+    for r in kv:
+        explicit = [q for q in rows if q["scene"] == r["scene"] and q["model"] == r["model"]
+                    and q["solver"] in ("tsit5", "dopri5", "dopri8") and q["error_m"] > 0]
+        times = [interp_time(sorted((q["error_m"], q["run_s"]) for q in explicit
+                                    if q["solver"] == s), r["error_m"])
+                 for s in {q["solver"] for q in explicit}]
+        times = [t for t in times if t]
+        if times:
+            ratios.append(r["run_s"] / min(times))
+    date = str(d.get("machine", {}).get("date", ""))[:10]
+    text = (f"In the work-precision run ({date or 'undated'}), Kvaerno5 on L0-L2 rejected "
+            f"{_percent_range([r['rejected'] / r['steps'] for r in kv])} of its steps")
+    if ratios:
+        text += (f" and took {min(ratios):.0f} to {max(ratios):.0f} times the fastest explicit "
+                 f"solver's time at the error it reached")
+    text += "."
+    if date and date < STAGE_SOLVE_DATE:
+        text += (f" Those rows predate the current stage solve and controller "
+                 f"({STAGE_SOLVE_DATE}, below); rerun `python benchmarks/run.py --parts "
+                 f"work-precision` to update them.")
+    imp = _load("implicit_l2.json")
+    if imp is not None:
+        k5 = [r for r in imp["rows"] if r.get("ok") and r["solver"] == "kvaerno5"]
+        if k5:
+            text += (f" With the current stage solve (`implicit_l2.json`, L2 servo-circle, t = "
+                     f"{', '.join(f'{t:g}' for t in sorted({r['t_mm'] for r in k5}))} mm, rtol "
+                     f"{min(r['rtol'] for r in k5):g} to {max(r['rtol'] for r in k5):g}) it "
+                     f"rejects {_percent_range([r['rejected_fraction'] for r in k5])}.")
+    return text
+
+
 def known_truth() -> str:
     d = _load("identify_known_truth.json")
     if d is None:
@@ -378,6 +432,7 @@ def tables() -> dict:
         "l3": l3(),
         "l3-scene": l3_scene(),
         "implicit": implicit(),
+        "kvaerno-l0-l2": kvaerno_l0_l2(),
         "known-truth": known_truth(),
     }
 

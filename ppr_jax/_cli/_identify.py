@@ -162,6 +162,9 @@ def _write_robot(out, fit) -> list:
     `identified_l2.xml`, its L2 as MJCF (`to_mjcf`; `python -m mujoco.viewer
     --mjcf=identified_l2.xml` shows it). Both begin with `robot_file_notes` (comments): a poor
     or forced fit is marked WARNING in the files themselves."""
+    import sys
+
+    from .._errors import PPRError
     from .._mjcf import to_mjcf
     from .._params_file import save_params
 
@@ -170,8 +173,13 @@ def _write_robot(out, fit) -> list:
              os.path.join(out, "identified_l2.xml")]
     # an XML comment may not hold "--"
     head = "".join(f"<!-- {' '.join(n.split()).replace('--', '- -')} -->\n" for n in notes)
+    try:
+        xml = to_mjcf(fit.params)
+    except PPRError as err:  # no assembled state for this robot: keep the rest of the fit
+        print(f"ppr-jax: identified_l2.xml not written: {err}", file=sys.stderr)
+        return paths[:1]
     with open(paths[1], "w", encoding="utf-8") as f:
-        f.write(head + to_mjcf(fit.params))
+        f.write(head + xml)
     return paths
 
 

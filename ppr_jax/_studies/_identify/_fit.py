@@ -28,7 +28,7 @@ def _initial_state_guess(prob, z0, mask):
     cost is far from convex in the initial state; from zero offsets the fit can end in a local
     minimum."""
     _, _, ok, X = _residual_and_jacobian(prob, jnp.asarray(z0))
-    _check_ok(ok, z0, prob)
+    _check_ok(ok, z0, prob, start=True)
     X, Xm, ts = np.asarray(X), np.asarray(prob.X), np.asarray(prob.ts)
     P, k = len(prob.names), prob.n_init
     d = np.zeros((X.shape[0], 6))
@@ -42,13 +42,44 @@ def _initial_state_guess(prob, z0, mask):
     return z0
 
 
-def _check_ok(ok, z, prob):
-    if not bool(ok):
-        p = np.asarray(_to_p(prob, jnp.asarray(z)))
-        at = ", ".join(f"{n} = {v:.6g}" for n, v in zip(prob.names, p))
-        raise IdentificationError(f"the {prob.model.name} simulation of the {prob.scene} scene "
-                                  f"failed at {at} (solver failure or step limit; loosen "
-                                  f"tolerances or raise max_steps)")
+def _value_text(name, v):
+    """`strip thickness t = 0.55 mm`: a parameter's meaning, name, value and unit (mm for m)."""
+    from ..._names import PARAM_RANGES
+
+    _, _, unit, meaning = PARAM_RANGES.get(name, (0, 0, "", ""))
+    if unit == "m":
+        v, unit = v * 1e3, "mm"
+    text = f"{name} = {v:.6g}" + (f" {unit}" if unit and unit != "-" else "")
+    return f"{meaning} {text}" if meaning else text
+
+
+def _check_ok(ok, z, prob, start=False):
+    """Raise `IdentificationError` when the simulation at z failed. `start`: z is where a fit
+    begins (nothing fitted yet), so the data, not the fit, took the model there."""
+    if bool(ok):
+        return
+    p = np.asarray(_to_p(prob, jnp.asarray(z)))
+    at = ", ".join(_value_text(n, float(v)) for n, v in zip(prob.names, p))
+    what = f"the {prob.model.name} simulation of the {prob.scene} scene"
+    tols = (f"rtol {float(prob.rtol):g}, atol {float(prob.atol):g}, max_steps "
+            f"{prob.max_steps}")
+    if not start:
+        raise IdentificationError(f"{what} failed at {at} (solver failure or step limit; "
+                                  f"loosen tolerances or raise max_steps; {tols})")
+    given = []
+    if prob.tau is not None:
+        given.append("driven by the measured torques tau_1..tau_3")
+    if prob.th is not None:
+        given.append("driven by the measured angles th_1..th_3")
+    if prob.n_init:
+        given.append("started from the data's first samples")
+    how = f" ({'; '.join(given)})" if given else ""
+    raise IdentificationError(
+        f"{what}{how} failed at the start of the fit, before anything was fitted ({at}): the "
+        f"data are far from any state the model reaches from this start. Check the data's "
+        f"units (declare them: '# units: length=mm, angle=deg, torque=N mm') and that they "
+        f"come from this robot and scene (params=, --params-file, --scene); only if they do, "
+        f"loosen the tolerances or raise max_steps ({tols})")
 
 
 def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, first=None):
@@ -65,7 +96,7 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, fi
     else:
         r, J, ok, X, compile_s = first
         r, J = np.asarray(r), np.asarray(J)
-    _check_ok(ok, z0, prob)
+    _check_ok(ok, z0, prob, start=free is None)
     t1 = time.perf_counter()
     z = np.array(z0, dtype=np.float64)
     sel = np.arange(z.size) if free is None else np.flatnonzero(free)

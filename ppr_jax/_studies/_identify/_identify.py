@@ -88,6 +88,7 @@ from ._fit import (
     _multi_start,
     _optimistix,
 )
+from ._plausible import check_plausible
 from ._problem import (
     ACTUATIONS,
     DEFAULT_NOISE,
@@ -336,6 +337,8 @@ def identify(
         raise IdentificationError(f"bounds given for parameters that are not unknowns: "
                                   f"{sorted(bounds)}")
     ts, X, W, tau, th, mask = _pack(exps, float(noise[0]), float(noise[1]), scene, actuation)
+    # units and robot of the columns that drive the model, before anything is compiled
+    check_plausible(exps, base, scene, angles=th is not None, torques=tau is not None)
     held = _held_out(validation, ts, mask, [e.name for e in exps], n_init)
     if held is not None:
         W_all = W
@@ -389,7 +392,7 @@ def identify(
     r0, J0, ok0, X0 = _residual_and_jacobian(prob, jnp.asarray(z0))
     J0 = np.asarray(J0)
     pre_s = time.perf_counter() - t_pre
-    _check_ok(ok0, z0, prob)
+    _check_ok(ok0, z0, prob, start=True)
     t_an = time.perf_counter()
     pre = _preflight(prob, z0, J0)
     an_s = time.perf_counter() - t_an
