@@ -16,10 +16,13 @@ Assumed: the strip massless, the drive link held, the link rigid, small strains.
 
 import math
 
+import equinox as eqx
 import numpy as np
 import pytest
 
 import ppr_jax as pj
+from ppr_jax._kinematics import _ik_path_jit
+from ppr_jax._models import Reduced
 
 E, RHO_M, L3, B_R, T_R, THETA_C = 71.0e9, 2780.0, 0.366, 0.023, 0.010, 1.88
 SIGMA_A, STROKE = 100e6, 0.3
@@ -285,3 +288,132 @@ grid = 64
     assert main(["modes", "--params-file", str(out / "designed.toml"), "--json"]) == 0
     modes = json.loads(capsys.readouterr().out)
     assert modes["frequencies_hz"][0] == pytest.approx(data["objective"]["value"], rel=1e-6)
+
+
+# --- the catalogue: path margins, torques, compliance -------------------------------------------
+#
+# servo-circle's circle on a robot with a = 0.6 m and l1 = l3 = 0.45 m: as the platform side h
+# grows the path's start (x = 0.55 m, y = 0.26 m) nears a type-II singularity of L1 and crosses
+# it near h = 0.137 m (det S changes sign at the first samples). The margins are re-derived here
+# from `inverse_kinematics`' S (numpy determinant, the library's check `path_singular`), not from
+# the catalogue's code.
+
+SING_BASE = dict(a=0.6, l1=0.45, l3=0.45)
+
+
+def singular_margin_by_hand(h, n_out=101, t_end=7.54):
+    """Least relative det S (translations scaled by r1) along servo-circle's path, signed
+    positive at home, from the library's inverse kinematics at each pose and numpy."""
+    from ppr_jax._trajectory import Circle
+
+    p = pj.scene_params("servo-circle").replace(h=h, **SING_BASE)
+    robot = pj.Robot(p)
+    ts = np.linspace(0.0, t_end, n_out)
+    circle = Circle()
+    X = np.array([np.asarray(circle(t)) for t in ts])
+    r1 = float(robot.r1)
+
+    def rel(S):
+        Sn = np.asarray(S) * np.array([r1, r1, 1.0])[None, :]
+        return np.linalg.det(Sn) / np.prod(np.linalg.norm(Sn, axis=0))
+
+    s0 = np.sign(rel(pj.inverse_kinematics(p, np.asarray(pj.home_pose(robot))).S))
+    # inverse_kinematics' batch, unchecked (it refuses a singular pose)
+    S = np.asarray(_ik_path_jit(Reduced(), robot, X).S)
+    return min(s0 * rel(s) for s in S)
+
+
+def test_path_margins_against_the_inverse_kinematics():
+    from ppr_jax._studies._design import path_margins
+    from ppr_jax._trajectory import Circle
+
+    X = np.array([np.asarray(Circle()(t)) for t in np.linspace(0.0, 7.54, 101)])
+    margins = eqx.filter_jit(path_margins)
+    for h in (0.1, 0.15):
+        p = pj.scene_params("servo-circle").replace(h=h, **SING_BASE)
+        reach, sing = margins(Reduced(), pj.Robot(p), X)
+        assert float(sing) == pytest.approx(singular_margin_by_hand(h), rel=1e-9)
+        assert float(reach) > 0.4
+    assert float(sing) < 0  # h = 0.15 crosses
+
+
+@pytest.mark.slow
+def test_path_through_a_singularity_is_never_the_optimum():
+    # maximise the moving mass (it grows with h): unconstrained, h would reach 0.2 m, whose path
+    # crosses the singularity. With a margin of 0.05 the optimum stops where the margin binds.
+    opts = pj.SceneOptions(t_end=7.54, n_out=101)
+    p0 = pj.scene_params("servo-circle").replace(**SING_BASE)
+    d = pj.design({"h": (0.08, 0.2)}, {"maximize": "moving_mass_kg"},
+                  [pj.Constraint("path_singularity_margin", lower=0.05)], params=p0,
+                  scene="servo-circle", options=opts, grid=200)
+    assert singular_margin_by_hand(0.2) < 0  # the unconstrained optimum's path crosses
+    h = d.x["h"]
+    assert 0.08 < h < 0.137
+    # the margin by hand is 0.05 at the optimum: bisection on it gives the same h
+    lo, hi = 0.08, 0.137
+    for _ in range(25):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if singular_margin_by_hand(mid) > 0.05 else (lo, mid)
+    assert h == pytest.approx(lo, rel=1e-6)
+    (c,) = [c for c in d.constraints if c["metric"] == "path_singularity_margin"]
+    assert c["active"] and c["multiplier"] < 0  # raising a lower bound costs mass
+    assert d.verification["ok"]
+    # the implicit reach margin was added and holds
+    (r,) = [c for c in d.constraints if c["metric"] == "path_reach_margin"]
+    assert r["bound"] > 0 and r["value"] > 0.4
+
+
+@pytest.mark.slow
+def test_every_design_past_a_singularity_or_out_of_reach_is_infeasible():
+    opts = pj.SceneOptions(t_end=7.54, n_out=101)
+    p0 = pj.scene_params("servo-circle").replace(**SING_BASE)
+    assert singular_margin_by_hand(0.15) < 0
+    with pytest.raises(pj.DesignError, match="path_singularity_margin >= 1e-06") as err:
+        pj.design({"h": (0.15, 0.2)}, {"maximize": "moving_mass_kg"}, params=p0,
+                  scene="servo-circle", options=opts, grid=50)
+    assert not err.value.result.feasible
+    # links too short for the circle (the default robot, l1 = l3 = 0.2-0.25 m): out of reach
+    with pytest.raises(pj.DesignError, match="path_(reach|singularity)_margin >= 1e-06") as err:
+        pj.design({"l1": (0.15, 0.2), "l3": (0.15, 0.2)}, {"minimize": "moving_mass_kg"},
+                  scene="servo-circle", options=opts, grid=50)
+    (r,) = [c for c in err.value.result.constraints if c["metric"] == "path_reach_margin"]
+    assert r["violation"] > 0.2  # 1 - |cos| of the closure angle is -0.29 at l1 = l3 = 0.2 m
+
+
+@pytest.mark.slow
+def test_torque_rms_and_peak_over_a_scene():
+    # L1 under servo-circle: forward kinematics and inverse dynamics, no ODE; the torques' RMS
+    # and peak re-derived with numpy from the scene's own run at the optimum
+    opts = pj.SceneOptions(t_end=0.5, n_out=26)
+    d = pj.design({"t": (2e-4, 6e-4)}, {"minimize": "torque_rms_Nm"},
+                  [pj.Constraint("torque_peak_Nm", upper=100.0)], scene="servo-circle",
+                  model="reduced", options=opts, grid=64)
+    res = pj.solve_scene("servo-circle", d.params, model="reduced", options=opts)
+    tau = np.asarray(res.tau)
+    assert d.metrics["torque_rms_Nm"] == pytest.approx(np.sqrt(np.mean(tau**2)), rel=1e-9)
+    assert d.metrics["torque_peak_Nm"] == pytest.approx(np.max(np.abs(tau)), rel=1e-9)
+    assert d.verification["gradient_check"]["ok"]
+    assert d.verification["grid"]["ok"]
+
+
+@pytest.mark.slow
+def test_static_compliance_against_a_small_load():
+    # the compliance at home against the displacement of the locked robot (L2) under a small
+    # wrench, by the library's static equilibrium
+    from ppr_jax._models import get_model
+
+    p0 = pj.RobotParams(t=0.5e-3)
+    d = pj.design({"t": (3e-4, 7e-4)}, {"minimize": "compliance_xy_m_per_N"},
+                  [pj.Constraint("compliance_phi_rad_per_Nm", upper=1e3)], params=p0, grid=50)
+    assert d.x["t"] == pytest.approx(7e-4, rel=1e-9)  # stiffer strips
+    model, robot = get_model("double1r"), pj.Robot(d.params)
+    z0 = model.coords_from_pose(robot, pj.home_pose(robot))
+    zeq, _ = pj.static_equilibrium(model, robot, z0, locked=True)
+    disp = []
+    for wrench in ([1e-3, 0, 0], [0, 1e-3, 0], [0, 0, 1e-4]):
+        z, _ = pj.static_equilibrium(model, robot, zeq, locked=True, wrench=np.array(wrench))
+        disp.append(np.asarray(z[:3] - zeq[:3]) / max(wrench))
+    C = np.array(disp).T
+    lam = np.linalg.eigvalsh((C[:2, :2] + C[:2, :2].T) / 2)
+    assert d.metrics["compliance_xy_m_per_N"] == pytest.approx(lam[-1], rel=1e-4)
+    assert d.metrics["compliance_phi_rad_per_Nm"] == pytest.approx(C[2, 2], rel=1e-4)

@@ -9,6 +9,7 @@ from typing import Mapping, Optional, Sequence
 import numpy as np
 
 from ..._errors import DesignError, PPRError, check_number as _check_number
+from ..._metrics import path_metrics
 from ..._models import get_model
 from ..._names import (
     DESIGN_CANDIDATES,
@@ -21,8 +22,15 @@ from ..._names import (
 from ..._params import RobotParams
 from ..._scenes import SceneOptions, get_scene
 from .._sensitivity import explicit_params
-from ._catalogue import CLOSED_FORM_METRICS, SceneContext, design_metrics
-from ._goals import as_constraints, as_objective
+from ._catalogue import (
+    CLOSED_FORM_METRICS,
+    PATH_METRICS,
+    POSE_METRICS,
+    SCENE_OWN_METRICS,
+    SceneContext,
+    design_metrics,
+)
+from ._goals import Constraint, as_constraints, as_objective
 from ._optimise import FEAS_TOL, Scaled, optimise, screen
 from ._problem import Problem
 from ._result import Design
@@ -33,6 +41,9 @@ from ._verify import gradient_check, grid_check, kkt
 KKT_TOL = 1e-5
 #: the finite-difference tolerance where a metric comes from an ODE solve (adaptive steps)
 SCENE_FD_RTOL = 1e-3
+#: the least path margins a design on a scene always keeps (`_kinematics.REACH_TOL` and
+#: `SINGULAR_TOL`'s roles): a path out of reach or through a type-II singularity is infeasible
+PATH_MARGIN_MIN = {"path_reach_margin": 1e-6, "path_singularity_margin": 1e-6}
 
 
 def check_number(*args, **kwargs):
@@ -55,6 +66,7 @@ def design(
     torque_model=None,
     frequency_model="double1r",
     options: Optional[SceneOptions] = None,
+    pose=None,
     optimizer: str = "slsqp",
     mode: Optional[str] = None,
     starts: int = DESIGN_STARTS,
@@ -93,7 +105,8 @@ def design(
     - `scene`: a registered scene name or an `AbstractScene`, for the scene metrics; `model`,
       `torque_model`: the model it runs and the one that computes its torques (as
       `sensitivity`); `options`: its `SceneOptions`.
-    - `frequency_model`: the model of `base_frequency_hz`.
+    - `frequency_model`: the model of `base_frequency_hz` and the compliance metrics.
+    - `pose`: (x, y, phi) (m, m, rad) of the compliance metrics (default: home).
     - `optimizer`: 'slsqp' or 'trust-constr'.
     - `mode`: 'fwd' or 'rev' (default by the counts above).
     - `starts`, `candidates`: starts run, points screened for them.
@@ -129,14 +142,18 @@ def design(
         opts = (SceneOptions() if options is None else options).check()
         ctx_opts = opts.prepared(ctx_model, ctx_scene.trajectory())
     allowed = design_metrics(None if ctx_opts is None else ctx_opts.trajectory)
+    if ctx_scene is not None:
+        given = {c.metric for c in cons}
+        cons = cons + [Constraint(m, lower=b) for m, b in PATH_MARGIN_MIN.items()
+                       if m not in given]
     metrics = list(dict.fromkeys([obj.metric] + [c.metric for c in cons]))
     for m in metrics:
         if m not in allowed:
             more = "" if scene is not None else " (a scene's metrics need scene=...)"
             raise DesignError(f"unknown design metric {m!r}; allowed: {', '.join(allowed)}{more}")
     if ctx_scene is not None:
-        scene_metrics = [m for m in metrics if m not in CLOSED_FORM_METRICS
-                         and m not in ("base_frequency_hz", "strip_stress_peak_Pa")]
+        # its tracking error only: its torques, stresses and energies are the robot's
+        scene_metrics = [m for m in metrics if m in path_metrics(ctx_opts.trajectory)]
         follows = ctx_scene.follows_its_input(ctx_model)
         if follows and scene_metrics:
             raise DesignError(f"{', '.join(scene_metrics)} of model {ctx_model.name!r} in "
@@ -149,6 +166,16 @@ def design(
         stroke = check_number("stroke", stroke, 0.0, math.pi, "rad", open_lo=True)
     stroke = 0.0 if stroke is None else float(stroke)
     fmodel = get_model(frequency_model)
+    if pose is not None:
+        pose = np.asarray(pose, dtype=np.float64)
+        if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+            raise DesignError(f"pose must be (x, y, phi) (m, m, rad), three finite numbers, got "
+                              f"{pose.tolist()}")
+        pose = tuple(map(float, pose))
+    if any(m in POSE_METRICS for m in metrics) and fmodel.actuated_index is None:
+        raise DesignError(f"{', '.join(m for m in metrics if m in POSE_METRICS)} need a "
+                          f"frequency_model with free coordinates when the actuators are locked "
+                          f"(double1r or beam), got {fmodel.name!r}")
 
     # the base robot
     if params is None:
@@ -168,7 +195,7 @@ def design(
     elif mode not in ("fwd", "rev"):
         raise DesignError(f"mode must be 'fwd' or 'rev', got {mode!r}")
 
-    ctx = SceneContext(ctx_scene, ctx_model, ctx_opts, fmodel)
+    ctx = SceneContext(ctx_scene, ctx_model, ctx_opts, fmodel, pose)
     prob = Problem(names=names, lo=lo, hi=hi, metrics=tuple(metrics), base=base, stroke=stroke,
                    ctx=ctx, mode=mode, equal_links=equal)
     sides = [(metrics.index(c.metric), c, side, b) for c in cons for side, b in c.sides()]
@@ -177,7 +204,9 @@ def design(
         rows=np.array([r for r, *_ in sides], dtype=int),
         bounds=np.array([b for *_, b in sides], dtype=np.float64),
         upper=np.array([s == "upper" for _, _, s, _ in sides], dtype=bool),
-        scale=np.array([abs(b) if b != 0 else 1.0 for *_, b in sides], dtype=np.float64))
+        # the path margins are of order one however small their bound
+        scale=np.array([1.0 if (b == 0 or c.metric in PATH_METRICS) else abs(b)
+                        for _, c, _, b in sides], dtype=np.float64))
 
     # screen, optimise from each start, keep the best feasible
     u_base = prob.u_of([float(getattr(base, n)) for n in names])
