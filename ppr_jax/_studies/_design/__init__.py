@@ -7,8 +7,8 @@ verification of the optimum (`_verify`), the result (`_result`), the entry point
 from ..._errors import DesignError
 from ._catalogue import (
                          CLOSED_FORM_METRICS,
-                         design_metrics,
                          compliance,
+                         design_metrics,
                          moving_mass,
                          path_margins,
                          pivot_frequency,

@@ -23,10 +23,8 @@ from ..._params import RobotParams
 from ..._scenes import SceneOptions, get_scene
 from .._sensitivity import explicit_params
 from ._catalogue import (
-    CLOSED_FORM_METRICS,
     PATH_METRICS,
     POSE_METRICS,
-    SCENE_OWN_METRICS,
     SceneContext,
     design_metrics,
 )
