@@ -13,6 +13,7 @@ from ._catalogue import (
                          path_margins,
                          pivot_frequency,
                          pivot_stress,
+                         strip_elastica,
                          strip_stress_peak,
                          torque_rms,
 )
@@ -24,5 +25,5 @@ from ._variables import check_variables
 
 __all__ = ["CLOSED_FORM_METRICS", "Constraint", "Design", "DesignError", "Objective",
            "check_variables", "compliance", "design", "design_metrics", "load_design_spec",
-           "moving_mass", "path_margins", "pivot_frequency", "pivot_stress", "strip_stress_peak",
-           "torque_rms"]
+           "moving_mass", "path_margins", "pivot_frequency", "pivot_stress", "strip_elastica",
+           "strip_stress_peak", "torque_rms"]

@@ -47,6 +47,15 @@ singularity det S changes sign, so the margin is negative (a crossing between tw
 shows; two within one interval cancel, as in `path_singular`). Neither needs the scene's run.
 The paths of the registered scenes do not depend on the robot; the margins do.
 
+**One strip by the elastica** (`strip_tip_rotation_rad`, `strip_elastica_stress_Pa`): the
+robot's strip alone, an inextensible Euler-Bernoulli cantilever of length L = r theta_c, rest
+curvature 1/r (kappa0 = L/r = theta_c), bending stiffness E w t^3/12, clamped at one end and
+loaded at the other by the dead load `strip_load` = (fx, fy, m) (N, N, N m) in the clamp's
+tangent frame (`ppr_jax.elastica.solve_cantilever`, exact to its RK4 grid, differentiated
+implicitly): its tip's rotation from rest theta(L) - theta_c, and its peak surface stress
+max_s |M(s)| 6/(w t^2). Large deflections, no PRB model: the check of a strip's static design
+against a load-deflection target (benchmark tier 2). A load the solver cannot follow gives NaN.
+
 **Static compliance at a pose** (`compliance_xy_m_per_N`, `compliance_phi_rad_per_Nm`): the
 platform's compliance C = K^-1 with the actuators locked, K = -dQ/dX the stiffness of
 `frequency_model` (L2 or L3) in the pose about its static equilibrium near the pose `pose`
@@ -75,8 +84,12 @@ from ..._robot import Robot
 from .._sensitivity import allowed_metrics, base_frequency, locked_stiffness
 from .._sweep import traced_metrics
 
-#: the catalogue's metrics that need no scene
-CLOSED_FORM_METRICS = ("pivot_frequency_hz", "pivot_stress_Pa", "moving_mass_kg")
+#: the catalogue's metrics that need no scene and no model of the robot (closed forms, and one
+#: strip's elastica)
+CLOSED_FORM_METRICS = ("pivot_frequency_hz", "pivot_stress_Pa", "moving_mass_kg",
+                       "strip_tip_rotation_rad", "strip_elastica_stress_Pa")
+#: the catalogue's metrics of one strip's elastica (they need `strip_load`)
+ELASTICA_METRICS = ("strip_tip_rotation_rad", "strip_elastica_stress_Pa")
 #: the catalogue's metrics at the robot's rest or a pose (no scene), through frequency_model
 POSE_METRICS = ("base_frequency_hz", "compliance_xy_m_per_N", "compliance_phi_rad_per_Nm")
 #: the catalogue's metrics that need the scene's run (besides the scene's own metrics)
@@ -128,6 +141,19 @@ def strip_stress_peak(model, robot: Robot, z):
     d = jax.vmap(lambda zz: model.kinematics(robot, zz).deflection)(z)
     p = robot.params
     return jnp.max(jnp.abs(k * d)) * 6 / (p.w * p.t**2)
+
+
+def strip_elastica(params, dv: Derived, load):
+    """(tip rotation from rest (rad), peak stress (Pa)) of one strip under the end load
+    `load` = (fx, fy, m) by the elastica (module docstring); NaN where it did not converge."""
+    from ...elastica import solve_cantilever
+
+    EI = params.E * params.w * params.t**3 / 12
+    fx, fy, m = (jnp.asarray(v, dtype=jnp.float64) for v in load)
+    sol = solve_cantilever(dv.L, EI, params.theta_c, (fx, fy), m, throw=False)
+    rot = sol.tip_angle - params.theta_c
+    sigma = jnp.max(jnp.abs(sol.moment)) * 6 / (params.w * params.t**2)
+    return (jnp.where(sol.converged, rot, jnp.nan), jnp.where(sol.converged, sigma, jnp.nan))
 
 
 def torque_rms(tau):
@@ -183,6 +209,7 @@ class SceneContext:
     options: Optional[object]
     frequency_model: object
     pose: Optional[tuple] = None
+    strip_load: Optional[tuple] = None
 
 
 def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_links=True):
@@ -231,6 +258,9 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
             out[n] = moving_mass(dv)
         elif n == "base_frequency_hz":
             out[n] = base_frequency(ctx.frequency_model, robot)
+    if any(n in ELASTICA_METRICS for n in names):
+        rot, sig = strip_elastica(params, dv, ctx.strip_load)
+        out.update(strip_tip_rotation_rad=rot, strip_elastica_stress_Pa=sig)
     if any(n.startswith("compliance_") for n in names):
         X = None if ctx.pose is None else jnp.asarray(ctx.pose, dtype=jnp.float64)
         cxy, cphi = compliance(ctx.frequency_model, robot, X)

@@ -23,6 +23,7 @@ from ..._params import RobotParams
 from ..._scenes import SceneOptions, get_scene
 from .._sensitivity import explicit_params
 from ._catalogue import (
+    ELASTICA_METRICS,
     PATH_METRICS,
     POSE_METRICS,
     SceneContext,
@@ -31,6 +32,7 @@ from ._catalogue import (
 from ._goals import Constraint, as_constraints, as_objective
 from ._optimise import FEAS_TOL, Scaled, optimise, screen
 from ._problem import Problem
+from ._rescore import rescore_l3
 from ._result import Design
 from ._variables import check_variables
 from ._verify import gradient_check, grid_check, kkt
@@ -65,6 +67,8 @@ def design(
     frequency_model="double1r",
     options: Optional[SceneOptions] = None,
     pose=None,
+    strip_load=None,
+    l3_elements: Optional[int] = 4,
     optimizer: str = "slsqp",
     mode: Optional[str] = None,
     starts: int = DESIGN_STARTS,
@@ -105,6 +109,11 @@ def design(
       `sensitivity`); `options`: its `SceneOptions`.
     - `frequency_model`: the model of `base_frequency_hz` and the compliance metrics.
     - `pose`: (x, y, phi) (m, m, rad) of the compliance metrics (default: home).
+    - `strip_load`: (fx, fy, m) (N, N, N m), the end load of the elastica metrics
+      (`strip_tip_rotation_rad`, `strip_elastica_stress_Pa`) in the strip's clamp frame.
+    - `l3_elements`: N of the quasi-static L3 (`QuasiStaticBeam(N)`) that re-scores the optimum's
+      model-dependent metrics against the PRB model's error band
+      (`Design.verification["l3"]`, `_rescore`); None: not re-scored.
     - `optimizer`: 'slsqp' or 'trust-constr'.
     - `mode`: 'fwd' or 'rev' (default by the counts above).
     - `starts`, `candidates`: starts run, points screened for them.
@@ -131,6 +140,8 @@ def design(
     max_iter = check_number("max_iter", max_iter, 1, 100_000, integer=True)
     grid = check_number("grid", grid, 1, 10_000_000, integer=True)
     grid_rtol = check_number("grid_rtol", grid_rtol, 0.0, 1.0)
+    if l3_elements is not None:
+        l3_elements = check_number("l3_elements", l3_elements, 1, 64, integer=True)
 
     # the scene and what it allows
     ctx_scene = ctx_model = ctx_opts = None
@@ -170,6 +181,15 @@ def design(
             raise DesignError(f"pose must be (x, y, phi) (m, m, rad), three finite numbers, got "
                               f"{pose.tolist()}")
         pose = tuple(map(float, pose))
+    if any(m in ELASTICA_METRICS for m in metrics):
+        load = np.asarray(strip_load if strip_load is not None else [np.nan], dtype=np.float64)
+        if load.shape != (3,) or not np.all(np.isfinite(load)):
+            raise DesignError(f"{', '.join(m for m in metrics if m in ELASTICA_METRICS)} need "
+                              f"strip_load=(fx, fy, m) (N, N, N m), three finite numbers, got "
+                              f"{strip_load!r}")
+        strip_load = tuple(map(float, load))
+    else:
+        strip_load = None
     if any(m in POSE_METRICS for m in metrics) and fmodel.actuated_index is None:
         raise DesignError(f"{', '.join(m for m in metrics if m in POSE_METRICS)} need a "
                           f"frequency_model with free coordinates when the actuators are locked "
@@ -193,7 +213,7 @@ def design(
     elif mode not in ("fwd", "rev"):
         raise DesignError(f"mode must be 'fwd' or 'rev', got {mode!r}")
 
-    ctx = SceneContext(ctx_scene, ctx_model, ctx_opts, fmodel, pose)
+    ctx = SceneContext(ctx_scene, ctx_model, ctx_opts, fmodel, pose, strip_load)
     prob = Problem(names=names, lo=lo, hi=hi, metrics=tuple(metrics), base=base, stroke=stroke,
                    ctx=ctx, mode=mode, equal_links=equal)
     sides = [(metrics.index(c.metric), c, side, b) for c in cons for side, b in c.sides()]
@@ -238,6 +258,15 @@ def design(
                        stroke, ctx, {"screen_s": screen_s, "optimise_s": optimise_s,
                                      "verify_s": verify_s,
                                      "total_s": time.perf_counter() - t_start})
+    if feasible and l3_elements is not None:
+        t3 = time.perf_counter()
+        result.verification["l3"] = rescore_l3(
+            prob.metrics, result.params, ctx, stroke, result.metrics, obj,
+            [(c.metric, side, b) for _, c, side, b in sides], l3_elements,
+            None if ctx_scene is None else (SceneOptions() if options is None else options),
+            prob.equal_links)
+        result.timing["l3_s"] = time.perf_counter() - t3
+        result.timing["total_s"] = time.perf_counter() - t_start
     if not feasible:
         worst = max(result.constraints, key=lambda c: c["violation"])
         err = DesignError(
@@ -291,6 +320,7 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
                    "seconds": r["seconds"]} for r in runs]
     params = prob.base.replace(**dict(zip(names, map(float, x))))
     info = {"optimizer": optimizer, "mode": mode, "stroke_rad": stroke,
+            "strip_load": ctx.strip_load, "pose": ctx.pose,
             "scene": None if ctx.scene is None else ctx.scene.name,
             "model": None if ctx.model is None else ctx.model.name,
             "frequency_model": ctx.frequency_model.name, "objective_scale": fs,

@@ -100,6 +100,7 @@ def _key(names, metrics, base, ctx, mode, equal_links):
     scene = None if ctx.scene is None else eqx.tree_pformat(
         (ctx.scene, ctx.model, ctx.options), short_arrays=False)
     return (tuple(names), tuple(metrics), str(static), scene, ctx.frequency_model, ctx.pose,
+            ctx.strip_load,
             mode, equal_links)
 
 
