@@ -137,10 +137,11 @@ def write_design_report(d, path: str, *, command: Optional[str] = None) -> str:
     parts = [
         f"<h1>Design: {esc(o['sense'])} {esc(o['metric'])}</h1>",
         f"<p>Variables {esc(', '.join(d.variables))}; optimiser {esc(str(d.info['optimizer']))}"
-        f", derivatives {esc(str(d.info['mode']))}-mode; scene "
-        f"{esc(str(d.info.get('scene')))} ({esc(str(d.info.get('model')))}); "
-        f"{'feasible' if d.feasible else '<span class=bad>infeasible</span>'}. "
-        f"{fmt(d.timing.get('total_s'), 3)} s.</p>",
+        f", derivatives {esc(str(d.info['mode']))}-mode; "
+        + (f"scene {esc(str(d.info['scene']))} (model {esc(str(d.info.get('model')))}); "
+           if d.info.get("scene") else "no scene; ")
+        + ("feasible. " if d.feasible else "<span class=bad>infeasible</span>. ")
+        + f"{fmt(d.timing.get('total_s'), 3)} s.</p>",
         "<h2>Optimum against start</h2>",
         table(["", "start", "optimum", "lower bound", "upper bound"],
               [[n, fmt(d.x_start[n]), fmt(d.x[n]), fmt(d.bounds[n][0]), fmt(d.bounds[n][1])]
