@@ -169,6 +169,7 @@ T3_PERIOD = 2.0  # s: one turn of the paper's circle, against its 7.54 s
 T3_BOUNDS = {"t": (2e-4, 8e-4), "w": (0.010, 0.030), "r": (0.010, 0.040),
              "theta_c": (1.2, 2.4), "l1": (0.30, 0.45), "l3": (0.30, 0.45)}
 T3_STRESS, T3_TORQUE, T3_SINGULAR = 250e6, 5.0, 0.1
+T3_MAX_ITER = 100
 
 
 def tier3() -> dict:
@@ -191,16 +192,24 @@ def tier3() -> dict:
                           pj.Constraint("torque_peak_Nm", upper=T3_TORQUE),
                           pj.Constraint("path_singularity_margin", lower=T3_SINGULAR)],
                          scene="servo-circle", model="reduced", options=opts, starts=4,
-                         candidates=64, max_iter=50, grid=10_000)
+                         candidates=64, max_iter=T3_MAX_ITER, grid=10_000)
 
-    t0 = time.perf_counter()
-    d = run()
-    first = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    d = run()
-    warm = time.perf_counter() - t0
+    def timed():
+        t0 = time.perf_counter()
+        try:
+            d, error = run(), None
+        except pj.DesignError as err:  # an infeasible end is a result too: record it
+            d, error = err.result, str(err)
+        return d, error, time.perf_counter() - t0
+
+    d, error, first = timed()
+    if error is None:
+        d, error, warm = timed()
+    else:
+        warm = None
     v = d.verification
-    return {"variables": T3_BOUNDS, "period_s": T3_PERIOD, "optimum": d.x, "start": d.x_start,
+    return {"variables": T3_BOUNDS, "period_s": T3_PERIOD, "max_iter": T3_MAX_ITER,
+            "error": error, "optimum": d.x, "start": d.x_start,
             "objective_hz": d.objective["value"], "start_objective_hz": d.objective["start_value"],
             "constraints": d.constraints, "active_bounds": d.active_bounds,
             "kkt_residual": v.get("kkt_residual"),
@@ -210,9 +219,10 @@ def tier3() -> dict:
             else None,
             "l3": v.get("l3"), "verification_ok": v["ok"], "mode": d.info["mode"],
             "starts": [{"iterations": s["iterations"], "evaluations": s["evaluations"],
-                        "objective": s["objective"], "feasible": s["feasible"]}
-                       for s in d.starts],
-            "first_call_s": first, "warm_call_s": warm, "warm_timing": d.timing}
+                        "objective": s["objective"], "feasible": s["feasible"],
+                        "max_violation": s["max_violation"], "message": s["message"],
+                        "optimum": s["optimum"]} for s in d.starts],
+            "first_call_s": first, "warm_call_s": warm, "timing": d.timing}
 
 
 def robot_scene() -> dict:
@@ -274,7 +284,7 @@ def main(argv=None):
                         + "\n")
         print(f"tier 3: f* {t3['objective_hz']:.6g} Hz (start {t3['start_objective_hz']:.6g}), "
               f"verification {t3['verification_ok']}, first call {t3['first_call_s']:.1f} s, "
-              f"warm {t3['warm_call_s']:.1f} s; wrote {path}")
+              f"warm {t3['warm_call_s']} s; {t3['error'] or 'feasible'}; wrote {path}")
         return
     rows = [tier1(o, args.repeats) for o in args.optimizers.split(",")]
     t2 = None if args.no_tier2 else tier2(min(args.repeats, 2))

@@ -219,6 +219,19 @@ grid = 1000
 """
 
 
+def design_cli(tmp_path, spec_text):
+    """`ppr-jax design --spec` of `spec_text` into tmp_path/out: (design.json's data, out)."""
+    import json
+
+    from ppr_jax._cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(spec_text)
+    out = tmp_path / "out"
+    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 0
+    return json.loads((out / "design.json").read_text()), out
+
+
 def test_cli_design_writes_the_report_and_the_designed_robot(tmp_path, capsys):
     """`ppr-jax design --spec` on tier 1: design.json holds the closed-form optimum, and the
     designed robot's file, read as --params-file reads it, reproduces the objective."""
@@ -260,8 +273,7 @@ def test_designed_robot_reproduces_its_scene_objective_in_ppr_jax_simulate(tmp_p
 
     from ppr_jax._cli import main
 
-    spec = tmp_path / "spec.toml"
-    spec.write_text("""
+    data, out = design_cli(tmp_path, """
 [variables]
 t = [2e-4, 6e-4]
 [objective]
@@ -275,9 +287,6 @@ starts = 1
 candidates = 8
 grid = 16
 """)
-    out = tmp_path / "out"
-    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 0
-    data = json.loads((out / "design.json").read_text())
     capsys.readouterr()
     sim = tmp_path / "sim"
     assert main(["simulate", "--scene", "servo-circle", "--model", "reduced", "--t-end", "0.5",
@@ -311,8 +320,7 @@ def test_designed_robot_reproduces_its_base_frequency_in_ppr_jax_modes(tmp_path,
 
     from ppr_jax._cli import main
 
-    spec = tmp_path / "spec.toml"
-    spec.write_text(f"""
+    data, out = design_cli(tmp_path, f"""
 [variables]
 t = [2e-4, 4e-4]
 [objective]
@@ -326,9 +334,6 @@ starts = 2
 candidates = 8
 grid = 64
 """)
-    out = tmp_path / "out"
-    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 0
-    data = json.loads((out / "design.json").read_text())
     t_star = 2 * SIGMA_A * 0.020 * THETA_C / (E * STROKE)
     assert data["x"]["t"] == pytest.approx(t_star, rel=1e-6)
     assert data["verification"]["ok"]
