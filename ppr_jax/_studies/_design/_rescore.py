@@ -31,6 +31,7 @@ import numpy as np
 
 from ..._prb_table import prb_table
 from ._catalogue import CLOSED_FORM_METRICS, PATH_METRICS, SceneContext, metric_values
+from ._problem import _PROGRAMS, _key
 
 #: the metrics that are frequencies (their band is that of sqrt(K))
 FREQUENCY_METRICS = ("base_frequency_hz",)
@@ -95,8 +96,18 @@ def rescore_l3(names, params, ctx: SceneContext, stroke: float, prb_values: dict
     ctx3 = dataclasses.replace(ctx, model=None if ctx.model is None else l3,
                                options=scene_opts if scene_opts is not None else ctx.options,
                                frequency_model=l3)
-    # the context closed over (its options hold arrays: not a static argument)
-    values = eqx.filter_jit(lambda p, s: metric_values(tuple(dep), p, ctx3, s, None, equal_links))
+    # the context closed over (its options hold arrays: not a static argument); one program
+    # per structure, shared by later designs (the key of the design's own programs)
+    key = _key((), tuple(dep), params, ctx3, "l3", equal_links)
+    try:
+        values = _PROGRAMS.get(key)
+    except TypeError:  # an unhashable model: no reuse
+        key, values = None, None
+    if values is None:
+        values = eqx.filter_jit(
+            lambda p, s: metric_values(tuple(dep), p, ctx3, s, None, equal_links))
+        if key is not None:
+            _PROGRAMS[key] = values
     v = np.asarray(values(params, np.float64(stroke)))
     for n, v3 in zip(dep, map(float, v)):
         prb = float(prb_values[n])
