@@ -412,6 +412,51 @@ def known_truth() -> str:
                       "coverage 95 %", "seeds", "warm fit"], rows))
 
 
+def start_sensitivity() -> str:
+    """How much the start moves each metric and its t-derivative (benchmarks/start_sensitivity.py)
+    and the library's sensitivities against the independent scipy L2's central differences."""
+    d = _load("start_sensitivity.json")
+    if d is None:
+        return ""
+    parts = []
+    for name, sc in d["scenes"].items():
+        ref, lib = sc["reference"], sc["library"]
+        rows = []
+        for m in sc["metrics"]:
+            v2, d2 = ref["two-pass"]["values"][m], ref["two-pass"]["derivatives"][m]
+
+            def rel(a, b):
+                """The change from b to a: in percent, or as a factor where it is one."""
+                if not b:
+                    return "n/a"
+                return f"{100 * (a / b - 1):+.2g} %" if abs(a / b - 1) < 1 else f"x {a / b:.2g}"
+
+            lv, ld = lib["two-pass"]["values"][m], lib["two-pass"]["derivatives"][m]
+            rows.append([f"`{m}`", f"{v2:.6g}", rel(ref["one-pass"]["values"][m], v2),
+                         rel(ref["static"]["values"][m], v2), f"{d2:.6g}",
+                         rel(ref["one-pass"]["derivatives"][m], d2),
+                         rel(ref["static"]["derivatives"][m], d2),
+                         rel(lib["one-pass"]["derivatives"][m], ld),
+                         f"{abs(lv / v2 - 1):.1e}", f"{abs(ld / d2 - 1):.1e}"])
+        parts.append(
+            f"**{name}** ({sc['t_end_s']:g} s, {sc['n_out']} samples, t = "
+            f"{1e3 * sc['t_m']:g} mm; central differences at {sc['rel_step']:g} t; the starts' "
+            "columns: the change from the two-pass value):\n\n"
+            + _table(["metric m", "m (two-pass)", "one-pass", "static", "dm/dt (two-pass)",
+                      "one-pass", "static", "dm/dt, library one-pass", "library m vs reference",
+                      "library dm/dt vs reference"], rows))
+        steps = sc["step_study"]
+        head = ["step / t"] + [f"`{m}`" for m in sc["metrics"]]
+        srows = [[f"{r['rel_step']:g}"] + [f"{r['derivatives'][m]:.7g}" for m in sc["metrics"]]
+                 for r in steps]
+        srows.append(["library (forward mode)"]
+                     + [f"{lib['two-pass']['derivatives'][m]:.7g}" for m in sc["metrics"]])
+        parts.append(f"Step-size study, {name}: the reference's central differences dm/dt "
+                     "(metric units per m) against the relative step, and the library's "
+                     "derivative:\n\n" + _table(head, srows))
+    return "\n\n".join(parts) + "\n\n" + _machine(d)
+
+
 def headline() -> dict:
     """The contenders' matched times, which the README's headline table quotes (to check it)."""
     d = _load("cpu", "contenders.json")
@@ -434,6 +479,7 @@ def tables() -> dict:
         "implicit": implicit(),
         "kvaerno-l0-l2": kvaerno_l0_l2(),
         "known-truth": known_truth(),
+        "start-sensitivity": start_sensitivity(),
     }
 
 
