@@ -47,14 +47,17 @@ Inputs taken from the library (only data, never its dynamics):
 - parameters and derived quantities: `ppr_jax.derived(params)` (PRB joint, masses);
 - the scene's torques: L1 inverse dynamics along eq 55 (`ppr_jax.InverseDynamicsTorque` with the
   `reduced` model, as the scene builds them), evaluated once in JAX on a uniform grid of step
-  `TORQUE_DT` = 1 ms over [0, t_end + 10 ms] and interpolated by a not-a-knot cubic spline. Its
+  `TORQUE_DT` = 1 ms over [-10 ms, t_end + 10 ms] and interpolated by a not-a-knot cubic spline. Its
   error is measured on every run at the grid's midpoints against the exact torques (about 6e-15
   N m against torques of 0.11 N m: rounding level) and returned as `torque_spline_max_err`.
   Evaluating L1's inverse dynamics in NumPy would be a third model to maintain; the torques are
   the scene's input, not the model under test.
 - the initial state: the library's L2 quasi-static state at t = 0 (positions and velocities,
   `ppr_jax.quasi_static_state`, the same function the scene calls), or a given (z0, z0') in the
-  library's coordinates (x, y, phi, th_a1..3) such as the first state of a library solution.
+  library's coordinates (x, y, phi, th_a1..3) such as the first state of a library solution,
+  or this formulation's own start (`quasi_static_start`, MODEL.md section 6, used by
+  `scene_metrics`: the balance of the actuated coordinates projected on dq/dth_a, solved by
+  Newton's iteration, with the rates of the quasi-static path by central differences).
   It is converted to absolute coordinates by closing each chain (two-link (r2, r3) problem on
   the elbow branch sigma) and solving the loop-closure velocity equations for th_i2', th_i3'.
 
