@@ -24,7 +24,7 @@ from ._options import (
     input_panels_at,
 )
 from ._paper_circle import PaperCircle
-from ._path_scene import DRIVES, PathScene
+from ._path_scene import DRIVES, PathScene, experiment_drive, experiment_scene
 from ._registry import SCENES, get_scene, register_scene, scene_names, scene_params
 from ._report import SceneReport, run_scene, scene_metrics
 from ._result import SceneResult, failure_detail, finish, result_template
@@ -35,7 +35,7 @@ from ._torques import nominal_torques
 __all__ = [
     "ATOL", "AbstractScene",
     "MAX_STEPS", "N_OUT", "RTOL", "T_END",
-    "DRIVES", "MEMBER_CHUNK", "PaperCircle", "PathScene", "SCENES", "SceneReport",
+    "DRIVES", "MEMBER_CHUNK", "experiment_drive", "experiment_scene", "PaperCircle", "PathScene", "SCENES", "SceneReport",
     "SceneCall", "SceneInput", "SceneOptions",
     "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",

@@ -10,13 +10,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._errors import IdentificationError
+from ..._errors import IdentificationError, result_message
 from ._problem import (
     INIT_SCALE,
     MAX_STEP_Z,
     POOR_FIT_SCALE,
     _residual_and_jacobian,
     _residual_vector,
+    _succeeded,
     _to_p,
 )
 
@@ -42,13 +43,20 @@ def _initial_state_guess(prob, z0, mask):
     return z0
 
 
-def _check_ok(ok, z, prob):
-    if not bool(ok):
-        p = np.asarray(_to_p(prob, jnp.asarray(z)))
-        at = ", ".join(f"{n} = {v:.6g}" for n, v in zip(prob.names, p))
-        raise IdentificationError(f"the {prob.model.name} simulation of the {prob.scene} scene "
-                                  f"failed at {at} (solver failure or step limit; loosen "
-                                  f"tolerances or raise max_steps)")
+def _check_ok(codes, z, prob, names=None):
+    """Raise `IdentificationError` unless every experiment's simulation succeeded (`codes`, the
+    result codes (E,) of `_residual_and_jacobian`): naming the experiment, the parameters and
+    the cause that the simulation reported. `names`: the experiments' names."""
+    codes = np.atleast_1d(np.asarray(codes))
+    if np.all(codes == 0):
+        return
+    p = np.asarray(_to_p(prob, jnp.asarray(z)))
+    at = ", ".join(f"{n} = {v:.6g}" for n, v in zip(prob.names, p))
+    k = int(np.flatnonzero(codes != 0)[0])
+    names = prob.experiment_names if names is None else names
+    which = f"experiment {names[k]!r}" if names else f"experiment {k + 1}"
+    raise IdentificationError(f"the {prob.model.name} simulation of {which} ({prob.scene}) "
+                              f"failed at {at}: {result_message(int(codes[k]))}")
 
 
 def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, first=None):
@@ -102,7 +110,7 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, fi
         r_new, J_new, ok_new, X_new = _residual_and_jacobian(prob, jnp.asarray(z_new))
         n_eval += 1
         r_new = np.asarray(r_new)
-        cost_new = float(r_new @ r_new) if bool(ok_new) else np.inf
+        cost_new = float(r_new @ r_new) if _succeeded(ok_new) else np.inf
         pred = float(dz @ (lam * D * dz - g))  # predicted reduction of the cost (>= 0)
         if np.isfinite(cost_new) and cost_new < cost:
             rho_gain = (cost - cost_new) / max(pred, 1e-300)
@@ -153,8 +161,8 @@ def _costs(prob, Z):
     """Costs sum r^2 (K,) at K points Z (K, n) in one vmapped call of the residual (no
     Jacobian); a point whose simulation fails costs inf."""
     def one(z):
-        r, (ok, _) = _residual_vector(prob, z)
-        return jnp.where(ok, r @ r, jnp.inf)
+        r, (codes, _) = _residual_vector(prob, z)
+        return jnp.where(jnp.all(codes == 0), r @ r, jnp.inf)
 
     return jax.vmap(one)(Z)
 
