@@ -40,7 +40,7 @@ def cmd_identify(args):
     from .._data import load_experiments
     from .._params import RobotParams
     from .._scenes import scene_params
-    from .._studies import identification_figures, identify
+    from .._studies import StartError, identification_figures, identify
     from ._common import model_from_args
 
     # before anything is fitted: a directory that cannot be written would lose the fit (it is
@@ -69,15 +69,25 @@ def cmd_identify(args):
     commands = None
     if args.commands_set:
         commands = params.replace(**_name_values(args.commands_set, "--commands-set"))
-    fit = identify(exps, unknowns, model=model_from_args(args, args.model), scene=args.scene,
-                   actuation=args.actuation, commands=commands, initial_state=args.initial_state,
-                   params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
-                   noise=(args.noise_pos, args.noise_phi), loss=args.loss,
-                   loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
-                   ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
-                   max_steps=args.max_steps, validation=_validation(args.validation),
-                   nuisance=tuple(args.nuisance), starts=_starts(args.starts),
-                   force=args.force)
+    try:
+        fit = identify(exps, unknowns, model=model_from_args(args, args.model),
+                       scene=args.scene, actuation=args.actuation, commands=commands,
+                       initial_state=args.initial_state, params=params, fixed=fixed,
+                       initial=initial, bounds=_bounds(args.bound),
+                       noise=(args.noise_pos, args.noise_phi), loss=args.loss,
+                       loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
+                       ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
+                       max_steps=args.max_steps, validation=_validation(args.validation),
+                       nuisance=tuple(args.nuisance), starts=_starts(args.starts),
+                       force=args.force)
+    except StartError as err:
+        # the experiment's name is its file's stem: name the file as the user typed it
+        msg = str(err)
+        for e, path in zip(exps, args.data):
+            if msg.startswith(f"{e.name}: "):
+                msg = f"{path}: {msg[len(e.name) + 2:]}"
+                break
+        raise StartError(msg) from None
     _log(f"driven by {fit.actuation}")
     _log(f"done in {time.perf_counter() - t0:.1f} s ({fit.history.get('iterations')} iterations, "
          f"stop: {fit.history.get('stop')})")

@@ -9,8 +9,8 @@ import numpy as np
 
 from ..._data import DataError, Experiment
 from ..._params import RobotParams
-from ..._prb import derived
 from ..._paths import fit_start
+from ..._prb import derived
 from ..._trajectory import spline_pieces
 
 

@@ -92,8 +92,7 @@ from ..._errors import IdentificationError, PPRError
 from ..._models import get_model
 from ..._params import PARAM_RANGES, RobotParams
 from ..._paths import fit_start
-from ..._scenes import MAX_STEPS, AbstractScene, get_scene
-from ..._scenes._path_scene import experiment_drive
+from ..._scenes import MAX_STEPS, AbstractScene, experiment_drive, get_scene
 from ..._simulate import get_solver
 from ._data import _fill_prb, _pack
 from ._fit import (
