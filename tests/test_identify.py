@@ -366,7 +366,7 @@ def test_profile_likelihood(truth, clean, fits):
 def test_bad_requests_raise_clear_errors(truth, clean):
     exp = _noisy(clean, 1.0, seed=0)
     with pytest.raises(pj.PPRError, match="unknown 'colour' is not a float parameter"):
-        pj.identify(exp, ("colour",))
+        pj.identify(exp, ("colour",), scene=SC)
     with pytest.raises(pj.PPRError, match=r"both unknown and fixed"):
         pj.identify(exp, ("t",), scene=SC, fixed={"t": 5e-4})
     with pytest.raises(pj.PPRError, match=r"bounds of 't' must satisfy"):
@@ -585,8 +585,8 @@ def test_cli_user_errors_exit_2(tmp_path, capsys):
                        (["--max-steps", "0"], "max_steps = 0 is out of its allowed range"),
                        (["--starts", "0"], "starts must be 'auto' or an integer in [1, 1000]"),
                        (["--starts", "many"], "starts must be 'auto' or an integer")]:
-        assert main(["identify", "--data", str(good), "--out", str(tmp_path / "o"),
-                     *extra]) == 2
+        assert main(["identify", "--data", str(good), "--scene", SC, "--out",
+                     str(tmp_path / "o"), *extra]) == 2
         err = [ln for ln in capsys.readouterr().err.splitlines() if "error" in ln.lower()]
         assert len(err) == 1 and err[0].startswith("ppr-jax: error: ") and msg in err[0], extra
     assert not os.path.exists(tmp_path / "o")  # a refused run writes nothing

@@ -269,33 +269,6 @@ def identify(
     if actuation not in ACTUATIONS:
         raise IdentificationError(f"unknown actuation {actuation!r}; allowed: "
                                   f"{', '.join(ACTUATIONS)}")
-    own = scene is None  # each experiment's own scene, driven by its own commands
-    if own:
-        if actuation == "commanded" or commands is not None:
-            raise IdentificationError(
-                "without a scene the data's own angles or torques drive the model: actuation="
-                "'commanded' and commands= apply to a named scene (scene='servo-circle', "
-                "'paper-circle' or an AbstractScene) whose commands are computed")
-        drive = _common_drive(exps)
-        scene_obj = None
-        label = "experiment's own" if len(exps) == 1 else "experiments' own"
-        actuation = "measured" if drive == "motion" else "commanded"
-    else:
-        try:
-            scene_obj = get_scene(scene)
-        except PPRError as err:
-            raise IdentificationError(str(err)) from None
-        drive, label = scene_obj.drive, scene_obj.name
-        if actuation == "auto":
-            # named commands are asked for; otherwise what the files hold
-            has_th = all(e.th is not None for e in exps)
-            measured = commands is None and drive == "motion" and has_th
-            actuation = "measured" if measured else "commanded"
-        if actuation == "measured" and drive != "motion":
-            raise IdentificationError(
-                f"actuation 'measured' (the measured angles drive the model) applies to a "
-                f"motion-driven scene; {scene_obj.name} is {drive}-driven (it uses the measured "
-                f"torques tau_1..tau_3 when the data give them)")
     if initial_state not in INITIAL_STATES:
         raise IdentificationError(f"unknown initial_state {initial_state!r}; allowed: "
                                   f"{', '.join(INITIAL_STATES)}")
@@ -341,6 +314,37 @@ def identify(
     if stray:
         raise IdentificationError(f"initial values given for {sorted(stray)}, which are not "
                                   f"unknowns (to hold a parameter at a value, use fixed=)")
+    own = scene is None  # each experiment's own scene, driven by its own commands
+    if own:
+        if actuation == "commanded" or commands is not None:
+            raise IdentificationError(
+                "without a scene the data's own angles or torques drive the model: actuation="
+                "'commanded' and commands= apply to a named scene (scene='servo-circle', "
+                "'paper-circle' or an AbstractScene) whose commands are computed")
+        drive = _common_drive(exps)
+        if actuation == "measured" and drive == "torque":
+            raise IdentificationError("actuation 'measured' (the measured angles drive the "
+                                      "model) needs th_1..th_3 in every experiment; these "
+                                      "data drive it by their torques (actuation='auto')")
+        scene_obj = None
+        label = "experiment's own" if len(exps) == 1 else "experiments' own"
+        actuation = "measured" if drive == "motion" else "commanded"
+    else:
+        try:
+            scene_obj = get_scene(scene)
+        except PPRError as err:
+            raise IdentificationError(str(err)) from None
+        drive, label = scene_obj.drive, scene_obj.name
+        if actuation == "auto":
+            # named commands are asked for; otherwise what the files hold
+            has_th = all(e.th is not None for e in exps)
+            measured = commands is None and drive == "motion" and has_th
+            actuation = "measured" if measured else "commanded"
+        if actuation == "measured" and drive != "motion":
+            raise IdentificationError(
+                f"actuation 'measured' (the measured angles drive the model) applies to a "
+                f"motion-driven scene; {scene_obj.name} is {drive}-driven (it uses the measured "
+                f"torques tau_1..tau_3 when the data give them)")
     mdl = get_model(model, n_elements)
     if n_init and drive == "motion" and mdl.actuated_index is None:
         raise IdentificationError(f"initial_state={initial_state!r}: the {mdl.name} model has no "
