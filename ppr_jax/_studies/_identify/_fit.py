@@ -15,6 +15,7 @@ from ._problem import (
     INIT_SCALE,
     MAX_STEP_Z,
     POOR_FIT_SCALE,
+    _anonymous,
     _residual_and_jacobian,
     _residual_vector,
     _succeeded,
@@ -211,7 +212,7 @@ def _multi_start(prob, z0, starts, seed, fit_one, guess=None, screen=None, given
     screening = None
     if screen is not None and len(points) - 1 > screen:
         t0 = time.perf_counter()
-        c = np.asarray(_costs(prob, jnp.asarray(np.stack(points[1:]))))
+        c = np.asarray(_costs(_anonymous(prob), jnp.asarray(np.stack(points[1:]))))
         kept = [1 + int(k) for k in np.argsort(np.where(np.isfinite(c), c, np.inf))[:screen]]
         order = [0] + kept
         screening = {"points": len(points) - 1, "kept": kept,

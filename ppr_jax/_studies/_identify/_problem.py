@@ -3,6 +3,7 @@ residual and its Jacobian through the scene's own run."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Optional
 
@@ -253,11 +254,21 @@ def _residual_vector(prob: _Problem, z):
     return _robust(r.reshape(-1), prob.loss, prob.loss_scale), (codes, X)
 
 
-@eqx.filter_jit
+def _anonymous(prob: _Problem) -> _Problem:
+    """The problem without the experiments' names (static, they would key the compilation: a
+    second file of the same shapes must reuse the compiled program)."""
+    return dataclasses.replace(prob, experiment_names=()) if prob.experiment_names else prob
+
+
 def _residual_and_jacobian(prob: _Problem, z):
     """(r (N,), J (N, P) = dr/dz, the simulations' result codes (E,) (0: success; `_succeeded`),
-    simulated pose (E, m, 3)) in one compiled
-    forward-mode pass: the fit, the covariance and the fitted trajectory share it."""
+    simulated pose (E, m, 3)) in one compiled forward-mode pass: the fit, the covariance and the
+    fitted trajectory share it."""
+    return _residual_and_jacobian_jit(_anonymous(prob), z)
+
+
+@eqx.filter_jit
+def _residual_and_jacobian_jit(prob: _Problem, z):
     def fn(z):
         r, aux = _residual_vector(prob, z)
         return r, (r, aux)
