@@ -159,8 +159,8 @@ def test_refuses_a_paper_scene_that_starts_elsewhere(data_file, no_compile):
 
 
 def test_refuses_torques_that_cannot_hold_the_first_pose(no_compile):
-    """A torque log 0.5 N m above the torques that move L1 along the poses (the springs hold
-    about 2 N m/rad): refused; the consistent log passes the same check."""
+    """A torque log 0.5 N m above the torques that move L1 along the poses: refused (it would
+    throw the platform off within 0.1 s); the consistent log passes the same check."""
     import jax
     import jax.numpy as jnp
 
@@ -176,8 +176,8 @@ def test_refuses_torques_that_cannot_hold_the_first_pose(no_compile):
     check_starts([good], "torque", params, [pj.fit_start(ts, X)])
     bad = pj.experiment(ts, X, tau=tau + np.array([0.5, 0.0, 0.0]), name="torques.csv")
     with pytest.raises(pj.StartError, match=r"torques.csv: sample 1 \(t = 0 s\): the torques "
-                       r"hold the platform in balance at .*, [\d.]+ mm and [\d.]+ rad from the "
-                       r"file's first pose"):
+                       r".* are not what moves the platform as the first samples do .* "
+                       r"[\d.]+ mm and [\d.]+ rad away from the file's first pose"):
         _identify(bad)
 
 
@@ -228,7 +228,7 @@ def test_experiment_scene_runs_the_file(data_file):
 def test_two_experiments_on_different_paths_fitted_jointly():
     """Two files of the independent L2, one on the Fourier path, one on a straight line (a
     rest-to-rest move), each driven by its own angles from its own start, fitted jointly: gamma
-    within two standard deviations, smaller than either file's alone would give."""
+    within two standard deviations, the residuals the noise."""
     base = pj.RobotParams(**BASE)
     truth, nominal = base.replace(gamma=GAMMA), base.replace(gamma=0.85)
     line = pj.Line([0.40, 0.22, -0.02], [0.50, 0.30, 0.03], 0.8)

@@ -24,9 +24,10 @@ The experiment (what the motors did) is a scene:
   motion).
 Before anything is compiled, every experiment's first sample is checked against the model at
 the initial guess (`_start.check_starts`, `check_scene_start`): a pose out of reach, angles of
-another assembly mode, commands that put (or hold) the platform more than 10 mm or 0.1 rad away
-from the file's first pose, or a named scene that starts that far from it, are refused with a
-`StartError` naming the experiment, the sample and the distance.
+another assembly mode, angles that put the platform more than 10 mm or 0.1 rad away from the
+file's first pose, torques that would throw it that far within 0.1 s, or a named scene that
+starts that far from it, are refused with a `StartError` naming the experiment, the sample and
+the distance.
 
 Which angles drive a motion-driven named scene (`actuation`, MODEL.md section 7):
 - ``"auto"`` (default): the measured angles when every experiment holds th_1..th_3, else the
