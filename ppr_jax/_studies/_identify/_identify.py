@@ -385,11 +385,13 @@ def identify(
     ts, X, W, tau, th, mask, paths, start_fits = _pack(exps, float(noise[0]),
                                                        float(noise[1]), drive, actuation,
                                                        own=own)
-    # Before anything is compiled: can each experiment's first sample start the model?
+    # Before anything is compiled: can each experiment's first sample start the model? (In the
+    # channels that are fitted: a channel of infinite noise is not.)
+    fitted = tuple(math.isfinite(float(v)) for v in noise)
     if own:
-        check_starts(exps, drive, base, start_fits)
+        check_starts(exps, drive, base, start_fits, fitted)
     else:
-        check_scene_start(exps, scene_obj, [fit_start(e.ts, e.X)[0] for e in exps])
+        check_scene_start(exps, scene_obj, [fit_start(e.ts, e.X)[0] for e in exps], fitted)
     held = _held_out(validation, ts, mask, [e.name for e in exps], n_init)
     if held is not None:
         W_all = W

@@ -142,9 +142,11 @@ def _distance(X, X0) -> str:
             f"{abs(float(X[2] - X0[2])):.3g} rad")
 
 
-def _too_far(X, X0) -> bool:
-    return not (np.hypot(*(X[:2] - X0[:2])) <= START_TOLERANCE[0]
-                and abs(X[2] - X0[2]) <= START_TOLERANCE[1])
+def _too_far(X, X0, fitted=(True, True)) -> bool:
+    """X further than `START_TOLERANCE` from X0 in a fitted channel (`fitted`: position,
+    orientation; a channel of infinite noise is not fitted, and its data are not checked)."""
+    return bool((fitted[0] and not np.hypot(*(X[:2] - X0[:2])) <= START_TOLERANCE[0])
+                or (fitted[1] and not abs(X[2] - X0[2]) <= START_TOLERANCE[1]))
 
 
 def _pose(X) -> str:
@@ -155,13 +157,14 @@ def _allowed() -> str:
     return f"allowed {1e3 * START_TOLERANCE[0]:g} mm and {START_TOLERANCE[1]:g} rad"
 
 
-def check_starts(exps, drive: str, params, starts) -> None:
+def check_starts(exps, drive: str, params, starts, fitted=(True, True)) -> None:
     """Refuse (`StartError`) the first experiment whose first sample cannot start the model
     (module docstring): its pose `starts[k][0]` (the start's fit of its first samples) out of
     reach; with `drive="motion"` its angles of another assembly mode, or putting the platform
     further than `START_TOLERANCE` from the pose; with `drive="torque"` its torques
     accelerating the platform by more than `START_TOLERANCE` away within `START_HORIZON`.
-    `params`: the robot at the initial guess (concrete)."""
+    `params`: the robot at the initial guess (concrete); `fitted`: whether the position and the
+    orientation are fitted (a channel of infinite noise is not, and is not compared)."""
     geo = _Geometry(params)
     for exp, start in zip(exps, starts):
         X0 = np.asarray(start[0], dtype=np.float64)
@@ -172,12 +175,12 @@ def check_starts(exps, drive: str, params, starts) -> None:
             raise StartError(f"{_where(exp)}: no state of the model reaches the pose "
                              f"{_pose(X0)}: {far}")
         if drive == "motion":
-            _check_angles(exp, geo, X0, own, other)
+            _check_angles(exp, geo, X0, own, other, fitted)
         else:
-            _check_torques(exp, geo, start)
+            _check_torques(exp, geo, start, fitted)
 
 
-def _check_angles(exp, geo, X0, own, other):
+def _check_angles(exp, geo, X0, own, other, fitted):
     th = np.asarray(exp.th[0], dtype=np.float64)
     d_own, d_other = np.abs(_wrap(th - own)), np.abs(_wrap(th - other))
     for i in range(3):
@@ -197,7 +200,7 @@ def _check_angles(exp, geo, X0, own, other):
             f"kinematics from there leaves the chains' reach; the angles are "
             f"{np.max(d_own):.4g} rad from the pose's inverse kinematics): the angles and the "
             f"poses do not describe one experiment (another zero, sign or unit of the angles?)")
-    if _too_far(X, X0):
+    if _too_far(X, X0, fitted):
         raise StartError(
             f"{_where(exp)}: the actuated angles put the platform at {_pose(X)}, "
             f"{_distance(X, X0)} from the file's first pose {_pose(X0)} ({_allowed()}): the "
@@ -205,7 +208,7 @@ def _check_angles(exp, geo, X0, own, other):
             f"of the angles, or of the tracker's frame?)")
 
 
-def _check_torques(exp, geo, start):
+def _check_torques(exp, geo, start, fitted):
     import jax
     import jax.numpy as jnp
 
@@ -230,7 +233,7 @@ def _check_torques(exp, geo, start):
     dXdd, *_ = np.linalg.lstsq(A, tau0 - tau_need, rcond=None)
     T = START_HORIZON
     drift = 0.5 * dXdd * T**2
-    if not np.all(np.isfinite(drift)) or _too_far(drift, np.zeros(3)):
+    if not np.all(np.isfinite(drift)) or _too_far(drift, np.zeros(3), fitted):
         raise StartError(
             f"{_where(exp)}: the torques tau = ({tau0[0]:.6g}, {tau0[1]:.6g}, {tau0[2]:.6g}) "
             f"N m are not what moves the platform as the first samples do (the robot at the "
@@ -242,10 +245,11 @@ def _check_torques(exp, geo, start):
             f"one experiment (another sign or unit of the torques?)")
 
 
-def check_scene_start(exps, scene, offsets) -> None:
+def check_scene_start(exps, scene, offsets, fitted=(True, True)) -> None:
     """Refuse (`StartError`) the first experiment whose first pose (`offsets[k]`: the start's
     fit of its first samples) is further than `START_TOLERANCE` from the named scene's own
-    path at that time: the data do not come from that experiment."""
+    path at that time, in a fitted channel (`fitted`: position, orientation): the data do not
+    come from that experiment."""
     import jax.numpy as jnp
 
     traj = scene.trajectory()
@@ -253,7 +257,7 @@ def check_scene_start(exps, scene, offsets) -> None:
         t0 = float(np.asarray(exp.ts)[0])
         X = np.asarray(traj(jnp.asarray(t0)), dtype=np.float64)
         X0 = np.asarray(X0, dtype=np.float64)
-        if _too_far(X, X0):
+        if _too_far(X, X0, fitted):
             raise StartError(
                 f"{_where(exp)}: the file's first pose {_pose(X0)} is {_distance(X, X0)} from "
                 f"where the {scene.name} scene starts, {_pose(X)} ({_allowed()}): the data do "
