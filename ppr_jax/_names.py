@@ -102,14 +102,13 @@ PATH_SENSITIVITY_METRICS = (
     "torque_peak_Nm",
     "base_frequency_hz",
 )
-#: the scenes an identification fits
-ID_SCENES = ("servo-circle", "paper-circle")
 #: robust losses of an identification
 LOSSES = ("linear", "huber", "cauchy")
 #: least-squares solvers of an identification
 ID_SOLVERS = ("lm", "optimistix-lm", "optimistix-gn")
-#: what drives a servo-circle model: the measured angles when the data hold them (auto), the
-#: scene's commands for the parameters of the model that computed them, or the measured angles
+#: what drives a named motion-driven scene's model: the measured angles when the data hold them
+#: (auto), the scene's commands for the parameters of the model that computed them, or the
+#: measured angles (without a scene, the data's own angles or torques drive it)
 ACTUATIONS = ("auto", "commanded", "measured")
 #: what of each experiment's initial state is estimated (number of unknowns per experiment):
 #: nothing (the scene's quasi-static state), the platform pose (x0, y0, phi0), or the pose and
