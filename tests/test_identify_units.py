@@ -78,7 +78,7 @@ def _prob(**kw):
     base = dict(names=("t", "K_theta"), lo=np.array([1e-4, 0.5]), hi=np.array([3e-3, 5.0]),
                 log=(True, False), model=SimpleNamespace(name="double1r"),
                 scene="paper-circle", rtol=1e-8, atol=1e-9, max_steps=100000, tau=np.ones(3),
-                th=None, n_init=0)
+                th=None, n_init=0, experiment_names=("lab",))
     return SimpleNamespace(**(base | kw))
 
 
@@ -88,7 +88,7 @@ def test_failed_simulation_names_the_parameter():
     keeps the solver's advice."""
     z = np.zeros(2)  # the middle of the bounds: t = sqrt(0.1 * 3) mm, K_theta = 2.75
     with pytest.raises(pj.IdentificationError) as err:
-        _check_ok(False, z, _prob(), start=True)
+        _check_ok(np.array([1]), z, _prob(), start=True)
     msg = str(err.value)
     assert "strip thickness t = 0.547723 mm" in msg and "PRB stiffness coefficient K_theta = " \
         "2.75" in msg
@@ -97,10 +97,10 @@ def test_failed_simulation_names_the_parameter():
     assert "the data are far from any state the model reaches from this start" in msg
     assert "units" in msg and msg.index("units") < msg.index("loosen")
     assert "t = 0.000547" not in msg
-    with pytest.raises(pj.IdentificationError, match=r"failed at strip thickness t = 0.547723 "
-                       r"mm, .*loosen tolerances or raise max_steps; rtol 1e-08"):
-        _check_ok(False, z, _prob(), start=False)
-    _check_ok(True, z, _prob(), start=True)  # a success passes
+    with pytest.raises(pj.IdentificationError, match=r"experiment 'lab' .*failed at strip "
+                       r"thickness t = 0.547723 mm, .*\(rtol 1e-08"):
+        _check_ok(np.array([1]), z, _prob(), start=False)
+    _check_ok(np.array([0]), z, _prob(), start=True)  # a success passes
 
 
 def test_identified_robot_without_an_assembled_state_keeps_the_toml(tmp_path, capsys):

@@ -86,7 +86,7 @@ def _check_ok(codes, z, prob, start=False, names=None):
     how = f" ({'; '.join(given)})" if given else ""
     raise IdentificationError(
         f"{what}{how} failed at the start of the fit, before anything was fitted ({at}): "
-        f"{cause}. The data are far from any state the model reaches from this start. Check "
+        f"{cause}; the data are far from any state the model reaches from this start. Check "
         f"the data's units (declare them: '# units: length=mm, angle=deg, torque=N mm') and "
         f"that they come from this robot and scene (params=, --params-file, --scene); only if "
         f"they do, loosen the tolerances or raise max_steps ({tols})")
