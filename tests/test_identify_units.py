@@ -55,12 +55,14 @@ TORQUES = dict(scene="paper-circle")  # driven by the file's torques
     (TORQUES, dict(tau=lambda tau: tau * 1e3),
      r"column tau_1 reaches 507.8 N m .* 1064 times the joint springs' stiffness .*far from any "
      r"state the model reaches; probably N mm read as N m \(a factor 1000\)"),
+    # poses scaled 1.8 x: the first one is already far from where the scene starts (StartError,
+    # checked first), the others out of reach
     (dict(scene="servo-circle"), dict(X=[1.8, 1.8, 1.0]),
-     r"measured pose at time 0.5 s .* out of the reach of chain 1 of this robot .*far from any "
-     r"state the model reaches; data from another robot"),
+     r"sample 1 \(t = 0 s\): the file's first pose .* is 486.2 mm .* from where the "
+     r"servo-circle scene starts.*the data do not come from that experiment"),
 ])
 def test_wrong_units_named_before_compiling(example, tripwire, kw, change, match):
-    with pytest.raises(pj.DataError, match=match):
+    with pytest.raises((pj.DataError, pj.StartError), match=match):
         pj.identify(_exp(example, **change), ("t",), model="double1r", **kw)
 
 

@@ -389,13 +389,13 @@ def identify(
     # Before anything is compiled: can each experiment's first sample start the model? (In the
     # channels that are fitted: a channel of infinite noise is not.)
     fitted = tuple(math.isfinite(float(v)) for v in noise)
-    # units and robot of the columns that drive the model
-    check_plausible(exps, base, "from the data" if own else getattr(scene_obj, "name", scene),
-                    angles=th is not None, torques=tau is not None)
     if own:
         check_starts(exps, drive, base, start_fits, fitted)
     else:
         check_scene_start(exps, scene_obj, [fit_start(e.ts, e.X)[0] for e in exps], fitted)
+    # then the units and robot of the columns that drive the model, over the whole record
+    check_plausible(exps, base, "from the data" if own else getattr(scene_obj, "name", scene),
+                    angles=th is not None, torques=tau is not None)
     held = _held_out(validation, ts, mask, [e.name for e in exps], n_init)
     if held is not None:
         W_all = W
