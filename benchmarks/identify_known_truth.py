@@ -108,7 +108,7 @@ def main(argv=None):
     for name in a.cases.split(","):
         unknowns, kw, with_th, *extra = all_cases[name]
         late = extra[:1]
-        kw = dict(model="double1r", noise=NOISE, **kw)
+        kw = dict(model="double1r", scene="servo-circle", noise=NOISE, **kw)
         ts, X, th = ts0, X0, th0
         robot = truth
         if len(extra) > 1:  # a robot that differs from `truth`: its own data

@@ -48,7 +48,8 @@ for geometry, base in (("centerline", cl), ("strip", strip)):
         if geometry == "strip" and len(names) == 2:
             continue
         t0 = time.perf_counter()
-        fit = pj.identify(exp, names or ("K_theta",), model="double1r", params=base,
+        fit = pj.identify(exp, names or ("K_theta",), model="double1r", scene="servo-circle",
+                          params=base,
                           noise=NOISE, max_iter=50 if names else 0,
                           # as documented: no preflight refusal, no automatic refit of a
                           # poor fit (the table reports them as they are)

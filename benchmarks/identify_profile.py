@@ -32,7 +32,7 @@ def main(t_end: float):
     for unknowns in (("K_theta",), ("t", "K_theta")):
         start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
         t0 = time.perf_counter()
-        fit = pj.identify(exp, unknowns, model="double1r", params=truth,
+        fit = pj.identify(exp, unknowns, model="double1r", scene="servo-circle", params=truth,
                           initial={k: start[k] for k in unknowns},
                           force=True)  # t with K_theta: profiled on purpose, past the preflight
         fit_s = time.perf_counter() - t0

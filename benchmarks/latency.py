@@ -94,7 +94,8 @@ start = {{"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}}
 walls = []
 for _ in range(2):
     t0 = time.perf_counter()
-    fit = pj.identify(exp, ("t", "K_theta"), model="double1r", initial=start, force=True)
+    fit = pj.identify(exp, ("t", "K_theta"), model="double1r", scene="servo-circle",
+                      initial=start, force=True)
     walls.append(time.perf_counter() - t0)
 print("IDENTIFY " + json.dumps({{"first_fit_s": walls[0], "second_fit_s": walls[1],
                                 "iterations": fit.history.get("iterations")}}))

@@ -43,7 +43,7 @@ _EXPORTS = {
     "._trajectory": ("Circle", "Hold", "Interpolated", "derivatives"),
     "._paths": (
         "Line", "Waypoints", "Fourier", "CommandLog", "load_path", "load_commands",
-        "check_same_rate",
+        "check_same_rate", "StartPath", "fit_start",
     ),
     "._actuation": (
         "AbstractActuation", "TorqueDriven", "MotionDriven", "PDServo", "InverseDynamicsTorque",
@@ -59,13 +59,14 @@ _EXPORTS = {
         "AbstractScene", "PaperCircle", "PathScene", "register_scene", "SceneInput",
         "SceneOptions", "SceneResult", "ServoCircle", "solve_scene", "nominal_torques",
         "paper_circle", "servo_circle", "modes_scene", "scene_params", "SceneReport",
-        "run_scene", "scene_metrics",
+        "run_scene", "scene_metrics", "experiment_scene",
     ),
     "._cache": ("enable_compilation_cache",),
     "._devices": ("configure_cpu", "cpu_flags"),
     "._studies": (
         "SweepResult", "sweep", "shard_batch", "design_members", "Sensitivity", "sensitivity",
-        "base_frequency", "Identification", "IdentificationError", "identify", "synthesize",
+        "base_frequency", "Identification", "IdentificationError", "StartError", "identify",
+        "synthesize",
         "Design", "DesignError", "Objective", "Constraint", "design", "design_metrics",
     ),
     "._prb_table": ("prb_parameters", "prb_table"),
@@ -149,6 +150,8 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         load_path as load_path,
         load_commands as load_commands,
         check_same_rate as check_same_rate,
+        StartPath as StartPath,
+        fit_start as fit_start,
     )
     from ._actuation import (
         AbstractActuation as AbstractActuation,
@@ -185,6 +188,7 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         SceneReport as SceneReport,
         run_scene as run_scene,
         scene_metrics as scene_metrics,
+        experiment_scene as experiment_scene,
     )
     from ._cache import enable_compilation_cache as enable_compilation_cache
     from ._devices import configure_cpu as configure_cpu, cpu_flags as cpu_flags
@@ -198,6 +202,7 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         base_frequency as base_frequency,
         Identification as Identification,
         IdentificationError as IdentificationError,
+        StartError as StartError,
         identify as identify,
         synthesize as synthesize,
         Design as Design,

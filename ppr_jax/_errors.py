@@ -162,10 +162,13 @@ def failure_reasons(result, detail=None) -> dict:
     return out
 
 
-def check_result(result, what: str = "simulation", detail=None, value=None) -> None:
+def check_result(result, what: str = "simulation", detail=None, value=None,
+                 stiff: Optional[bool] = None) -> None:
     """Raise `SimulationError` if any (batch member's) `result` is not successful, naming the
     failed members and the reason of each (`failure_reasons`). `value` is attached to the error
-    as `err.result`, so what succeeded is not lost."""
+    as `err.result`, so what succeeded is not lost. `stiff`: whether the solver that ran was an
+    implicit one (None: unknown), so that a step failure does not advise the solver that
+    failed."""
     result = result if isinstance(result, RESULTS) else RESULTS.promote(result)
     reasons = failure_reasons(result, detail)
     if not reasons:
@@ -178,9 +181,17 @@ def check_result(result, what: str = "simulation", detail=None, value=None) -> N
         more = f"; and {len(reasons) - 10} more" if len(reasons) > 10 else ""
         msg = f"{what} failed ({len(reasons)} of {n} batch members): {shown}{more}"
     if any("step" in r for r in reasons.values()):
-        msg += (". A stiff model (thin strip, L2) may need more steps (max_steps) or an implicit "
-                "solver (kvaerno5); a chain leaving its reach or a singular configuration also "
-                "makes the step size collapse")
+        if stiff:
+            hint = ("the implicit solver that ran may need more steps (max_steps) or looser "
+                    "tolerances (rtol, atol)")
+        elif stiff is None:
+            hint = ("a stiff model (thin strip, L2, the full L3) may need more steps "
+                    "(max_steps), or an implicit solver (kvaerno5) where an explicit one ran")
+        else:
+            hint = ("a stiff model (thin strip, L2, the full L3) may need more steps "
+                    "(max_steps) or an implicit solver (kvaerno5, kvaerno5-kept)")
+        msg = (f"{msg.rstrip('.')}. {hint[0].upper()}{hint[1:]}; a chain leaving its reach or a "
+               f"singular configuration also makes the step size collapse")
     err = SimulationError(msg)
     err.result = value
     raise err

@@ -60,6 +60,8 @@ MAX_ELEMENTS = 256
 
 SOLVER_NAMES = ("tsit5", "dopri5", "dopri8", "kvaerno5", "kvaerno3", "kvaerno5-kept",
                 "ros34pw2")
+#: the names among them of solvers for stiff problems (implicit or linearly implicit)
+STIFF_SOLVER_NAMES = ("kvaerno5", "kvaerno3", "kvaerno5-kept", "ros34pw2")
 
 # -- scenes (`_scenes`) --------------------------------------------------------------------
 
@@ -100,14 +102,13 @@ PATH_SENSITIVITY_METRICS = (
     "torque_peak_Nm",
     "base_frequency_hz",
 )
-#: the scenes an identification fits
-ID_SCENES = ("servo-circle", "paper-circle")
 #: robust losses of an identification
 LOSSES = ("linear", "huber", "cauchy")
 #: least-squares solvers of an identification
 ID_SOLVERS = ("lm", "optimistix-lm", "optimistix-gn")
-#: what drives a servo-circle model: the measured angles when the data hold them (auto), the
-#: scene's commands for the parameters of the model that computed them, or the measured angles
+#: what drives a named motion-driven scene's model: the measured angles when the data hold them
+#: (auto), the scene's commands for the parameters of the model that computed them, or the
+#: measured angles (without a scene, the data's own angles or torques drive it)
 ACTUATIONS = ("auto", "commanded", "measured")
 #: what of each experiment's initial state is estimated (number of unknowns per experiment):
 #: nothing (the scene's quasi-static state), the platform pose (x0, y0, phi0), or the pose and
@@ -129,6 +130,22 @@ DESIGN_METRICS: dict[str, str] = {
                       "links, and the platform (kg)",
     "strip_stress_peak_Pa": "the strips' peak bending stress over the scene, from each spring's "
                             "moment K d over the strip's section modulus w t^2/6 (Pa)",
+    "torque_rms_Nm": "the actuator torques' RMS over the scene's output times and the three "
+                     "actuators (N m)",
+    "path_reach_margin": "the least reach margin (1 - |cos| of a chain's closure angle) of the "
+                         "scene's input model along its nominal path (-; <= 0: out of reach)",
+    "path_singularity_margin": "the least relative det S along the scene's nominal path, signed "
+                               "so that it is positive at the home pose (-; <= 0: the path "
+                               "meets or crosses a type-II singularity)",
+    "strip_tip_rotation_rad": "one strip (length r theta_c, rest curvature 1/r) clamped at one end "
+                              "under the end load `strip_load` (fx, fy, m): its tip's rotation "
+                              "from rest, by the elastica (rad)",
+    "strip_elastica_stress_Pa": "that strip's peak bending stress, max |M(s)| 6/(w t^2) along it, "
+                                "by the elastica (Pa)",
+    "compliance_xy_m_per_N": "the platform's largest translational compliance under a force, "
+                             "actuators locked, at the pose `pose` (frequency_model) (m/N)",
+    "compliance_phi_rad_per_Nm": "the platform's rotational compliance under a moment, actuators "
+                                 "locked, at the pose `pose` (frequency_model) (rad/(N m))",
 }
 #: the constrained optimisers of a design (scipy.optimize.minimize's methods)
 DESIGN_OPTIMIZERS = ("slsqp", "trust-constr")

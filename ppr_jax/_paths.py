@@ -484,3 +484,69 @@ def check_same_rate(a, b, *, rtol: float = 0.01) -> float:
                         f"(allowed {rtol:.2%}): resample one onto the other's times before "
                         f"pairing them")
     return da
+
+
+#: the first samples of an experiment from which its start is estimated (`fit_start`): those
+#: within START_WINDOW seconds of the first, at least START_MIN_SAMPLES of them
+START_WINDOW = 0.1
+START_MIN_SAMPLES = 5
+
+
+class StartPath(eqx.Module):
+    """The pose near a start, X(t) = X0 + X0' (t - t0) + X0'' (t - t0)^2 / 2: what a scene's
+    quasi-static start takes from its path (the pose, its rate and acceleration at t0), given
+    apart from the path (`PathScene.start_path`), as `fit_start` estimates it from an
+    experiment's first samples.
+
+    **Arguments:**
+
+    - `t0`: the start time (s).
+    - `coefficients`: (3, 3), rows X0 (m, m, rad), X0' (m/s, m/s, rad/s), X0'' (m/s^2, m/s^2,
+      rad/s^2).
+    """
+
+    t0: Float[Array, ""]
+    coefficients: Float[Array, "3 3"]
+
+    def __init__(self, t0, coefficients):
+        self.t0 = jnp.asarray(t0, dtype=jnp.float64)
+        self.coefficients = jnp.asarray(coefficients, dtype=jnp.float64)
+        if self.coefficients.shape[-2:] != (3, 3):
+            raise DataError(f"StartPath: coefficients must be (3, 3) (pose, rate, acceleration), "
+                            f"got {self.coefficients.shape}")
+
+    def __call__(self, t) -> Float[Array, "3"]:
+        s = jnp.asarray(t, dtype=jnp.float64) - self.t0
+        c = self.coefficients
+        return c[0] + s * c[1] + 0.5 * s * s * c[2]
+
+
+def fit_start(ts, X, *, window: float = START_WINDOW,
+              min_samples: int = START_MIN_SAMPLES) -> np.ndarray:
+    """The pose, its rate and acceleration at the first sample time from the first samples: a
+    least-squares quadratic in t - ts[0] through the samples within `window` seconds of the
+    first (at least `min_samples`, at most all). Tracker noise makes an interpolating spline's
+    derivatives useless at an end (its acceleration error is about noise / dt^2: 1 m/s^2 for
+    0.1 mm at 100 Hz); the fit over 0.1 s leaves about 1e-3 m/s and 0.1 m/s^2 of that noise,
+    and a bias of the path's jerk times the window (about 1e-2 m/s^2 on the paper's circle).
+
+    **Arguments:**
+
+    - `ts`: sample times (n,) (s), increasing; `X`: samples (n, k) (a pose: m, m, rad).
+    - `window`: the length (s) of the fitted stretch; `min_samples`: fewest samples in it (at
+      least 3).
+
+    **Returns:** (3, k) NumPy array: the value, rate and acceleration at ts[0].
+    """
+    ts = np.asarray(ts, dtype=np.float64)
+    X = np.asarray(X, dtype=np.float64)
+    n = ts.shape[0]
+    if n < 3:
+        raise DataError(f"fit_start needs at least 3 samples, got {n}")
+    k = int(np.count_nonzero(ts - ts[0] <= window))
+    k = min(n, max(k, int(min_samples), 3))
+    s = ts[:k] - ts[0]
+    scale = max(float(s[-1]), 1e-300)  # conditioning: powers of s / scale
+    A = np.column_stack([np.ones(k), s / scale, 0.5 * (s / scale) ** 2])
+    c, *_ = np.linalg.lstsq(A, X[:k], rcond=None)
+    return c / np.array([1.0, scale, scale**2])[:, None]

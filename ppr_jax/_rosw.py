@@ -12,8 +12,9 @@ changes, which costs a fraction of a right-hand side.
 
 ROS34PW2 (Rang and Angermann, BIT 45 (2005) 761-787): 4 stages, order 3 as a W-method, an
 embedded method of order 2 for the error estimate, L-stable (R(inf) = 0) and stiffly accurate,
-so components far faster than the step are damped, not amplified, and the error estimate of a
-stiff component is not inflated by the embedded method.
+so components far faster than the step are damped, not amplified, when the Jacobian is fresh;
+its embedded method is not L-stable, and what a kept Jacobian costs is measured in the class's
+docstring ("When not to use it").
 """
 
 from __future__ import annotations
@@ -86,6 +87,33 @@ class Ros34PW2(diffrax.AbstractAdaptiveSolver):
 
     Order 3, error estimate of order 2 (the step-size controller's exponent 1/3). Works on any
     PyTree state (flattened to one vector for the linear algebra); ODE terms only.
+
+    **When not to use it.** On the full L3 over the whole paper-circle (N = 16, rtol 1e-4,
+    `benchmarks/results/l3_whole_scene.json`) it took 65,066 steps and rejected 31 % of them
+    (about 10 % with `jacobian_every=1`, a measurement not kept in the JSON), against
+    Kvaerno5's 2,754 steps and 3 %: 4.4 times `kvaerno5-kept`'s run time. Prefer
+    `kvaerno5-kept` (the full L3's default) for long runs and for undamped stiff modes; this
+    solver saves little compilation (54 s against 58 s there). The causes, measured in numpy
+    on the coefficients above:
+
+    - not its order conditions: with the exact Jacobian, a perturbed one, J = 0 or f_t = 0 the
+      local errors of the solution and of the embedded method fall as h^4 and h^3 (orders 3
+      and 2 as a W-method, as Rang and Angermann state);
+    - its embedded method is not L-stable: a stiff component of amplitude a at the start of a
+      step shows in the error estimate as 0.45-0.48 a for every h lambda from -1e2 to -1e4
+      and 1e2 i to 1e4 i, while the solution damps it to |R| = 3e-4 (h lambda = -1e4). With a
+      fresh Jacobian the stiff components are gone after one step; with a kept one whose stiff
+      eigenvalue has drifted by a relative delta since it was taken, |R| becomes about
+      1.8 delta (0.002 at delta = 1e-3, 0.02 at 1e-2, 0.18 at 1e-1), the strips' modes (whose
+      frequencies move with the configuration) survive from step to step, and each step's
+      estimate sees half of them: the rejections that a fresh Jacobian avoids;
+    - and, on smooth non-stiff motion too, its order-2 estimate is some 40 times the order-3
+      step's error, so its steps are sized for the lower order: on a two-degree-of-freedom
+      forced oscillator at rtol 1e-4 it took 577 steps (18 % rejected, with the PI controller;
+      23 % with the I controller) against Kvaerno5's 61, with any Jacobian age.
+
+    Filtering the estimate through W (solving W e' = e, as Radau5 does) would remove the stiff
+    part of the estimate; it is not done here.
 
     **Arguments:**
 

@@ -389,5 +389,5 @@ def simulate(
         max_steps, w, traced, meter, adjoint,
     )
     if not traced:
-        check_result(sol.result)
+        check_result(sol.result, stiff=is_stiff_solver(solver))
     return sol

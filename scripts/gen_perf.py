@@ -337,6 +337,60 @@ def implicit() -> str:
             + _table(["t (mm)", "solver", "rtol", "steps", "rejected", "run", "error"], rows))
 
 
+#: the day the implicit solvers' stage solve (`StageChord`) and PI controller landed: Kvaerno5
+#: results measured before it show the old stage solve's rejections (git log -S StageChord)
+STAGE_SOLVE_DATE = "2026-11-26"
+
+
+def _percent_range(fractions) -> str:
+    lo, hi = 100 * min(fractions), 100 * max(fractions)
+    return f"{lo:.0f} %" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} %"
+
+
+def kvaerno_l0_l2() -> str:
+    """Kvaerno5 on L0-L2 in words, from the JSON: its rejected steps and its time against the
+    fastest explicit solver at the error it reached (work-precision), its rejected steps in the
+    implicit benchmark (`implicit_l2.json`), and whether the work-precision rows predate the
+    current stage solve."""
+    d = _load("cpu", "work_precision.json")
+    if d is None:
+        return ""
+    rows = [r for r in d["rows"] if r["model"] in MODEL_ORDER[:3]]
+    kv = [r for r in rows if r["solver"] == "kvaerno5" and r.get("steps")]
+    if not kv:
+        return ""
+    ratios = []
+    for r in kv:
+        explicit = [q for q in rows if q["scene"] == r["scene"] and q["model"] == r["model"]
+                    and q["solver"] in ("tsit5", "dopri5", "dopri8") and q["error_m"] > 0]
+        times = [interp_time(sorted((q["error_m"], q["run_s"]) for q in explicit
+                                    if q["solver"] == s), r["error_m"])
+                 for s in {q["solver"] for q in explicit}]
+        times = [t for t in times if t]
+        if times:
+            ratios.append(r["run_s"] / min(times))
+    date = str(d.get("machine", {}).get("date", ""))[:10]
+    text = (f"In the work-precision run ({date or 'undated'}), Kvaerno5 on L0-L2 rejected "
+            f"{_percent_range([r['rejected'] / r['steps'] for r in kv])} of its steps")
+    if ratios:
+        text += (f" and took {min(ratios):.0f} to {max(ratios):.0f} times the fastest explicit "
+                 f"solver's time at the error it reached")
+    text += "."
+    if date and date < STAGE_SOLVE_DATE:
+        text += (f" Those rows predate the current stage solve and controller "
+                 f"({STAGE_SOLVE_DATE}, below); rerun `python benchmarks/run.py --parts "
+                 f"work-precision` to update them.")
+    imp = _load("implicit_l2.json")
+    if imp is not None:
+        k5 = [r for r in imp["rows"] if r.get("ok") and r["solver"] == "kvaerno5"]
+        if k5:
+            text += (f" With the current stage solve (`implicit_l2.json`, L2 servo-circle, t = "
+                     f"{', '.join(f'{t:g}' for t in sorted({r['t_mm'] for r in k5}))} mm, rtol "
+                     f"{min(r['rtol'] for r in k5):g} to {max(r['rtol'] for r in k5):g}) it "
+                     f"rejects {_percent_range([r['rejected_fraction'] for r in k5])}.")
+    return text
+
+
 def known_truth() -> str:
     d = _load("identify_known_truth.json")
     if d is None:
@@ -356,6 +410,51 @@ def known_truth() -> str:
             + _table(["case", "unknowns", "truth", "driven by", "bias (std)",
                       "mean abs error (std)",
                       "coverage 95 %", "seeds", "warm fit"], rows))
+
+
+def start_sensitivity() -> str:
+    """How much the start moves each metric and its t-derivative (benchmarks/start_sensitivity.py)
+    and the library's sensitivities against the independent scipy L2's central differences."""
+    d = _load("start_sensitivity.json")
+    if d is None:
+        return ""
+    parts = []
+    for name, sc in d["scenes"].items():
+        ref, lib = sc["reference"], sc["library"]
+        rows = []
+        for m in sc["metrics"]:
+            v2, d2 = ref["two-pass"]["values"][m], ref["two-pass"]["derivatives"][m]
+
+            def rel(a, b):
+                """The change from b to a: in percent, or as a factor where it is one."""
+                if not b:
+                    return "n/a"
+                return f"{100 * (a / b - 1):+.2g} %" if abs(a / b - 1) < 1 else f"x {a / b:.2g}"
+
+            lv, ld = lib["two-pass"]["values"][m], lib["two-pass"]["derivatives"][m]
+            rows.append([f"`{m}`", f"{v2:.6g}", rel(ref["one-pass"]["values"][m], v2),
+                         rel(ref["static"]["values"][m], v2), f"{d2:.6g}",
+                         rel(ref["one-pass"]["derivatives"][m], d2),
+                         rel(ref["static"]["derivatives"][m], d2),
+                         rel(lib["one-pass"]["derivatives"][m], ld),
+                         f"{abs(lv / v2 - 1):.1e}", f"{abs(ld / d2 - 1):.1e}"])
+        parts.append(
+            f"**{name}** ({sc['t_end_s']:g} s, {sc['n_out']} samples, t = "
+            f"{1e3 * sc['t_m']:g} mm; central differences at {sc['rel_step']:g} t; the starts' "
+            "columns: the change from the two-pass value):\n\n"
+            + _table(["metric m", "m (two-pass)", "one-pass", "static", "dm/dt (two-pass)",
+                      "one-pass", "static", "dm/dt, library one-pass", "library m vs reference",
+                      "library dm/dt vs reference"], rows))
+        steps = sc["step_study"]
+        head = ["step / t"] + [f"`{m}`" for m in sc["metrics"]]
+        srows = [[f"{r['rel_step']:g}"] + [f"{r['derivatives'][m]:.7g}" for m in sc["metrics"]]
+                 for r in steps]
+        srows.append(["library (forward mode)"]
+                     + [f"{lib['two-pass']['derivatives'][m]:.7g}" for m in sc["metrics"]])
+        parts.append(f"Step-size study, {name}: the reference's central differences dm/dt "
+                     "(metric units per m) against the relative step, and the library's "
+                     "derivative:\n\n" + _table(head, srows))
+    return "\n\n".join(parts) + "\n\n" + _machine(d)
 
 
 def headline() -> dict:
@@ -378,7 +477,9 @@ def tables() -> dict:
         "l3": l3(),
         "l3-scene": l3_scene(),
         "implicit": implicit(),
+        "kvaerno-l0-l2": kvaerno_l0_l2(),
         "known-truth": known_truth(),
+        "start-sensitivity": start_sensitivity(),
     }
 
 

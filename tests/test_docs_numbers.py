@@ -155,3 +155,48 @@ def test_modes_table_row(row):
     assert f.shape == (len(tokens),), (cell, actuators, f)
     for got, tok in zip(f, tokens):
         assert abs(got - float(tok)) <= 0.5 * unit(tok) + 1e-12, (cell, actuators, got, tok)
+
+
+# -- docs/sweeps.md: how much the start moves the sensitivities ------------------------------
+
+SWEEPS_MD = (ROOT / "docs" / "sweeps.md").read_text()
+START_JSON = ROOT / "benchmarks" / "results" / "start_sensitivity.json"
+
+
+def _start_effect(metric: str, start: str = "one-pass") -> float:
+    """|change| (%) of paper-circle's d(metric)/dt between the two-pass start and `start` in
+    benchmarks/results/start_sensitivity.json (the independent scipy L2's central
+    differences)."""
+    import json
+
+    ref = json.loads(START_JSON.read_text())["scenes"]["paper-circle"]["reference"]
+    d2 = ref["two-pass"]["derivatives"][metric]
+    return 100 * abs(ref[start]["derivatives"][metric] / d2 - 1)
+
+
+def test_start_effect_sentences_quote_the_benchmark():
+    """The prose's percentages are the benchmark's, to one unit of their last digit; the table
+    under `<!-- perf:start-sensitivity -->` is generated from the same JSON."""
+    m = re.search(r"a one-pass start moves\s+d\(e_r max\)/dt by ([\d.]+) % and d\(e_r min\)/dt"
+                  r" by ([\d.]+) %", SWEEPS_MD)
+    assert m, "the sentence on the one-pass start's effect is gone from docs/sweeps.md"
+    for token, metric in zip(m.groups(), ("radial_error_max_m", "radial_error_min_m")):
+        assert abs(_start_effect(metric) - float(token)) <= unit(token), (metric, token)
+    m = re.search(r"so its derivative changes by ([\d.]+) %", SWEEPS_MD)
+    assert m and abs(_start_effect("end_rotation_diff_max_deg") - float(m.group(1))) <= unit(
+        m.group(1)), m
+    assert "<!-- perf:start-sensitivity -->" in SWEEPS_MD
+
+
+def test_start_sensitivity_table_agreement():
+    """The published library-against-reference agreement is the one the tests hold
+    (tests/test_sensitivity_reference.py): 1e-6 on the metrics, 1e-4 on paper-circle's
+    derivatives, 1e-3 on the Fourier path's."""
+    import json
+
+    d = json.loads(START_JSON.read_text())
+    for name, sc in d["scenes"].items():
+        lib, ref = sc["library"]["two-pass"], sc["reference"]["two-pass"]
+        tol = 1e-4 if name == "paper-circle" else 1e-3
+        for k in sc["metrics"]:
+            assert abs(lib["derivatives"][k] / ref["derivatives"][k] - 1) < tol, (name, k)

@@ -15,6 +15,8 @@ import pytest
 import ppr_jax as pj
 
 T_END, N = 0.6, 61
+#: the paper's experiment the module's data come from (pose-only files name it)
+SC = "servo-circle"
 # m, rad: a twentieth of an Optotrak's noise, so that a 0.6 s run determines the stiffness to a
 # few per cent (the elastic deflections of the servo circle are small at t = 0.5 mm)
 NOISE = (5e-6, 5e-5)
@@ -52,7 +54,7 @@ def fits(truth, clean):
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
     out = {}
     for scale in (1.0, 0.1):
-        out[scale] = pj.identify(_noisy(clean, scale, seed=1), ("t", "K_theta"),
+        out[scale] = pj.identify(_noisy(clean, scale, seed=1), ("t", "K_theta"), scene=SC,
                                  model="double1r", initial=start,
                                  noise=(scale * NOISE[0], scale * NOISE[1]), force=True)
     return out
@@ -108,7 +110,7 @@ def test_preflight_refuses_t_with_K_theta_naming_the_combination(truth, clean, f
 
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
     with pytest.raises(pj.IdentificationError) as info:
-        pj.identify(_noisy(clean, 1.0, seed=1), ("t", "K_theta"), model="double1r",
+        pj.identify(_noisy(clean, 1.0, seed=1), ("t", "K_theta"), scene=SC, model="double1r",
                     initial=start, noise=NOISE)
     msg = str(info.value)
     m = re.search(r"(t\^(-?[\d.]+) \* K_theta\^(-?[\d.]+)) \(relative std ([\d.e+]+) %\)",
@@ -150,16 +152,16 @@ def test_validation_holds_out_samples_and_flags_a_model_that_does_not_generalise
     so: a problem in `quality`, the stop reason, the table."""
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
     good = _noisy(clean, 1.0, seed=5)
-    fit = pj.identify(good, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
-                      validation=0.3, force=True)
+    fit = pj.identify(good, ("t", "K_theta"), scene=SC, model="double1r", initial=start,
+                      noise=NOISE, validation=0.3, force=True)
     v = fit.validation
     assert 17 <= v["samples"] <= 19 and int(fit.mask.sum()) == N - v["samples"]
     assert 0.7 < v["residual_scale"] < 1.4 and v["generalises"] and fit.quality["ok"], v
     ts, X = good.ts, np.array(good.X)
     X[ts > 0.7 * T_END, 0] += 20 * NOISE[0]
     drifted = pj.experiment(ts, X, name="drifted")
-    fit2 = pj.identify(drifted, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
-                       validation=0.3, force=True)
+    fit2 = pj.identify(drifted, ("t", "K_theta"), scene=SC, model="double1r", initial=start,
+                       noise=NOISE, validation=0.3, force=True)
     np.testing.assert_allclose(fit2.estimate, fit.estimate, rtol=1e-6)  # the same fitted part
     v2 = fit2.validation
     assert v2["residual_scale"] > 10 and not v2["generalises"], v2
@@ -175,7 +177,7 @@ def test_validation_holds_out_samples_and_flags_a_model_that_does_not_generalise
     for bad, match in [(1.5, "in \\(0, 1\\)"), (["nope"], "not one of the experiments"),
                        ([0], "every experiment")]:
         with pytest.raises(pj.IdentificationError, match=match):
-            pj.identify(good, ("t", "K_theta"), model="double1r", validation=bad)
+            pj.identify(good, ("t", "K_theta"), scene=SC, model="double1r", validation=bad)
 
 
 def test_covariance_against_finite_difference_jacobian(fits):
@@ -242,12 +244,13 @@ def test_robust_loss_resists_outliers(truth, clean, fits):
 
     k_ref, rel_ref = stiffness(ref)
     # (one start: the outliers make a poor fit, which "auto" would refit from more starts)
-    lin = pj.identify(bad, ("t", "K_theta"), initial=start, noise=NOISE, force=True, starts=1)
+    lin = pj.identify(bad, ("t", "K_theta"), scene=SC, initial=start, noise=NOISE, force=True,
+                      starts=1)
     assert math.sqrt(lin.sigma2) > 10  # the outliers dominate a linear fit
     err_lin = abs(math.log(stiffness(lin)[0] / k_ref))
     errs = {}
     for loss in ("huber", "cauchy"):
-        rob = pj.identify(bad, ("t", "K_theta"), initial=start, noise=NOISE, loss=loss,
+        rob = pj.identify(bad, ("t", "K_theta"), scene=SC, initial=start, noise=NOISE, loss=loss,
                           force=True)
         errs[loss] = abs(math.log(stiffness(rob)[0] / k_ref))
     print(f"stiffness error: linear {err_lin:.3g}, {errs} (relative std {rel_ref:.3g})")
@@ -297,7 +300,7 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
     their intervals; with the commands and the scene's initial state it cannot (s >> 1)."""
     exp, X0 = lagging
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
-    fit = pj.identify(exp, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
+    fit = pj.identify(exp, ("t", "K_theta"), scene=SC, model="double1r", initial=start, noise=NOISE,
                       actuation="measured", initial_state="pose-velocity", force=True)
     assert fit.history["stop"] == "converged"
     assert 0.7 < math.sqrt(fit.sigma2) < 1.3, fit.table()
@@ -315,7 +318,7 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
             assert abs(v["estimate"] - X0[i]) < 3 * v["std"], (name, v, X0[i])
     assert "initial state of lagging servo" in fit.table()
     # the commanded angles and the scene's initial state (reuses the compiled fit of `fits`)
-    bad = pj.identify(exp, ("t", "K_theta"), model="double1r", initial=start, noise=NOISE,
+    bad = pj.identify(exp, ("t", "K_theta"), scene=SC, model="double1r", initial=start, noise=NOISE,
                       actuation="commanded", force=True, starts=1)
     assert math.sqrt(bad.sigma2) > 20 * math.sqrt(fit.sigma2)
     # which is reported as a poor fit, never as converged or identifiable
@@ -324,8 +327,8 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
     assert all(c["status"] == "not trustworthy (poor fit)"
                for c in bad.identifiability["combinations"])
     # and by default the file's angles drive the model (the same as the first fit)
-    assert "measured" in pj.identify(exp, ("t", "K_theta"), model="double1r", initial=start,
-                                     noise=NOISE, initial_state="pose-velocity",
+    assert "measured" in pj.identify(exp, ("t", "K_theta"), scene=SC, model="double1r",
+                                     initial=start, noise=NOISE, initial_state="pose-velocity",
                                      max_iter=1, starts=1, force=True).actuation
 
 
@@ -336,7 +339,7 @@ def test_profile_likelihood(truth, clean, fits):
     K_theta over the +-12 % interval shifts both ends up by 5-7 % of the width on these data)
     and it holds the truth."""
     exp = _noisy(clean, 1.0, seed=1)
-    fit = pj.identify(exp, ("K_theta",), model="double1r",
+    fit = pj.identify(exp, ("K_theta",), scene=SC, model="double1r",
                       initial={"K_theta": 1.2 * float(truth.K_theta)}, noise=NOISE)
     # one unknown the data determine: the preflight does not refuse it
     pre = fit.history["preflight"]
@@ -363,36 +366,36 @@ def test_profile_likelihood(truth, clean, fits):
 def test_bad_requests_raise_clear_errors(truth, clean):
     exp = _noisy(clean, 1.0, seed=0)
     with pytest.raises(pj.PPRError, match="unknown 'colour' is not a float parameter"):
-        pj.identify(exp, ("colour",))
+        pj.identify(exp, ("colour",), scene=SC)
     with pytest.raises(pj.PPRError, match=r"both unknown and fixed"):
-        pj.identify(exp, ("t",), fixed={"t": 5e-4})
+        pj.identify(exp, ("t",), scene=SC, fixed={"t": 5e-4})
     with pytest.raises(pj.PPRError, match=r"bounds of 't' must satisfy"):
-        pj.identify(exp, ("t",), bounds={"t": (1e-3, 1e-4)})
+        pj.identify(exp, ("t",), scene=SC, bounds={"t": (1e-3, 1e-4)})
     with pytest.raises(pj.PPRError,
                        match=r"initial value of 't' = 0.0005 m is not strictly inside"):
-        pj.identify(exp, ("t",), bounds={"t": (1e-4, 4e-4)})
+        pj.identify(exp, ("t",), scene=SC, bounds={"t": (1e-4, 4e-4)})
     with pytest.raises(pj.PPRError, match=r"initial values given for \['E'\]"):
-        pj.identify(exp, ("t",), initial={"E": 70e9})
+        pj.identify(exp, ("t",), scene=SC, initial={"E": 70e9})
     with pytest.raises(pj.PPRError, match="unknown loss"):
-        pj.identify(exp, ("t",), loss="l1")
+        pj.identify(exp, ("t",), scene=SC, loss="l1")
     with pytest.raises(pj.PPRError, match="unknown scene"):
         pj.identify(exp, ("t",), scene="modes")
     with pytest.raises(pj.DataError, match="no experiment"):
         pj.identify([], ("t",))
     with pytest.raises(pj.PPRError, match="unknown actuation"):
-        pj.identify(exp, ("t",), actuation="encoder")
+        pj.identify(exp, ("t",), scene=SC, actuation="encoder")
     with pytest.raises(pj.DataError, match=r"needs the actuated angles th_1, th_2, th_3"):
-        pj.identify(exp, ("t",), actuation="measured")
-    with pytest.raises(pj.PPRError, match="applies to the motion-driven servo-circle"):
+        pj.identify(exp, ("t",), scene=SC, actuation="measured")
+    with pytest.raises(pj.PPRError, match="applies to a motion-driven scene; paper-circle is"):
         pj.identify(exp, ("t",), actuation="measured", scene="paper-circle")
     with pytest.raises(pj.PPRError, match="unknown initial_state"):
-        pj.identify(exp, ("t",), initial_state="all")
+        pj.identify(exp, ("t",), scene=SC, initial_state="all")
     with pytest.raises(pj.PPRError, match="no free initial state"):
-        pj.identify(exp, ("t",), model="reduced", initial_state="pose")
+        pj.identify(exp, ("t",), scene=SC, model="reduced", initial_state="pose")
     # argument types: named, not a raw TypeError
     for bad in (1e-4, ("a", "b"), (1e-4,), (1e-4, float("nan"))):
         with pytest.raises(pj.IdentificationError, match=r"noise must be \(position m, phi rad"):
-            pj.identify(exp, ("t",), noise=bad)
+            pj.identify(exp, ("t",), scene=SC, noise=bad)
 
 
 def _still_experiment(n=20):
@@ -448,7 +451,8 @@ def test_cli_synth_then_identify(tmp_path, truth, capsys):
     exp = pj.load_csv(path)
     assert exp.n == N and exp.th is not None and exp.tau is not None
     out = str(tmp_path / "fit")
-    args = ["identify", "--data", path, "--model", "double1r", "--unknown", "t",
+    args = ["identify", "--data", path, "--scene", "servo-circle", "--model", "double1r",
+            "--unknown", "t",
             "--unknown", "K_theta", "--initial", f"t={0.9 * float(truth.t)}",
             "--noise-pos", str(NOISE[0]), "--noise-phi", str(NOISE[1]),
             "--actuation", "commanded",  # the module's compiled fit (no angles packed)
@@ -581,8 +585,8 @@ def test_cli_user_errors_exit_2(tmp_path, capsys):
                        (["--max-steps", "0"], "max_steps = 0 is out of its allowed range"),
                        (["--starts", "0"], "starts must be 'auto' or an integer in [1, 1000]"),
                        (["--starts", "many"], "starts must be 'auto' or an integer")]:
-        assert main(["identify", "--data", str(good), "--out", str(tmp_path / "o"),
-                     *extra]) == 2
+        assert main(["identify", "--data", str(good), "--scene", SC, "--out",
+                     str(tmp_path / "o"), *extra]) == 2
         err = [ln for ln in capsys.readouterr().err.splitlines() if "error" in ln.lower()]
         assert len(err) == 1 and err[0].startswith("ppr-jax: error: ") and msg in err[0], extra
     assert not os.path.exists(tmp_path / "o")  # a refused run writes nothing
@@ -717,7 +721,7 @@ def test_recovers_truth_from_data_of_an_independent_formulation(truth):
     X[:, 2] += NOISE[1] * rng.standard_normal(N)
     exp = pj.experiment(ts, X, name="independent")  # no angles in the file: commanded
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
-    kw = dict(model="double1r", initial=start, noise=NOISE, force=True)
+    kw = dict(model="double1r", scene=SC, initial=start, noise=NOISE, force=True)
 
     def miss(fit):
         c0 = fit.identifiability["combinations"][0]
@@ -761,7 +765,8 @@ def test_tracker_bias_and_delay_estimated_as_nuisance(truth):
     X[:, 2] += NOISE[1] * rng.standard_normal(N - 1)
     exp = pj.experiment(stamps, X, name="biased, late")
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
-    kw = dict(model="double1r", initial=start, noise=NOISE, commands=nominal, force=True)
+    kw = dict(model="double1r", scene=SC, initial=start, noise=NOISE,
+              commands=nominal, force=True)
     plain = pj.identify(exp, ("t", "K_theta"), starts=1, **kw)  # a poor fit on purpose
     assert math.sqrt(plain.sigma2) > 5 and not plain.quality["ok"], plain.table()
     fit = pj.identify(exp, ("t", "K_theta"), nuisance=("bias", "delay"), **kw)
@@ -888,12 +893,12 @@ def test_a_channel_of_infinite_noise_is_not_counted_as_residuals():
 
 @pytest.mark.slow
 def test_default_call_fits_t_and_is_not_refused(truth, clean):
-    """The default call (L2, servo circle, unknowns t alone with K_theta from the PRB table):
+    """The default call on the servo circle (L2, unknowns t alone with K_theta from the PRB table):
     the preflight finds t identifiable on the module's data, the fit is not refused, does not
     escalate, and holds the truth (the data's K_theta is the table's). One more compilation:
     slow."""
-    fit = pj.identify(_noisy(clean, 1.0, seed=2), initial={"t": 0.9 * float(truth.t)},
-                      noise=NOISE)
+    fit = pj.identify(_noisy(clean, 1.0, seed=2), scene=SC,
+                      initial={"t": 0.9 * float(truth.t)}, noise=NOISE)
     assert fit.names == ("t",)
     pre = fit.history["preflight"]
     assert pre["refused"] == [] and pre["combinations"][0]["status"] == "identifiable", pre

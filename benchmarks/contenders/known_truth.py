@@ -25,16 +25,22 @@ from . import scipy_l2
 
 
 def servo_data(truth: pj.RobotParams, nominal: pj.RobotParams, *, t_end: float = 2.0,
-               rate: float = 100.0, rtol: float = 1e-11, atol: float = 1e-13, times=None):
+               rate: float = 100.0, rtol: float = 1e-11, atol: float = 1e-13, times=None,
+               path=None):
     """Noise-free tracker samples of the L2 robot `truth` under the commands of `nominal`, at
-    `rate` Hz over [0, t_end], or at the increasing `times` (s, >= 0) when given.
+    `rate` Hz over [0, t_end], or at the increasing `times` (s, >= 0) when given. `path`: the
+    commanded pose path t -> (3,) (default the circle of eq 55; any path of `ppr_jax`: a
+    `Line`, `Fourier`, `Waypoints`), whose L1 inverse kinematics for `nominal` gives the
+    commands; the start is L2's quasi-static state under them at t = 0 with the path as the
+    pose guess.
 
     **Returns:** (ts (n,) s, X (n, 3) pose (m, m, rad), th (n, 3) actuated angles (rad))."""
-    angles = pj.InverseKinematicsAngles(pj.Reduced(), pj.Robot(nominal), pj.Circle())
+    path = pj.Circle() if path is None else path
+    angles = pj.InverseKinematicsAngles(pj.Reduced(), pj.Robot(nominal), path)
     grid = np.arange(-0.02, t_end + 0.02, 1e-3)
     ths = np.asarray(jax.jit(jax.vmap(angles))(jnp.asarray(grid)))
     spline = scipy_l2.AnglesSpline(grid, ths)
-    z0, zd0 = pj.quasi_static_state(pj.Double1R(), pj.Robot(truth), pj.Circle(), 0.0,
+    z0, zd0 = pj.quasi_static_state(pj.Double1R(), pj.Robot(truth), path, 0.0,
                                     pj.MotionDriven(angles))
     m = scipy_l2.L2Model(truth, None, angles=spline)
     if times is None:

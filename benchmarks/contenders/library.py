@@ -20,14 +20,17 @@ def _torques_chunk(fn, ts):
     return jax.vmap(fn)(ts)
 
 
-def scene_torque_fn(params: pj.RobotParams) -> pj.InverseDynamicsTorque:
-    """The scene's torque function tau_a(t) (3,) (N m): L1 inverse dynamics along eq 55."""
-    return pj.InverseDynamicsTorque(pj.Reduced(), pj.Robot(params), pj.Circle())
+def scene_torque_fn(params: pj.RobotParams, path=None) -> pj.InverseDynamicsTorque:
+    """The scene's torque function tau_a(t) (3,) (N m): L1 inverse dynamics along `path`
+    (default eq 55's circle)."""
+    return pj.InverseDynamicsTorque(pj.Reduced(), pj.Robot(params),
+                                    pj.Circle() if path is None else path)
 
 
-def scene_torques(params: pj.RobotParams, ts) -> np.ndarray:
-    """The scene's torques (n, 3) (N m) at times ts (n,) (s), exactly (no interpolation)."""
-    fn = scene_torque_fn(params)
+def scene_torques(params: pj.RobotParams, ts, path=None) -> np.ndarray:
+    """The scene's torques (n, 3) (N m) at times ts (n,) (s), exactly (no interpolation), along
+    `path` (default eq 55's circle)."""
+    fn = scene_torque_fn(params, path)
     ts = np.asarray(ts, dtype=np.float64).ravel()
     out = np.empty((ts.size, 3))
     for k in range(0, ts.size, CHUNK):
@@ -35,6 +38,19 @@ def scene_torques(params: pj.RobotParams, ts) -> np.ndarray:
         pad = np.concatenate([part, np.full(CHUNK - part.size, part[-1])])
         out[k:k + part.size] = np.asarray(_torques_chunk(fn, jnp.asarray(pad)))[: part.size]
     return out
+
+
+@eqx.filter_jit
+def _pose_derivatives(path, t):
+    d1 = jax.jacfwd(path)
+    return path(t), d1(t), jax.jacfwd(d1)(t)
+
+
+def pose_derivatives(path):
+    """t -> (X, X', X'') (3,) each (numpy) of a pose path t -> X (3,): the path is the scene's
+    input, its derivatives by forward-mode differentiation of that input."""
+    return lambda t: tuple(np.asarray(a, dtype=float)
+                           for a in _pose_derivatives(path, jnp.asarray(t, dtype=jnp.float64)))
 
 
 def initial_state(params: pj.RobotParams):

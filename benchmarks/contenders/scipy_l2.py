@@ -47,14 +47,17 @@ Inputs taken from the library (only data, never its dynamics):
 - parameters and derived quantities: `ppr_jax.derived(params)` (PRB joint, masses);
 - the scene's torques: L1 inverse dynamics along eq 55 (`ppr_jax.InverseDynamicsTorque` with the
   `reduced` model, as the scene builds them), evaluated once in JAX on a uniform grid of step
-  `TORQUE_DT` = 1 ms over [0, t_end + 10 ms] and interpolated by a not-a-knot cubic spline. Its
+  `TORQUE_DT` = 1 ms over [-10 ms, t_end + 10 ms] and interpolated by a not-a-knot cubic spline. Its
   error is measured on every run at the grid's midpoints against the exact torques (about 6e-15
   N m against torques of 0.11 N m: rounding level) and returned as `torque_spline_max_err`.
   Evaluating L1's inverse dynamics in NumPy would be a third model to maintain; the torques are
   the scene's input, not the model under test.
 - the initial state: the library's L2 quasi-static state at t = 0 (positions and velocities,
   `ppr_jax.quasi_static_state`, the same function the scene calls), or a given (z0, z0') in the
-  library's coordinates (x, y, phi, th_a1..3) such as the first state of a library solution.
+  library's coordinates (x, y, phi, th_a1..3) such as the first state of a library solution,
+  or this formulation's own start (`quasi_static_start`, MODEL.md section 6, used by
+  `scene_metrics`: the balance of the actuated coordinates projected on dq/dth_a, solved by
+  Newton's iteration, with the rates of the quasi-static path by central differences).
   It is converted to absolute coordinates by closing each chain (two-link (r2, r3) problem on
   the elbow branch sigma) and solving the loop-closure velocity equations for th_i2', th_i3'.
 
@@ -114,16 +117,17 @@ def AnglesSpline(ts, ths):
     return lambda t: (spl(t), d1(t), d2(t))
 
 
-def scene_torque(params, t_end, dt=TORQUE_DT):
-    """The paper-circle torques (L1 inverse dynamics along eq 55, as `ppr_jax`'s scene builds
-    them) on a grid of step `dt` over [0, t_end + TORQUE_PAD], as a `TorqueSpline`, and the
-    spline's largest error (N m) at the grid's midpoints against the exact torques."""
+def scene_torque(params, t_end, dt=TORQUE_DT, path=None):
+    """The paper-circle torques (L1 inverse dynamics along eq 55, or along `path`, as
+    `ppr_jax`'s scenes build them) on a grid of step `dt` over [-TORQUE_PAD, t_end + TORQUE_PAD]
+    (the start's balance reads them just before t = 0), as a `TorqueSpline`, and the spline's
+    largest error (N m) at the grid's midpoints against the exact torques."""
     from . import library
 
-    n = int(np.ceil((t_end + TORQUE_PAD) / dt))
-    ts = np.arange(n + 1) * dt
+    n = int(np.ceil((t_end + 2 * TORQUE_PAD) / dt))
+    ts = np.arange(n + 1) * dt - TORQUE_PAD
     mid = ts[:-1] + dt / 2
-    taus = library.scene_torques(params, np.concatenate([ts, mid]))
+    taus = library.scene_torques(params, np.concatenate([ts, mid]), path)
     spline = TorqueSpline(ts, taus[: n + 1])
     err = float(np.max(np.abs(spline(mid) - taus[n + 1:])))
     return spline, err
@@ -312,20 +316,10 @@ class L2Model:
         w = Y[12:21].reshape(3, 3, k)
         KKT, c, s, rc, rs, cp, sp, H12, H13, H23 = self._kkt(th, Y[11])
         w1, w2, w3 = w[:, 0], w[:, 1], w[:, 2]
-        w1s, w2s, w3s = w1 * w1, w2 * w2, w3 * w3
-        # generalized forces Q (springs, their damping, actuator torque and friction) less h
-        f1 = self.K * (th[:, 1] - th[:, 0] - self.rest1)  # spring moment of pivot 1 (N m)
-        f2 = self.K * (th[:, 2] - th[:, 1] - self.rest2)
-        if self.c_s:
-            f1 = f1 + self.c_s * (w2 - w1)
-            f2 = f2 + self.c_s * (w3 - w2)
+        w1s = w1 * w1
         tau = np.zeros((3, 1)) if self.angles is not None else self.torque(t)[:, None]
         b = np.zeros((self.nk, k))
-        b[0:9:3] = f1 + tau - H12 * w2s - H13 * w3s
-        if self.c_a:
-            b[0:9:3] -= self.c_a * w1
-        b[1:9:3] = f2 - f1 + H12 * w1s - H23 * w3s
-        b[2:9:3] = H13 * w1s + H23 * w2s - f2
+        b[:9] = self._chain_forces(th, w, tau, H12, H13, H23)
         # constraint rows: sum_j r_j [(w_j^2 - al^2) e(th_j) - 2 al w_j n(th_j)]
         #   - rho_E [(phi'^2 - al^2) e(beta + phi) - 2 al phi' n(beta + phi)]
         #   + 2 al (x', y') + al^2 ((x, y) - A)
@@ -360,6 +354,25 @@ class L2Model:
             tau = np.broadcast_to(tau, (3, k))
             return (out, tau) if vec else (out[:, 0], tau[:, 0])
         return out if vec else out[:, 0]
+
+    def _chain_forces(self, th, w, tau, H12, H13, H23):
+        """The chains' rows (9, k) of Q - h: the springs, their damping, the actuator torques
+        tau (3, 1 or k) and friction, less the velocity terms (`rhs`'s docstring); the
+        platform's rows are zero."""
+        w1, w2, w3 = w[:, 0], w[:, 1], w[:, 2]
+        w1s, w2s, w3s = w1 * w1, w2 * w2, w3 * w3
+        f1 = self.K * (th[:, 1] - th[:, 0] - self.rest1)  # spring moment of pivot 1 (N m)
+        f2 = self.K * (th[:, 2] - th[:, 1] - self.rest2)
+        if self.c_s:
+            f1 = f1 + self.c_s * (w2 - w1)
+            f2 = f2 + self.c_s * (w3 - w2)
+        b = np.zeros((9, th.shape[2]))
+        b[0:9:3] = f1 + tau - H12 * w2s - H13 * w3s
+        if self.c_a:
+            b[0:9:3] -= self.c_a * w1
+        b[1:9:3] = f2 - f1 + H12 * w1s - H23 * w3s
+        b[2:9:3] = H13 * w1s + H23 * w2s - f2
+        return b
 
     def jac(self, t, y):
         """d y'/d y (n, n) by forward differences, all columns in one vectorised call (module
@@ -409,6 +422,190 @@ class L2Model:
         qd = np.concatenate([np.stack([w1, w2, w3], axis=1).ravel(), Xd])
         y = np.concatenate([q, qd] + ([np.zeros(1)] if self.with_work else []))
         return y
+
+
+    def accelerations(self, q, qd, tha_dd, Xdd):
+        """q'' (12,) at positions q (12,) and rates qd (12,) for the actuated angles'
+        accelerations tha_dd (3,) and the platform's Xdd (3,): th_i2'', th_i3'' from each chain's
+        closure differentiated twice, sum_j r_j (th_j'' n(th_j) - th_j'^2 e(th_j)) = E_i''."""
+        e = lambda a: np.array([np.cos(a), np.sin(a)])  # noqa: E731
+        nrm = lambda a: np.array([-np.sin(a), np.cos(a)])  # noqa: E731
+        th, w = q[:9].reshape(3, 3), qd[:9].reshape(3, 3)
+        r = (self.r1, self.r2, self.r3)
+        qdd = np.zeros(12)
+        qdd[9:] = Xdd
+        for i in range(3):
+            ap = BETA[i] + q[11]
+            Edd = Xdd[:2] + self.rhoE * (Xdd[2] * nrm(ap) - qd[11] ** 2 * e(ap))
+            rhs = (Edd - r[0] * tha_dd[i] * nrm(th[i, 0])
+                   + sum(r[j] * w[i, j] ** 2 * e(th[i, j]) for j in range(3)))
+            Mi = np.stack([r[1] * nrm(th[i, 1]), r[2] * nrm(th[i, 2])], axis=-1)
+            qdd[3 * i] = tha_dd[i]
+            qdd[3 * i + 1:3 * i + 3] = np.linalg.solve(Mi, rhs)
+        return qdd
+
+    def actuated_balance(self, tha, tha_d, tha_dd, X, Xd, Xdd, tau):
+        """The balance of the actuated coordinates (3,) (N m) with the platform's motion
+        (X, Xd, Xdd) (3,) each given: the equations of motion M q'' + h = Q projected on the
+        three directions dq/dth_ai in which the actuated angles move with the pose held (the
+        chain's other angles following its closure), at the actuated angles tha (3,), their rates
+        tha_d and accelerations tha_dd (the rates of the path whose balance is sought, MODEL.md
+        section 6), under the torques tau (3,). The constraint forces do no work along these
+        directions, so the multipliers drop out."""
+        z = np.concatenate([X, tha])
+        y = self.state_from_library(z, np.concatenate([Xd, tha_d]))
+        q, qd = y[:12], y[12:24]
+        qdd = self.accelerations(q, qd, tha_dd, Xdd)
+        KKT, c, s, rc, rs, cp, sp, H12, H13, H23 = self._kkt(q[:9].reshape(3, 3, 1), q[11:12])
+        f = self._chain_forces(q[:9].reshape(3, 3, 1), qd[:9].reshape(3, 3, 1),
+                               np.asarray(tau, float)[:, None], H12, H13, H23)[:, 0]
+        r = KKT[0, :12, :12] @ qdd - np.concatenate([f, np.zeros(3)])
+        # the directions: th_i1 moves by 1, th_i2 and th_i3 close the chain with E_i held
+        nrm = lambda a: np.array([-np.sin(a), np.cos(a)])  # noqa: E731
+        th = q[:9].reshape(3, 3)
+        out = np.empty(3)
+        for i in range(3):
+            Mi = np.stack([self.r2 * nrm(th[i, 1]), self.r3 * nrm(th[i, 2])], axis=-1)
+            v23 = np.linalg.solve(Mi, -self.r1 * nrm(th[i, 0]))
+            out[i] = r[3 * i] + v23 @ r[3 * i + 1:3 * i + 3]
+        return out
+
+    def l1_angles(self, X):
+        """The actuated angles (3,) (rad) of L1's closed-form inverse kinematics at the pose X
+        (MODEL.md section 4: d_i1 = d_i2, so th_i2 = u and (2 r1 cos v + r2) e(u) = E_i - A_i
+        with th_i1 = u - v, th_i3 = u + v; r1 = r3 required)."""
+        if abs(self.r1 - self.r3) > 1e-12 * self.r1:
+            raise ValueError("the closed-form L1 inverse kinematics needs r1 == r3")
+        ap = BETA + X[2]
+        d = X[:2] + self.rhoE * np.stack([np.cos(ap), np.sin(ap)], axis=-1) - self.A
+        u = np.arctan2(d[:, 1], d[:, 0])
+        v = self.sigma * np.arccos((np.hypot(d[:, 0], d[:, 1]) - self.r2) / (2 * self.r1))
+        return u - v - self.sigma * self.delta1
+
+
+#: time step (s) of the 5-point central differences that give a quasi-static path's rates and
+#: accelerations (truncation (omega h)^4/30, below 1e-9 for the scenes' motions; rounding of the
+#: 1e-14 rad balances over h^2: 1e-9 rad/s^2)
+QS_H = 4e-3
+#: the 5-point central-difference weights of the first and second derivative (unit step)
+_D1 = np.array([1.0, -8.0, 0.0, 8.0, -1.0]) / 12.0
+_D2 = np.array([-1.0, 16.0, -30.0, 16.0, -1.0]) / 12.0
+
+
+def _newton(fun, x, t, tol=1e-14, max_iter=50):
+    """Newton's iteration for fun(x) = 0 (3,) from x, the Jacobian by central differences
+    (step 1e-7 rad: truncation 1e-14, rounding 1e-9 relative), until a step is below tol rad."""
+    for _ in range(max_iter):
+        J = np.stack([(fun(x + d) - fun(x - d)) / 2e-7 for d in 1e-7 * np.eye(x.size)], axis=1)
+        dx = np.linalg.solve(J, -fun(x))
+        x = x + dx
+        if np.max(np.abs(dx)) < tol:
+            return x
+    raise RuntimeError(f"quasi-static balance not found at t = {t} (Newton did not converge)")
+
+
+def quasi_static_start(model, pose, torque, t0=0.0, passes=2, h=QS_H):
+    """The torque-driven start of MODEL.md section 6 in this formulation: the platform at its
+    nominal pose and rate at t0, the actuated angles in quasi-static balance.
+
+    `model`: an `L2Model`; `pose`: t -> (X, X', X'') (3,) each, the nominal path and its
+    derivatives (m, m, rad and their rates); `torque`: t -> (3,) (N m); `passes`: 2 (the
+    scenes' start) balances the actuated angles at the rates and accelerations of their own
+    quasi-static path: pass 1 at those of L1's inverse kinematics of the path (`l1_angles`),
+    pass 2 at pass 1's own (5-point central differences of step h). 1: pass 1 alone. 0: a
+    plain static start, the balance with the actuated angles at rest (zero rates and
+    accelerations) and their rate L1's. The rate returned is the time derivative of the last
+    pass's path (L1's for passes = 0).
+
+    Independent of the library's statics (its `quasi_static_state` balances in its reduced
+    coordinates with a quartic through five solutions at 5 ms); the shared inputs are the path
+    and the torques.
+
+    Returns (z0, z0') (6,) each in the library's coordinates (x, y, phi, th_a1..3)."""
+    memo = {}
+
+    def ref_rates(t):
+        th = np.array([model.l1_angles(pose(t + k * h)[0]) for k in range(-2, 3)])
+        return _D1 @ th / h, _D2 @ th / h**2
+
+    def solve(t, n):
+        """The balance of pass n at time t (n = 0: L1's angles)."""
+        key = (n, round(t / h))
+        if key in memo:
+            return memo[key]
+        X, Xd, Xdd = pose(t)
+        guess = model.l1_angles(X)
+        if n == 0:
+            memo[key] = guess
+            return guess
+        if passes == 0:
+            rates = (np.zeros(3), np.zeros(3))
+        elif n == 1:
+            rates = ref_rates(t)
+        else:
+            th = np.array([solve(t + k * h, n - 1) for k in range(-2, 3)])
+            rates = (_D1 @ th / h, _D2 @ th / h**2)
+        tau = np.asarray(torque(t), float)
+        memo[key] = _newton(lambda a: model.actuated_balance(a, *rates, X, Xd, Xdd, tau),
+                            guess, t)
+        return memo[key]
+
+    n = max(int(passes), 1)
+    tha = solve(t0, n)
+    if passes == 0:
+        tha_d = ref_rates(t0)[0]
+    else:
+        tha_d = _D1 @ np.array([solve(t0 + k * h, n) for k in range(-2, 3)]) / h
+    X, Xd, _ = pose(t0)
+    return np.concatenate([X, tha]), np.concatenate([Xd, tha_d])
+
+
+def scene_metrics(params, path=None, *, t_end=7.54, n_out=755, passes=2, rtol=1e-11,
+                  atol=1e-13, torque=None):
+    """The scene metrics of MODEL.md section 6 for L2 under L1's torques along `path` (default
+    eq 55's circle, `paper-circle`), from this formulation's own start (`quasi_static_start`
+    with `passes`) and a DOP853 run with output at t_end k / (n_out - 1).
+
+    Returns {metric: value} in `ppr_jax`'s names and units: the radial errors (a circle: `path`
+    None or with `center` and `radius`), the position and phi errors against the path (max,
+    RMS, end), chain 1's joint end-rotation difference d_11 - d_12 (deg; max, min, mean), and
+    "start": (z0, z0')."""
+    import ppr_jax as pj
+
+    from . import library
+
+    circle = path is None or hasattr(path, "radius")
+    path = pj.Circle() if path is None else path
+    if torque is None:
+        torque = scene_torque(params, t_end, path=path)[0]
+    pose = library.pose_derivatives(path)
+    model = L2Model(params, torque)
+    z0, zd0 = quasi_static_start(model, pose, torque, 0.0, passes=passes)
+    t_eval = t_end * np.arange(n_out) / (n_out - 1)
+    sol = simulate(model, model.state_from_library(z0, zd0), t_eval, "DOP853", rtol, atol)
+    if sol.status != 0:
+        raise RuntimeError(f"solve_ivp failed: {sol.message}")
+    X = sol.y[9:12].T
+    Xn = np.array([pose(t)[0] for t in t_eval])
+    d = model.deflections(sol.y[:12])  # (3, 2, n)
+    diff = np.degrees(d[0, 0] - d[0, 1])
+    dpos = np.hypot(*(X[:, :2] - Xn[:, :2]).T)
+    dphi = X[:, 2] - Xn[:, 2]
+    out = dict(
+        position_error_max_m=dpos.max(), position_error_rms_m=np.sqrt(np.mean(dpos**2)),
+        position_error_end_m=dpos[-1], phi_error_max_rad=np.abs(dphi).max(),
+        phi_error_rms_rad=np.sqrt(np.mean(dphi**2)), phi_error_end_rad=abs(dphi[-1]),
+        end_rotation_diff_max_deg=diff.max(), end_rotation_diff_min_deg=diff.min(),
+        end_rotation_diff_mean_deg=diff.mean(),
+    )
+    if circle:
+        c, R = np.asarray(path.center), float(path.radius)
+        er = np.hypot(X[:, 0] - c[0], X[:, 1] - c[1]) - R
+        out.update(radial_error_max_m=er.max(), radial_error_min_m=er.min(),
+                   radial_error_mean_m=er.mean())
+    out = {k: float(v) for k, v in out.items()}
+    out["start"] = (z0, zd0)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------

@@ -4,6 +4,7 @@ robot's parameter file."""
 from __future__ import annotations
 
 import os
+import sys
 
 from .._names import DESIGN_METRICS
 from ._common import _log, _out_dir
@@ -33,8 +34,11 @@ def cmd_design(args):
                options=options, **settings)
     report = d.save(os.path.join(args.out, "design.json"))
     robot = d.to_params_file(os.path.join(args.out, "designed.toml"))
+    mjcf = d.to_mjcf(os.path.join(args.out, "designed.xml"))
+    page = d.report(os.path.join(args.out, "report.html"),
+                    command="ppr-jax " + " ".join(sys.argv[1:]) if sys.argv else None)
     print(d.summary())
-    print(f"wrote {report}, {robot} (ppr-jax ... --params-file {robot})")
+    print(f"wrote {report}, {page}, {robot} (ppr-jax ... --params-file {robot}), {mjcf} (MJCF)")
     return 0
 
 
@@ -44,8 +48,9 @@ def add_design(sub, parents, fmt):
         help="design with gradients: optimise RobotParams fields against a specification",
         description="Optimise design variables (RobotParams fields with bounds) for an "
                     "objective subject to constraints, read from a TOML specification "
-                    "(docs/design.md), verify the optimum, and write design.json and the "
-                    "designed robot's parameter file designed.toml. Catalogue: "
+                    "(docs/design.md), verify the optimum, and write design.json, "
+                    "report.html, the designed robot's parameter file designed.toml and its "
+                    "MJCF designed.xml. Catalogue: "
                     + ", ".join(DESIGN_METRICS) + ", and a scene's metrics.")
     d.add_argument("--spec", required=True, metavar="SPEC.toml",
                    help="the design specification ([variables], [objective], [[constraints]], "

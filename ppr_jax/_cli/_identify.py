@@ -10,12 +10,12 @@ import time
 
 from .._names import (
     ACTUATIONS,
-    ID_SCENES,
     ID_SOLVERS,
     INITIAL_STATES,
     LOSSES,
     MODEL_NAMES,
     PARAM_RANGES,
+    SCENE_NAMES,
 )
 from ._common import (
     _log,
@@ -38,8 +38,9 @@ def _bounds(items):
 
 def cmd_identify(args):
     from .._data import load_experiments
+    from .._params import RobotParams
     from .._scenes import scene_params
-    from .._studies import identification_figures, identify
+    from .._studies import StartError, identification_figures, identify
     from ._common import model_from_args
 
     # before anything is fitted: a directory that cannot be written would lose the fit (it is
@@ -52,7 +53,8 @@ def cmd_identify(args):
             _log(f"{e.name}: dropped {len(e.dropped_lines)} NaN rows (lines "
                  f"{', '.join(map(str, e.dropped_lines[:10]))}"
                  f"{', ...' if len(e.dropped_lines) > 10 else ''})")
-    params = scene_params(args.scene)
+    # the paper's experiment named by --scene, or (default) the one each file describes
+    params = RobotParams() if args.scene is None else scene_params(args.scene)
     if getattr(args, "params_file", None):
         from .._params_file import load_params
 
@@ -67,15 +69,25 @@ def cmd_identify(args):
     commands = None
     if args.commands_set:
         commands = params.replace(**_name_values(args.commands_set, "--commands-set"))
-    fit = identify(exps, unknowns, model=model_from_args(args, args.model), scene=args.scene,
-                   actuation=args.actuation, commands=commands, initial_state=args.initial_state,
-                   params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
-                   noise=(args.noise_pos, args.noise_phi), loss=args.loss,
-                   loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
-                   ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
-                   max_steps=args.max_steps, validation=_validation(args.validation),
-                   nuisance=tuple(args.nuisance), starts=_starts(args.starts),
-                   force=args.force)
+    try:
+        fit = identify(exps, unknowns, model=model_from_args(args, args.model),
+                       scene=args.scene, actuation=args.actuation, commands=commands,
+                       initial_state=args.initial_state, params=params, fixed=fixed,
+                       initial=initial, bounds=_bounds(args.bound),
+                       noise=(args.noise_pos, args.noise_phi), loss=args.loss,
+                       loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
+                       ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
+                       max_steps=args.max_steps, validation=_validation(args.validation),
+                       nuisance=tuple(args.nuisance), starts=_starts(args.starts),
+                       force=args.force)
+    except StartError as err:
+        # the experiment's name is its file's stem: name the file as the user typed it
+        msg = str(err)
+        for e, path in zip(exps, args.data):
+            if msg.startswith(f"{e.name}: "):
+                msg = f"{path}: {msg[len(e.name) + 2:]}"
+                break
+        raise StartError(msg) from None
     _log(f"driven by {fit.actuation}")
     _log(f"done in {time.perf_counter() - t0:.1f} s ({fit.history.get('iterations')} iterations, "
          f"stop: {fit.history.get('stop')})")
@@ -162,6 +174,9 @@ def _write_robot(out, fit) -> list:
     `identified_l2.xml`, its L2 as MJCF (`to_mjcf`; `python -m mujoco.viewer
     --mjcf=identified_l2.xml` shows it). Both begin with `robot_file_notes` (comments): a poor
     or forced fit is marked WARNING in the files themselves."""
+    import sys
+
+    from .._errors import PPRError
     from .._mjcf import to_mjcf
     from .._params_file import save_params
 
@@ -170,8 +185,13 @@ def _write_robot(out, fit) -> list:
              os.path.join(out, "identified_l2.xml")]
     # an XML comment may not hold "--"
     head = "".join(f"<!-- {' '.join(n.split()).replace('--', '- -')} -->\n" for n in notes)
+    try:
+        xml = to_mjcf(fit.params)
+    except PPRError as err:  # no assembled state for this robot: keep the rest of the fit
+        print(f"ppr-jax: identified_l2.xml not written: {err}", file=sys.stderr)
+        return paths[:1]
     with open(paths[1], "w", encoding="utf-8") as f:
-        f.write(head + to_mjcf(fit.params))
+        f.write(head + xml)
     return paths
 
 
@@ -216,12 +236,16 @@ def add_identify(sub, parents, fmt):
                    help="tracker CSV file; repeat for several experiments (fitted jointly)")
     p.add_argument("--model", default="double1r", choices=list(MODEL_NAMES),
                    help="model to fit (beam/L3 is too slow for time-domain fits)")
-    p.add_argument("--scene", default="servo-circle", choices=list(ID_SCENES),
-                   help="what the motors did during the experiments")
+    p.add_argument("--scene", default=None, choices=list(SCENE_NAMES),
+                   help="the paper's experiment the files come from; default: the experiment "
+                        "each file describes, its own angles th_1..th_3 (else its torques "
+                        "tau_1..tau_3) driving the model along its own poses, from the state "
+                        "its first samples give")
     p.add_argument("--actuation", default="auto", choices=list(ACTUATIONS),
-                   help="servo-circle: drive the model by the measured angles th_1..th_3 of "
-                        "the data (auto: when every file holds them) or by the scene's commands "
-                        "computed for the model named by --commands-set")
+                   help="with a motion-driven --scene: drive the model by the measured angles "
+                        "th_1..th_3 of the data (auto: when every file holds them) or by the "
+                        "scene's commands computed for the model named by --commands-set; "
+                        "without --scene the files' own commands drive it")
     p.add_argument("--commands-set", action="append", metavar="NAME=VALUE",
                    help="a parameter of the model that computed the commands (as --set; "
                         "default: the nominal robot, never the unknowns' start values); "
@@ -237,7 +261,7 @@ def add_identify(sub, parents, fmt):
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
                    help="parameter held at a known value (as --set); repeatable")
     p.add_argument("--initial", action="append", metavar="NAME=VALUE",
-                   help="start value of an unknown (default: the scene's value)")
+                   help="start value of an unknown (default: the robot's value, --set)")
     p.add_argument("--bound", action="append", metavar="NAME=LO,HI",
                    help="bounds of an unknown (default: its physical range)")
     p.add_argument("--noise-pos", type=float, default=1e-4,

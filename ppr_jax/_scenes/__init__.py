@@ -24,7 +24,7 @@ from ._options import (
     input_panels_at,
 )
 from ._paper_circle import PaperCircle
-from ._path_scene import DRIVES, PathScene
+from ._path_scene import DRIVES, PathScene, experiment_drive, experiment_scene
 from ._registry import SCENES, get_scene, register_scene, scene_names, scene_params
 from ._report import SceneReport, run_scene, scene_metrics
 from ._result import SceneResult, failure_detail, finish, result_template
@@ -39,7 +39,8 @@ __all__ = [
     "SceneCall", "SceneInput", "SceneOptions",
     "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
-    "kinematic_motion", "map_members", "modes_scene", "motion_input", "nominal_torques",
+    "experiment_drive", "experiment_scene", "kinematic_motion", "map_members", "modes_scene",
+    "motion_input", "nominal_torques",
     "paper_circle",
     "path_out_of_reach", "prepare", "result_template", "run_scene", "scene_metrics",
     "register_scene", "scene_names", "scene_params", "servo_circle", "solve_scene",

@@ -208,8 +208,11 @@ class AbstractScene(eqx.Module):
                else SceneInput(actuation, coarse=input_too_coarse(
                    getattr(actuation, "torque", getattr(actuation, "angles", None)))))
         act = inp.actuation
+        # the pose, its rates and accelerations that the start takes (the path's by default)
+        start = self.start_trajectory(traj)
         if isinstance(act, MotionDriven) and model.actuated_index is None:
-            X, Xd, tau, codes, folds = kinematic_motion(model, robot, act.angles, traj(ts[0]), ts)
+            X, Xd, tau, codes, folds = kinematic_motion(model, robot, act.angles, start(ts[0]),
+                                                        ts)
             # A status code, not a callback: forward kinematics failing along the path is
             # reported like a solver failure (and the program stays free of host callbacks).
             result = first_failure((jnp.any(folds), RESULTS.singular_path),
@@ -219,7 +222,7 @@ class AbstractScene(eqx.Module):
                            num_accepted=zero, num_rejected=zero)
             return self._result(model, robot, traj, sol, ref_open=inp.out_of_reach,
                                 singular=inp.singular)
-        z0, zd0, failed = quasi_static_core(model, robot, traj, ts[0], act)
+        z0, zd0, failed = quasi_static_core(model, robot, start, ts[0], act)
         if initial_offset is not None:
             # the platform pose and its rate are z[:3] in every model
             z0, zd0 = z0.at[:3].add(initial_offset[:3]), zd0.at[:3].add(initial_offset[3:])
@@ -258,6 +261,13 @@ class AbstractScene(eqx.Module):
             num_accepted=sol.num_accepted, num_rejected=sol.num_rejected, scene=self.name,
             model=model.name,
         )
+
+    def start_trajectory(self, traj: Callable) -> Callable:
+        """The pose path t -> X (3,) whose pose, rate and acceleration at the first output time
+        the quasi-static start takes (MODEL.md section 6): `traj`, the nominal path, unless the
+        scene holds a start of its own (`PathScene.start_path`: an experiment's first samples,
+        smoothed)."""
+        return traj
 
     def needs_integrator(self, model: AbstractModel) -> bool:
         """False where the scene is forward kinematics and inverse dynamics alone: prescribed

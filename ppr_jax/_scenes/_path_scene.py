@@ -34,10 +34,14 @@ class PathScene(AbstractScene):
       and whose reach and type-II singularities along the path are checked (default L1).
     - `name`: the scene's label in reports and the registry.
     - `thickness`: the strip thickness (m) of `default_params` (default Table 1's 0.3 mm).
+    - `start_path`: a pose path whose pose, rate and acceleration at the first output time the
+      start takes instead of `path`'s (a `StartPath`: `experiment_scene` fits one to an
+      experiment's first samples, whose noise would make an interpolating spline's rates
+      useless); None: `path`'s own.
 
     The run starts, like every scene, from the model's quasi-static state on the path at the
     first output time (MODEL.md section 6), so the path's pose, rate and acceleration there
-    decide the start.
+    (or `start_path`'s) decide the start.
     """
 
     path: Callable
@@ -47,6 +51,7 @@ class PathScene(AbstractScene):
     input_model: AbstractModel = eqx.field(static=True, default_factory=Reduced, kw_only=True)
     name: str = eqx.field(static=True, default="path", kw_only=True)
     thickness: float = eqx.field(static=True, default=0.3e-3, kw_only=True)
+    start_path: Optional[Callable] = eqx.field(default=None, kw_only=True)
 
     reference: ClassVar[dict] = {}
 
@@ -66,11 +71,17 @@ class PathScene(AbstractScene):
         if (kind, self.drive) in (("angles", "torque"), ("torque", "motion")):
             raise PPRError(f"command_log holds {kind} but drive={self.drive!r}: an angle log "
                            f"drives a motion, a torque log a torque drive")
+        if self.start_path is not None and not callable(self.start_path):
+            raise PPRError(f"start_path must be a time function t -> (x, y, phi) or None, got "
+                           f"{type(self.start_path).__name__}")
         if not (isinstance(self.thickness, (int, float)) and 0 < self.thickness < 1e-2):
             raise PPRError(f"thickness must be in (0, 0.01) m, got {self.thickness!r}")
 
     def trajectory(self):
         return self.path
+
+    def start_trajectory(self, traj):
+        return traj if self.start_path is None else self.start_path
 
     def commands(self, model, robot, traj, ts, panels):
         if self.command_log is not None:
@@ -89,3 +100,74 @@ class PathScene(AbstractScene):
                     else "its own inverse kinematics of the path")
             return f"it is driven by {what}, so it follows the path exactly"
         return ""
+
+
+def experiment_scene(experiment, *, drive: Optional[str] = None,
+                     input_model: Optional[AbstractModel] = None,
+                     name: Optional[str] = None) -> PathScene:
+    """The scene that a measured experiment describes: its own commands drive the model along
+    its own path, from the state its first samples give.
+
+    - the command log: the experiment's actuated angles th_1..th_3 (a motion drive), or its
+      torques tau_1..tau_3 (a torque drive), through a not-a-knot cubic spline (C2: its
+      second derivative is a prescribed motion's acceleration);
+    - the path, which the tracking error is measured against: the measured poses, splined
+      likewise;
+    - the start (`start_path`): the pose, its rate and acceleration at the first sample from a
+      least-squares quadratic through the first 0.1 s of poses (`fit_start`).
+    Times are counted from the first sample (the scenes start at t = 0).
+
+    **Arguments:**
+
+    - `experiment`: an `Experiment` (`load_csv`) holding angles or torques.
+    - `drive`: `"motion"` (the angles) or `"torque"` (the torques); None: the angles where the
+      experiment holds them (MODEL.md section 7), else the torques.
+    - `input_model`: the kinematic model (L0 or L1) whose reach the path is checked against
+      (default L1).
+    - `name`: the scene's name (default the experiment's).
+
+    **Returns:** a `PathScene` (run it with `run_scene`, register it with `register_scene`).
+    """
+    import numpy as np
+
+    from .._data import DataError, Experiment
+    from .._paths import StartPath, fit_start
+    from .._trajectory import PiecewiseCubic, spline_pieces
+
+    if not isinstance(experiment, Experiment):
+        raise DataError(f"experiment_scene takes an Experiment (load_csv), got "
+                        f"{type(experiment).__name__}")
+    drive = experiment_drive(experiment, drive)
+    ts = np.asarray(experiment.ts, dtype=np.float64)
+    ts = ts - ts[0]
+    log = experiment.th if drive == "motion" else experiment.tau
+    path = PiecewiseCubic(ts, spline_pieces(ts, ts, experiment.X))
+    command_log = PiecewiseCubic(ts, spline_pieces(ts, ts, log))
+    return PathScene(path, drive=drive, command_log=command_log,
+                     input_model=Reduced() if input_model is None else input_model,
+                     name=experiment.name if name is None else name,
+                     start_path=StartPath(0.0, fit_start(ts, experiment.X)))
+
+
+def experiment_drive(experiment, drive: Optional[str] = None) -> str:
+    """The drive an experiment's own commands give: `drive` checked against what it holds, or,
+    for None, "motion" where it holds actuated angles, else "torque" where it holds torques.
+    Raises `DataError` naming the experiment when it holds neither (or not the one asked)."""
+    from .._data import DataError
+
+    if drive is not None and drive not in DRIVES:
+        raise DataError(f"drive must be one of {', '.join(DRIVES)} or None, got {drive!r}")
+    has = {"motion": experiment.th is not None, "torque": experiment.tau is not None}
+    if drive is None:
+        if not any(has.values()):
+            raise DataError(
+                f"{experiment.name}: the data hold no actuated angles (th_1, th_2, th_3) and no "
+                f"torques (tau_1, tau_2, tau_3): nothing says what drove the robot; add the "
+                f"commanded or measured angles (or torques) to the file, or name the paper's "
+                f"experiment it is (scene='servo-circle', CLI --scene servo-circle)")
+        return "motion" if has["motion"] else "torque"
+    if not has[drive]:
+        what = "actuated angles th_1..th_3" if drive == "motion" else "torques tau_1..tau_3"
+        raise DataError(f"{experiment.name}: drive={drive!r} needs the {what}, which the data "
+                        f"do not hold")
+    return drive

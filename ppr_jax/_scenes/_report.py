@@ -129,7 +129,7 @@ def run_scene(
         res = fn(*c.args)
         jax.block_until_ready(res)
         runs.append(time.perf_counter() - t1)
-    res = finish(res, params=params)
+    res = finish(res, params=params, solver_name=c.solver_name)
     m = scene_metrics(res, c.args[3].trajectory)
     timing = {"compile_s": compile_s, "run_s": min(runs), "program": how}
     for mm in m if isinstance(m, list) else [m]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Optional
+
 import equinox as eqx
 import numpy as np
 
@@ -16,6 +18,7 @@ from .._errors import (
 )
 from .._kinematics import path_singular
 from .._models import Reduced, Rigid
+from .._names import SOLVER_NAMES, STIFF_SOLVER_NAMES
 from .._params import PARAM_RANGES, member_params
 from .._robot import Robot
 
@@ -158,8 +161,15 @@ def failure_detail(res: SceneResult, params=None):
     return detail
 
 
-def finish(res: SceneResult, throw: bool = True, params=None) -> SceneResult:
-    """`res`, raising `SimulationError` for failed members when `throw` and concrete."""
+def finish(res: SceneResult, throw: bool = True, params=None,
+           solver_name: Optional[str] = None) -> SceneResult:
+    """`res`, raising `SimulationError` for failed members when `throw` and concrete.
+    `solver_name` (the prepared scene's) keeps a step failure from advising the implicit solver
+    that already ran."""
     if throw and not is_traced(res.result):
-        check_result(res.result, f"{res.scene} ({res.model})", failure_detail(res, params), res)
+        name = (solver_name or "").split(" ")[0]
+        stiff = (True if name in STIFF_SOLVER_NAMES else False if name in SOLVER_NAMES
+                 else None)
+        check_result(res.result, f"{res.scene} ({res.model})", failure_detail(res, params), res,
+                     stiff=stiff)
     return res

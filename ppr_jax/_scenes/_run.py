@@ -120,7 +120,7 @@ def solve_scene(
     """
     options = SceneOptions() if options is None else options
     c = prepare(scene, params, model, options)
-    return finish(c.fn(*c.args), throw, params)
+    return finish(c.fn(*c.args), throw, params, c.solver_name)
 
 
 def _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory) -> SceneOptions:
@@ -155,7 +155,7 @@ def paper_circle(
     `jax.jvp` / `jax.jacfwd` through the scene. Metrics and timings: `run_scene`."""
     opts = _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory)
     c = prepare("paper-circle", params, model, opts, torque_model)
-    return finish(c.fn(*c.args), throw, params)
+    return finish(c.fn(*c.args), throw, params, c.solver_name)
 
 
 def servo_circle(
@@ -179,7 +179,7 @@ def servo_circle(
     there."""
     opts = _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory)
     c = prepare("servo-circle", params, model, opts)
-    return finish(c.fn(*c.args), throw, params)
+    return finish(c.fn(*c.args), throw, params, c.solver_name)
 
 
 __all__ = ["SceneCall", "paper_circle", "prepare", "scene_params", "servo_circle", "solve_scene"]

@@ -77,19 +77,28 @@ def explicit_params(params: RobotParams) -> RobotParams:
     return params.replace(gamma=float(dv.gamma), rho=float(dv.rho), K_theta=float(dv.K_theta))
 
 
-def base_frequency(model, robot: Robot, X=None):
-    """The lowest natural frequency (Hz, signed: negative = unstable) of `model` about its static
-    equilibrium near X (default home) with the actuators locked, differentiable (module
-    docstring: Rayleigh quotient with the mode shapes held fixed; repeated lowest eigenvalues
-    averaged). Raises for a model without free coordinates when locked (L0, L1)."""
+def locked_stiffness(model, robot: Robot, X=None):
+    """The stiffness of `model` about its static equilibrium near the pose X (default home)
+    with the actuators locked, in its free coordinates, differentiable (no host callback: a
+    failed equilibrium is returned as a flag).
+
+    **Arguments:**
+
+    - `model`: a model with free coordinates when locked (L2, L3); `robot`: a `Robot`.
+    - `X`: the pose (3,) (m, m, rad) near which the equilibrium is found.
+
+    **Returns:** `(z_eq, free, K, failed)`: the equilibrium (n,), the free coordinates' indices,
+    K = -dQ/dz_free (symmetrised), Q the generalised force at rest, and whether Newton failed.
+
+    **Raises:** `PPRError` for a model without free coordinates when locked (L0, L1).
+    """
     X = home_pose(robot) if X is None else X
-    # No host callback in the differentiated program: a failed equilibrium gives NaN.
     z_eq, free, failed = static_equilibrium(model, robot, model.coords_from_pose(robot, X),
                                             locked=True, wrench=jnp.zeros(3), check=False,
                                             return_failed=True)
     if not free:
-        raise PPRError(f"model {model.name!r} has no vibration mode with locked actuators; "
-                       f"use double1r (or beam) for the base frequency")
+        raise PPRError(f"model {model.name!r} has no free coordinate with locked actuators; "
+                       f"use double1r (or beam) for the base frequency or the compliance")
     n = model.n_dof
     known = tuple(i for i in range(n) if i not in free)
     f = jnp.array(free)
@@ -101,7 +110,17 @@ def base_frequency(model, robot: Robot, X=None):
                                  jnp.zeros(3))[f]
 
     K = -jax.jacfwd(Q)(z_eq[f])
-    K = (K + K.T) / 2
+    return z_eq, free, (K + K.T) / 2, failed
+
+
+def base_frequency(model, robot: Robot, X=None):
+    """The lowest natural frequency (Hz, signed: negative = unstable) of `model` about its static
+    equilibrium near X (default home) with the actuators locked, differentiable (module
+    docstring: Rayleigh quotient with the mode shapes held fixed; repeated lowest eigenvalues
+    averaged). Raises for a model without free coordinates when locked (L0, L1)."""
+    z_eq, free, K, failed = locked_stiffness(model, robot, X)
+    n = model.n_dof
+    f = jnp.array(free)
     M = eom_terms(model, robot, z_eq, jnp.zeros(n)).M[f][:, f]
     # Mode shapes from a non-differentiated eigenproblem: eigh's derivative is NaN at repeated
     # eigenvalues. The Rayleigh quotients below carry the exact first derivative.

@@ -7,11 +7,15 @@ verification of the optimum (`_verify`), the result (`_result`), the entry point
 from ..._errors import DesignError
 from ._catalogue import (
                          CLOSED_FORM_METRICS,
+                         compliance,
                          design_metrics,
                          moving_mass,
+                         path_margins,
                          pivot_frequency,
                          pivot_stress,
+                         strip_elastica,
                          strip_stress_peak,
+                         torque_rms,
 )
 from ._design import design
 from ._goals import Constraint, Objective
@@ -20,5 +24,6 @@ from ._spec import load_design_spec
 from ._variables import check_variables
 
 __all__ = ["CLOSED_FORM_METRICS", "Constraint", "Design", "DesignError", "Objective",
-           "check_variables", "design", "design_metrics", "load_design_spec", "moving_mass",
-           "pivot_frequency", "pivot_stress", "strip_stress_peak"]
+           "check_variables", "compliance", "design", "design_metrics", "load_design_spec",
+           "moving_mass", "path_margins", "pivot_frequency", "pivot_stress", "strip_elastica",
+           "strip_stress_peak", "torque_rms"]

@@ -29,6 +29,42 @@ derivative is the arg-max's, a subgradient, as for the other max metrics). What 
 PRB spring's moment is the strip's moment at the characteristic pivot; under tip forces the
 moment varies along the strip and the clamps may carry more than the pivots (L3's curvature,
 with `model="beam"`, is the check).
+
+**Actuator torques over a scene** (`torque_peak_Nm`, the scene's own, and `torque_rms_Nm`):
+the scene's actuator torques tau (m, 3) at its output times (applied, or the reactions of a
+motion-driven scene), their peak max |tau| and their RMS sqrt(mean tau^2) over the times and
+the three actuators.
+
+**Reach and singularity margins of the path** (`path_reach_margin`,
+`path_singularity_margin`): the scene's nominal poses at its output times through the
+kinematics of the scene's input model (L1 or L0, the model whose inverse kinematics or dynamics
+drives the scene), with the two checks the scenes make (`ppr_jax._kinematics`): each chain's
+reach margin 1 - |cos| of its closure angle (<= 0 out of reach), least over the chains and
+times; and the relative determinant of S = d th_a/dX (translations scaled by r1; |det| over
+the product of its column norms: 0 singular, 1 isotropic), signed so that it is positive at
+the path's first sample and least over the times: where the path crosses a type-II
+singularity det S changes sign, so the margin is negative (a crossing between two samples
+shows; two within one interval cancel, as in `path_singular`). Neither needs the scene's run.
+The paths of the registered scenes do not depend on the robot; the margins do.
+
+**One strip by the elastica** (`strip_tip_rotation_rad`, `strip_elastica_stress_Pa`): the
+robot's strip alone, an inextensible Euler-Bernoulli cantilever of length L = r theta_c, rest
+curvature 1/r (kappa0 = L/r = theta_c), bending stiffness E w t^3/12, clamped at one end and
+loaded at the other by the dead load `strip_load` = (fx, fy, m) (N, N, N m) in the clamp's
+tangent frame (`ppr_jax.elastica.solve_cantilever`, exact to its RK4 grid, differentiated
+implicitly): its tip's rotation from rest theta(L) - theta_c, and its peak surface stress
+max_s |M(s)| 6/(w t^2). Large deflections, no PRB model: the check of a strip's static design
+against a load-deflection target (benchmark tier 2). A load the solver cannot follow gives NaN.
+
+**Static compliance at a pose** (`compliance_xy_m_per_N`, `compliance_phi_rad_per_Nm`): the
+platform's compliance C = K^-1 with the actuators locked, K = -dQ/dX the stiffness of
+`frequency_model` (L2 or L3) in the pose about its static equilibrium near the pose `pose`
+(`_sensitivity.locked_stiffness`): a small wrench (Fx, Fy, Mz) moves the platform by
+C (Fx, Fy, Mz). `compliance_xy_m_per_N` is the largest eigenvalue of C's translational block
+(the displacement per newton of a force in the worst direction, no moment),
+`compliance_phi_rad_per_Nm` is C's rotational entry (rotation per N m of a moment, no force).
+At an isotropic pose (home of a symmetric robot) the two eigenvalues coincide and the
+derivative is that of their mean.
 """
 
 from __future__ import annotations
@@ -40,16 +76,26 @@ import jax
 import jax.numpy as jnp
 
 from ..._errors import RESULTS
+from ..._geometry import home_pose
+from ..._kinematics import det3
 from ..._names import DESIGN_METRICS
 from ..._prb import Derived
 from ..._robot import Robot
-from .._sensitivity import allowed_metrics, base_frequency
+from .._sensitivity import allowed_metrics, base_frequency, locked_stiffness
 from .._sweep import traced_metrics
 
-#: the catalogue's metrics that need no scene
-CLOSED_FORM_METRICS = ("pivot_frequency_hz", "pivot_stress_Pa", "moving_mass_kg")
+#: the catalogue's metrics that need no scene and no model of the robot (closed forms, and one
+#: strip's elastica)
+CLOSED_FORM_METRICS = ("pivot_frequency_hz", "pivot_stress_Pa", "moving_mass_kg",
+                       "strip_tip_rotation_rad", "strip_elastica_stress_Pa")
+#: the catalogue's metrics of one strip's elastica (they need `strip_load`)
+ELASTICA_METRICS = ("strip_tip_rotation_rad", "strip_elastica_stress_Pa")
+#: the catalogue's metrics at the robot's rest or a pose (no scene), through frequency_model
+POSE_METRICS = ("base_frequency_hz", "compliance_xy_m_per_N", "compliance_phi_rad_per_Nm")
 #: the catalogue's metrics that need the scene's run (besides the scene's own metrics)
-SCENE_OWN_METRICS = ("strip_stress_peak_Pa",)
+SCENE_OWN_METRICS = ("strip_stress_peak_Pa", "torque_rms_Nm")
+#: the catalogue's metrics of the scene's nominal path alone (a scene, not its run)
+PATH_METRICS = ("path_reach_margin", "path_singularity_margin")
 
 
 def design_metrics(trajectory=None) -> tuple:
@@ -58,7 +104,7 @@ def design_metrics(trajectory=None) -> tuple:
     (without a trajectory: the metrics that need no scene)."""
     own = tuple(DESIGN_METRICS)
     if trajectory is None:
-        return tuple(m for m in own if m not in SCENE_OWN_METRICS)
+        return tuple(m for m in own if m not in SCENE_OWN_METRICS + PATH_METRICS)
     return own + tuple(m for m in allowed_metrics(trajectory) if m not in own)
 
 
@@ -97,15 +143,73 @@ def strip_stress_peak(model, robot: Robot, z):
     return jnp.max(jnp.abs(k * d)) * 6 / (p.w * p.t**2)
 
 
+def strip_elastica(params, dv: Derived, load):
+    """(tip rotation from rest (rad), peak stress (Pa)) of one strip under the end load
+    `load` = (fx, fy, m) by the elastica (module docstring); NaN where it did not converge."""
+    from ...elastica import solve_cantilever
+
+    EI = params.E * params.w * params.t**3 / 12
+    fx, fy, m = (jnp.asarray(v, dtype=jnp.float64) for v in load)
+    sol = solve_cantilever(dv.L, EI, params.theta_c, (fx, fy), m, throw=False)
+    rot = sol.tip_angle - params.theta_c
+    sigma = jnp.max(jnp.abs(sol.moment)) * 6 / (params.w * params.t**2)
+    return (jnp.where(sol.converged, rot, jnp.nan), jnp.where(sol.converged, sigma, jnp.nan))
+
+
+def torque_rms(tau):
+    """RMS (N m) of the actuator torques tau (m, 3) over the times and the actuators."""
+    return jnp.sqrt(jnp.mean(tau**2))
+
+
+def path_margins(ref_model, robot: Robot, X):
+    """(reach, singularity) margins of the nominal poses X (m, 3) for `ref_model` (L0 or L1)
+    (module docstring): the least reach margin over the chains and samples, and the least
+    relative det S over the samples, signed positive at the robot's home pose (its working
+    mode)."""
+
+    def one(x):
+        k = ref_model.kinematics(robot, ref_model.coords_from_pose(robot, x))
+        S = jax.jacfwd(lambda xx: ref_model.kinematics(
+            robot, ref_model.coords_from_pose(robot, xx)).th_a)(x)
+        return jnp.min(k.margin), S
+
+    reach, S = jax.vmap(one)(jnp.concatenate([home_pose(robot)[None], X]))
+    r1 = jnp.asarray(robot.r1, dtype=S.dtype)
+    Sn = S * jnp.stack([r1, r1, jnp.ones_like(r1)])[None, None, :]
+    rel = det3(Sn) / jnp.prod(jnp.linalg.norm(Sn, axis=-2), axis=-1)
+    sign = jax.lax.stop_gradient(jnp.where(rel[0] < 0, -1.0, 1.0))
+    return jnp.min(reach[1:]), jnp.min(sign * rel[1:])
+
+
+def compliance(model, robot: Robot, X=None):
+    """(largest translational compliance (m/N), rotational compliance (rad/(N m))) of the
+    platform at its locked equilibrium near the pose X (default home) (module docstring)."""
+    _, free, K, failed = locked_stiffness(model, robot, X)
+    if tuple(free)[:3] != (0, 1, 2):
+        raise ValueError(f"model {model.name!r}: the pose is not its first free coordinates")
+    # the pose's compliance: the pose block of K^-1 (L3's other free coordinates condensed)
+    C = jnp.linalg.inv(K)[:3, :3]
+    C = (C + C.T) / 2
+    a, b, d = C[0, 0], C[0, 1], C[1, 1]
+    disc = ((a - d) / 2) ** 2 + b**2
+    pos = disc > 0
+    root = jnp.where(pos, jnp.sqrt(jnp.where(pos, disc, 1.0)), 0.0)
+    bad = failed | ~jnp.all(jnp.isfinite(C))
+    return jnp.where(bad, jnp.nan, (a + d) / 2 + root), jnp.where(bad, jnp.nan, C[2, 2])
+
+
 @dataclasses.dataclass(frozen=True)
 class SceneContext:
     """What the scene metrics need: the scene, the model that runs it and its prepared
-    `SceneOptions` (or None: no scene metric asked for), and the model of `base_frequency_hz`."""
+    `SceneOptions` (or None: no scene metric asked for), the model of the pose metrics
+    (`POSE_METRICS`), and the pose (3,) of the compliance (None: home)."""
 
     scene: Optional[object]
     model: Optional[object]
     options: Optional[object]
     frequency_model: object
+    pose: Optional[tuple] = None
+    strip_load: Optional[tuple] = None
 
 
 def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_links=True):
@@ -125,7 +229,13 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
     robot = Robot(params, equal_links=equal_links)
     dv = robot.dv
     out = {}
-    scene_names = [n for n in names if n not in CLOSED_FORM_METRICS and n != "base_frequency_hz"]
+    scene_names = [n for n in names
+                   if n not in CLOSED_FORM_METRICS + POSE_METRICS + PATH_METRICS]
+    if any(n in PATH_METRICS for n in names):
+        opts = ctx.options
+        X = jax.vmap(opts.trajectory)(opts.times())
+        reach, sing = path_margins(ctx.scene.input_model, robot, X)
+        out.update(path_reach_margin=reach, path_singularity_margin=sing)
     if scene_names:
         opts = ctx.options if adjoint is None else dataclasses.replace(ctx.options,
                                                                        adjoint=adjoint)
@@ -135,6 +245,8 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
             out.update(traced_metrics(res, opts.trajectory, table))
         if "strip_stress_peak_Pa" in scene_names:
             out["strip_stress_peak_Pa"] = strip_stress_peak(ctx.model, robot, res.z)
+        if "torque_rms_Nm" in scene_names:
+            out["torque_rms_Nm"] = torque_rms(res.tau)
         bad = res.result != RESULTS.successful
         out = {k: jnp.where(bad, jnp.nan, v) for k, v in out.items()}
     for n in names:
@@ -146,4 +258,11 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
             out[n] = moving_mass(dv)
         elif n == "base_frequency_hz":
             out[n] = base_frequency(ctx.frequency_model, robot)
+    if any(n in ELASTICA_METRICS for n in names):
+        rot, sig = strip_elastica(params, dv, ctx.strip_load)
+        out.update(strip_tip_rotation_rad=rot, strip_elastica_stress_Pa=sig)
+    if any(n.startswith("compliance_") for n in names):
+        X = None if ctx.pose is None else jnp.asarray(ctx.pose, dtype=jnp.float64)
+        cxy, cphi = compliance(ctx.frequency_model, robot, X)
+        out.update(compliance_xy_m_per_N=cxy, compliance_phi_rad_per_Nm=cphi)
     return jnp.stack([jnp.asarray(out[n], dtype=jnp.float64) for n in names])

@@ -9,6 +9,7 @@ from typing import Mapping, Optional, Sequence
 import numpy as np
 
 from ..._errors import DesignError, PPRError, check_number as _check_number
+from ..._metrics import path_metrics
 from ..._models import get_model
 from ..._names import (
     DESIGN_CANDIDATES,
@@ -21,10 +22,17 @@ from ..._names import (
 from ..._params import RobotParams
 from ..._scenes import SceneOptions, get_scene
 from .._sensitivity import explicit_params
-from ._catalogue import CLOSED_FORM_METRICS, SceneContext, design_metrics
-from ._goals import as_constraints, as_objective
+from ._catalogue import (
+    ELASTICA_METRICS,
+    PATH_METRICS,
+    POSE_METRICS,
+    SceneContext,
+    design_metrics,
+)
+from ._goals import Constraint, as_constraints, as_objective
 from ._optimise import FEAS_TOL, Scaled, optimise, screen
 from ._problem import Problem
+from ._rescore import rescore_l3
 from ._result import Design
 from ._variables import check_variables
 from ._verify import gradient_check, grid_check, kkt
@@ -33,6 +41,9 @@ from ._verify import gradient_check, grid_check, kkt
 KKT_TOL = 1e-5
 #: the finite-difference tolerance where a metric comes from an ODE solve (adaptive steps)
 SCENE_FD_RTOL = 1e-3
+#: the least path margins a design on a scene always keeps (`_kinematics.REACH_TOL` and
+#: `SINGULAR_TOL`'s roles): a path out of reach or through a type-II singularity is infeasible
+PATH_MARGIN_MIN = {"path_reach_margin": 1e-6, "path_singularity_margin": 1e-6}
 
 
 def check_number(*args, **kwargs):
@@ -55,6 +66,9 @@ def design(
     torque_model=None,
     frequency_model="double1r",
     options: Optional[SceneOptions] = None,
+    pose=None,
+    strip_load=None,
+    l3_elements: Optional[int] = 4,
     optimizer: str = "slsqp",
     mode: Optional[str] = None,
     starts: int = DESIGN_STARTS,
@@ -93,7 +107,13 @@ def design(
     - `scene`: a registered scene name or an `AbstractScene`, for the scene metrics; `model`,
       `torque_model`: the model it runs and the one that computes its torques (as
       `sensitivity`); `options`: its `SceneOptions`.
-    - `frequency_model`: the model of `base_frequency_hz`.
+    - `frequency_model`: the model of `base_frequency_hz` and the compliance metrics.
+    - `pose`: (x, y, phi) (m, m, rad) of the compliance metrics (default: home).
+    - `strip_load`: (fx, fy, m) (N, N, N m), the end load of the elastica metrics
+      (`strip_tip_rotation_rad`, `strip_elastica_stress_Pa`) in the strip's clamp frame.
+    - `l3_elements`: N of the quasi-static L3 (`QuasiStaticBeam(N)`) that re-scores the optimum's
+      model-dependent metrics against the PRB model's error band
+      (`Design.verification["l3"]`, `_rescore`); None: not re-scored.
     - `optimizer`: 'slsqp' or 'trust-constr'.
     - `mode`: 'fwd' or 'rev' (default by the counts above).
     - `starts`, `candidates`: starts run, points screened for them.
@@ -120,6 +140,8 @@ def design(
     max_iter = check_number("max_iter", max_iter, 1, 100_000, integer=True)
     grid = check_number("grid", grid, 1, 10_000_000, integer=True)
     grid_rtol = check_number("grid_rtol", grid_rtol, 0.0, 1.0)
+    if l3_elements is not None:
+        l3_elements = check_number("l3_elements", l3_elements, 1, 64, integer=True)
 
     # the scene and what it allows
     ctx_scene = ctx_model = ctx_opts = None
@@ -129,14 +151,18 @@ def design(
         opts = (SceneOptions() if options is None else options).check()
         ctx_opts = opts.prepared(ctx_model, ctx_scene.trajectory())
     allowed = design_metrics(None if ctx_opts is None else ctx_opts.trajectory)
+    if ctx_scene is not None:
+        given = {c.metric for c in cons}
+        cons = cons + [Constraint(m, lower=b) for m, b in PATH_MARGIN_MIN.items()
+                       if m not in given]
     metrics = list(dict.fromkeys([obj.metric] + [c.metric for c in cons]))
     for m in metrics:
         if m not in allowed:
             more = "" if scene is not None else " (a scene's metrics need scene=...)"
             raise DesignError(f"unknown design metric {m!r}; allowed: {', '.join(allowed)}{more}")
     if ctx_scene is not None:
-        scene_metrics = [m for m in metrics if m not in CLOSED_FORM_METRICS
-                         and m not in ("base_frequency_hz", "strip_stress_peak_Pa")]
+        # its tracking error only: its torques, stresses and energies are the robot's
+        scene_metrics = [m for m in metrics if m in path_metrics(ctx_opts.trajectory)]
         follows = ctx_scene.follows_its_input(ctx_model)
         if follows and scene_metrics:
             raise DesignError(f"{', '.join(scene_metrics)} of model {ctx_model.name!r} in "
@@ -149,6 +175,25 @@ def design(
         stroke = check_number("stroke", stroke, 0.0, math.pi, "rad", open_lo=True)
     stroke = 0.0 if stroke is None else float(stroke)
     fmodel = get_model(frequency_model)
+    if pose is not None:
+        pose = np.asarray(pose, dtype=np.float64)
+        if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+            raise DesignError(f"pose must be (x, y, phi) (m, m, rad), three finite numbers, got "
+                              f"{pose.tolist()}")
+        pose = tuple(map(float, pose))
+    if any(m in ELASTICA_METRICS for m in metrics):
+        load = np.asarray(strip_load if strip_load is not None else [np.nan], dtype=np.float64)
+        if load.shape != (3,) or not np.all(np.isfinite(load)):
+            raise DesignError(f"{', '.join(m for m in metrics if m in ELASTICA_METRICS)} need "
+                              f"strip_load=(fx, fy, m) (N, N, N m), three finite numbers, got "
+                              f"{strip_load!r}")
+        strip_load = tuple(map(float, load))
+    else:
+        strip_load = None
+    if any(m in POSE_METRICS for m in metrics) and fmodel.actuated_index is None:
+        raise DesignError(f"{', '.join(m for m in metrics if m in POSE_METRICS)} need a "
+                          f"frequency_model with free coordinates when the actuators are locked "
+                          f"(double1r or beam), got {fmodel.name!r}")
 
     # the base robot
     if params is None:
@@ -168,7 +213,7 @@ def design(
     elif mode not in ("fwd", "rev"):
         raise DesignError(f"mode must be 'fwd' or 'rev', got {mode!r}")
 
-    ctx = SceneContext(ctx_scene, ctx_model, ctx_opts, fmodel)
+    ctx = SceneContext(ctx_scene, ctx_model, ctx_opts, fmodel, pose, strip_load)
     prob = Problem(names=names, lo=lo, hi=hi, metrics=tuple(metrics), base=base, stroke=stroke,
                    ctx=ctx, mode=mode, equal_links=equal)
     sides = [(metrics.index(c.metric), c, side, b) for c in cons for side, b in c.sides()]
@@ -177,7 +222,9 @@ def design(
         rows=np.array([r for r, *_ in sides], dtype=int),
         bounds=np.array([b for *_, b in sides], dtype=np.float64),
         upper=np.array([s == "upper" for _, _, s, _ in sides], dtype=bool),
-        scale=np.array([abs(b) if b != 0 else 1.0 for *_, b in sides], dtype=np.float64))
+        # the path margins are of order one however small their bound
+        scale=np.array([1.0 if (b == 0 or c.metric in PATH_METRICS) else abs(b)
+                        for _, c, _, b in sides], dtype=np.float64))
 
     # screen, optimise from each start, keep the best feasible
     u_base = prob.u_of([float(getattr(base, n)) for n in names])
@@ -211,6 +258,15 @@ def design(
                        stroke, ctx, {"screen_s": screen_s, "optimise_s": optimise_s,
                                      "verify_s": verify_s,
                                      "total_s": time.perf_counter() - t_start})
+    if feasible and l3_elements is not None:
+        t3 = time.perf_counter()
+        result.verification["l3"] = rescore_l3(
+            prob.metrics, result.params, ctx, stroke, result.metrics, obj,
+            [(c.metric, side, b) for _, c, side, b in sides], l3_elements,
+            None if ctx_scene is None else (SceneOptions() if options is None else options),
+            prob.equal_links)
+        result.timing["l3_s"] = time.perf_counter() - t3
+        result.timing["total_s"] = time.perf_counter() - t_start
     if not feasible:
         worst = max(result.constraints, key=lambda c: c["violation"])
         err = DesignError(
@@ -264,6 +320,7 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
                    "seconds": r["seconds"]} for r in runs]
     params = prob.base.replace(**dict(zip(names, map(float, x))))
     info = {"optimizer": optimizer, "mode": mode, "stroke_rad": stroke,
+            "strip_load": ctx.strip_load, "pose": ctx.pose,
             "scene": None if ctx.scene is None else ctx.scene.name,
             "model": None if ctx.model is None else ctx.model.name,
             "frequency_model": ctx.frequency_model.name, "objective_scale": fs,

@@ -99,8 +99,9 @@ def _key(names, metrics, base, ctx, mode, equal_links):
     static = jax.tree_util.tree_structure(base)
     scene = None if ctx.scene is None else eqx.tree_pformat(
         (ctx.scene, ctx.model, ctx.options), short_arrays=False)
-    return (tuple(names), tuple(metrics), str(static), scene, ctx.frequency_model, mode,
-            equal_links)
+    return (tuple(names), tuple(metrics), str(static), scene, ctx.frequency_model, ctx.pose,
+            ctx.strip_load,
+            mode, equal_links)
 
 
 def programs(names, metrics, base, ctx: SceneContext, mode: str, equal_links: bool):

@@ -33,7 +33,9 @@ class Design:
       objective, max_violation (relative to each bound)}].
     - `starts`: one summary per start run (start, optimum, objective, feasible, iterations,
       evaluations, message).
-    - `verification`: {kkt_residual, gradient_check, grid, ok} (`_verify`).
+    - `verification`: {kkt_residual, gradient_check, grid, ok} (`_verify`), and `l3`: the
+      optimum re-scored with the quasi-static L3 against the PRB error band (`_rescore`; not
+      part of `ok`).
     - `info`: the settings (optimizer, derivative mode, stroke, scene, models); `timing`
       {screen_s, optimise_s, verify_s, total_s} (s).
     - `evaluate`: the metrics (in `metrics`' order) at physical variable values (p,) (SI).
@@ -64,6 +66,24 @@ class Design:
         """Write the designed robot to a TOML or JSON parameter file (by extension) that
         `ppr_jax.load_params` and the command line's `--params-file` read. Returns the path."""
         return save_params(self.params, path)
+
+    def to_mjcf(self, path: str, dt: float = 1e-4) -> str:
+        """Write the designed robot as an MJCF document (`ppr_jax.to_mjcf`: the L2 robot,
+        MuJoCo time step `dt` (s)) that `mujoco.MjModel.from_xml_path` loads. Returns the
+        path."""
+        from ..._mjcf import to_mjcf
+
+        with open(path, "w", encoding="utf-8") as fh:
+            fh.write(to_mjcf(self.params, dt=dt))
+        return str(path)
+
+    def report(self, path: str, command: Optional[str] = None) -> str:
+        """Write a self-contained HTML report (`report.html`: the optimum against its start,
+        the active constraints with their multipliers, the sensitivity to every bound, the
+        history and the verification, figures embedded). Returns the path."""
+        from ._report import write_design_report
+
+        return write_design_report(self, path, command=command)
 
     def to_dict(self) -> dict:
         """Everything but `params` and `evaluate`, as JSON-ready values (the designed robot's
@@ -104,6 +124,10 @@ class Design:
                      f"differences {v['gradient_check']['worst']:.2e}; {g['kind']} of "
                      f"{g['points']} points, best {g['best_objective']}, gap {g['gap']}; "
                      f"{'ok' if v['ok'] else 'NOT ok'}")
+        l3 = v.get("l3")
+        if l3 is not None:
+            lines.append(f"  L3 (quasi-static, N = {l3['n_elements']}), PRB band "
+                         f"{l3['band']:.1%} at kappa0 = {l3['kappa0']:.3g}: {l3['note']}")
         return "\n".join(lines)
 
 

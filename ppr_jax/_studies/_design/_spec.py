@@ -31,7 +31,7 @@ from ..._errors import DesignError
 #: the [settings] keys that are `design`'s keywords
 DESIGN_KEYS = ("stroke", "scene", "model", "torque_model", "frequency_model", "optimizer",
                "mode", "starts", "candidates", "max_iter", "grid", "grid_rtol", "fd_rtol",
-               "seed")
+               "seed", "pose", "strip_load", "l3_elements")
 #: the [settings] keys that are `SceneOptions`' fields
 OPTION_KEYS = ("t_end", "n_out", "solver", "rtol", "atol", "max_steps")
 SECTIONS = ("variables", "objective", "constraints", "settings", "params")

@@ -8,16 +8,16 @@ from ._plots import identification_figures, profile_figure
 from ._problem import (
                        ACTUATIONS,
                        DEFAULT_NOISE,
-                       ID_SCENES,
                        INITIAL_STATES,
                        LOSSES,
                        POOR_FIT_SCALE,
                        SOLVERS,
 )
 from ._result import Identification
+from ._start import StartError
 from ._synthesize import check_synth_args, synthesize
 
-__all__ = ["ACTUATIONS", "DEFAULT_NOISE", "ID_SCENES", "INITIAL_STATES", "LOSSES",
-           "POOR_FIT_SCALE", "SOLVERS", "Identification", "IdentificationError",
+__all__ = ["ACTUATIONS", "DEFAULT_NOISE", "INITIAL_STATES", "LOSSES",
+           "POOR_FIT_SCALE", "SOLVERS", "Identification", "IdentificationError", "StartError",
            "check_synth_args", "identification_figures", "identify", "profile_figure",
            "synthesize"]

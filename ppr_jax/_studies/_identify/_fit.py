@@ -10,13 +10,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._errors import IdentificationError
+from ..._errors import IdentificationError, result_message
 from ._problem import (
     INIT_SCALE,
     MAX_STEP_Z,
     POOR_FIT_SCALE,
+    _anonymous,
     _residual_and_jacobian,
     _residual_vector,
+    _succeeded,
     _to_p,
 )
 
@@ -28,7 +30,7 @@ def _initial_state_guess(prob, z0, mask):
     cost is far from convex in the initial state; from zero offsets the fit can end in a local
     minimum."""
     _, _, ok, X = _residual_and_jacobian(prob, jnp.asarray(z0))
-    _check_ok(ok, z0, prob)
+    _check_ok(ok, z0, prob, start=True)
     X, Xm, ts = np.asarray(X), np.asarray(prob.X), np.asarray(prob.ts)
     P, k = len(prob.names), prob.n_init
     d = np.zeros((X.shape[0], 6))
@@ -42,13 +44,52 @@ def _initial_state_guess(prob, z0, mask):
     return z0
 
 
-def _check_ok(ok, z, prob):
-    if not bool(ok):
-        p = np.asarray(_to_p(prob, jnp.asarray(z)))
-        at = ", ".join(f"{n} = {v:.6g}" for n, v in zip(prob.names, p))
-        raise IdentificationError(f"the {prob.model.name} simulation of the {prob.scene} scene "
-                                  f"failed at {at} (solver failure or step limit; loosen "
-                                  f"tolerances or raise max_steps)")
+def _value_text(name, v):
+    """`strip thickness t = 0.55 mm`: a parameter's meaning, name, value and unit (mm for m)."""
+    from ..._names import PARAM_RANGES
+
+    _, _, unit, meaning = PARAM_RANGES.get(name, (0, 0, "", ""))
+    if unit == "m":
+        v, unit = v * 1e3, "mm"
+    text = f"{name} = {v:.6g}" + (f" {unit}" if unit and unit != "-" else "")
+    return f"{meaning} {text}" if meaning else text
+
+
+def _check_ok(codes, z, prob, start=False, names=None):
+    """Raise `IdentificationError` unless every experiment's simulation succeeded (`codes`, the
+    result codes (E,) of `_residual_and_jacobian`): naming the experiment, the parameters (their
+    meaning and unit) and the cause that the simulation reported. `start`: z is where a fit
+    begins (nothing fitted yet), so the data, not the fit, took the model there: the message
+    then puts the data's units and robot before the tolerances. `names`: the experiments'
+    names."""
+    codes = np.atleast_1d(np.asarray(codes))
+    if np.all(codes == 0):
+        return
+    p = np.asarray(_to_p(prob, jnp.asarray(z)))
+    at = ", ".join(_value_text(n, float(v)) for n, v in zip(prob.names, p))
+    k = int(np.flatnonzero(codes != 0)[0])
+    names = prob.experiment_names if names is None else names
+    which = f"experiment {names[k]!r}" if names else f"experiment {k + 1}"
+    what = f"the {prob.model.name} simulation of {which} ({prob.scene})"
+    cause = result_message(int(codes[k]))
+    tols = (f"rtol {float(prob.rtol):g}, atol {float(prob.atol):g}, max_steps "
+            f"{prob.max_steps}")
+    if not start:
+        raise IdentificationError(f"{what} failed at {at}: {cause} ({tols})")
+    given = []
+    if prob.tau is not None:
+        given.append("driven by the measured torques tau_1..tau_3")
+    if prob.th is not None:
+        given.append("driven by the measured angles th_1..th_3")
+    if prob.n_init:
+        given.append("started from the data's first samples")
+    how = f" ({'; '.join(given)})" if given else ""
+    raise IdentificationError(
+        f"{what}{how} failed at the start of the fit, before anything was fitted ({at}): "
+        f"{cause}; the data are far from any state the model reaches from this start. Check "
+        f"the data's units (declare them: '# units: length=mm, angle=deg, torque=N mm') and "
+        f"that they come from this robot and scene (params=, --params-file, --scene); only if "
+        f"they do, loosen the tolerances or raise max_steps ({tols})")
 
 
 def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, first=None):
@@ -65,7 +106,7 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, fi
     else:
         r, J, ok, X, compile_s = first
         r, J = np.asarray(r), np.asarray(J)
-    _check_ok(ok, z0, prob)
+    _check_ok(ok, z0, prob, start=free is None)
     t1 = time.perf_counter()
     z = np.array(z0, dtype=np.float64)
     sel = np.arange(z.size) if free is None else np.flatnonzero(free)
@@ -102,7 +143,7 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, fi
         r_new, J_new, ok_new, X_new = _residual_and_jacobian(prob, jnp.asarray(z_new))
         n_eval += 1
         r_new = np.asarray(r_new)
-        cost_new = float(r_new @ r_new) if bool(ok_new) else np.inf
+        cost_new = float(r_new @ r_new) if _succeeded(ok_new) else np.inf
         pred = float(dz @ (lam * D * dz - g))  # predicted reduction of the cost (>= 0)
         if np.isfinite(cost_new) and cost_new < cost:
             rho_gain = (cost - cost_new) / max(pred, 1e-300)
@@ -153,8 +194,8 @@ def _costs(prob, Z):
     """Costs sum r^2 (K,) at K points Z (K, n) in one vmapped call of the residual (no
     Jacobian); a point whose simulation fails costs inf."""
     def one(z):
-        r, (ok, _) = _residual_vector(prob, z)
-        return jnp.where(ok, r @ r, jnp.inf)
+        r, (codes, _) = _residual_vector(prob, z)
+        return jnp.where(jnp.all(codes == 0), r @ r, jnp.inf)
 
     return jax.vmap(one)(Z)
 
@@ -203,7 +244,7 @@ def _multi_start(prob, z0, starts, seed, fit_one, guess=None, screen=None, given
     screening = None
     if screen is not None and len(points) - 1 > screen:
         t0 = time.perf_counter()
-        c = np.asarray(_costs(prob, jnp.asarray(np.stack(points[1:]))))
+        c = np.asarray(_costs(_anonymous(prob), jnp.asarray(np.stack(points[1:]))))
         kept = [1 + int(k) for k in np.argsort(np.where(np.isfinite(c), c, np.inf))[:screen]]
         order = [0] + kept
         screening = {"points": len(points) - 1, "kept": kept,

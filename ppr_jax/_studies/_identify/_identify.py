@@ -7,14 +7,29 @@ correlations, the identifiable combinations (a singular-value analysis of the re
 sensitivities) and the residuals against the stated noise.
 
 The experiment (what the motors did) is a scene:
-- ``servo-circle``: the actuated angles drive the model (motion-driven), its response simulated
-  from its quasi-static state at t = 0 under those angles (`quasi_static_state`);
-- ``paper-circle``: torque-driven by the measured torques (columns tau_1..tau_3, cubic Hermite
-  interpolation) or, without them, by L1's inverse-dynamics torques of eq 55 for the commands'
-  parameters (held fixed), from the nominal pose at t = 0.
-Sample times are those of the trajectory (t = 0 at the start of the motion).
+- by default (`scene=None`) the one that the data describe (`experiment_scene`): the data's
+  own actuated angles th_1..th_3 drive the model (a motion drive; where the data hold no
+  angles, their torques tau_1..tau_3: a torque drive), each experiment on its own path (its
+  measured poses), its times counted from its first sample, and its start (the pose guess, and
+  under torques the pose, its rate and acceleration) fitted to its first 0.1 s of poses
+  (`fit_start`); the rest of the state is the model's quasi-static state under the commands
+  (MODEL.md section 6). No scene of the paper is assumed. Several experiments, each on its own
+  path, are fitted jointly (one drive for all);
+- a named scene (a registered name or an `AbstractScene`), for the paper's own experiments:
+  ``servo-circle``, motion-driven: its angles drive the model, simulated from its quasi-static
+  state at t = 0 under those angles (`quasi_static_state`); ``paper-circle``, torque-driven by
+  the measured torques (columns tau_1..tau_3, cubic Hermite interpolation) or, without them,
+  by L1's inverse-dynamics torques of eq 55 for the commands' parameters (held fixed), from the
+  nominal pose at t = 0. Sample times are those of the scene (t = 0 at the start of the
+  motion).
+Before anything is compiled, every experiment's first sample is checked against the model at
+the initial guess (`_start.check_starts`, `check_scene_start`): a pose out of reach, angles of
+another assembly mode, angles that put the platform more than 10 mm or 0.1 rad away from the
+file's first pose, torques that would throw it that far within 0.1 s, or a named scene that
+starts that far from it, are refused with a `StartError` naming the experiment, the sample and
+the distance.
 
-Which angles drive a servo-circle model (`actuation`, MODEL.md section 7):
+Which angles drive a motion-driven named scene (`actuation`, MODEL.md section 7):
 - ``"auto"`` (default): the measured angles when every experiment holds th_1..th_3, else the
   commands. Measured angles are what the motors did; commands recomputed from a guess are not.
 - ``"commanded"``: L1's inverse kinematics of eq 55 for the parameters of the model that
@@ -74,10 +89,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._data import DataError, Experiment
-from ..._errors import IdentificationError
+from ..._errors import IdentificationError, PPRError
 from ..._models import get_model
 from ..._params import PARAM_RANGES, RobotParams
-from ..._scenes import MAX_STEPS, scene_params
+from ..._paths import fit_start
+from ..._scenes import MAX_STEPS, AbstractScene, experiment_drive, get_scene
 from ..._simulate import get_solver
 from ._data import _fill_prb, _pack
 from ._fit import (
@@ -88,10 +104,10 @@ from ._fit import (
     _multi_start,
     _optimistix,
 )
+from ._plausible import check_plausible
 from ._problem import (
     ACTUATIONS,
     DEFAULT_NOISE,
-    ID_SCENES,
     INIT_SCALE,
     INITIAL_STATES,
     LOSSES,
@@ -102,6 +118,7 @@ from ._problem import (
     _to_z,
 )
 from ._result import Identification, _finish, _preflight, _refusal_message
+from ._start import check_scene_start, check_starts
 
 #: starts="auto": when the given start does not explain the data, the Latin hypercube holds
 #: AUTO_STARTS - 1 points besides it, and the fit runs from the AUTO_KEEP cheapest of them
@@ -114,7 +131,7 @@ def identify(
     unknowns: Sequence[str] = ("t",),
     *,
     model="double1r",
-    scene: str = "servo-circle",
+    scene: Union[None, str, AbstractScene] = None,
     actuation: str = "auto",
     initial_state: str = "scene",
     params: Optional[RobotParams] = None,
@@ -164,15 +181,21 @@ def identify(
         and t^-1 K_theta^3 of 1e6 % at 5 um / 0.05 mrad of noise. Fit the pair with
         `force=True` to see the combinations in the result.
     - `model`: "double1r" (L2, default), "reduced" (L1), "rigid" (L0) or a model instance.
-    - `scene`: the experiment's actuation, "servo-circle" (default) or "paper-circle" (module
-        docstring).
+    - `scene`: None (default): each experiment's own scene, driven by its own angles (or
+        torques) along its own path from its own first samples (module docstring); or the
+        paper's experiment the data come from, a registered name ("servo-circle",
+        "paper-circle") or an `AbstractScene`, whose drive (`AbstractScene.drive`) says
+        whether angles or torques drive it.
     - `actuation`: "auto" (default: the data's th_1..th_3 drive the model when every
-        experiment holds them and no `commands` are named, else the commands), "commanded" (the
-        scene's commands, or torques, computed for `commands`) or "measured" (servo-circle: the
-        data's angles). `Identification.actuation` says which drove the fit.
+        experiment holds them and no `commands` are named, else the commands), "commanded" (a
+        named scene's commands, or torques, computed for `commands`) or "measured" (a
+        motion-driven scene: the data's angles). Without a scene the data's own commands
+        drive the model ("auto" or "measured"). `Identification.actuation` says which drove
+        the fit.
     - `initial_state`: "scene" (default), "pose" or "pose-velocity": what of each
         experiment's initial state is estimated (module docstring).
-    - `params`: the robot (default `scene_params(scene)`).
+    - `params`: the robot (default: a named scene's `default_params()`, else Table 1,
+        `RobotParams()`).
     - `commands`: the `RobotParams` of the model that computed the commands (default the
         nominal robot, `params` with `fixed`; never the unknowns' initial values).
     - `fixed`: {name: value} overrides applied to `params`.
@@ -231,8 +254,11 @@ def identify(
     stat_tol in [0, 1e3], rtol in [1e-14, 1e-2], atol in [1e-16, 1e-2], max_steps in
     [1, 1e9], seed in [0, 2^63 - 1]; checked before anything is compiled), bounds outside the
     physical range, an initial value outside its bounds, a bad option (naming it and its
-    allowed values), a simulation that fails at the initial values, or a preflight refusal;
-    `DataError` for unusable data.
+    allowed values), a simulation that fails at the initial values (naming the experiment and
+    the cause), or a preflight refusal; its subclass `StartError`, before anything is
+    compiled, for an experiment whose first sample cannot start the model (module docstring);
+    `DataError` for unusable data (without a scene: data that hold neither angles nor
+    torques).
     """
     _check_solver_args(loss_scale, max_iter, xtol, ftol, stat_tol, rtol, atol, max_steps, seed)
     exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
@@ -242,21 +268,9 @@ def identify(
         if not isinstance(e, Experiment):
             raise DataError(f"experiments must be Experiment objects (load_csv), got "
                             f"{type(e).__name__}")
-    if scene not in ID_SCENES:
-        raise IdentificationError(f"unknown scene {scene!r}; allowed: {', '.join(ID_SCENES)}")
     if actuation not in ACTUATIONS:
         raise IdentificationError(f"unknown actuation {actuation!r}; allowed: "
                                   f"{', '.join(ACTUATIONS)}")
-    if actuation == "auto":
-        # named commands are asked for; otherwise what the files hold
-        has_th = all(e.th is not None for e in exps)
-        measured = commands is None and scene == "servo-circle" and has_th
-        actuation = "measured" if measured else "commanded"
-    if actuation == "measured" and scene != "servo-circle":
-        raise IdentificationError("actuation 'measured' (the measured angles drive the model) "
-                                  "applies to the motion-driven servo-circle scene; "
-                                  "paper-circle is torque-driven (it uses measured torques "
-                                  "tau_1..tau_3 when the data give them)")
     if initial_state not in INITIAL_STATES:
         raise IdentificationError(f"unknown initial_state {initial_state!r}; allowed: "
                                   f"{', '.join(INITIAL_STATES)}")
@@ -302,12 +316,46 @@ def identify(
     if stray:
         raise IdentificationError(f"initial values given for {sorted(stray)}, which are not "
                                   f"unknowns (to hold a parameter at a value, use fixed=)")
+    own = scene is None  # each experiment's own scene, driven by its own commands
+    if own:
+        if actuation == "commanded" or commands is not None:
+            raise IdentificationError(
+                "without a scene the data's own angles or torques drive the model: actuation="
+                "'commanded' and commands= apply to a named scene (scene='servo-circle', "
+                "'paper-circle' or an AbstractScene) whose commands are computed")
+        drive = _common_drive(exps)
+        if actuation == "measured" and drive == "torque":
+            raise IdentificationError("actuation 'measured' (the measured angles drive the "
+                                      "model) needs th_1..th_3 in every experiment; these "
+                                      "data drive it by their torques (actuation='auto')")
+        scene_obj = None
+        label = "experiment's own" if len(exps) == 1 else "experiments' own"
+        actuation = "measured" if drive == "motion" else "commanded"
+    else:
+        try:
+            scene_obj = get_scene(scene)
+        except PPRError as err:
+            raise IdentificationError(str(err)) from None
+        drive, label = scene_obj.drive, scene_obj.name
+        if actuation == "auto":
+            # named commands are asked for; otherwise what the files hold
+            has_th = all(e.th is not None for e in exps)
+            measured = commands is None and drive == "motion" and has_th
+            actuation = "measured" if measured else "commanded"
+        if actuation == "measured" and drive != "motion":
+            raise IdentificationError(
+                f"actuation 'measured' (the measured angles drive the model) applies to a "
+                f"motion-driven scene; {scene_obj.name} is {drive}-driven (it uses the measured "
+                f"torques tau_1..tau_3 when the data give them)")
     mdl = get_model(model, n_elements)
-    if n_init and scene == "servo-circle" and mdl.actuated_index is None:
+    if n_init and drive == "motion" and mdl.actuated_index is None:
         raise IdentificationError(f"initial_state={initial_state!r}: the {mdl.name} model has no "
-                                  f"free initial state in the motion-driven servo-circle scene "
-                                  f"(its pose follows from the angles); use initial_state='scene'")
-    base = scene_params(scene) if params is None else params
+                                  f"free initial state under prescribed angles (a motion drive: "
+                                  f"its pose follows from the angles); use initial_state='scene'")
+    if params is None:
+        base = RobotParams() if own else scene_obj.default_params()
+    else:
+        base = params
     try:
         base = base.replace(**fixed) if fixed else base
         nominal = base
@@ -335,7 +383,19 @@ def identify(
     if bounds:
         raise IdentificationError(f"bounds given for parameters that are not unknowns: "
                                   f"{sorted(bounds)}")
-    ts, X, W, tau, th, mask = _pack(exps, float(noise[0]), float(noise[1]), scene, actuation)
+    ts, X, W, tau, th, mask, paths, start_fits = _pack(exps, float(noise[0]),
+                                                       float(noise[1]), drive, actuation,
+                                                       own=own)
+    # Before anything is compiled: can each experiment's first sample start the model? (In the
+    # channels that are fitted: a channel of infinite noise is not.)
+    fitted = tuple(math.isfinite(float(v)) for v in noise)
+    if own:
+        check_starts(exps, drive, base, start_fits, fitted)
+    else:
+        check_scene_start(exps, scene_obj, [fit_start(e.ts, e.X)[0] for e in exps], fitted)
+    # then the units and robot of the columns that drive the model, over the whole record
+    check_plausible(exps, base, "from the data" if own else getattr(scene_obj, "name", scene),
+                    angles=th is not None, torques=tau is not None)
     held = _held_out(validation, ts, mask, [e.name for e in exps], n_init)
     if held is not None:
         W_all = W
@@ -358,24 +418,34 @@ def identify(
         raise IdentificationError("commands= names the model that computed the commands; with "
                                   "actuation='measured' the measured angles drive the model")
     cmd = nominal if commands is None else commands
+    whose = ("each experiment's own" if len(exps) > 1 else "the experiment's own") if own \
+        else "the"
     if actuation == "measured":
-        drive = "the measured actuated angles th_1..th_3"
-    elif scene == "paper-circle" and all(e.tau is not None for e in exps):
-        drive = "the measured torques tau_1..tau_3"
+        driven_by = f"{whose} measured actuated angles th_1..th_3"
+    elif drive == "torque" and tau is not None:
+        driven_by = f"{whose} measured torques tau_1..tau_3"
     else:
-        what = "commanded angles" if scene == "servo-circle" else "inverse-dynamics torques"
-        drive = (f"the {what} of the nominal robot (params with fixed), held fixed"
-                 if commands is None else f"the {what} of the given commands model, held fixed")
+        what = "commanded angles" if drive == "motion" else "inverse-dynamics torques"
+        driven_by = (f"the {what} of the nominal robot (params with fixed), held fixed"
+                     if commands is None
+                     else f"the {what} of the given commands model, held fixed")
+    if own:
+        driven_by += (" along its own path, from the state its first samples give"
+                      if len(exps) == 1 else
+                      " along their own paths, from the states their first samples give")
     prob = _Problem(
         base=base, commands=cmd, lo=jnp.asarray(lo), hi=jnp.asarray(hi), ts=jnp.asarray(ts),
         X=jnp.asarray(X), w=jnp.asarray(W), tau=None if tau is None else jnp.asarray(tau),
         th=None if th is None else jnp.asarray(th),
         rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64),
-        names=names, log=tuple(lg), model=mdl, scene=scene, equal_links=eq, solver=ode,
+        names=names, log=tuple(lg), model=mdl, scene=label, equal_links=eq, solver=ode,
         max_steps=int(max_steps), loss=jnp.asarray(LOSSES.index(loss)),
         loss_scale=jnp.asarray(float(loss_scale), dtype=jnp.float64),
         n_init=n_init, init_scale=jnp.asarray(INIT_SCALE[:n_init]) if n_init else None,
-        meas=meas,
+        meas=meas, scene_obj=scene_obj, drive=drive,
+        paths=None if paths is None else jnp.asarray(paths),
+        starts=None if start_fits is None else jnp.asarray(start_fits),
+        experiment_names=tuple(e.name for e in exps),
     )
     p0 = np.array([float(getattr(base, n)) for n in names])
     z0 = np.concatenate([_to_z(lg, lo, hi, p0), np.zeros(n_init * len(exps) + len(meas))])
@@ -389,7 +459,7 @@ def identify(
     r0, J0, ok0, X0 = _residual_and_jacobian(prob, jnp.asarray(z0))
     J0 = np.asarray(J0)
     pre_s = time.perf_counter() - t_pre
-    _check_ok(ok0, z0, prob)
+    _check_ok(ok0, z0, prob, start=True)
     t_an = time.perf_counter()
     pre = _preflight(prob, z0, J0)
     an_s = time.perf_counter() - t_an
@@ -435,8 +505,23 @@ def identify(
     hist["starts_option"] = starts
     hist["escalation"] = escalation
     hist["preflight"] = preflight
-    return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise), drive,
+    return _finish(prob, z, p0, hist, exps, mask, tuple(float(v) for v in noise), driven_by,
                    held=None if held is None else (W_all, held[0], held[1]))
+
+
+def _common_drive(exps) -> str:
+    """The drive that every experiment's own commands give (`experiment_drive`): the angles
+    where every experiment holds them (MODEL.md section 7), else the torques where every one
+    holds them; a `DataError` naming the experiments otherwise."""
+    drives = [experiment_drive(e) for e in exps]  # names an experiment that holds neither
+    if all(e.th is not None for e in exps):
+        return "motion"
+    if all(e.tau is not None for e in exps):
+        return "torque"
+    angles = [e.name for e, d in zip(exps, drives) if d == "motion"]
+    torques = [e.name for e, d in zip(exps, drives) if d == "torque"]
+    raise DataError(f"experiments fitted together share one drive: {', '.join(angles)} hold "
+                    f"actuated angles, {', '.join(torques)} torques only; fit them apart")
 
 
 def _held_out(validation, ts, mask, names, n_init):

@@ -7,16 +7,7 @@ import os
 
 import numpy as np
 
-
-def _pyplot():
-    """matplotlib's pyplot on the Agg backend, imported when a figure is drawn (not with the
-    package: `import ppr_jax` and a plain simulation stay without matplotlib)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from .._html import pyplot as _pyplot
 
 
 def identification_figures(fit, out_dir: str) -> list[str]:

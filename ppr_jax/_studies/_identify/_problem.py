@@ -3,6 +3,7 @@ residual and its Jacobian through the scene's own run."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Optional
 
@@ -14,17 +15,17 @@ import numpy as np
 
 from ..._actuation import MotionDriven, TorqueDriven
 from ..._custom_types import Array
-from ..._errors import RESULTS
+from ..._errors import result_code
 from ..._names import (  # the choices the command line offers, written there
     ACTUATIONS as ACTUATIONS,
-    ID_SCENES as ID_SCENES,
     ID_SOLVERS,
     INITIAL_STATES as INITIAL_STATES,
     LOSSES as LOSSES,
 )
 from ..._params import RobotParams
+from ..._paths import StartPath
 from ..._robot import Robot
-from ..._scenes import SceneOptions, get_scene, input_panels_at
+from ..._scenes import PathScene, SceneOptions, input_panels_at
 from ..._trajectory import Interpolated, PiecewiseCubic
 
 #: the least-squares solvers (`identify(solver=...)`, the CLI's --method)
@@ -79,7 +80,7 @@ class _Problem(eqx.Module):
     names: tuple = eqx.field(static=True)
     log: tuple = eqx.field(static=True)  # per unknown: bounds in log space
     model: object = eqx.field(static=True)
-    scene: str = eqx.field(static=True)
+    scene: str = eqx.field(static=True)  # what the reports call the experiments' scene
     equal_links: bool = eqx.field(static=True)
     solver: object = eqx.field(static=True)
     max_steps: int = eqx.field(static=True)
@@ -92,6 +93,18 @@ class _Problem(eqx.Module):
     #: indices into MEAS_NAMES of the measurement nuisance parameters estimated, the last
     #: entries of z, in units of MEAS_SCALE
     meas: tuple = eqx.field(static=True, default=())
+    #: the named scene (an `AbstractScene`), or None: each experiment's own scene (a `PathScene`
+    #: on its measured poses, driven by its own angles or torques: `paths`, `starts`)
+    scene_obj: object = None
+    #: the scene's drive, "motion" or "torque" (what the measured commands are)
+    drive: str = eqx.field(static=True, default="motion")
+    #: (E, m - 1, 4, 3) spline pieces of each experiment's measured poses (its own scene's path)
+    paths: Optional[Array] = None
+    #: (E, 3, 3) each experiment's start: pose, rate and acceleration fitted to its first
+    #: samples (`fit_start`), which its own scene's quasi-static start takes
+    starts: Optional[Array] = None
+    #: the experiments' names (messages)
+    experiment_names: tuple = eqx.field(static=True, default=())
 
 
 def _to_p(prob: _Problem, z):
@@ -170,12 +183,18 @@ def _delayed(X, V, ts, delay):
     return jnp.where(delay >= 0, later, earlier)
 
 
-def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
-    """Simulated pose (m, 3) of one experiment at times ts (ts[0] = 0, the scene's start) and
-    whether its scene succeeded: the scene's own run (`AbstractScene.run`), driven by the
-    measured angles or torques, or by the scene's commands for the commands' robot."""
+def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0, path, start):
+    """Simulated pose (m, 3) of one experiment at times ts (ts[0] = 0, the scene's start),
+    its rates, and its scene's result code: the scene's own run (`AbstractScene.run`), driven
+    by the measured angles or torques, or by the scene's commands for the commands' robot.
+    Without a named scene, the experiment's own scene: a `PathScene` on its measured poses
+    (`path`, spline pieces), started from the fit of its first samples (`start`)."""
     model = prob.model
-    scene = get_scene(prob.scene)
+    if prob.scene_obj is None:
+        scene = PathScene(PiecewiseCubic(ts, path), drive=prob.drive,
+                          start_path=StartPath(ts[0], start), name=prob.scene)
+    else:
+        scene = prob.scene_obj
     traj = scene.trajectory()
     # The panel count is a shape: decided from the (traced) times as the scenes decide it.
     options = SceneOptions(solver=prob.solver, rtol=prob.rtol, atol=prob.atol,
@@ -192,7 +211,7 @@ def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0):
     robot = Robot(params, equal_links=prob.equal_links)
     res = scene.run(model, robot, options, act, ts=ts, initial_offset=d0)
     # z[:3] is the platform pose in every model: its rates are the pose's
-    return res.X, res.zdot[:, :3], res.result == RESULTS.successful
+    return res.X, res.zdot[:, :3], result_code(res.result)
 
 
 def _robust(r, loss, c):
@@ -207,40 +226,60 @@ def _robust(r, loss, c):
 
 def _weighted_residuals(prob: _Problem, p, d0, meas=None):
     """(E, m, 3) weighted residuals (predicted - measured) / noise, raw (before the loss), the
-    predicted poses and the success flag of every experiment's simulation; d0 (E, 6)
+    predicted poses and the result code (E,) of every experiment's simulation (0: success,
+    `result_code`); d0 (E, 6)
     initial-state offsets; meas (bias (3,), delay) the measurement model: the pose predicted at
     t is the simulated one at t - delay, plus the bias."""
     params = _params_at(prob, p)
     base_robot = Robot(jax.lax.stop_gradient(prob.commands))
     tau, th = prob.tau, prob.th
-    X, V, ok = jax.vmap(
-        lambda ts, tau, th, d0: _pose_one(prob, params, base_robot, ts, tau, th, d0),
-        in_axes=(0, None if tau is None else 0, None if th is None else 0, 0),
-    )(prob.ts, tau, th, d0)
+    paths, starts = prob.paths, prob.starts
+    X, V, codes = jax.vmap(
+        lambda ts, tau, th, d0, path, start: _pose_one(prob, params, base_robot, ts, tau, th,
+                                                       d0, path, start),
+        in_axes=(0, None if tau is None else 0, None if th is None else 0, 0,
+                 None if paths is None else 0, None if starts is None else 0),
+    )(prob.ts, tau, th, d0, paths, starts)
     if prob.meas:
         bias, delay = meas
         X = _delayed(X, V, prob.ts, delay) + bias[None, None, :]
     # Padding rows have weight 0; a failed simulation may be NaN there, keep it out of sums.
     r = jnp.where(prob.w > 0, (X - prob.X) * prob.w, 0.0)
-    return r, X, jnp.all(ok)
+    return r, X, codes
 
 
 def _residual_vector(prob: _Problem, z):
-    r, X, ok = _weighted_residuals(prob, _to_p(prob, z), _offsets(prob, z),
+    r, X, codes = _weighted_residuals(prob, _to_p(prob, z), _offsets(prob, z),
                                    _measurement(prob, z))
-    return _robust(r.reshape(-1), prob.loss, prob.loss_scale), (ok, X)
+    return _robust(r.reshape(-1), prob.loss, prob.loss_scale), (codes, X)
+
+
+def _anonymous(prob: _Problem) -> _Problem:
+    """The problem without the experiments' names (static, they would key the compilation: a
+    second file of the same shapes must reuse the compiled program)."""
+    return dataclasses.replace(prob, experiment_names=()) if prob.experiment_names else prob
+
+
+def _residual_and_jacobian(prob: _Problem, z):
+    """(r (N,), J (N, P) = dr/dz, the simulations' result codes (E,) (0: success; `_succeeded`),
+    simulated pose (E, m, 3)) in one compiled forward-mode pass: the fit, the covariance and the
+    fitted trajectory share it."""
+    return _residual_and_jacobian_jit(_anonymous(prob), z)
 
 
 @eqx.filter_jit
-def _residual_and_jacobian(prob: _Problem, z):
-    """(r (N,), J (N, P) = dr/dz, simulations ok, simulated pose (E, m, 3)) in one compiled
-    forward-mode pass: the fit, the covariance and the fitted trajectory share it."""
+def _residual_and_jacobian_jit(prob: _Problem, z):
     def fn(z):
         r, aux = _residual_vector(prob, z)
         return r, (r, aux)
 
-    J, (r, (ok, X)) = jax.jacfwd(fn, has_aux=True)(z)
-    return r, J, ok, X
+    J, (r, (codes, X)) = jax.jacfwd(fn, has_aux=True)(z)
+    return r, J, codes, X
+
+
+def _succeeded(codes) -> bool:
+    """Every experiment's simulation succeeded (host side: result codes (E,) all 0)."""
+    return bool(np.all(np.asarray(codes) == 0))
 
 
 def noise_text(noise) -> str:

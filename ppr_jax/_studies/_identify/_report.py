@@ -5,8 +5,6 @@ versions, the command)."""
 
 from __future__ import annotations
 
-import base64
-import datetime
 import hashlib
 import html
 import math
@@ -15,6 +13,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from .._html import fmt as _g, image as _image, page, table as _table
+
 
 def _sha256(path: str) -> str:
     h = hashlib.sha256()
@@ -22,29 +22,6 @@ def _sha256(path: str) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
-    esc = html.escape
-    head = "".join(f"<th>{esc(str(h))}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{esc(str(c))}</td>" for c in row) + "</tr>"
-                   for row in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
-
-
-def _g(x, digits: int = 6) -> str:
-    if x is None:
-        return "open"
-    x = float(x)
-    return f"{x:.{digits}g}" if math.isfinite(x) else "undetermined"
-
-
-def _image(path: str) -> str:
-    with open(path, "rb") as f:
-        data = base64.b64encode(f.read()).decode("ascii")
-    name = html.escape(os.path.basename(path))
-    return (f'<figure><img alt="{name}" src="data:image/png;base64,{data}"/>'
-            f"<figcaption>{name}</figcaption></figure>")
 
 
 def _starts_html(fit) -> str:
@@ -101,13 +78,6 @@ def write_report(fit, path: str, *, figures: Sequence[str] = (), data_files: Seq
                      "-" if pr is None else f"[{_g(pr['ci'][0])}, {_g(pr['ci'][1])}]",
                      _g(float(fit.initial[i]))])
     parts = [
-        "<!doctype html><html><head><meta charset='utf-8'>",
-        f"<title>ppr_jax identification: {esc(', '.join(fit.names))}</title>",
-        "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}"
-        "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;"
-        "padding:2px 8px;text-align:right}th{background:#eee}.bad{color:#b00;font-weight:bold}"
-        ".ok{color:#070;font-weight:bold}img{max-width:100%}code{background:#f4f4f4}</style>"
-        "</head><body>",
         f"<h1>Identification of {esc(', '.join(fit.names))}</h1>",
         f"<p>Model <code>{esc(fit.model)}</code>, scene <code>{esc(fit.scene)}</code>, "
         f"{len(fit.experiment_names)} experiment(s): {esc(', '.join(fit.experiment_names))}. "
@@ -172,9 +142,7 @@ def write_report(fit, path: str, *, figures: Sequence[str] = (), data_files: Seq
     parts += ["<h2>Provenance</h2>",
               _table(["data file", "sha256"], prov) if prov else "",
               f"<p>Versions: <code>{esc(dependency_versions())}</code></p>",
-              f"<p>Command: <code>{esc(command)}</code></p>" if command else "",
-              f"<p>Written {datetime.datetime.now(datetime.timezone.utc).isoformat()}.</p>",
-              "</body></html>"]
+              f"<p>Command: <code>{esc(command)}</code></p>" if command else ""]
     with open(path, "w", encoding="utf-8") as f:
-        f.write("\n".join(parts))
+        f.write(page(f"ppr_jax identification: {', '.join(fit.names)}", parts))
     return path
