@@ -23,7 +23,9 @@ def test_the_table_reaches_the_start_stencil():
 
 @pytest.fixture(scope="module", params=[("paper-circle", "double1r"),
                                         ("servo-circle", "double1r"),
-                                        ("paper-circle", "reduced")],
+                                        ("paper-circle", "reduced"),
+                                        ("servo-circle", "rigid"),
+                                        ("paper-circle", "rigid")],
                 ids=lambda p: f"{p[0]}-{p[1]}")
 def long_run(request):
     scene, model = request.param
