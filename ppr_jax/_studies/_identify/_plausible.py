@@ -9,9 +9,13 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ..._data import DataError
+from ..._geometry import ik_reduced
 
 #: actuated angles (rad) further than this from the nominal robot's inverse kinematics of the
 #: measured pose are not this robot's (the joints' deflections under load are some 10 mrad)
@@ -32,13 +36,20 @@ def _wrap(x):
     return x - 2 * np.pi * np.round(x / (2 * np.pi))
 
 
+@eqx.filter_jit
+def _ik_samples(robot, X):
+    """`ik_reduced` of poses X (k, 3) (m, m, rad), one compiled program for the samples of an
+    experiment. Returns the chain angles th_i1 (k, 3) (rad) and the reach margins (k, 3)."""
+    th, m = jax.vmap(ik_reduced, in_axes=(None, 0))(robot, X)
+    return th[..., 0], m
+
+
 def check_plausible(experiments, params, scene: str, *, angles: bool, torques: bool) -> None:
     """Raise `DataError` naming the experiment, the column and the likely factor when the data
     cannot be this robot's in SI units. `params`: the nominal `RobotParams` (the unknowns at
     their initial values); `angles`, `torques`: the measured angles or torques drive the model
-    (then they are checked). Host-side arithmetic and a few eager inverse kinematics, nothing
-    compiled beyond them."""
-    from ..._geometry import ik_reduced
+    (then they are checked). Host-side arithmetic and one small compiled inverse kinematics
+    of a few samples per experiment, nothing compiled beyond it."""
     from ..._prb import derived
     from ..._robot import as_robot
 
@@ -47,12 +58,7 @@ def check_plausible(experiments, params, scene: str, *, angles: bool, torques: b
     for e in experiments:
         ts, X = np.asarray(e.ts), np.asarray(e.X)
         idx = np.unique(np.linspace(0, len(ts) - 1, _SAMPLES).round().astype(int))
-        th_ik, margin = [], []
-        for i in idx:
-            th, m = ik_reduced(robot, X[i])
-            th_ik.append(np.asarray(th)[:, 0])
-            margin.append(np.asarray(m))
-        th_ik, margin = np.array(th_ik), np.array(margin)
+        th_ik, margin = (np.asarray(v) for v in _ik_samples(robot, jnp.asarray(X[idx])))
         worst = np.unravel_index(np.argmin(margin), margin.shape)
         if margin[worst] < -REACH_TOL:
             i, c = idx[worst[0]], worst[1] + 1
