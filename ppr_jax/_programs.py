@@ -29,7 +29,8 @@ Beside each program the store keeps its compiled form, XLA's executable
 (`jax.experimental.serialize_executable`; `<label>-<key>-<program>-<machine>.jaxexec`), so that a
 later process skips deserialising and lowering the program as well (0.6-1 s of a second run).
 Its name holds the sha256 of the program it was compiled from and a digest of the machine
-(backend, device, the CPU's model and features, which the compiled code targets): a program
+(backend, devices, the CPU's model and features, which the compiled code targets, and
+`XLA_FLAGS`): a program
 exported afresh, or another machine sharing the directory, never loads a stale executable. It
 is stored only where every custom call of the program is one this module knows how to prepare
 (the LAPACK kernels, which jaxlib initialises when lowering, and which a loaded executable would
@@ -203,8 +204,8 @@ def _unpack(data: bytes, magic: bytes = MAGIC) -> bytes:
 @functools.lru_cache(maxsize=None)
 def machine_digest() -> str:
     """A digest of what a compiled executable depends on beyond the program: the backend, its
-    devices, and the CPU (model and instruction-set features, from /proc/cpuinfo where there is
-    one), which XLA's CPU code targets."""
+    devices and their count, the CPU (model and instruction-set features, from /proc/cpuinfo
+    where there is one), which XLA's CPU code targets, and `XLA_FLAGS`."""
     import platform
 
     cpu = platform.processor() or platform.machine()
@@ -214,8 +215,11 @@ def machine_digest() -> str:
                      if ln.startswith(("model name", "flags", "Features", "CPU part"))]
         cpu += "\n".join(sorted(set(lines)))
     d = jax.devices()[0]
+    # XLA's flags (the environment's) shape the compiled code as the persistent cache's key
+    # says; the device count, the executable's placement
     text = "\n".join([jax.default_backend(), d.platform, d.device_kind,
-                      str(getattr(d.client, "platform_version", "")), cpu])
+                      str(getattr(d.client, "platform_version", "")), cpu,
+                      os.environ.get("XLA_FLAGS", ""), str(jax.device_count())])
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
