@@ -370,7 +370,10 @@ LEVERS = {
         "what is left is the interpreter and its imports (jax, equinox, diffrax, which the "
         "scene's static arguments need; matplotlib for the figures) and writing the figures: "
         "lazy figures (a flag, or drawing in a second process) and a scene module that does not "
-        "import diffrax when an executable is loaded"),
+        "import diffrax when an executable is loaded; for L3 the executable itself (16 MB for "
+        "N = 16): XLA's loading of it takes 2-3 s on a loaded 2-core CPU, about what the "
+        "program's deserialisation, lowering and persistent-cache read take, so only a smaller "
+        "L3 program shortens it"),
     "identify_cold_over_warm": (
         "the first fit compiles the simulation and its derivatives; programs of identification "
         "kept in the program store as the scenes' are"),
