@@ -255,3 +255,47 @@ def test_a_closure_in_the_static_arguments_is_not_stored():
     c = _call(controller=diffrax.PIDController(rtol=1e-8, atol=1e-10, norm=norm))
     with pytest.raises(NotExportable):
         program_key(c.args, "x")
+
+
+LAPACK = """
+import json, sys
+import jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_enable_x64", True)
+from ppr_jax import _programs
+
+def fn(a, b):
+    return jnp.linalg.solve(a, b)
+
+a = jnp.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
+b = jnp.array([1.0, 2.0, 3.0])
+run, how = _programs.load_or_export(fn, (a, b), b, sys.argv[1], "lapack")
+print(json.dumps({"how": how, "x": np.asarray(run(a, b)).tolist()}))
+"""
+
+
+def test_an_executable_with_lapack_calls_loads_in_a_fresh_process(tmp_path):
+    """A program with LAPACK custom calls (jnp.linalg.solve): its executable, loaded in a
+    process that has lowered nothing (so jaxlib has not initialised LAPACK; without
+    `_prepare_targets` the run crashes), solves as numpy does."""
+    import json
+
+    d = tmp_path / "programs"
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("JAX_COMPILATION_CACHE", "JAX_PERSISTENT_CACHE"))}
+    env.update(PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+
+    def run():
+        p = subprocess.run([sys.executable, "-c", LAPACK, str(d)], env=env, capture_output=True,
+                           text=True, timeout=300)
+        assert p.returncode == 0, p.stderr[-3000:]
+        return json.loads(p.stdout.strip().splitlines()[-1])
+
+    first = run()
+    assert first["how"] == "exported"
+    (xpath,) = _executables_in(d)
+    head = _programs._unpack(xpath.read_bytes(), _programs.EXEC_MAGIC).split(b"\n", 1)[0]
+    assert any(t.startswith("lapack_") for t in json.loads(head)["targets"])
+    second = run()
+    assert second["how"] == "loaded"
+    a = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
+    np.testing.assert_allclose(second["x"], np.linalg.solve(a, [1.0, 2.0, 3.0]), rtol=1e-14)
