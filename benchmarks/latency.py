@@ -364,7 +364,9 @@ LEVERS = {
         "A/B on a loaded machine, with the start's own run 2x slower; the input table (the same "
         "2,994-line program for every model of paper-circle) compiled as a program of its own "
         "would be shared between models and processes, 1.5-3 s of each model's XLA time after "
-        "the first model, but not the first model's cold compilation"),
+        "the first model (compile_budget.json's parts compiled apart and chained give the whole "
+        "program's poses to 0.0 m, so the split need not move a number), but not the first "
+        "model's cold compilation"),
     "warm_over_cold_wall": (
         "the warm process loads the program's executable (no trace, lowering or compilation); "
         "what is left is the interpreter and its imports (jax, equinox, diffrax, which the "
