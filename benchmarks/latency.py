@@ -10,7 +10,8 @@ from that checkout. Rows (wall time of the process, minimum of repeats; base and
 interleaved, so that a drift of the machine's load falls on both):
 
 - `python -c pass`, `import jax`, `import ppr_jax` (and the import's own time, measured inside
-  the process), `ppr-jax --help` (the console script's entry point, `ppr_jax_cli.main`);
+  the process), `ppr-jax --help` (the console script's entry point, `ppr_jax_cli.main`), and
+  `import matplotlib (Figure, Agg)`, what `simulate`'s figures import;
 - per model (`rigid`, `reduced`, `double1r`, `beam` at `--elements 16`): `ppr-jax simulate
   --model M --out DIR` (scene `paper-circle`) with a fresh `PPR_JAX_CACHE_DIR` (cold), then
   the same command in a second process on that cache (warm); the command's own log line
@@ -25,7 +26,8 @@ The JSON holds each row for base and new, and the ratios the latency goals set, 
 `met`: cold compile new / base per model (<= 1/3), second process / cold process wall per
 model (<= 0.1), import ppr_jax / import jax (<= 1.3), `--help` minus `python -c pass`
 (<= 0.5 s), identification cold / warm (<= 2). A goal is judged on the new
-checkout; the base's value is beside it.
+checkout; the base's value is beside it. Each goal not met names what bounds it (`bound`, from
+this run's rows and `benchmarks/results/compile_budget.json`) and the remaining lever (`lever`).
 
 Bytecode: the children write and read it under one `PYTHONPYCACHEPREFIX` directory (never in
 the checkouts), warmed by one untimed run of each start-up command and a short simulation per
@@ -53,6 +55,7 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 OUT = os.path.join(HERE, "results", "latency.json")
+BUDGET = os.path.join(HERE, "results", "compile_budget.json")
 MODELS = ("rigid", "reduced", "double1r", "beam")
 BEAM_ELEMENTS = 16
 PARTS = ("startup", "simulate", "identify")
@@ -178,7 +181,9 @@ def _interleaved(checkouts, repeats, one) -> dict:
 
 def startup_rows(checkouts, repeats) -> list:
     cmds = [("python -c pass", "pass", ()), ("import jax", _import("jax"), ()),
-            ("import ppr_jax", _import("ppr_jax"), ()), ("ppr-jax --help", CLI, ("--help",))]
+            ("import ppr_jax", _import("ppr_jax"), ()), ("ppr-jax --help", CLI, ("--help",)),
+            ("import matplotlib (Figure, Agg)",
+             _import("matplotlib.figure, matplotlib.backends.backend_agg"), ())]
     rows = []
     for name, code, args in cmds:
         def one(c, code=code, args=args):
@@ -348,6 +353,89 @@ def goals(rows, labels) -> list:
     return out
 
 
+#: the remaining levers of the goals not met (`bounds`)
+LEVERS = {
+    "cold_compile_new_over_base": (
+        "the scene program is the base's (same StableHLO): the quasi-static start's equations of "
+        "motion in a loop (lax.map over the 5 stencil times and/or the 2n+1 finite-difference "
+        "points) instead of vectorised was measured and not taken: it moves L3's start velocity "
+        "by up to 1.6e-12 relative (beyond the 1e-14 of 'every number unchanged'; L2's start "
+        "bit-identical) and gained at most a tenth of L2's start compilation in an interleaved "
+        "A/B on a loaded machine, with the start's own run 2x slower; the input table (the same "
+        "2,994-line program for every model of paper-circle) compiled as a program of its own "
+        "would be shared between models and processes, 1.5-3 s of each model's XLA time after "
+        "the first model (compile_budget.json's parts compiled apart and chained give the whole "
+        "program's poses to 0.0 m, so the split need not move a number), but not the first "
+        "model's cold compilation"),
+    "warm_over_cold_wall": (
+        "the warm process loads the program's executable (no trace, lowering or compilation); "
+        "what is left is the interpreter and its imports (jax, equinox, diffrax, which the "
+        "scene's static arguments need; matplotlib for the figures) and writing the figures: "
+        "lazy figures (a flag, or drawing in a second process) and a scene module that does not "
+        "import diffrax when an executable is loaded; for L3 the executable itself (16 MB for "
+        "N = 16): XLA's loading of it takes 2-3 s on a loaded 2-core CPU, about what the "
+        "program's deserialisation, lowering and persistent-cache read take, so only a smaller "
+        "L3 program shortens it"),
+    "identify_cold_over_warm": (
+        "the first fit compiles the simulation and its derivatives; programs of identification "
+        "kept in the program store as the scenes' are"),
+}
+
+
+def _budget_row(model: str):
+    try:
+        with open(BUDGET) as f:
+            rows = json.load(f)["rows"]
+    except (OSError, ValueError, KeyError):
+        return None
+    return next((r for r in rows if r["model"] == model and r["scene"] == "paper-circle"), None)
+
+
+def bounds(rows, goal_rows) -> None:
+    """Add `bound` (what bounds the goal, with the measurement) and `lever` to each goal not
+    met."""
+    by = {r["name"]: r for r in rows}
+
+    def wall(name):
+        return by.get(name, {}).get("new", {}).get("wall_s")
+
+    for g in goal_rows:
+        if g["met"] is not False:
+            continue
+        name = g["goal"]
+        if name == "cold_compile_new_over_base":
+            b = _budget_row(g["model"])
+            if b is not None:
+                parts = ", ".join(f"{k} {v['compile_s']:.1f} s" for k, v in b["parts"].items())
+                g["bound"] = (f"XLA compilation of the scene program, "
+                              f"{b['whole']['compile_s']:.1f} s (compile_budget.json, "
+                              f"its parts alone: {parts})")
+        elif name == "warm_over_cold_wall":
+            cold = by[f"simulate {g['model']} cold"]["new"]
+            warm = by[f"simulate {g['model']} warm"]["new"]
+            imp, mpl, nil = (wall("import jax"), wall("import matplotlib (Figure, Agg)"),
+                             wall("python -c pass"))
+            known = [x for x in (imp, (mpl - nil) if mpl and nil else None,
+                                 warm.get("compile_s"),
+                                 (warm.get("run_ms") or 0) / 1e3) if x is not None]
+            g["bound"] = (
+                f"the warm process {warm['wall_s']:.2f} s against the goal's "
+                f"{0.1 * cold['wall_s']:.2f} s: a process importing jax "
+                f"{imp if imp is not None else float('nan'):.2f} s, matplotlib's Figure and Agg "
+                f"{(mpl - nil) if mpl and nil else float('nan'):.2f} s above a bare "
+                f"interpreter, loading the stored program {warm.get('compile_s', float('nan')):.2f}"
+                f" s, the run {warm.get('run_ms', float('nan')):.0f} ms; the rest "
+                f"{warm['wall_s'] - sum(known):.2f} s (the command's own imports: diffrax, "
+                f"the scenes; drawing and writing the figures and the CSV)")
+        elif name == "identify_cold_over_warm" and g.get("mode") == "fits":
+            r = next(r for r in rows if r["part"] == "identify" and r["mode"] == "fits")["new"]
+            g["bound"] = (f"the first fit {r['first_fit_s']:.1f} s against the second "
+                          f"{r['second_fit_s']:.1f} s: the first compiles the simulation, its "
+                          f"derivatives and the fit's own programs")
+        if name in LEVERS:
+            g["lever"] = LEVERS[name]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--new", default=".", help="the checkout measured (default: this one)")
@@ -417,6 +505,7 @@ def main(argv=None) -> int:
         "rows": rows,
         "goals": goals(rows, labels),
     }
+    bounds(rows, data["goals"])
     if args.note:
         data["note"] = args.note
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)

@@ -24,14 +24,33 @@ the scenes build themselves, always valid), so the export traces with equinox's 
 in NaN mode, as the console script runs anyway. Anything that cannot be exported (a callback, a
 static argument whose identity a key cannot capture, such as a closure) falls back to the usual
 compile, so this is a cache, never a change of results.
+
+Beside each program the store keeps its compiled form, XLA's executable
+(`jax.experimental.serialize_executable`; `<label>-<key>-<program>-<machine>.jaxexec`), so that a
+later process skips deserialising and lowering the program and reading JAX's persistent cache:
+0.4-0.7 s of `ppr-jax simulate`'s second process for L0 (2 MB), less for L3 at N = 16,
+whose 16 MB executable takes 2-3 s to load either way. Its name holds the sha256 of the program
+it was compiled from and a digest of the machine (backend, devices, the CPU's model and
+features, which the compiled code targets, and `XLA_FLAGS`): a program exported afresh, or
+another machine sharing the directory, never loads a stale executable. It is stored only where
+every custom call of the program is one this module knows how to prepare (the LAPACK kernels,
+which jaxlib initialises when lowering, and which a loaded executable would otherwise call
+uninitialised), and only from a fresh compilation: an executable that JAX read from its
+persistent cache serialises incompletely on the CPU (jaxlib 0.10: the copy lacks compiled
+functions and fails when run, "Function ... not found"), so where the compilation was a
+persistent-cache hit no executable is stored and later processes load the program as before. A
+damaged executable (header, checksum, deserialisation) is named in a `RepairWarning` and
+deleted, and the program is compiled (an executable stored afresh as above).
 """
 
 from __future__ import annotations
 
 import contextlib
 import functools
+import glob
 import hashlib
 import importlib.metadata
+import json
 import os
 import pathlib
 import re
@@ -49,6 +68,12 @@ from ._errors import RepairWarning
 FORMAT = 2
 #: the first bytes of a stored program; then the sha256 of the rest (64 hex digits) and a newline
 MAGIC = b"ppr_jax program 2\n"
+#: the first bytes of a stored executable; then the sha256 of the rest and a newline, one line of
+#: JSON (the program's custom-call targets), and XLA's serialised executable
+EXEC_MAGIC = b"ppr_jax executable 1\n"
+#: custom-call targets a stored executable may hold: jaxlib's LAPACK kernels, initialised before
+#: loading (`_prepare_targets`)
+_EXEC_TARGETS = re.compile(r"lapack_\w+")
 #: the distributions whose versions key the stored programs and the sweeps' settings digests
 DEPENDENCIES = ("ppr_jax", "jax", "jaxlib", "diffrax", "equinox", "optimistix", "lineax")
 #: the programs' subdirectory of the compilation cache directory (where the command line keeps
@@ -160,19 +185,137 @@ class _Damaged(Exception):
     """A stored program that failed a check (the message says which)."""
 
 
-def _pack(payload: bytes) -> bytes:
-    return MAGIC + hashlib.sha256(payload).hexdigest().encode() + b"\n" + bytes(payload)
+def _pack(payload: bytes, magic: bytes = MAGIC) -> bytes:
+    return magic + hashlib.sha256(payload).hexdigest().encode() + b"\n" + bytes(payload)
 
 
-def _unpack(data: bytes) -> bytes:
-    """The serialised program of a stored file, after its header and checksum are checked."""
-    n = len(MAGIC)
-    if data[:n] != MAGIC or data[n + 64:n + 65] != b"\n":
-        raise _Damaged("no ppr_jax program header")
+def _unpack(data: bytes, magic: bytes = MAGIC) -> bytes:
+    """The serialised program (or executable, `magic=EXEC_MAGIC`) of a stored file, after its
+    header and checksum are checked."""
+    n = len(magic)
+    if data[:n] != magic or data[n + 64:n + 65] != b"\n":
+        raise _Damaged(f"no ppr_jax {'program' if magic == MAGIC else 'executable'} header")
     payload = data[n + 65:]
     if hashlib.sha256(payload).hexdigest().encode() != data[n:n + 64]:
         raise _Damaged("checksum mismatch")
     return payload
+
+
+@functools.lru_cache(maxsize=None)
+def machine_digest() -> str:
+    """A digest of what a compiled executable depends on beyond the program: the backend, its
+    devices and their count, the CPU (model and instruction-set features, from /proc/cpuinfo
+    where there is one), which XLA's CPU code targets, and `XLA_FLAGS`."""
+    import platform
+
+    cpu = platform.processor() or platform.machine()
+    with contextlib.suppress(OSError):
+        with open("/proc/cpuinfo") as f:
+            lines = [ln for ln in f.read().splitlines()
+                     if ln.startswith(("model name", "flags", "Features", "CPU part"))]
+        cpu += "\n".join(sorted(set(lines)))
+    d = jax.devices()[0]
+    # XLA's flags (the environment's) shape the compiled code as the persistent cache's key
+    # says; the device count, the executable's placement
+    text = "\n".join([jax.default_backend(), d.platform, d.device_kind,
+                      str(getattr(d.client, "platform_version", "")), cpu,
+                      os.environ.get("XLA_FLAGS", ""), str(jax.device_count())])
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _custom_call_targets(exported) -> list[str]:
+    text = exported.mlir_module()
+    return sorted(set(re.findall(r"custom_call @([\w.$-]+)", text))
+                  | set(re.findall(r'call_target_name = "([^"]+)"', text)))
+
+
+def _prepare_targets(targets) -> None:
+    """Initialise what the custom calls `targets` need before an executable that holds them runs
+    (jaxlib does it when lowering a program, which a loaded executable skips)."""
+    if any(_EXEC_TARGETS.fullmatch(t) for t in targets):
+        from jaxlib import lapack
+
+        lapack._lapack.initialize()
+
+
+#: persistent-cache hits seen in this process (`_compile`)
+_HITS = [0]
+
+
+def _count_hits(event: str, **_) -> None:
+    if event == "/jax/compilation_cache/cache_hits":
+        _HITS[0] += 1
+
+
+@functools.lru_cache(maxsize=None)
+def _listen() -> None:
+    jax.monitoring.register_event_listener(_count_hits)
+
+
+def _compile(exported, leaves):
+    """(compiled, fresh): `exported` compiled for `leaves`, and whether XLA compiled it (no
+    persistent-cache hit meanwhile, in any thread: then an executable may be stored)."""
+    _listen()
+    before = _HITS[0]
+    compiled = jax.jit(exported.call).lower(*leaves).compile()
+    return compiled, _HITS[0] == before
+
+
+def _trees(n_in: int, n_out: int):
+    """The argument and result structures of `jax.jit(exported.call)` on flat leaves."""
+    tu = jax.tree_util
+    return tu.tree_structure((tuple(range(n_in)), {})), tu.tree_structure(list(range(n_out)))
+
+
+def _exec_path(path: str, payload: bytes) -> str:
+    program = hashlib.sha256(payload).hexdigest()[:16]
+    return f"{path[:-len('.jaxexport')]}-{program}-{machine_digest()}.jaxexec"
+
+
+def _load_executable(xpath: str, n_in: int, n_out: int):
+    """The stored executable at `xpath`, loaded; raises `_Damaged` naming what failed."""
+    from jax.experimental import serialize_executable
+
+    with open(xpath, "rb") as f:
+        payload = _unpack(f.read(), EXEC_MAGIC)
+    head, sep, body = payload.partition(b"\n")
+    try:
+        targets = json.loads(head)["targets"]
+    except (ValueError, KeyError, TypeError) as err:
+        raise _Damaged("no list of custom calls") from err
+    if not sep or not all(_EXEC_TARGETS.fullmatch(t) for t in targets):
+        raise _Damaged("custom calls this module does not prepare")
+    _prepare_targets(targets)
+    try:
+        return serialize_executable.deserialize_and_load(body, *_trees(n_in, n_out))
+    except Exception as err:
+        raise _Damaged(f"does not deserialise ({_first_line(err)})") from err
+
+
+def _store_executable(xpath: str, compiled, exported, n_in: int, n_out: int) -> None:
+    """Store `compiled` (of `exported`) at `xpath` where its custom calls allow (module
+    docstring); silently nothing where JAX cannot serialise it."""
+    from jax.experimental import serialize_executable
+
+    targets = _custom_call_targets(exported)
+    if not all(_EXEC_TARGETS.fullmatch(t) for t in targets):
+        return
+    try:
+        body, in_tree, out_tree = serialize_executable.serialize(compiled)
+    except Exception:  # this backend or program cannot be serialised: the program suffices
+        return
+    if (in_tree, out_tree) != _trees(n_in, n_out):
+        return
+    payload = json.dumps({"targets": targets}).encode() + b"\n" + bytes(body)
+    _write(xpath, _pack(payload, EXEC_MAGIC))
+
+
+def _write(path: str, data: bytes) -> None:
+    """Atomic: a concurrent process sees the whole file or none."""
+    with tempfile.NamedTemporaryFile(dir=os.path.dirname(path), delete=False,
+                                     suffix=".tmp") as f:
+        f.write(data)
+    os.replace(f.name, path)
 
 
 def _first_line(err: BaseException) -> str:
@@ -180,11 +323,15 @@ def _first_line(err: BaseException) -> str:
     return f"{type(err).__name__}: {text[0] if text else ''}".rstrip(": ")
 
 
-def _load(path: str, n_in: int, n_out: int, leaves):
-    """The stored program at `path`, compiled for `leaves`; raises `_Damaged` naming what
-    failed."""
+def _read(path: str) -> bytes:
+    """The checked serialised program at `path`; raises `_Damaged` naming what failed."""
     with open(path, "rb") as f:
-        payload = _unpack(f.read())
+        return _unpack(f.read())
+
+
+def _load(payload: bytes, n_in: int, n_out: int, leaves):
+    """The stored program `payload`, deserialised and compiled for `leaves`: (compiled, fresh,
+    exported) as `_compile`; raises `_Damaged` naming what failed."""
     try:
         exported = jax.export.deserialize(bytearray(payload))
     except Exception as err:
@@ -192,9 +339,16 @@ def _load(path: str, n_in: int, n_out: int, leaves):
     if len(exported.in_avals) != n_in or len(exported.out_avals) != n_out:
         raise _Damaged("its inputs or outputs do not match this call")
     try:
-        return jax.jit(exported.call).lower(*leaves).compile()
+        return (*_compile(exported, leaves), exported)
     except Exception as err:
         raise _Damaged(f"does not compile ({_first_line(err)})") from err
+
+
+def _repaired(path: str, what: str, err: Exception, how: str) -> None:
+    warnings.warn(f"stored {what} {path} is damaged ({err}): deleted and {how} afresh",
+                  RepairWarning, stacklevel=4)
+    with contextlib.suppress(FileNotFoundError):  # a concurrent process removed it
+        os.remove(path)
 
 
 def load_or_export(fn: Callable, args: tuple, out_template, directory: str, label: str):
@@ -208,25 +362,39 @@ def load_or_export(fn: Callable, args: tuple, out_template, directory: str, labe
     path = os.path.join(directory, f"{label}-{key}.jaxexport")
     out_def = jax.tree_util.tree_structure(out_template)
     leaves = jax.tree_util.tree_leaves(eqx.filter(args, eqx.is_array))
+    n_in, n_out = len(leaves), out_def.num_leaves
     compiled, how = None, "loaded"
     if os.path.exists(path):
         try:
-            compiled = _load(path, len(leaves), out_def.num_leaves, leaves)
+            payload = _read(path)
+            xpath = _exec_path(path, payload)
+            if os.path.exists(xpath):
+                try:
+                    compiled = _load_executable(xpath, n_in, n_out)
+                except _Damaged as err:
+                    _repaired(xpath, "executable", err, "compiled")
+            if compiled is None:
+                compiled, fresh, exported = _load(payload, n_in, n_out, leaves)
+                if fresh:
+                    with contextlib.suppress(OSError):
+                        _store_executable(xpath, compiled, exported, n_in, n_out)
         except _Damaged as err:
-            warnings.warn(f"stored program {path} is damaged ({err}): deleted and exported "
-                          f"afresh", RepairWarning, stacklevel=3)
-            with contextlib.suppress(FileNotFoundError):  # a concurrent process removed it
-                os.remove(path)
+            _repaired(path, "program", err, "exported")
     if compiled is None:
         exported, how = _export(fn, args, out_template), "exported"
         os.makedirs(directory, exist_ok=True)
-        # Atomic: a concurrent process sees the whole file or none.
-        with tempfile.NamedTemporaryFile(dir=directory, delete=False, suffix=".tmp") as f:
-            f.write(_pack(exported.serialize()))
-        os.replace(f.name, path)
-        if len(exported.in_avals) != len(leaves) or len(exported.out_avals) != out_def.num_leaves:
+        payload = bytes(exported.serialize())
+        _write(path, _pack(payload))
+        # the executables of the program this one replaces
+        for old in glob.glob(f"{glob.escape(path[:-len('.jaxexport')])}-*.jaxexec"):
+            with contextlib.suppress(OSError):
+                os.remove(old)
+        if len(exported.in_avals) != n_in or len(exported.out_avals) != n_out:
             raise NotExportable(f"exported program {path} does not match this call")
-        compiled = jax.jit(exported.call).lower(*leaves).compile()
+        compiled, fresh = _compile(exported, leaves)
+        if fresh:
+            with contextlib.suppress(OSError):
+                _store_executable(_exec_path(path, payload), compiled, exported, n_in, n_out)
 
     def run(*call_args):
         lv = jax.tree_util.tree_leaves(eqx.filter(call_args, eqx.is_array))

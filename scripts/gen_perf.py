@@ -169,6 +169,50 @@ def compile_budget() -> str:
     return _table(header, rows) + "\n\n" + note + " " + _machine(d)
 
 
+def latency() -> str:
+    d = _load("latency.json")
+    if d is None or not d.get("rows"):
+        return "*No latency results.*"
+    sides = [k for k in ("base", "new") if k in d.get("checkouts", {})]
+    names = {k: f"{k} ({(d['checkouts'][k].get('commit') or '?')[:7]})" for k in sides}
+
+    def cell(r):
+        if r is None:
+            return "-"
+        c = f"{r['wall_s']:.2f} s"
+        if r.get("compile_s") is not None:
+            c += f" (compile {r['compile_s']:.1f} s)"
+        if r.get("first_fit_s") is not None:
+            c += f" (fits {r['first_fit_s']:.1f} / {r['second_fit_s']:.1f} s)"
+        return c
+
+    rows = [[r["name"]] + [cell(r.get(k)) for k in sides] for r in d["rows"]]
+    table = _table(["what"] + [names[k] for k in sides], rows)
+
+    def num(v):
+        return "-" if v is None else f"{v:.3g}"
+
+    grows, notes = [], []
+    for g in d.get("goals", []):
+        what = g["goal"] + (f" ({g.get('model') or g.get('mode')})"
+                            if g.get("model") or g.get("mode") else "")
+        grows.append([what, num(g["value"]), num(g.get("base_value")), f"{g['limit']:.3g}",
+                      "met" if g["met"] else ("not met" if g["met"] is not None else "-")])
+        if g.get("bound"):
+            notes.append(f"- {what}: bounded by {g['bound']}.")
+    levers = {}
+    for g in d.get("goals", []):
+        if g.get("lever"):
+            levers.setdefault(g["goal"], g["lever"])
+    notes += [f"- Lever, {k}: {v}." for k, v in levers.items()]
+    goals = _table(["goal", "new", "base", "limit", ""], grows)
+    note = f"{d['scene']}; {d['what']}."
+    if d.get("note"):
+        note += " " + d["note"]
+    return (table + "\n\n" + goals + "\n\n" + "\n".join(notes) + "\n\n" + note + " "
+            + _machine(d))
+
+
 def batch(backend="cpu") -> str:
     d = _load(backend, "batch.json")
     if d is None:
@@ -470,6 +514,7 @@ def tables() -> dict:
         "contenders": contenders(),
         "compile": compile_times(),
         "compile-budget": compile_budget(),
+        "latency": latency(),
         "batch": batch("cpu"),
         "batch-gpu": batch("gpu"),
         "mjx": mjx_batch(),

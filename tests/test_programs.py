@@ -29,6 +29,15 @@ def _call(scene="paper-circle", params=None, model="rigid", **over):
     return prepare(scene, params, model, SceneOptions(**kw))
 
 
+def _programs_in(d):
+    """The stored programs of a store directory (beside them: their executables)."""
+    return sorted(pathlib.Path(d).glob("*.jaxexport"))
+
+
+def _executables_in(d):
+    return sorted(pathlib.Path(d).glob("*.jaxexec"))
+
+
 def _same(a, b):
     la = jax.tree_util.tree_leaves(a.result)
     lb = jax.tree_util.tree_leaves(b.result)
@@ -48,18 +57,18 @@ def test_stored_program_equals_the_usual_compile(tmp_path, direct):
     d = str(tmp_path / "programs")
     first = pj.run_scene("paper-circle", **KW, program_dir=d)
     assert first.timing["program"] == "exported"
-    assert len(os.listdir(d)) == 1
+    assert len(_programs_in(d)) == 1
     _same(first, direct[0.3e-3])
     # Another thickness is another input, not another program: loaded, and its own results.
     second = pj.run_scene("paper-circle", pj.scene_params("paper-circle", t=0.35e-3), **KW,
                           program_dir=d)
     assert second.timing["program"] == "loaded"
-    assert len(os.listdir(d)) == 1
+    assert len(_programs_in(d)) == 1
     _same(second, direct[0.35e-3])
     assert second.metrics["radial_error_max_m"] != first.metrics["radial_error_max_m"]
 
     # A damaged file is exported afresh over, not trusted.
-    (path,) = pathlib.Path(d).iterdir()
+    (path,) = _programs_in(d)
     path.write_bytes(b"not a program")
     with pytest.warns(_programs.RepairWarning, match="no ppr_jax program header"):
         third = pj.run_scene("paper-circle", **KW, program_dir=d)
@@ -96,7 +105,7 @@ def _repaired(d, direct, path):
 def test_a_damaged_program_is_named_deleted_and_exported_afresh(tmp_path, direct):
     d = str(tmp_path / "programs")
     pj.run_scene("paper-circle", **KW, program_dir=d)
-    (path,) = pathlib.Path(d).iterdir()
+    (path,) = _programs_in(d)
     good = path.read_bytes()
     # The issue's reproducer: 64 bytes flipped a third of the way in (same size). Before the
     # checksum, deserialisation accepted it and the compile failed on every later run.
@@ -112,6 +121,93 @@ def test_a_damaged_program_is_named_deleted_and_exported_afresh(tmp_path, direct
     # A program stored without the header (an older layout under the same name).
     path.write_bytes(good[len(MAGIC) + 65:])
     _repaired(d, direct, path)
+
+
+@pytest.fixture
+def fresh_compiles(monkeypatch):
+    """Programs compiled under a persistent-cache key of their own (a nonce in JAX's
+    `custom_hook`), so that this test's compilations miss the shared test cache: an
+    executable is stored only from a fresh compilation. Calling the fixture's value draws a
+    new nonce."""
+    import uuid
+
+    from jax._src import cache_key
+
+    def renew():
+        nonce = uuid.uuid4().hex
+        monkeypatch.setattr(cache_key, "custom_hook", lambda: nonce)
+
+    renew()
+    return renew
+
+
+def test_a_stored_executable_is_loaded_and_a_damaged_one_repaired(tmp_path, direct,
+                                                                  fresh_compiles,
+                                                                  monkeypatch):
+    """Beside the program its executable: a later run loads it, not the program (the usual
+    results, another thickness too); a program exported afresh drops the executables of the one
+    it replaces; a damaged executable is named and deleted, and the program compiled."""
+    import warnings
+
+    d = str(tmp_path / "programs")
+    pj.run_scene("paper-circle", **KW, program_dir=d)
+    (xpath,) = _executables_in(d)
+    (path,) = _programs_in(d)
+    assert xpath.name.startswith(path.name[:-len(".jaxexport")])
+    assert xpath.read_bytes().startswith(_programs.EXEC_MAGIC)
+
+    def no_program(*a, **k):
+        raise AssertionError("the program was read, not its executable")
+
+    with monkeypatch.context() as m, warnings.catch_warnings():
+        m.setattr(_programs, "_load", no_program)
+        warnings.simplefilter("error", _programs.RepairWarning)
+        r = pj.run_scene("paper-circle", pj.scene_params("paper-circle", t=0.35e-3), **KW,
+                         program_dir=d)
+    assert r.timing["program"] == "loaded"
+    _same(r, direct[0.35e-3])
+
+    # the program exported afresh (here: a damaged program, compiled under a new key): its old
+    # executable goes, the new program's is stored
+    fresh_compiles()
+    path.write_bytes(b"not a program")
+    with pytest.warns(_programs.RepairWarning, match="no ppr_jax program header"):
+        r = pj.run_scene("paper-circle", **KW, program_dir=d)
+    assert r.timing["program"] == "exported"
+    (new,) = _executables_in(d)
+    assert new != xpath
+    _same(r, direct[0.3e-3])
+
+    # a flipped byte: the checksum catches it; the program is loaded and compiled (no
+    # executable stored from a persistent-cache hit: `test_no_executable_from_...`)
+    _flip(new)
+    with pytest.warns(_programs.RepairWarning, match=f"executable {new}") as rec:
+        r = pj.run_scene("paper-circle", **KW, program_dir=d)
+    assert len([w for w in rec if issubclass(w.category, _programs.RepairWarning)]) == 1
+    assert r.timing["program"] == "loaded"
+    _same(r, direct[0.3e-3])
+    if not jax.config.jax_compilation_cache_dir:
+        assert _executables_in(d) == [new]
+        assert new.read_bytes().startswith(_programs.EXEC_MAGIC)
+
+
+def test_no_executable_from_a_persistent_cache_hit(tmp_path, direct, fresh_compiles):
+    """An executable read from JAX's persistent cache serialises incompletely (it then fails
+    when run): a program whose compilation was a cache hit stores none, and later runs load the
+    program and give the usual results."""
+    if not jax.config.jax_compilation_cache_dir:
+        pytest.skip("no persistent compilation cache in this run")
+    d = str(tmp_path / "programs")
+    pj.run_scene("paper-circle", **KW, program_dir=d)  # compiled: cached, executable stored
+    assert len(_executables_in(d)) == 1
+    d2 = str(tmp_path / "programs2")  # the same program again: a persistent-cache hit
+    assert pj.run_scene("paper-circle", **KW, program_dir=d2).timing["program"] == "exported"
+    assert _executables_in(d2) == []
+    again = pj.run_scene("paper-circle", pj.scene_params("paper-circle", t=0.35e-3), **KW,
+                         program_dir=d2)
+    assert again.timing["program"] == "loaded"
+    assert _executables_in(d2) == []
+    _same(again, direct[0.35e-3])
 
 
 def test_key_holds_the_versions_of_ppr_jax_and_its_numerical_dependencies(monkeypatch):
@@ -159,3 +255,47 @@ def test_a_closure_in_the_static_arguments_is_not_stored():
     c = _call(controller=diffrax.PIDController(rtol=1e-8, atol=1e-10, norm=norm))
     with pytest.raises(NotExportable):
         program_key(c.args, "x")
+
+
+LAPACK = """
+import json, sys
+import jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_enable_x64", True)
+from ppr_jax import _programs
+
+def fn(a, b):
+    return jnp.linalg.solve(a, b)
+
+a = jnp.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
+b = jnp.array([1.0, 2.0, 3.0])
+run, how = _programs.load_or_export(fn, (a, b), b, sys.argv[1], "lapack")
+print(json.dumps({"how": how, "x": np.asarray(run(a, b)).tolist()}))
+"""
+
+
+def test_an_executable_with_lapack_calls_loads_in_a_fresh_process(tmp_path):
+    """A program with LAPACK custom calls (jnp.linalg.solve): its executable, loaded in a
+    process that has lowered nothing (so jaxlib has not initialised LAPACK; without
+    `_prepare_targets` the run crashes), solves as numpy does."""
+    import json
+
+    d = tmp_path / "programs"
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("JAX_COMPILATION_CACHE", "JAX_PERSISTENT_CACHE"))}
+    env.update(PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+
+    def run():
+        p = subprocess.run([sys.executable, "-c", LAPACK, str(d)], env=env, capture_output=True,
+                           text=True, timeout=300)
+        assert p.returncode == 0, p.stderr[-3000:]
+        return json.loads(p.stdout.strip().splitlines()[-1])
+
+    first = run()
+    assert first["how"] == "exported"
+    (xpath,) = _executables_in(d)
+    head = _programs._unpack(xpath.read_bytes(), _programs.EXEC_MAGIC).split(b"\n", 1)[0]
+    assert any(t.startswith("lapack_") for t in json.loads(head)["targets"])
+    second = run()
+    assert second["how"] == "loaded"
+    a = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
+    np.testing.assert_allclose(second["x"], np.linalg.solve(a, [1.0, 2.0, 3.0]), rtol=1e-14)

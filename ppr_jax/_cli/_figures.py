@@ -13,14 +13,16 @@ from .._metrics import radial_error
 FAR_OFF_M = 0.02
 
 
-def _pyplot():
-    """matplotlib's pyplot on the Agg backend (files only), imported when a figure is drawn."""
-    import matplotlib
+def _figure(figsize):
+    """A matplotlib `Figure` on the Agg canvas (files only), imported when a figure is drawn.
+    Not pyplot: its import (the backends' machinery, about 0.7 s) is most of a figure's cost,
+    and a file needs no figure manager."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig
 
 
 def _split(results, center, radius):
@@ -41,7 +43,8 @@ def _split(results, center, radius):
 def _panels(groups, ylabel, title, series):
     """One panel per non-empty group (near models, then far ones on their own scale)."""
     groups = [(name, g) for name, g in groups if g]
-    fig, axs = _pyplot().subplots(len(groups), 1, figsize=(6.5, 3.2 * len(groups)), squeeze=False)
+    fig = _figure((6.5, 3.2 * len(groups)))
+    axs = fig.subplots(len(groups), 1, squeeze=False)
     for ax, (name, g) in zip(axs[:, 0], groups):
         for r in g:
             t, y = series(r)
@@ -67,7 +70,8 @@ def scene_figures(results, out_dir: str, center, radius) -> list[str]:
     # Trajectory: the whole picture, and the near models' deviation from the nominal pose (mm)
     # where it is visible.
     ncol = 2 if near else 1
-    fig, axs = _pyplot().subplots(1, ncol, figsize=(5.5 * ncol, 5), squeeze=False)
+    fig = _figure((5.5 * ncol, 5))
+    axs = fig.subplots(1, ncol, squeeze=False)
     ax = axs[0, 0]
     ax.plot(r0.X_nominal[:, 0], r0.X_nominal[:, 1], "k--", lw=1.5,
             label="nominal (eq 55)" if circle else "commanded")
@@ -110,5 +114,4 @@ def _save(fig, out_dir, name):
     path = os.path.join(out_dir, name)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    _pyplot().close(fig)
     return path
