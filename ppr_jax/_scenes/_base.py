@@ -35,7 +35,7 @@ from .._params import RobotParams, params_invalid
 from .._robot import Robot
 from .._simulate import Solution, simulate_core
 from .._statics import kinematic_state, quasi_static_core
-from .._tabulated import input_too_coarse, scene_input
+from .._tabulated import breakpoints, input_too_coarse, scene_input
 from .._trajectory import derivatives
 from ._options import SceneOptions
 from ._result import SceneResult
@@ -56,10 +56,11 @@ class SceneInput(eqx.Module):
 def tabulated(fn, ts, panels: int):
     """(table, coarse, out_of_reach): the input `fn` (an `InverseDynamicsTorque` or
     `InverseKinematicsAngles`) tabulated over the output times `ts` and the quasi-static
-    start's reach about ts[0] (`_tabulated.scene_input`), whether the table is too coarse, and
-    whether the nominal path leaves the chains' reach at a node (from the table's own
-    evaluations)."""
-    table, resid = scene_input(fn.with_residual, ts, panels, aux=True)
+    start's reach about ts[0] (`_tabulated.scene_input`; with the path's breakpoints among the
+    panel boundaries, `_tabulated.breakpoints`), whether the table is too coarse, and whether
+    the nominal path leaves the chains' reach at a node (from the table's own evaluations)."""
+    table, resid = scene_input(fn.with_residual, ts, panels, aux=True,
+                               breaks=breakpoints(fn.trajectory))
     return table, input_too_coarse(table), ~(jnp.max(resid) <= RESIDUAL_TOL)
 
 
