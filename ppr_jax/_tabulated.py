@@ -215,7 +215,15 @@ def scene_input(fn: Callable, ts, panels: Optional[int] = None, aux: bool = Fals
         bounds = jnp.sort(jnp.concatenate([lo[None], equal, jnp.clip(breaks, lo, t1)]))
         length = bounds[1:] - bounds[:-1]
         local = jnp.asarray((_lobatto(m) + 1.0) / 2.0)
-        out = jax.vmap(fn)((bounds[:-1, None] + length[:, None] * local[None, :]).reshape(-1))
+        nodes = bounds[:-1, None] + length[:, None] * local[None, :]
+        # The end nodes a hair inside their panel: each panel holds fn's one-sided limits at
+        # its ends, where a piecewise path may jump (a clamped spline's acceleration at its
+        # first and last sample, against the hold outside); the shift, 1e-12 of the panel or a
+        # few roundings of t, moves the polynomial by about that much relative.
+        ulps = 8.0 * jnp.spacing(jnp.maximum(jnp.abs(bounds[:-1]), jnp.abs(bounds[1:])))
+        inset = jnp.minimum(jnp.maximum(1e-12 * length, ulps), 1e-3 * length)
+        nodes = nodes.at[:, 0].add(inset).at[:, -1].add(-inset)
+        out = jax.vmap(fn)(nodes.reshape(-1))
         vals, extra = out if aux else (out, None)
         live = length > 0
         n = live.shape[0]
