@@ -326,6 +326,11 @@ class CommandLog(eqx.Module):
     def name(self) -> str:
         return self.spline.name
 
+    @property
+    def breakpoints(self) -> Float[Array, " n"]:
+        """The spline's knots (s), the sample times: the integrator steps to them."""
+        return self.spline.ts
+
     def __call__(self, t) -> Float[Array, "3"]:
         return self.spline(t)
 
