@@ -6,9 +6,10 @@ and L0 (`rigid`), over the scenes' default horizon (7.54 s, 755 outputs, default
 
 Timed: compilation apart (ahead of time, as `run_scene` compiles), a warm-up run, then
 `--repeats` rounds that run every program once each (interleaved, so that a loaded machine's
-drift hits every row alike), after `block_until_ready`; `run_s` the fastest. Per step: run seconds / accepted steps.
-A motion-driven L0 is forward kinematics and inverse dynamics alone (no integrator, no steps):
-its row gives the run time only. Writes benchmarks/results/path_cost.json.
+drift hits every row alike), after `block_until_ready`; `run_s` the fastest. Per step: run
+seconds / accepted steps. A motion-driven L0 is forward kinematics and inverse dynamics alone
+(no integrator, no steps): its row gives the run time only. Writes
+benchmarks/results/path_cost.json.
 
 Run: python benchmarks/path_cost.py [--repeats 5] [--models double1r rigid]
 """
