@@ -183,6 +183,12 @@ class Line(eqx.Module):
         if not _is_traced(self.duration) and not float(self.duration) > 0:
             raise DataError(f"Line: duration must be positive, got {float(self.duration)} s")
 
+    @property
+    def breakpoints(self) -> Float[Array, "2"]:
+        """The times (s) where the jerk jumps: the start and the end of the move (a scene's
+        input table has panel boundaries there)."""
+        return jnp.stack([jnp.zeros_like(self.duration), self.duration])
+
     def __call__(self, t) -> Float[Array, "3"]:
         u = jnp.clip(jnp.asarray(t, dtype=jnp.float64) / self.duration, 0.0, 1.0)
         s = u**3 * (10.0 + u * (-15.0 + 6.0 * u))
@@ -271,6 +277,12 @@ class Waypoints(eqx.Module):
         """The sample times (s)."""
         return self.spline.ts
 
+    @property
+    def breakpoints(self) -> Float[Array, " n"]:
+        """The knots (s), where the spline's third derivative jumps (a scene's input table has
+        panel boundaries there): the sample times."""
+        return self.spline.ts
+
     def __call__(self, t) -> Float[Array, " k"]:
         t = jnp.asarray(t, dtype=jnp.float64)
         ts, c = self.spline.ts, self.spline.c
@@ -313,6 +325,11 @@ class CommandLog(eqx.Module):
     @property
     def name(self) -> str:
         return self.spline.name
+
+    @property
+    def breakpoints(self) -> Float[Array, " n"]:
+        """The spline's knots (s), the sample times: the integrator steps to them."""
+        return self.spline.ts
 
     def __call__(self, t) -> Float[Array, "3"]:
         return self.spline(t)

@@ -94,19 +94,35 @@ class Chebyshev(eqx.Module):
     at t0 has a jump of a higher derivative there, which a polynomial across t0 would smear).
     Differentiable in t (so `derivatives` works through it) and in the coefficients (so
     gradients reach the parameters that made them). Outside the table the end panels'
-    polynomials extrapolate."""
+    polynomials extrapolate.
+
+    With `bounds` (P + 1,) (nondecreasing) the panels are [bounds[j], bounds[j + 1]] instead,
+    of any lengths (`t0`, `H` and `pre` unused): a table whose panel boundaries include the
+    breakpoints of a path (`scene_input(..., breaks=...)`). Empty panels (equal bounds) are
+    never evaluated: `live` (2,) holds the first and last non-empty panel's index."""
 
     t0: Float[Array, ""]
     H: Float[Array, ""]
     coeffs: Float[Array, "P m ..."]
     pre: Optional[Float[Array, "m ..."]] = None
     pre_H: Optional[Float[Array, ""]] = None
+    bounds: Optional[Float[Array, " P1"]] = None
+    live: Optional[Array] = None
 
     def __call__(self, t):
         P, m = self.coeffs.shape[:2]
-        s = (t - self.t0) / self.H
-        i = jnp.clip(jnp.floor(s), 0, P - 1).astype(jnp.int32)
-        x = 2.0 * (s - i.astype(s.dtype)) - 1.0
+        if self.bounds is None:
+            s = (t - self.t0) / self.H
+            i = jnp.clip(jnp.floor(s), 0, P - 1).astype(jnp.int32)
+            x = 2.0 * (s - i.astype(s.dtype)) - 1.0
+        else:
+            # panels of any lengths, some of them empty (a breakpoint clipped to an end of the
+            # table, or on another boundary): the panel holding t, the first or last non-empty
+            # one outside the table (side="right" passes over the empty ones inside)
+            i = jnp.searchsorted(self.bounds, t, side="right", method="compare_all") - 1
+            i = jnp.clip(i, self.live[0], self.live[1])
+            a = self.bounds[i]
+            x = 2.0 * (t - a) / (self.bounds[i + 1] - a) - 1.0
         c = self.coeffs[i]
         if self.pre is not None:
             before = t < self.t0
@@ -161,7 +177,18 @@ def tabulate(fn: Callable, t0, t1, panels: int, nodes_per_panel: int = PANEL_NOD
     return (table, extra) if aux else table
 
 
-def scene_input(fn: Callable, ts, panels: Optional[int] = None, aux: bool = False):
+def breakpoints(path: Callable) -> Optional[Float[Array, " k"]]:
+    """The times (k,) (s) where `path` is less smooth than elsewhere (the knots of a spline,
+    where its third derivative jumps; the ends of a rest-to-rest move), from its `breakpoints`
+    attribute, or None for a path smooth everywhere (the circle). A scene's input computed
+    from the path (inverse-dynamics torques: a jump of the path's third derivative is a kink
+    of the torques) is tabulated on panels that end there (`scene_input`)."""
+    b = getattr(path, "breakpoints", None)
+    return None if b is None else jnp.ravel(jnp.asarray(b, dtype=jnp.float64))
+
+
+def scene_input(fn: Callable, ts, panels: Optional[int] = None, aux: bool = False,
+                breaks: Optional[Array] = None):
     """A scene's input `fn` of time as its integrator and its start call it, for output times
     `ts`: a `Chebyshev` table on `panels` (default `scene_panels(len(ts))`) panels over
     [ts[0], max(ts[-1], ts[0] + `START_MARGIN`)] and one panel over
@@ -169,11 +196,41 @@ def scene_input(fn: Callable, ts, panels: Optional[int] = None, aux: bool = Fals
     both sides of ts[0] whatever the horizon, and a motion that starts at ts[0] (from rest,
     with a jump of its third derivative there) is not smeared across it (with `aux`, also fn's
     auxiliary output at the nodes). All nodes in one vectorised evaluation (one copy of fn in
-    the program). Check the table with `input_too_coarse`."""
+    the program). Check the table with `input_too_coarse`.
+
+    `breaks` (k,) (s): the times where fn is less smooth (`breakpoints` of the path it is
+    computed from) are panel boundaries too: the table then has `panels` + k + 1 panels (a
+    static count), those from breakpoints outside the table's span empty (never evaluated
+    there, but their nodes are), so that a spline's knots, where the inverse-dynamics torques
+    have a kink, do not fall inside a panel (a polynomial across a kink converges slowly: on a
+    spline through 100 samples per second the table stays far above `TABLE_RTOL` at any
+    panel count). None: equal panels (the circle's)."""
     P = scene_panels(ts.shape[0]) if panels is None else int(panels)
     m = PANEL_NODES
     t0 = jnp.asarray(ts[0], float)
-    main, H = _nodes(t0, jnp.maximum(ts[-1], t0 + START_MARGIN), P, m)
+    t1 = jnp.maximum(ts[-1], t0 + START_MARGIN)
+    if breaks is not None:
+        lo = t0 - START_MARGIN
+        equal = t0 + (t1 - t0) * jnp.arange(P + 1, dtype=float) / P
+        bounds = jnp.sort(jnp.concatenate([lo[None], equal, jnp.clip(breaks, lo, t1)]))
+        length = bounds[1:] - bounds[:-1]
+        local = jnp.asarray((_lobatto(m) + 1.0) / 2.0)
+        nodes = bounds[:-1, None] + length[:, None] * local[None, :]
+        # The end nodes a hair inside their panel: each panel holds fn's one-sided limits at
+        # its ends, where a piecewise path may jump (a clamped spline's acceleration at its
+        # first and last sample, against the hold outside); the shift, 1e-12 of the panel or a
+        # few roundings of t, moves the polynomial by about that much relative.
+        ulps = 8.0 * jnp.spacing(jnp.maximum(jnp.abs(bounds[:-1]), jnp.abs(bounds[1:])))
+        inset = jnp.minimum(jnp.maximum(1e-12 * length, ulps), 1e-3 * length)
+        nodes = nodes.at[:, 0].add(inset).at[:, -1].add(-inset)
+        out = jax.vmap(fn)(nodes.reshape(-1))
+        vals, extra = out if aux else (out, None)
+        live = length > 0
+        n = live.shape[0]
+        span = jnp.stack([jnp.argmax(live), n - 1 - jnp.argmax(live[::-1])]).astype(jnp.int32)
+        table = Chebyshev(t0=lo, H=t1 - lo, coeffs=_coeffs(vals, m), bounds=bounds, live=span)
+        return (table, extra) if aux else table
+    main, H = _nodes(t0, t1, P, m)
     pre, pre_H = _nodes(t0 - START_MARGIN, t0, 1, m)
     out = jax.vmap(fn)(jnp.concatenate([main.reshape(-1), pre.reshape(-1)]))
     vals, extra = out if aux else (out, None)

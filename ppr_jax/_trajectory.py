@@ -86,6 +86,12 @@ class PiecewiseCubic(eqx.Module):
     ts: Float[Array, " m"]
     c: Float[Array, "m1 4 k"]
 
+    @property
+    def breakpoints(self) -> Float[Array, " m"]:
+        """The breakpoints ts (s), where the third derivative jumps (a scene's input table has
+        panel boundaries there)."""
+        return self.ts
+
     def __call__(self, t):
         j = jnp.clip(jnp.searchsorted(self.ts, t, side="right") - 1, 0, self.ts.shape[0] - 2)
         s = t - self.ts[j]

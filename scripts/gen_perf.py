@@ -501,6 +501,27 @@ def start_sensitivity() -> str:
     return "\n\n".join(parts) + "\n\n" + _machine(d)
 
 
+def path_cost() -> str:
+    """Cost per integrator step of a path read from a file against the circle
+    (benchmarks/path_cost.py)."""
+    d = _load("path_cost.json")
+    if d is None:
+        return ""
+    rows = []
+    for r in d["rows"]:
+        per = r["per_step_s"]
+        rows.append([r["scene"], r["drive"], r["model"], _ms(r["run_s"]),
+                     str(r["accepted_steps"]) if r["accepted_steps"] else "no ODE",
+                     f"{1e6 * per:.0f} us" if per else "",
+                     f"{r['per_step_vs_paper']:.2f}" if r.get("per_step_vs_paper") else "",
+                     f"{r['run_vs_paper']:.2f}"])
+    return (_table(["scene", "drive", "model", "run", "steps", "per step", "per step / paper's",
+                    "run / paper's"], rows)
+            + f"\n\n{d['t_end_s']:g} s, {d['n_out']} outputs, the file sampled at "
+            f"{d['rate_hz']:g} Hz; the fastest of {d['repeats']} interleaved rounds after "
+            "compiling.\n\n" + _machine(d))
+
+
 def headline() -> dict:
     """The contenders' matched times, which the README's headline table quotes (to check it)."""
     d = _load("cpu", "contenders.json")
@@ -525,6 +546,7 @@ def tables() -> dict:
         "kvaerno-l0-l2": kvaerno_l0_l2(),
         "known-truth": known_truth(),
         "start-sensitivity": start_sensitivity(),
+        "path-cost": path_cost(),
     }
 
 

@@ -365,13 +365,16 @@ def test_ctrl_c_is_one_line_naming_what_was_kept(tmp_path, capsys, monkeypatch):
 
 def test_sigint_ends_a_running_command_with_one_line(tmp_path):
     """The real signal: `ppr-jax identify` in a subprocess, sent SIGINT once it says it is
-    compiling: exit 130, the one line, no traceback."""
+    compiling: exit 130, the one line, no traceback. The data must pass identification's checks
+    (the library's servo-circle example, its own experiment): a refused file exits at once, and
+    a signal that arrives while the interpreter shuts down kills it without the line."""
     import signal
     import subprocess
     import sys
 
-    data = tmp_path / "still.csv"
-    data.write_text("time,x,y,phi\n" + "".join(f"{0.01 * k},0.55,0.26,0.0\n" for k in range(20)))
+    from ppr_jax._data import example_path
+
+    data = example_path()
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = dict(os.environ, PPR_JAX_CACHE="0", PYTHONPATH=root)
     proc = subprocess.Popen([sys.executable, "-m", "ppr_jax_cli", "identify", "--data",

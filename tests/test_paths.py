@@ -431,3 +431,62 @@ def test_a_command_log_drives_a_scene_of_ones_own(tmp_path, robot):
     err = np.abs(np.asarray(res.X) - np.asarray(jax.vmap(line)(res.ts))).max()
     assert err < 1e-8, err  # output times between the log's samples: the spline's error
     assert np.abs(np.asarray(res.X[-1] - res.X[0])).max() > 0.02
+
+
+# ---------------------------------------------------------------------------------------------
+# Scenes on a path read from a file
+
+
+def _eight_file(tmp_path, hz=20):
+    """The figure eight sampled at `hz` over 2 s, written in mm and deg."""
+    ts, X = _figure_eight(int(round(2.0 * hz)) + 1)
+    return _write(tmp_path / f"eight_{hz}.csv", "time,x[mm],y[mm],phi[deg]",
+                  _pose_rows_mm_deg(ts, X))
+
+
+def test_torque_driven_scene_on_a_loaded_spline_runs_at_defaults(tmp_path):
+    """A `PathScene` on a non-circular path read with `load_path` (a C2 spline through 20 Hz
+    samples, clamped: its torques have a kink at every knot), torque-driven, runs at the scene
+    defaults (L1, 7.54 s, 755 outputs): the input table has panel boundaries at the knots and
+    the integrator steps to them. L1 driven by its own inverse-dynamics torques follows the
+    path during the move (open loop, so the gap is the integration's and the table's: 2e-8 m
+    over the 2 s of samples, 7e-7 m when the integrator stepped across the knots); in the
+    hold after it the open-loop gap grows by about e^(1.5 t) (4e-6 m at 7.54 s)."""
+    path = pj.load_path(_eight_file(tmp_path))
+    rep = pj.run_scene(pj.PathScene(path, drive="torque"))
+    r = rep.result
+    assert r.ok and r.X.shape == (755, 3)
+    move = np.asarray(r.ts) <= 2.0
+    gap = float(np.abs(np.asarray(r.X) - np.asarray(r.X_nominal))[move].max())
+    assert gap < 1e-7, gap
+    assert float(np.abs(np.asarray(r.X_nominal[40]) - np.asarray(r.X_nominal[0])).max()) > 0.01
+
+
+@pytest.mark.slow
+def test_torque_driven_spline_scene_matches_the_scipy_l2(tmp_path):
+    """L2 (`double1r`) torque-driven along the loaded figure eight (natural ends) over 0.4 s at
+    default tolerances, against the independent scipy L2 (benchmarks/contenders/scipy_l2.py:
+    absolute coordinates and Lagrange multipliers) driven by the exact inverse-dynamics torques
+    (not the library's table) from the library's initial state: the platform paths agree to
+    the integration error. Slow: L2 compiles in 20-30 s."""
+    import os
+    import sys
+
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    from benchmarks.contenders import library, scipy_l2
+
+    path = pj.load_path(_eight_file(tmp_path), bc="natural")
+    params = pj.scene_params("paper-circle")
+    r = pj.run_scene(pj.PathScene(path, drive="torque"), params, model="double1r", t_end=0.4,
+                     n_out=41).result
+    fn = library.scene_torque_fn(params, path)
+    exact = jax.jit(lambda t: fn(t))
+    out = scipy_l2.run(params, method="DOP853", rtol=1e-11, atol=1e-13, t_end=0.4, n_out=41,
+                       repeats=1, z0=r.z[0], zdot0=r.zdot[0],
+                       torque=lambda t: np.asarray(exact(jnp.asarray(t, dtype=jnp.float64))))
+    assert out["status"] == 0
+    pos = np.linalg.norm(out["X"][:, :2] - np.asarray(r.X)[:, :2], axis=1)
+    assert pos.max() < 1e-8, pos.max()
+    assert np.abs(out["X"][:, 2] - np.asarray(r.X)[:, 2]).max() < 1e-7
+    # the robot left the path (L2 is not the torques' L1), so the agreement is not trivial
+    assert np.abs(np.asarray(r.X) - np.asarray(r.X_nominal)).max() > 1e-5

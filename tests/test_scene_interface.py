@@ -338,3 +338,43 @@ def test_cli_command_log_options_are_checked(tmp_path, capsys):
     assert main(["simulate", "--path", str(f), "--angles", str(f), "--torques", str(f),
                  "--out", str(tmp_path / "o")]) == 2
     assert "not both" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_identify_gamma_on_the_line_scene_from_independent_data():
+    """`identify` with the Line scene (a straight rest-to-rest move, not a circle) as the
+    experiment's scene: tracker data of an L2 robot (gamma 0.80) under the scene's torques
+    (L1's inverse dynamics along the line for the nominal robot, gamma 0.8314), made by the
+    independent scipy L2 (benchmarks/contenders/scipy_l2.py: absolute coordinates, Lagrange
+    multipliers) from the library's quasi-static start, with tracker noise. The fit, started at
+    the nominal gamma, recovers the truth within two of its reported standard deviations.
+    Slow: L2 and its Jacobian compile in a minute or more."""
+    import os
+    import sys
+
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    from benchmarks.contenders import known_truth, scipy_l2
+
+    base = pj.RobotParams(t=0.5e-3, K_theta=2.5)
+    truth = base.replace(gamma=0.80)
+    noise = (1e-5, 1e-4)
+    line = Line()
+    torque = pj.InverseDynamicsTorque(pj.Reduced(), pj.Robot(base), line)
+    exact = jax.jit(lambda t: torque(t))
+    z0, zd0 = pj.quasi_static_state(pj.Double1R(), pj.Robot(truth), line, 0.0,
+                                    pj.TorqueDriven(torque))
+    model = scipy_l2.L2Model(truth, lambda t: np.asarray(exact(jnp.asarray(t, jnp.float64))))
+    ts = np.arange(51) / 100.0  # 0.5 s at 100 Hz
+    sol = scipy_l2.simulate(model, model.state_from_library(np.asarray(z0), np.asarray(zd0)),
+                            ts, "DOP853", 1e-11, 1e-13)
+    assert sol.status == 0
+    X = sol.y[9:12].T
+    noisy = known_truth.noisy(ts, X, np.zeros_like(X), *noise, 0.0, seed=3)
+    exp = pj.experiment(noisy.ts, noisy.X, name="line, independent L2")
+    fit = pj.identify(exp, ("gamma",), model="double1r", scene=LineScene(), params=base,
+                      commands=base, noise=noise)
+    assert fit.history["stop"] == "converged", fit.table()
+    est, std = fit.estimate[0], fit.std[0]
+    assert 0 < std < 0.01 and abs(est - 0.80) < 2 * std, fit.table()
+    assert abs(fit.initial[0] - 0.80) > 3 * std  # the start was away from the truth
+    assert 0.7 < np.sqrt(fit.sigma2) < 1.4, fit.table()

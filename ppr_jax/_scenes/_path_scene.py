@@ -9,6 +9,7 @@ import equinox as eqx
 from .._actuation import MotionDriven, TorqueDriven
 from .._errors import PPRError
 from .._models import AbstractModel, Reduced
+from .._tabulated import breakpoints
 from ._base import AbstractScene, SceneInput, motion_input, path_out_of_reach, torque_input
 
 #: the drives a `PathScene` runs
@@ -89,7 +90,8 @@ class PathScene(AbstractScene):
                    else MotionDriven(self.command_log))
             # A log's own samples are its table; the nominal path's reach is still checked.
             return SceneInput(act, out_of_reach=path_out_of_reach(self.input_model, robot, traj,
-                                                                  ts))
+                                                                  ts),
+                              step_ts=breakpoints(self.command_log))
         if self.drive == "motion":
             return motion_input(model, self.input_model, robot, traj, ts, panels)
         return torque_input(self.input_model, robot, traj, ts, panels)
