@@ -111,18 +111,26 @@ def test_strip_derivatives_vs_finite_differences(j):
     """Forward mode (jvp) and reverse mode (vjp) of the implicit strip solve against central
     differences, in each of the clamp-gap, end-angle and segment-length directions."""
     v = jnp.zeros(4).at[j].set(1.0) * jnp.array([1e-3, 1e-3, 1e-1, 1e-4])
-    fd = fd_jvp(_strip, Q0, v, h=1e-4)
-    jv = jax.jvp(_strip, (Q0,), (v,))[1]
-    np.testing.assert_allclose(jv, fd, rtol=1e-6, atol=1e-8 * np.abs(fd).max())
     w = jnp.cos(jnp.arange(8.0))
-    _, vjp = jax.vjp(_strip, Q0)
-    np.testing.assert_allclose(vjp(w)[0] @ v, w @ jv, rtol=1e-10)
+    fd, jv, vjp_w, hv, fd_grad = _strip_derivatives(Q0, v, w)
+    np.testing.assert_allclose(jv, fd, rtol=1e-6, atol=1e-8 * np.abs(fd).max())
+    np.testing.assert_allclose(vjp_w @ v, w @ jv, rtol=1e-10)
     # second order: the Hessian of a scalar of the solution, forward over reverse vs FD of grad
+    np.testing.assert_allclose(hv, fd_grad, rtol=1e-5, atol=1e-7 * np.abs(hv).max())
+
+
+@jax.jit
+def _strip_derivatives(q, v, w):
+    """Along v at q: the strip solution's central difference (h = 1e-4) and JVP, its VJP with
+    w, and the Hessian-vector product of sum(sin(solution)) (forward over reverse) with the
+    central difference (h = 1e-5) of its gradient; one compiled program for every direction
+    (eagerly, each primitive of the implicit solve and its derivatives compiles alone)."""
     def f(q):
         return jnp.sum(jnp.sin(_strip(q)))
-    hv = jax.jvp(jax.grad(f), (Q0,), (v,))[1]
-    np.testing.assert_allclose(hv, fd_jvp(jax.grad(f), Q0, v, h=1e-5), rtol=1e-5,
-                               atol=1e-7 * np.abs(hv).max())
+
+    _, vjp = jax.vjp(_strip, q)
+    return (fd_jvp(_strip, q, v, h=1e-4), jax.jvp(_strip, (q,), (v,))[1], vjp(w)[0],
+            jax.jvp(jax.grad(f), (q,), (v,))[1], fd_jvp(jax.grad(f), q, v, h=1e-5))
 
 
 def test_envelope_forces_match_the_deflection_jacobian(params):
