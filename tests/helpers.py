@@ -1,5 +1,7 @@
-"""Shared test helpers: tree comparison and finite-difference directional derivatives."""
+"""Shared test helpers: tree comparison, finite-difference directional derivatives and compiled
+forms of the library's eager functions."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,6 +13,32 @@ def tree_allclose(a, b, rtol=1e-10, atol=1e-12):
         return False
     return all(np.allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol)
                for x, y in zip(la, lb))
+
+
+@eqx.filter_jit
+def coords_from_pose(model, robot, X):
+    """`model.coords_from_pose(robot, X)` as one compiled program per model (and static robot
+    fields): evaluated eagerly, op by op, each primitive of the closure solve is a compilation
+    of its own."""
+    return model.coords_from_pose(robot, X)
+
+
+@eqx.filter_jit
+def energies(model, robot, z, zd):
+    """(kinetic, potential) energy (J), each (n,), along states z, zd (n, n_dof), as one
+    compiled program per model (eagerly, the vmapped kinematics' JVP is op-by-op compilation)."""
+    from ppr_jax import energy
+
+    return jax.vmap(lambda z, zd: energy(model, robot, z, zd))(z, zd)
+
+
+@eqx.filter_jit
+def outputs(model, robot, z, zd):
+    """`ppr_jax.outputs` along states z, zd (n, n_dof) as one compiled program per model;
+    `robot`: a `Robot` built outside (its static choices from the concrete parameters)."""
+    from ppr_jax import outputs
+
+    return outputs(model, robot, z, zd)
 
 
 def fd_jvp(f, x, v, h=1e-6):

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import coords_from_pose, energies, outputs
 
 import ppr_jax as pj
 from ppr_jax._geometry import BETA, base_points, e
@@ -134,19 +135,19 @@ def test_energy_conservation_undamped_unforced(params, robot):
     (Tighter tolerances do not pay: the rounding noise of the accelerations, with segment
     inertias of 1e-9 kg m^2 beside a 0.2 kg platform, then keeps the step controller busy.)"""
     m = Beam(4)
-    z0 = m.coords_from_pose(robot, jnp.array([0.46, 0.25, 0.01]))
+    z0 = coords_from_pose(m, robot, jnp.array([0.46, 0.25, 0.01]))
     zd0 = jnp.zeros(m.n_dof).at[:6].set(jnp.array([0.05, -0.04, 0.2, 0.1, -0.05, 0.02]))
     ts = jnp.linspace(0.0, 0.02, 21)
     sol = pj.simulate(
         m, params, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), z0, zd0, ts,
         solver="dopri8", rtol=1e-10, atol=1e-12,
     )
-    T, U = jax.vmap(lambda z, zd: pj.energy(m, robot, z, zd))(sol.z, sol.zdot)
+    T, U = energies(m, robot, sol.z, sol.zdot)
     E = np.asarray(T + U)
     drift = np.abs(E - E[0]).max() / float(np.max(T))
     assert drift < 1e-9, drift
     assert float(np.max(T)) > 1e-4 and float(np.max(U)) > 1e-4
-    out = pj.outputs(m, params, sol.z, sol.zdot)
+    out = outputs(m, robot, sol.z, sol.zdot)
     assert float(np.max(out.residual)) < 1e-13
 
 

@@ -6,10 +6,12 @@ Compiled functions are shared through module fixtures; N = 4 throughout (15 coor
 
 import argparse
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import coords_from_pose, energies, outputs
 
 import ppr_jax as pj
 from ppr_jax._dynamics import passive_force
@@ -41,6 +43,27 @@ def test_damping_vector_closed_form(params, robot):
     assert Beam(N, TAU).damping(r).shape == Beam(N).kinematics(r, z).deflection.shape
 
 
+# Compiled, one program per model (evaluated eagerly, op by op, every primitive of the strips'
+# kinematics and their derivatives is a compilation of its own)
+_passive_force = eqx.filter_jit(passive_force)
+
+
+@eqx.filter_jit
+def _deflections_and_jacobian(m, robot, z):
+    """(d deflection/dz, deflection) of the strips at z."""
+    return jax.jacfwd(lambda z: m.kinematics(robot, z).deflection)(z), m.kinematics(
+        robot, z).deflection
+
+
+@eqx.filter_jit
+def _dissipated_power(m, robot, z, zd):
+    """sum_i c_i (d deflection_i/dt)^2 (W) along states z, zd (n, n_dof)."""
+    rates = jax.vmap(
+        lambda z, zd: jax.jvp(lambda z: m.kinematics(robot, z).deflection, (z,), (zd,))[1]
+    )(z, zd)
+    return jnp.sum(m.damping(robot)[None, :] * rates**2, axis=1)
+
+
 def test_spring_force_matches_jacobian_form(params):
     """Q = -J_d^T (K d + (c_spring + tau K) J_d z') at a deflected, moving state, against the
     Jacobian of the deflections; and the loss adds exactly -tau J_d^T K J_d z' to the undamped
@@ -49,15 +72,14 @@ def test_spring_force_matches_jacobian_form(params):
     p = params.replace(c_spring=c)
     r = pj.Robot(p)
     m0, m = Beam(N), Beam(N, strip_loss=TAU)
-    z = m.coords_from_pose(r, jnp.array([0.46, 0.25, 0.01])) + 0.01 * jnp.sin(jnp.arange(15.0))
+    z = coords_from_pose(m, r, jnp.array([0.46, 0.25, 0.01])) + 0.01 * jnp.sin(jnp.arange(15.0))
     zd = 0.3 * jnp.cos(jnp.arange(15.0) * 1.7)
-    Jd = jax.jacfwd(lambda z: m.kinematics(r, z).deflection)(z)
-    d = m.kinematics(r, z).deflection
+    Jd, d = _deflections_and_jacobian(m, r, z)
     k = jnp.asarray(_closed_form_stiffness(p, N))
     Q_ref = -Jd.T @ (k * d + (c + TAU * k) * (Jd @ zd))
     zero = jnp.zeros(3)
-    Q = passive_force(m, r, z, zd, zero, zero)
-    Q0 = passive_force(m0, r, z, zd, zero, zero)
+    Q = _passive_force(m, r, z, zd, zero, zero)
+    Q0 = _passive_force(m0, r, z, zd, zero, zero)
     scale = float(jnp.abs(Q_ref).max())
     np.testing.assert_allclose(Q, Q_ref, rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose(Q - Q0, -TAU * Jd.T @ (k * (Jd @ zd)), rtol=0, atol=1e-12 * scale)
@@ -70,7 +92,7 @@ def damped_run(params, robot):
     guess) and the platform and drives moving: 5 ms of Dopri8 at rtol 1e-11, 4001 outputs."""
     assert float(params.c_spring) == 0 and float(params.c_act) == 0
     m = Beam(N, strip_loss=TAU)
-    z0 = m.coords_from_pose(robot, jnp.array([0.46, 0.25, 0.01]))
+    z0 = coords_from_pose(m, robot, jnp.array([0.46, 0.25, 0.01]))
     zd0 = jnp.zeros(m.n_dof).at[:6].set(jnp.array([0.05, -0.04, 0.2, 0.1, -0.05, 0.02]))
     ts = jnp.linspace(0.0, 0.005, 4001)
     sol = pj.simulate(m, params, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), z0, zd0, ts,
@@ -84,12 +106,9 @@ def test_energy_drop_equals_dissipated_work(robot, damped_run):
     and the loss is substantial (several % of the strain energy), so an unapplied or doubled
     damping fails."""
     m, ts, sol = damped_run
-    T, U = jax.vmap(lambda z, zd: pj.energy(m, robot, z, zd))(sol.z, sol.zdot)
+    T, U = energies(m, robot, sol.z, sol.zdot)
     E = np.asarray(T + U)
-    rates = jax.vmap(
-        lambda z, zd: jax.jvp(lambda z: m.kinematics(robot, z).deflection, (z,), (zd,))[1]
-    )(sol.z, sol.zdot)
-    P = np.asarray(jnp.sum(m.damping(robot)[None, :] * rates**2, axis=1))  # dissipated power (W)
+    P = np.asarray(_dissipated_power(m, robot, sol.z, sol.zdot))  # dissipated power (W)
     dt = float(ts[1] - ts[0])
     # cumulative Simpson at every second output
     W = np.concatenate([[0.0], np.cumsum(dt / 3 * (P[:-2:2] + 4 * P[1:-1:2] + P[2::2]))])
@@ -98,7 +117,7 @@ def test_energy_drop_equals_dissipated_work(robot, damped_run):
     assert np.all(np.diff(E[::2]) <= 1e-12 * E[0])  # energy never grows
     err = np.abs(lost - W).max() / lost[-1]
     assert err < 1e-6, err
-    out = pj.outputs(m, robot, sol.z, sol.zdot)
+    out = outputs(m, robot, sol.z, sol.zdot)
     assert float(np.max(out.residual)) < 1e-13
 
 

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import fd_jvp
+from helpers import coords_from_pose, energies, fd_jvp, outputs
 
 import ppr_jax as pj
 from ppr_jax._models import strip
@@ -90,11 +90,20 @@ def test_kkt_solve_against_dense_elimination(N):
     rng = np.random.default_rng(N)
     y = jnp.asarray(np.concatenate([0.1 * rng.standard_normal(N), 0.3 * rng.standard_normal(2)]))
     p = jnp.asarray([0.9 * N, 0.2, 0.3, 0.05])
-    J = np.asarray(jax.jacfwd(kkt_residual)(y, p))
     R, W = (jnp.asarray(rng.standard_normal((N + 2, 3))) for _ in range(2))
-    np.testing.assert_allclose(solve_kkt(y, R), np.linalg.solve(J, R), rtol=1e-10, atol=1e-11)
-    (JtW,) = jax.linear_transpose(lambda R: solve_kkt(y, R), R)(W)
+    J, X, JtW = _kkt_solves(y, p, R, W)
+    J = np.asarray(J)
+    np.testing.assert_allclose(X, np.linalg.solve(J, R), rtol=1e-10, atol=1e-11)
     np.testing.assert_allclose(JtW, np.linalg.solve(J.T, W), rtol=1e-10, atol=1e-11)
+
+
+@jax.jit
+def _kkt_solves(y, p, R, W):
+    """(the KKT matrix by forward-mode differentiation of the residual, solve_kkt(y, R), its
+    transpose applied to W), one compiled program per size (eagerly, each primitive of the
+    sweeps is a compilation of its own)."""
+    (JtW,) = jax.linear_transpose(lambda R: solve_kkt(y, R), R)(W)
+    return jax.jacfwd(kkt_residual)(y, p), solve_kkt(y, R), JtW
 
 
 @pytest.mark.parametrize("j", range(4))
@@ -102,18 +111,26 @@ def test_strip_derivatives_vs_finite_differences(j):
     """Forward mode (jvp) and reverse mode (vjp) of the implicit strip solve against central
     differences, in each of the clamp-gap, end-angle and segment-length directions."""
     v = jnp.zeros(4).at[j].set(1.0) * jnp.array([1e-3, 1e-3, 1e-1, 1e-4])
-    fd = fd_jvp(_strip, Q0, v, h=1e-4)
-    jv = jax.jvp(_strip, (Q0,), (v,))[1]
-    np.testing.assert_allclose(jv, fd, rtol=1e-6, atol=1e-8 * np.abs(fd).max())
     w = jnp.cos(jnp.arange(8.0))
-    _, vjp = jax.vjp(_strip, Q0)
-    np.testing.assert_allclose(vjp(w)[0] @ v, w @ jv, rtol=1e-10)
+    fd, jv, vjp_w, hv, fd_grad = _strip_derivatives(Q0, v, w)
+    np.testing.assert_allclose(jv, fd, rtol=1e-6, atol=1e-8 * np.abs(fd).max())
+    np.testing.assert_allclose(vjp_w @ v, w @ jv, rtol=1e-10)
     # second order: the Hessian of a scalar of the solution, forward over reverse vs FD of grad
+    np.testing.assert_allclose(hv, fd_grad, rtol=1e-5, atol=1e-7 * np.abs(hv).max())
+
+
+@jax.jit
+def _strip_derivatives(q, v, w):
+    """Along v at q: the strip solution's central difference (h = 1e-4) and JVP, its VJP with
+    w, and the Hessian-vector product of sum(sin(solution)) (forward over reverse) with the
+    central difference (h = 1e-5) of its gradient; one compiled program for every direction
+    (eagerly, each primitive of the implicit solve and its derivatives compiles alone)."""
     def f(q):
         return jnp.sum(jnp.sin(_strip(q)))
-    hv = jax.jvp(jax.grad(f), (Q0,), (v,))[1]
-    np.testing.assert_allclose(hv, fd_jvp(jax.grad(f), Q0, v, h=1e-5), rtol=1e-5,
-                               atol=1e-7 * np.abs(hv).max())
+
+    _, vjp = jax.vjp(_strip, q)
+    return (fd_jvp(_strip, q, v, h=1e-4), jax.jvp(_strip, (q,), (v,))[1], vjp(w)[0],
+            jax.jvp(jax.grad(f), (q,), (v,))[1], fd_jvp(jax.grad(f), q, v, h=1e-5))
 
 
 def test_envelope_forces_match_the_deflection_jacobian(params):
@@ -176,16 +193,16 @@ def test_energy_balance_undamped_unforced(params):
     (links' kinetic + strips' potential from the solved shapes) stays constant."""
     m = pj.QuasiStaticBeam(4)
     robot = pj.Robot(params)
-    z0 = m.coords_from_pose(robot, jnp.array([0.46, 0.25, 0.01]))
+    z0 = coords_from_pose(m, robot, jnp.array([0.46, 0.25, 0.01]))
     zd0 = jnp.zeros(9).at[:6].set(jnp.array([0.05, -0.04, 0.2, 0.1, -0.05, 0.02]))
     ts = jnp.linspace(0.0, 0.1, 11)
     sol = pj.simulate(m, params, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), z0, zd0, ts,
                       solver="dopri8", rtol=1e-11, atol=1e-13)
-    T, U = jax.vmap(lambda z, zd: pj.energy(m, robot, z, zd))(sol.z, sol.zdot)
+    T, U = energies(m, robot, sol.z, sol.zdot)
     E = np.asarray(T + U)
     assert float(np.max(T)) > 1e-4 and float(np.max(U)) > 1e-4
     assert np.abs(E - E[0]).max() / float(np.max(T)) < 1e-8
-    out = pj.outputs(m, params, sol.z, sol.zdot)
+    out = outputs(m, robot, sol.z, sol.zdot)
     assert float(np.max(out.residual)) < 1e-12
 
 

@@ -1,3 +1,5 @@
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -26,12 +28,26 @@ def test_ik_closes_loops_and_keeps_quasi_static_constraint(params, robot, X):
     assert float(jnp.abs(K.loop_residual_rigid(robot, r0.th, jnp.asarray(X))).max()) < 1e-10
 
 
+def _ik_l3_eager(p, X, l3):
+    """L1's inverse kinematics th (3, 3) at pose X of the robot `p` with l3 replaced (traced:
+    the general, Newton path)."""
+    from ppr_jax._geometry import ik_reduced
+
+    return ik_reduced(pj.Robot(p.replace(l3=l3)), X)[0]
+
+
+# Compiled, each one program for every robot (evaluated eagerly, op by op, the Newton solve and
+# its derivatives are hundreds of compilations of single operations)
+_ik_l3 = jax.jit(_ik_l3_eager)
+_ik_l3_jacfwd = jax.jit(jax.jacfwd(_ik_l3_eager, argnums=2))
+_ik_l3_grad_rev = jax.jit(jax.grad(lambda p, X, l3: jnp.sum(jnp.sin(_ik_l3_eager(p, X, l3))),
+                                   argnums=2))
+
+
 @pytest.mark.parametrize("l1,l3", [(0.3, 0.33), (0.2, 0.5)])
 def test_newton_path_for_unequal_links(params, l1, l3):
     """Unequal links: Newton to convergence (three fixed steps left 0.8 mm for 0.2 / 0.5 m), with
     derivatives (forward and reverse) equal to central differences of the converged solve."""
-    from ppr_jax._geometry import ik_reduced
-
     p = params.replace(l1=l1, l3=l3)
     robot = pj.Robot(p)
     assert not robot.equal_links
@@ -40,16 +56,14 @@ def test_newton_path_for_unequal_links(params, l1, l3):
     assert float(jnp.abs(K.loop_residual(robot, r.th, X)).max()) < 1e-12
     np.testing.assert_allclose(r.th[:, 0] - 2 * r.th[:, 1] + r.th[:, 2], 0, atol=1e-13)
 
-    def th(l3):
-        return ik_reduced(pj.Robot(p.replace(l3=l3)), X)[0]
-
+    th = functools.partial(_ik_l3, p, X)
     h = 1e-6
     fd = (th(l3 + h) - th(l3 - h)) / (2 * h)
-    g = jax.jacfwd(th)(l3)
+    g = _ik_l3_jacfwd(p, X, l3)
     np.testing.assert_allclose(g, fd, rtol=0, atol=1e-8)
     # reverse mode against central differences of the scalar, not against the forward-mode
     # output of the same code (which would share any error in the custom derivative rules)
-    g_rev = jax.grad(lambda l: jnp.sum(jnp.sin(th(l))))(l3)
+    g_rev = _ik_l3_grad_rev(p, X, l3)
     fd_rev = (jnp.sum(jnp.sin(th(l3 + h))) - jnp.sum(jnp.sin(th(l3 - h)))) / (2 * h)
     np.testing.assert_allclose(g_rev, fd_rev, rtol=0, atol=1e-8)
     assert abs(float(fd_rev)) > 0.1

@@ -1,9 +1,11 @@
 """Our generic (Kane) equations of motion against two independent formulations: the paper's
 closed form (eqs 30-35, 41, 47, 54) and automatic differentiation of the Lagrangian."""
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import coords_from_pose
 
 import ppr_jax as pj
 from ppr_jax._dynamics import lagrangian_eom
@@ -42,9 +44,11 @@ def test_paper_constants_by_hand(params, robot):
 @pytest.mark.parametrize("model", [pj.Rigid(), pj.Reduced(), pj.Double1R()])
 def test_kane_equals_autodiff_lagrangian(robot, model):
     X = jnp.array([0.47, 0.24, 0.03])
-    z = model.coords_from_pose(robot, X)
+    z = coords_from_pose(model, robot, X)
     zd = jnp.linspace(-0.4, 0.5, model.n_dof)
     eom = pj.eom_terms(model, robot, z, zd)
-    M, f = lagrangian_eom(model, robot, z, zd)
+    # compiled: evaluated eagerly, the Lagrangian's second derivatives are hundreds of
+    # compilations of single operations
+    M, f = eqx.filter_jit(lagrangian_eom)(model, robot, z, zd)
     np.testing.assert_allclose(eom.M, M, rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(eom.h - eom.Q_passive, f, rtol=1e-9, atol=1e-13)
