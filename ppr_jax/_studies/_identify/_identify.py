@@ -417,7 +417,9 @@ def identify(
     if commands is not None and actuation == "measured":
         raise IdentificationError("commands= names the model that computed the commands; with "
                                   "actuation='measured' the measured angles drive the model")
-    cmd = nominal if commands is None else commands
+    # the PRB parameters the commands use as explicit leaves, so that the default (the table's
+    # values) and named commands are one structure: one compiled fit for both
+    cmd = _fill_prb(nominal if commands is None else commands, ("gamma", "K_theta", "rho"))
     whose = ("each experiment's own" if len(exps) > 1 else "the experiment's own") if own \
         else "the"
     if actuation == "measured":
