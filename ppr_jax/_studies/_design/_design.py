@@ -221,7 +221,7 @@ def design(
     prob = Problem(names=names, lo=lo, hi=hi, metrics=tuple(metrics), base=base, stroke=stroke,
                    ctx=ctx, mode=mode, equal_links=equal, samples=samples)
     if mode_given is None and samples:  # the samples are rows: count them
-        prob.mode = "fwd" if p <= int(np.sum(prob.sizes)) else "rev"
+        prob.mode = mode = "fwd" if p <= int(np.sum(prob.sizes)) else "rev"
     blocks = prob.blocks
     # one scaled constraint per raw row of the constrained metric (every sample of a sampled one)
     q_side = np.concatenate([np.full(blocks[r].size, q, dtype=int)
@@ -343,7 +343,8 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
                    "optimum": dict(zip(names, map(float, prob.x_of(r["u"])))),
                    "objective": float(scaled.sign * r["fun"] * fs), "feasible": r["feasible"],
                    "max_violation": r["max_violation"], "iterations": r["nit"],
-                   "evaluations": r["nfev"], "success": r["success"], "message": r["message"],
+                   "evaluations": r["nfev"], "jacobians": r["jacobians"],
+                   "success": r["success"], "message": r["message"],
                    "seconds": r["seconds"]} for r in runs]
     params = prob.base.replace(**dict(zip(names, map(float, x))))
     info = {"optimizer": optimizer, "mode": mode, "stroke_rad": stroke,
@@ -351,7 +352,9 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
             "scene": None if ctx.scene is None else ctx.scene.name,
             "model": None if ctx.model is None else ctx.model.name,
             "frequency_model": ctx.frequency_model.name, "objective_scale": fs,
-            "evaluations": prob.evaluations, "jacobians": prob.jacobians}
+            "evaluations": prob.evaluations, "jacobians": prob.jacobians,
+            "constraint_rows": int(scaled.rows.size),
+            "sampled_constraints": list(prob.samples)}
     if ctx.options is not None:
         info.update(t_end=float(ctx.options.t_end), n_out=int(ctx.options.n_out))
     return Design(

@@ -111,7 +111,8 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
     - `method`: 'slsqp' or 'trust-constr'.
     - `max_iter`: the optimiser's iteration limit.
 
-    **Returns:** {u, fun, max_violation, success, message, nit, nfev, history, seconds,
+    **Returns:** {u, fun, max_violation, success, message, nit, nfev, jacobians (the points
+    whose values and Jacobian were computed: each evaluation of the problem), history, seconds,
     multipliers} (history: one entry per iteration, {iteration, u, objective (scaled),
     max_violation (scaled)}; multipliers: scipy's own, where it gives them).
     """
@@ -128,6 +129,7 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
         record(intermediate_result.x)
 
     u0 = np.asarray(u0, dtype=np.float64)
+    jac0 = scaled.problem.jacobians
     record(u0)
     t0 = time.perf_counter()
     p = u0.size
@@ -153,5 +155,6 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
     return {"u": u, "fun": float(scaled.fun(u)),
             "max_violation": float(max(0.0, -c.min())) if q else 0.0,
             "success": bool(res.success), "message": str(res.message), "nit": int(res.nit),
-            "nfev": int(res.nfev), "history": history, "seconds": seconds,
+            "nfev": int(res.nfev), "history": history,
+            "jacobians": scaled.problem.jacobians - jac0, "seconds": seconds,
             "multipliers": None if mult is None else np.asarray(mult, dtype=float)}
