@@ -30,6 +30,11 @@ PRB spring's moment is the strip's moment at the characteristic pivot; under tip
 moment varies along the strip and the clamps may carry more than the pivots (L3's curvature,
 with `model="beam"`, is the check).
 
+**Peaks as samples** (`SAMPLED_METRICS`). The stress and torque peaks and the path margins are
+extremes over samples; `metric_values(samples=...)` gives such a metric as its samples (the
+stresses (m, ns) of every spring at every output time, |tau| (m, 3), the reach margins (m, 3)
+per chain, the singularity margins (m,)), flattened, which a design constrains one by one.
+
 **Actuator torques over a scene** (`torque_peak_Nm`, the scene's own, and `torque_rms_Nm`):
 the scene's actuator torques tau (m, 3) at its output times (applied, or the reactions of a
 motion-driven scene), their peak max |tau| and their RMS sqrt(mean tau^2) over the times and

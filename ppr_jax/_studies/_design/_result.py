@@ -113,6 +113,8 @@ class Design:
         lines += [f"  {k} = {v:.9g}" for k, v in self.x.items()]
         for c in self.constraints:
             tag = "active" if c["active"] else "inactive"
+            if c["active"] and c.get("active_samples", 1) > 1:
+                tag += f" on {c['active_samples']} samples"
             lines.append(f"  {c['metric']} {'<=' if c['side'] == 'upper' else '>='} "
                          f"{c['bound']:g}: {c['value']:.6g} ({tag}, multiplier "
                          f"{c['multiplier']:.4g})")
