@@ -629,3 +629,20 @@ def test_tied_stress_peaks_at_the_optimum_are_a_kkt_point():
     relaxed = run(251e6)
     df = relaxed.objective["value"] - d.objective["value"]
     assert df == pytest.approx(s["multiplier"] * 1e6, rel=2e-2)
+
+
+def test_docs_tier3_block_is_generated_from_the_benchmark_json():
+    """docs/design.md's tier-3 measurements are `benchmarks/design.py`'s `tier3_markdown` of
+    benchmarks/results/design_tier3.json, never typed by hand."""
+    import importlib.util
+    import json
+    import pathlib
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("design_bench", root / "benchmarks" / "design.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    data = json.loads((root / "benchmarks" / "results" / "design_tier3.json").read_text())
+    page = (root / "docs" / "design.md").read_text()
+    block = page.split("<!-- design-tier3 -->\n", 1)[1].split("<!-- /design-tier3 -->", 1)[0]
+    assert block.strip() == bench.tier3_markdown(data).strip()
