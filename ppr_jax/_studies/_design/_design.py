@@ -87,9 +87,12 @@ def design(
     The starts: `candidates` points (the base robot's, clipped into the box, and a scrambled
     Sobol sequence) are evaluated in one batched call and the `starts` best (objective plus a
     penalty on violated constraints) run scipy's SLSQP or trust-constr, fed the metrics' JAX
-    Jacobian (`jax.jacfwd` where there are no more variables than metrics, `jax.jacrev`
-    otherwise), in variables normalised to [0, 1] and with the objective and constraints
-    scaled to order one. The best feasible optimum is then verified (`Design.verification`):
+    Jacobian (`jax.jacfwd` where there are no more variables than rows: the metrics, each
+    sample of a peak constrained per sample a row; `jax.jacrev` otherwise), in variables
+    normalised to [0, 1] and with the objective and constraints scaled to order one. A peak or
+    margin over samples (`SAMPLED_METRICS`: stress, torque, path margins) bounded on its
+    extreme's side is one constraint per sample, each smooth where the extreme has kinks at
+    ties (`sampled_constraints`). The best feasible optimum is then verified (`Design.verification`):
     its Karush-Kuhn-Tucker residual with the multipliers of the active constraints and bounds,
     the JAX gradient against finite differences there, and a dense grid over the box (a Sobol
     sample beyond four variables) in one batched call, whose best feasible objective the
