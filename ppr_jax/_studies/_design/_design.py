@@ -93,10 +93,10 @@ def design(
     margin over samples (`SAMPLED_METRICS`: stress, torque, path margins) bounded on its
     extreme's side is one constraint per sample, each smooth where the extreme has kinks at
     ties (`sampled_constraints`). The best feasible optimum is then verified
-    (`Design.verification`): its Karush-Kuhn-Tucker residual with the multipliers of the active constraints and bounds,
-    the JAX gradient against finite differences there, and a dense grid over the box (a Sobol
-    sample beyond four variables) in one batched call, whose best feasible objective the
-    optimum must be within `grid_rtol` of.
+    (`Design.verification`): its Karush-Kuhn-Tucker residual with the multipliers of the
+    active constraints and bounds, the JAX gradient against finite differences there, and a
+    dense grid over the box (a Sobol sample beyond four variables) in one batched call, whose
+    best feasible objective the optimum must be within `grid_rtol` of.
 
     **Arguments:**
 
