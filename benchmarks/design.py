@@ -170,6 +170,8 @@ T3_BOUNDS = {"t": (2e-4, 8e-4), "w": (0.010, 0.030), "r": (0.010, 0.040),
              "theta_c": (1.2, 2.4), "l1": (0.30, 0.45), "l3": (0.30, 0.45)}
 T3_STRESS, T3_TORQUE, T3_SINGULAR = 250e6, 5.0, 0.1
 T3_MAX_ITER = 100
+#: the goal: evaluations (values and Jacobian) per start
+T3_MAX_JACOBIANS = 50
 
 
 def tier3() -> dict:
@@ -178,7 +180,11 @@ def tier3() -> dict:
     in 2 s (servo-circle's angles, L1: forward kinematics and inverse dynamics), the strips'
     peak PRB stress <= 250 MPa, the actuators' peak torque <= 5 N m, a singularity margin
     >= 0.1 and the path in reach; verified on 10,000 Sobol designs in one batched call and
-    re-scored with L3. No closed form: the grid and the finite differences are the check."""
+    re-scored with L3. No closed form: the grid and the finite differences are the check.
+    The stress and torque peaks and the path margins reach the optimiser as one constraint per
+    output time and spring, actuator or chain (`SAMPLED_METRICS`). Passed: feasible, verified
+    (KKT residual, finite differences, the Sobol sample within 1 %) with at most
+    `T3_MAX_JACOBIANS` evaluations per start; the L3 re-score is reported, not required."""
     import jax.numpy as jnp
 
     from ppr_jax._trajectory import Circle
@@ -219,10 +225,71 @@ def tier3() -> dict:
             else None,
             "l3": v.get("l3"), "verification_ok": v["ok"], "mode": d.info["mode"],
             "starts": [{"iterations": s["iterations"], "evaluations": s["evaluations"],
+                        "jacobians": s["jacobians"],
                         "objective": s["objective"], "feasible": s["feasible"],
                         "max_violation": s["max_violation"], "message": s["message"],
                         "optimum": s["optimum"]} for s in d.starts],
+            "jacobians_per_start_max": max(s["jacobians"] for s in d.starts),
+            "constraint_rows": d.info.get("constraint_rows"),
+            "passed": bool(error is None and v["ok"] and max(s["jacobians"] for s in d.starts)
+                           <= T3_MAX_JACOBIANS),
             "first_call_s": first, "warm_call_s": warm, "timing": d.timing}
+
+
+def tier3_markdown(data: dict) -> str:
+    """The measured part of docs/design.md's tier-3 section, from design_tier3.json (`data`):
+    the page holds exactly this text between `<!-- design-tier3 -->` and
+    `<!-- /design-tier3 -->` (tests/test_design.py checks it)."""
+    t, m = data["tier3"], data["machine"]
+    x = t["optimum"]
+    load = sorted({round(v) for v in (m["load_average_at_start"] + m.get("load_average_at_end",
+                                                                          []))})
+    units = {"Pa": "Hz/Pa", "Nm": "Hz/(N m)"}
+    cons = []
+    for c in t["constraints"]:
+        rel = "<=" if c["side"] == "upper" else ">="
+        if c["active"]:
+            cons.append(f"`{c['metric']}` {rel} {c['bound']:g} binds on "
+                        f"{c.get('active_samples', 1)} samples (multiplier "
+                        f"{c['multiplier']:.3g} "
+                        f"{units.get(c['metric'].rsplit('_', 1)[-1], 'Hz')})")
+        else:
+            cons.append(f"`{c['metric']}` = {c['value']:.3g} (slack)")
+    bounds = ", ".join(f"{b['variable']} on its {b['side']} bound ({b['multiplier']:.3g} Hz/"
+                       f"{pj.PARAM_RANGES[b['variable']][2]})" for b in t["active_bounds"])
+    g, tm = t["grid"], t["timing"]
+    jac = [s["jacobians"] for s in t["starts"]]
+    l3 = t.get("l3") or {}
+    lines = [
+        f"Measured on {m['cpus']} CPU cores shared with other work (load average "
+        f"{load[0]}-{load[-1]}), {'passed' if t.get('passed') else 'NOT passed'}:",
+        "",
+        f"- optimum {t['objective_hz']:.4g} Hz (the best screened start "
+        f"{t['start_objective_hz']:.4g} Hz): t = {x['t'] * 1e3:.3g} mm, w = {x['w'] * 1e3:.3g} "
+        f"mm, r = {x['r'] * 1e3:.3g} mm, theta_c = {x['theta_c']:.3g} rad, "
+        f"l1 = {x['l1']:.3g} m, l3 = {x['l3']:.3g} m; {bounds}.",
+        "- constraints: " + "; ".join(cons) + f" ({t.get('constraint_rows')} constraint rows "
+        f"for the optimiser in all).",
+        f"- verification: KKT residual {t['kkt_residual']:.1e}, the JAX gradient against finite "
+        f"differences {t['gradient_fd_rel_error']:.1e} (relative, per sample), the "
+        f"{g['points']:,} Sobol designs' best feasible {g['best_objective']:.4g} Hz "
+        f"({-g['gap']:.0%} below the optimum) in one batched call of {g['seconds']:.0f} s.",
+        f"- {len(jac)} starts, {min(jac)}-{max(jac)} evaluations (values and Jacobian, "
+        f"{t['mode']} mode) each, against the goal of {T3_MAX_JACOBIANS}.",
+    ]
+    if l3:
+        ms = l3.get("metrics", {})
+        lines.append("- L3 (N = " + str(l3.get("n_elements")) + "): " + ", ".join(
+            f"`{n}` {v['l3']:.3g} against the PRB's {v['prb']:.3g} ({v['relative']:.0%}, band "
+            f"{v['band']:.0%})" for n, v in ms.items()) + "; " + (
+            "inside the PRB model's error band." if l3.get("within") else
+            "outside the PRB model's error band (the centre-line chain's geometry, above)."))
+    lines.append(
+        f"- time: {t['first_call_s']:.0f} s for the first call (compilation), "
+        f"{t['warm_call_s']:.0f} s warm: screening {tm['screen_s']:.1f} s, optimisation "
+        f"{tm['optimise_s']:.1f} s, verification {tm['verify_s']:.0f} s"
+        + (f", L3 re-score {tm['l3_s']:.0f} s" if "l3_s" in tm else "") + ".")
+    return "\n".join(lines) + "\n"
 
 
 def robot_scene() -> dict:
@@ -282,6 +349,7 @@ def main(argv=None):
         path = OUT.parent / "design_tier3.json"
         path.write_text(json.dumps({"machine": info, "tier3": t3}, indent=2, default=str)
                         + "\n")
+        print(tier3_markdown(json.loads(path.read_text())))
         print(f"tier 3: f* {t3['objective_hz']:.6g} Hz (start {t3['start_objective_hz']:.6g}), "
               f"verification {t3['verification_ok']}, first call {t3['first_call_s']:.1f} s, "
               f"warm {t3['warm_call_s']} s; {t3['error'] or 'feasible'}; wrote {path}")

@@ -553,3 +553,96 @@ def test_tier2_elastica_optimum_is_the_closed_form():
 def test_elastica_metrics_need_a_load():
     with pytest.raises(pj.DesignError, match="strip_load"):
         pj.design(T2_BOUNDS, {"minimize": "strip_elastica_stress_Pa"})
+
+
+# --- sampled constraints: a peak over times and springs as one constraint per sample ------------
+
+
+def test_sampled_constraints_are_the_bounds_on_the_extremes_side():
+    from ppr_jax._studies._design._design import sampled_constraints
+
+    def sides(*cs):
+        return [(0, c, s, b) for c in cs for s, b in c.sides()]
+
+    stress = pj.Constraint("strip_stress_peak_Pa", upper=1e8)
+    torque_low = pj.Constraint("torque_peak_Nm", lower=0.1)  # max >= b: not every sample
+    margin = pj.Constraint("path_singularity_margin", lower=0.1)
+    rms = pj.Constraint("torque_rms_Nm", upper=1.0)  # not a peak
+    metrics = ["base_frequency_hz", "strip_stress_peak_Pa", "torque_peak_Nm",
+               "path_singularity_margin", "torque_rms_Nm"]
+    got = sampled_constraints(metrics, sides(stress, torque_low, margin, rms))
+    assert got == ("strip_stress_peak_Pa", "path_singularity_margin")
+    # the objective's metric stays one value (its extreme) even when also constrained
+    assert sampled_constraints(["strip_stress_peak_Pa"], sides(stress)) == ()
+
+
+def test_reduce_takes_each_blocks_extreme_and_its_row():
+    from ppr_jax._studies._design._problem import Problem
+
+    prob = Problem(names=["t"], lo=np.zeros(1), hi=np.ones(1),
+                   metrics=("base_frequency_hz", "strip_stress_peak_Pa",
+                            "path_singularity_margin"),
+                   base=None, stroke=0.0, ctx=None, mode="fwd", equal_links=True,
+                   samples=("strip_stress_peak_Pa", "path_singularity_margin"))
+    prob._sizes = np.array([1, 3, 2])
+    R = np.array([5.0, 1.0, 7.0, 2.0, 0.4, 0.3])
+    J = np.arange(6.0)[:, None]
+    v, Jk = prob.reduce(R, J)
+    np.testing.assert_array_equal(v, [5.0, 7.0, 0.3])  # max of the stresses, min of the margins
+    np.testing.assert_array_equal(Jk[:, 0], [0.0, 2.0, 5.0])  # the extreme sample's rows
+    V = prob.reduce(np.stack([R, R[::-1], np.where(np.arange(6) == 2, np.nan, R)]))
+    np.testing.assert_array_equal(V[1], [0.3, 7.0, 1.0])
+    assert np.isnan(V[2, 1]) and V[2, 2] == 0.3  # a NaN sample makes its metric NaN
+
+
+@pytest.mark.slow
+def test_tied_stress_peaks_at_the_optimum_are_a_kkt_point():
+    """The paper's robot on its circle in 2 s (benchmark tier 3 on a coarser path): the first
+    locked frequency maximised under the strips' peak stress. The peak is a max over times and
+    springs; several samples reach the bound together at the optimum (the three chains alike),
+    where the max has a kink. Given as one constraint per sample, the optimum is a KKT point
+    (the multipliers of the tied samples add up), the gradient check passes per sample, and the
+    sum of their multipliers is the optimum's own derivative in the allowable (a second design
+    at a relaxed bound)."""
+    import jax.numpy as jnp
+
+    from ppr_jax._trajectory import Circle
+
+    opts = pj.SceneOptions(t_end=2.0, n_out=31, trajectory=Circle(omega=jnp.asarray(math.pi)))
+    bounds = {"t": (2e-4, 8e-4), "w": (0.010, 0.030), "r": (0.010, 0.040),
+              "theta_c": (1.2, 2.4), "l1": (0.30, 0.45), "l3": (0.30, 0.45)}
+
+    def run(sigma_a):
+        return pj.design(bounds, "base_frequency_hz",
+                         [pj.Constraint("strip_stress_peak_Pa", upper=sigma_a),
+                          pj.Constraint("torque_peak_Nm", upper=5.0)],
+                         scene="servo-circle", model="reduced", options=opts, starts=2,
+                         candidates=16, grid=256, l3_elements=None)
+
+    d = run(250e6)
+    v = d.verification
+    assert d.info["mode"] == "fwd" and "strip_stress_peak_Pa" in d.info["sampled_constraints"]
+    (s,) = [c for c in d.constraints if c["metric"] == "strip_stress_peak_Pa"]
+    assert s["active"] and s["value"] == pytest.approx(250e6, rel=1e-8)
+    assert v["kkt_residual"] <= 1e-5 and v["gradient_check"]["ok"] and v["grid"]["ok"]
+    assert all(st["jacobians"] <= 50 for st in d.starts)
+    relaxed = run(251e6)
+    df = relaxed.objective["value"] - d.objective["value"]
+    assert df == pytest.approx(s["multiplier"] * 1e6, rel=2e-2)
+
+
+def test_docs_tier3_block_is_generated_from_the_benchmark_json():
+    """docs/design.md's tier-3 measurements are `benchmarks/design.py`'s `tier3_markdown` of
+    benchmarks/results/design_tier3.json, never typed by hand."""
+    import importlib.util
+    import json
+    import pathlib
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("design_bench", root / "benchmarks" / "design.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    data = json.loads((root / "benchmarks" / "results" / "design_tier3.json").read_text())
+    page = (root / "docs" / "design.md").read_text()
+    block = page.split("<!-- design-tier3 -->\n", 1)[1].split("<!-- /design-tier3 -->", 1)[0]
+    assert block.strip() == bench.tier3_markdown(data).strip()

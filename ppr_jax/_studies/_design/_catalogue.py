@@ -30,6 +30,11 @@ PRB spring's moment is the strip's moment at the characteristic pivot; under tip
 moment varies along the strip and the clamps may carry more than the pivots (L3's curvature,
 with `model="beam"`, is the check).
 
+**Peaks as samples** (`SAMPLED_METRICS`). The stress and torque peaks and the path margins are
+extremes over samples; `metric_values(samples=...)` gives such a metric as its samples (the
+stresses (m, ns) of every spring at every output time, |tau| (m, 3), the reach margins (m, 3)
+per chain, the singularity margins (m,)), flattened, which a design constrains one by one.
+
 **Actuator torques over a scene** (`torque_peak_Nm`, the scene's own, and `torque_rms_Nm`):
 the scene's actuator torques tau (m, 3) at its output times (applied, or the reactions of a
 motion-driven scene), their peak max |tau| and their RMS sqrt(mean tau^2) over the times and
@@ -96,6 +101,12 @@ POSE_METRICS = ("base_frequency_hz", "compliance_xy_m_per_N", "compliance_phi_ra
 SCENE_OWN_METRICS = ("strip_stress_peak_Pa", "torque_rms_Nm")
 #: the catalogue's metrics of the scene's nominal path alone (a scene, not its run)
 PATH_METRICS = ("path_reach_margin", "path_singularity_margin")
+#: the metrics that are an extreme ('max' or 'min') over samples (output times, springs,
+#: actuators, chains): a bound on the extreme's side (metric <= b for a max) is the same bound on
+#: every sample, which the optimiser is given instead (`metric_values(samples=...)`): each
+#: sample is smooth where the extreme has a kink at a tie between two samples
+SAMPLED_METRICS = {"strip_stress_peak_Pa": "max", "torque_peak_Nm": "max",
+                   "path_reach_margin": "min", "path_singularity_margin": "min"}
 
 
 def design_metrics(trajectory=None) -> tuple:
@@ -134,13 +145,19 @@ def moving_mass(dv: Derived):
     return 3 * (dv.m1 + dv.m2 + dv.m3) + dv.m4
 
 
-def strip_stress_peak(model, robot: Robot, z):
-    """Peak bending stress (Pa) of the strips over the coordinates z (m, n) of a scene's
-    output times (module docstring): max |k d| 6/(w t^2) over the times and springs."""
+def strip_stresses(model, robot: Robot, z):
+    """Bending stress (Pa) of every spring at the coordinates z (m, n) of a scene's output times
+    (module docstring): |k d| 6/(w t^2), (m, ns)."""
     k = model.stiffness(robot)
     d = jax.vmap(lambda zz: model.kinematics(robot, zz).deflection)(z)
     p = robot.params
-    return jnp.max(jnp.abs(k * d)) * 6 / (p.w * p.t**2)
+    return jnp.abs(k * d) * 6 / (p.w * p.t**2)
+
+
+def strip_stress_peak(model, robot: Robot, z):
+    """Peak bending stress (Pa) of the strips over the coordinates z (m, n) of a scene's
+    output times (module docstring): max |k d| 6/(w t^2) over the times and springs."""
+    return jnp.max(strip_stresses(model, robot, z))
 
 
 def strip_elastica(params, dv: Derived, load):
@@ -166,19 +183,26 @@ def path_margins(ref_model, robot: Robot, X):
     (module docstring): the least reach margin over the chains and samples, and the least
     relative det S over the samples, signed positive at the robot's home pose (its working
     mode)."""
+    reach, sing = path_margin_samples(ref_model, robot, X)
+    return jnp.min(reach), jnp.min(sing)
+
+
+def path_margin_samples(ref_model, robot: Robot, X):
+    """The margins of `path_margins` before their minimum: (reach (m, 3) per sample and chain,
+    singularity (m,) per sample)."""
 
     def one(x):
         k = ref_model.kinematics(robot, ref_model.coords_from_pose(robot, x))
         S = jax.jacfwd(lambda xx: ref_model.kinematics(
             robot, ref_model.coords_from_pose(robot, xx)).th_a)(x)
-        return jnp.min(k.margin), S
+        return k.margin, S
 
     reach, S = jax.vmap(one)(jnp.concatenate([home_pose(robot)[None], X]))
     r1 = jnp.asarray(robot.r1, dtype=S.dtype)
     Sn = S * jnp.stack([r1, r1, jnp.ones_like(r1)])[None, None, :]
     rel = det3(Sn) / jnp.prod(jnp.linalg.norm(Sn, axis=-2), axis=-1)
     sign = jax.lax.stop_gradient(jnp.where(rel[0] < 0, -1.0, 1.0))
-    return jnp.min(reach[1:]), jnp.min(sign * rel[1:])
+    return reach[1:], sign * rel[1:]
 
 
 def compliance(model, robot: Robot, X=None):
@@ -212,8 +236,10 @@ class SceneContext:
     strip_load: Optional[tuple] = None
 
 
-def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_links=True):
-    """The metrics `names` (tuple) at `params` as one (k,) traced array.
+def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_links=True,
+                  samples=()):
+    """The metrics `names` (tuple) at `params` as one traced array: (k,), or longer where
+    `samples` asks for some metrics' samples.
 
     **Arguments:**
 
@@ -223,8 +249,11 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
     - `stroke`: the joint rotation (rad) of `pivot_stress_Pa`.
     - `adjoint`: diffrax's adjoint for the scene's solve (`ForwardMode` under `jax.jacfwd`).
     - `equal_links`: `Robot`'s static choice of the closed-form inverse kinematics (l1 == l3).
+    - `samples`: names of `SAMPLED_METRICS` given as their samples (the values whose max or min
+      they are, flattened) instead of that extreme.
 
-    **Returns:** (k,) values in SI units; NaN for every scene metric where the scene failed.
+    **Returns:** the values in SI units, each metric's in `names`' order (one entry, or its
+    samples); NaN for every scene metric where the scene failed.
     """
     robot = Robot(params, equal_links=equal_links)
     dv = robot.dv
@@ -234,8 +263,10 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
     if any(n in PATH_METRICS for n in names):
         opts = ctx.options
         X = jax.vmap(opts.trajectory)(opts.times())
-        reach, sing = path_margins(ctx.scene.input_model, robot, X)
-        out.update(path_reach_margin=reach, path_singularity_margin=sing)
+        reach, sing = path_margin_samples(ctx.scene.input_model, robot, X)
+        out["path_reach_margin"] = reach if "path_reach_margin" in samples else jnp.min(reach)
+        out["path_singularity_margin"] = (sing if "path_singularity_margin" in samples
+                                          else jnp.min(sing))
     if scene_names:
         opts = ctx.options if adjoint is None else dataclasses.replace(ctx.options,
                                                                        adjoint=adjoint)
@@ -243,8 +274,12 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
         table = [n for n in scene_names if n not in SCENE_OWN_METRICS]
         if table:
             out.update(traced_metrics(res, opts.trajectory, table))
+        if "torque_peak_Nm" in samples:
+            out["torque_peak_Nm"] = jnp.abs(res.tau)
         if "strip_stress_peak_Pa" in scene_names:
-            out["strip_stress_peak_Pa"] = strip_stress_peak(ctx.model, robot, res.z)
+            sig = strip_stresses(ctx.model, robot, res.z)
+            out["strip_stress_peak_Pa"] = sig if "strip_stress_peak_Pa" in samples \
+                else jnp.max(sig)
         if "torque_rms_Nm" in scene_names:
             out["torque_rms_Nm"] = torque_rms(res.tau)
         bad = res.result != RESULTS.successful
@@ -265,4 +300,4 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
         X = None if ctx.pose is None else jnp.asarray(ctx.pose, dtype=jnp.float64)
         cxy, cphi = compliance(ctx.frequency_model, robot, X)
         out.update(compliance_xy_m_per_N=cxy, compliance_phi_rad_per_Nm=cphi)
-    return jnp.stack([jnp.asarray(out[n], dtype=jnp.float64) for n in names])
+    return jnp.concatenate([jnp.ravel(jnp.asarray(out[n], dtype=jnp.float64)) for n in names])

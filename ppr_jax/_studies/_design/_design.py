@@ -26,6 +26,7 @@ from ._catalogue import (
     ELASTICA_METRICS,
     PATH_METRICS,
     POSE_METRICS,
+    SAMPLED_METRICS,
     SceneContext,
     design_metrics,
 )
@@ -86,13 +87,16 @@ def design(
     The starts: `candidates` points (the base robot's, clipped into the box, and a scrambled
     Sobol sequence) are evaluated in one batched call and the `starts` best (objective plus a
     penalty on violated constraints) run scipy's SLSQP or trust-constr, fed the metrics' JAX
-    Jacobian (`jax.jacfwd` where there are no more variables than metrics, `jax.jacrev`
-    otherwise), in variables normalised to [0, 1] and with the objective and constraints
-    scaled to order one. The best feasible optimum is then verified (`Design.verification`):
-    its Karush-Kuhn-Tucker residual with the multipliers of the active constraints and bounds,
-    the JAX gradient against finite differences there, and a dense grid over the box (a Sobol
-    sample beyond four variables) in one batched call, whose best feasible objective the
-    optimum must be within `grid_rtol` of.
+    Jacobian (`jax.jacfwd` where there are no more variables than rows: the metrics, each
+    sample of a peak constrained per sample a row; `jax.jacrev` otherwise), in variables
+    normalised to [0, 1] and with the objective and constraints scaled to order one. A peak or
+    margin over samples (`SAMPLED_METRICS`: stress, torque, path margins) bounded on its
+    extreme's side is one constraint per sample, each smooth where the extreme has kinks at
+    ties (`sampled_constraints`). The best feasible optimum is then verified
+    (`Design.verification`): its Karush-Kuhn-Tucker residual with the multipliers of the
+    active constraints and bounds, the JAX gradient against finite differences there, and a
+    dense grid over the box (a Sobol sample beyond four variables) in one batched call, whose
+    best feasible objective the optimum must be within `grid_rtol` of.
 
     **Arguments:**
 
@@ -208,23 +212,32 @@ def design(
         base = explicit_params(base)
     equal = ("l1" not in names and "l3" not in names) and float(base.l1) == float(base.l3)
     k, p = len(metrics), len(names)
+    mode_given = mode
     if mode is None:
         mode = "fwd" if p <= k else "rev"
     elif mode not in ("fwd", "rev"):
         raise DesignError(f"mode must be 'fwd' or 'rev', got {mode!r}")
 
     ctx = SceneContext(ctx_scene, ctx_model, ctx_opts, fmodel, pose, strip_load)
-    prob = Problem(names=names, lo=lo, hi=hi, metrics=tuple(metrics), base=base, stroke=stroke,
-                   ctx=ctx, mode=mode, equal_links=equal)
     sides = [(metrics.index(c.metric), c, side, b) for c in cons for side, b in c.sides()]
+    samples = sampled_constraints(metrics, sides)
+    prob = Problem(names=names, lo=lo, hi=hi, metrics=tuple(metrics), base=base, stroke=stroke,
+                   ctx=ctx, mode=mode, equal_links=equal, samples=samples)
+    if mode_given is None and samples:  # the samples are rows: count them
+        prob.mode = mode = "fwd" if p <= int(np.sum(prob.sizes)) else "rev"
+    blocks = prob.blocks
+    # one scaled constraint per raw row of the constrained metric (every sample of a sampled one)
+    q_side = np.concatenate([np.full(blocks[r].size, q, dtype=int)
+                             for q, (r, *_) in enumerate(sides)]) if sides else np.zeros(0, int)
     scaled = Scaled(
         problem=prob, sign=obj.sign, f_scale=None,
-        rows=np.array([r for r, *_ in sides], dtype=int),
-        bounds=np.array([b for *_, b in sides], dtype=np.float64),
-        upper=np.array([s == "upper" for _, _, s, _ in sides], dtype=bool),
+        rows=np.concatenate([blocks[r] for r, *_ in sides]) if sides else np.zeros(0, int),
+        bounds=np.array([sides[q][3] for q in q_side], dtype=np.float64),
+        upper=np.array([sides[q][2] == "upper" for q in q_side], dtype=bool),
         # the path margins are of order one however small their bound
-        scale=np.array([1.0 if (b == 0 or c.metric in PATH_METRICS) else abs(b)
-                        for _, c, _, b in sides], dtype=np.float64))
+        scale=np.array([1.0 if (sides[q][3] == 0 or sides[q][1].metric in PATH_METRICS)
+                        else abs(sides[q][3]) for q in q_side], dtype=np.float64),
+        sides=q_side)
 
     # screen, optimise from each start, keep the best feasible
     u_base = prob.u_of([float(getattr(base, n)) for n in names])
@@ -280,6 +293,21 @@ def design(
     return result
 
 
+def sampled_constraints(metrics, sides) -> tuple:
+    """The constrained metrics of `SAMPLED_METRICS` given to the optimiser as their samples:
+    those whose every bound is on their extreme's side (an upper bound on a max, a lower bound
+    on a min: then it holds on the extreme if and only if it holds on every sample), except the
+    objective's metric (`metrics[0]`)."""
+    out = []
+    for m in dict.fromkeys(metrics[1:]):
+        kind = SAMPLED_METRICS.get(m)
+        mine = [side for _, c, side, _ in sides if c.metric == m]
+        if m != metrics[0] and kind and mine and all(
+                side == ("upper" if kind == "max" else "lower") for side in mine):
+            out.append(m)
+    return tuple(out)
+
+
 def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer, mode, stroke,
               ctx, timing) -> Design:
     names = prob.names
@@ -288,18 +316,20 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
     x = prob.x_of(u)
     v = prob.values(x)
     v0 = prob.values(prob.x_of(best["u0"]))
-    c_scaled = scaled.constraints_of(v) if sides else np.zeros(0)
-    mult_c = dict(kk["constraints"])
+    c_raw = scaled.constraints_of(prob.raw_value_and_jacobian(x)[0]) if sides else np.zeros(0)
     constraints = []
     for q, (row, c, side, b) in enumerate(sides):
-        mu = mult_c.get(q, 0.0)
-        # d(optimum)/d(bound): relaxing an upper bound by delta adds delta/scale to c
-        d = -scaled.sign * fs * mu / scaled.scale[q]
+        mine = scaled.sides == q
+        # d(optimum)/d(bound): relaxing an upper bound by delta adds delta/scale to the c of
+        # every row of this side (each sample of a sampled metric): their multipliers add up
+        mus = [mu for i, mu in kk["constraints"] if mine[i]]
+        d = -scaled.sign * fs * sum(mus) / scaled.scale[mine][0]
         d = d if side == "upper" else -d
+        viol = float(max(0.0, -np.min(c_raw[mine]))) if mine.any() else 0.0
         constraints.append({"metric": c.metric, "side": side, "bound": b, "value": float(v[row]),
-                            "active": q in mult_c, "multiplier": float(d),
-                            "violation": float(max(0.0, -c_scaled[q])),
-                            "violation_abs": float(max(0.0, -c_scaled[q]) * scaled.scale[q])})
+                            "active": bool(mus), "active_samples": len(mus),
+                            "multiplier": float(d), "violation": viol,
+                            "violation_abs": viol * float(scaled.scale[mine][0])})
     active_bounds = []
     for i, side, mu in kk["bounds"]:
         width = prob.hi[i] - prob.lo[i]
@@ -316,7 +346,8 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
                    "optimum": dict(zip(names, map(float, prob.x_of(r["u"])))),
                    "objective": float(scaled.sign * r["fun"] * fs), "feasible": r["feasible"],
                    "max_violation": r["max_violation"], "iterations": r["nit"],
-                   "evaluations": r["nfev"], "success": r["success"], "message": r["message"],
+                   "evaluations": r["nfev"], "jacobians": r["jacobians"],
+                   "success": r["success"], "message": r["message"],
                    "seconds": r["seconds"]} for r in runs]
     params = prob.base.replace(**dict(zip(names, map(float, x))))
     info = {"optimizer": optimizer, "mode": mode, "stroke_rad": stroke,
@@ -324,7 +355,9 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
             "scene": None if ctx.scene is None else ctx.scene.name,
             "model": None if ctx.model is None else ctx.model.name,
             "frequency_model": ctx.frequency_model.name, "objective_scale": fs,
-            "evaluations": prob.evaluations, "jacobians": prob.jacobians}
+            "evaluations": prob.evaluations, "jacobians": prob.jacobians,
+            "constraint_rows": int(scaled.rows.size),
+            "sampled_constraints": list(prob.samples)}
     if ctx.options is not None:
         info.update(t_end=float(ctx.options.t_end), n_out=int(ctx.options.n_out))
     return Design(

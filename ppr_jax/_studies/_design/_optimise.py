@@ -29,9 +29,11 @@ FEAS_TOL = 1e-8
 @dataclasses.dataclass
 class Scaled:
     """The problem as the optimiser sees it: minimise sign * metric_0 / f_scale subject to the
-    scaled constraints c(u) >= 0 (`FEAS_TOL`), u in [0, 1]^p. `rows` (q,) the metric row of each
-    constraint side, `bounds` (q,) its bound, `upper` (q,) bool, `scale` (q,) |bound| (1 where
-    the bound is 0)."""
+    scaled constraints c(u) >= 0 (`FEAS_TOL`), u in [0, 1]^p. One scaled constraint per raw row
+    of a constrained metric (`Problem.sizes`: a sampled metric's bound holds on every sample):
+    `rows` (q,) its raw row, `sides` (q,) the index of the constraint side (metric and bound) it
+    belongs to, `bounds` (q,) the bound, `upper` (q,) bool, `scale` (q,) |bound| (1 where the
+    bound is 0). The objective's metric is raw row 0 (never sampled)."""
 
     problem: Problem
     sign: float
@@ -40,35 +42,36 @@ class Scaled:
     bounds: np.ndarray
     upper: np.ndarray
     scale: np.ndarray
+    sides: Optional[np.ndarray] = None
 
     def constraints_of(self, values) -> np.ndarray:
-        """Scaled constraints c (..., q) of metric values (..., k): >= 0 where met."""
+        """Scaled constraints c (..., q) of raw values (..., n): >= 0 where met."""
         m = values[..., self.rows]
         c = np.where(self.upper, self.bounds - m, m - self.bounds)
         return c / self.scale
 
     def merit(self, values) -> np.ndarray:
         """Scaled objective plus 1e3 times the summed violation (..., ): how starts are ranked;
-        inf where a metric is not finite (a failed scene)."""
+        inf where a value is not finite (a failed scene); `values` raw (..., n)."""
         obj = self.sign * values[..., 0] / self.f_scale
         viol = np.sum(np.maximum(-self.constraints_of(values), 0.0), axis=-1)
         out = obj + 1e3 * viol
         return np.where(np.all(np.isfinite(values), axis=-1), out, np.inf)
 
     def fun(self, u):
-        v, J = self.problem.value_and_jacobian(self.problem.x_of(u))
+        v, J = self.problem.raw_value_and_jacobian(self.problem.x_of(u))
         return self.sign * v[0] / self.f_scale
 
     def grad(self, u):
-        v, J = self.problem.value_and_jacobian(self.problem.x_of(u))
+        v, J = self.problem.raw_value_and_jacobian(self.problem.x_of(u))
         return self.sign * J[0] * (self.problem.hi - self.problem.lo) / self.f_scale
 
     def cons(self, u):
-        v, _ = self.problem.value_and_jacobian(self.problem.x_of(u))
+        v, _ = self.problem.raw_value_and_jacobian(self.problem.x_of(u))
         return self.constraints_of(v)
 
     def cons_jac(self, u):
-        _, J = self.problem.value_and_jacobian(self.problem.x_of(u))
+        _, J = self.problem.raw_value_and_jacobian(self.problem.x_of(u))
         Ju = J[self.rows] * (self.problem.hi - self.problem.lo)[None, :]
         return np.where(self.upper[:, None], -Ju, Ju) / self.scale[:, None]
 
@@ -84,7 +87,7 @@ def screen(scaled: Scaled, u_base, n_candidates: int, n_starts: int, seed: int):
     m = max(int(n_candidates) - 1, 1)
     sob = qmc.Sobol(p, scramble=True, seed=seed).random(1 << int(np.ceil(np.log2(m))))[:m]
     U = np.concatenate([np.clip(u_base, 0.0, 1.0)[None], sob], axis=0)
-    V = scaled.problem.batch(scaled.problem.x_of(U))
+    V = scaled.problem.batch_raw(scaled.problem.x_of(U))
     if scaled.f_scale is None:  # the objective's scale: its size at the best-known point
         finite = np.isfinite(V[:, 0]) & (V[:, 0] != 0)
         f = V[0, 0] if finite[0] else (np.median(np.abs(V[finite, 0])) if finite.any() else 1.0)
@@ -108,7 +111,8 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
     - `method`: 'slsqp' or 'trust-constr'.
     - `max_iter`: the optimiser's iteration limit.
 
-    **Returns:** {u, fun, max_violation, success, message, nit, nfev, history, seconds,
+    **Returns:** {u, fun, max_violation, success, message, nit, nfev, jacobians (the points
+    whose values and Jacobian were computed: each evaluation of the problem), history, seconds,
     multipliers} (history: one entry per iteration, {iteration, u, objective (scaled),
     max_violation (scaled)}; multipliers: scipy's own, where it gives them).
     """
@@ -125,6 +129,7 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
         record(intermediate_result.x)
 
     u0 = np.asarray(u0, dtype=np.float64)
+    jac0 = scaled.problem.jacobians
     record(u0)
     t0 = time.perf_counter()
     p = u0.size
@@ -150,5 +155,6 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
     return {"u": u, "fun": float(scaled.fun(u)),
             "max_violation": float(max(0.0, -c.min())) if q else 0.0,
             "success": bool(res.success), "message": str(res.message), "nit": int(res.nit),
-            "nfev": int(res.nfev), "history": history, "seconds": seconds,
+            "nfev": int(res.nfev), "history": history,
+            "jacobians": scaled.problem.jacobians - jac0, "seconds": seconds,
             "multipliers": None if mult is None else np.asarray(mult, dtype=float)}

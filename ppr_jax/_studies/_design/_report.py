@@ -152,7 +152,10 @@ def write_design_report(d, path: str, *, command: Optional[str] = None) -> str:
         table(["constraint", "bound", "value at the optimum", "active",
                "multiplier d f*/d bound"],
               [[f"{c['metric']} {'<=' if c['side'] == 'upper' else '>='}", fmt(c["bound"]),
-                fmt(c["value"]), c["active"], fmt(c["multiplier"], 4)]
+                fmt(c["value"]),
+                (f"{c['active']} ({c['active_samples']} samples)"
+                 if c["active"] and c.get("active_samples", 1) > 1 else c["active"]),
+                fmt(c["multiplier"], 4)]
                for c in d.constraints]) if d.constraints else "<p>None.</p>",
         "<h2>Sensitivity of the optimum to each bound</h2>",
         "<p>d f*/d bound is the multiplier of the bound (0 where it is inactive): what moving "

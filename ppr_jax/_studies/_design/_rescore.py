@@ -98,7 +98,7 @@ def rescore_l3(names, params, ctx: SceneContext, stroke: float, prb_values: dict
                                frequency_model=l3)
     # the context closed over (its options hold arrays: not a static argument); one program
     # per structure, shared by later designs (the key of the design's own programs)
-    key = _key((), tuple(dep), params, ctx3, "l3", equal_links)
+    key = _key((), tuple(dep), params, ctx3, "l3", equal_links, ())
     try:
         values = _PROGRAMS.get(key)
     except TypeError:  # an unhashable model: no reuse

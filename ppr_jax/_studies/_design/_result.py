@@ -23,8 +23,11 @@ class Design:
     - `x`: {name: value} the optimum (SI); `x_start`: the start the optimum came from.
     - `objective`: {metric, sense, value, start_value}, in the metric's unit.
     - `constraints`: one dict per constraint side: {metric, side ('upper': metric <= bound),
-      bound, value, active, multiplier}; `multiplier` is d(optimal objective)/d(bound) (objective
-      unit per metric unit; 0 where inactive): what relaxing the bound by one unit would gain.
+      bound, value, active, active_samples, multiplier, violation, violation_abs};
+      `multiplier` is d(optimal objective)/d(bound) (objective unit per metric unit; 0 where
+      inactive): what relaxing the bound by one unit would gain. A peak over samples
+      (`SAMPLED_METRICS`, bounded on its extreme's side) is one constraint per sample for the
+      optimiser: `active_samples` counts those on the bound, `multiplier` is their sum.
     - `active_bounds`: [{variable, side, bound, multiplier}] the variables' bounds the optimum
       lies on, the multiplier d(optimal objective)/d(bound) likewise.
     - `metrics`: {name: value} every metric evaluated, at the optimum.
@@ -32,7 +35,8 @@ class Design:
     - `history`: the optimiser's iterations from the chosen start: [{iteration, x (SI),
       objective, max_violation (relative to each bound)}].
     - `starts`: one summary per start run (start, optimum, objective, feasible, iterations,
-      evaluations, message).
+      evaluations (scipy's function calls), jacobians (the points whose values and Jacobian
+      were computed), message).
     - `verification`: {kkt_residual, gradient_check, grid, ok} (`_verify`), and `l3`: the
       optimum re-scored with the quasi-static L3 against the PRB error band (`_rescore`; not
       part of `ok`).
@@ -109,6 +113,8 @@ class Design:
         lines += [f"  {k} = {v:.9g}" for k, v in self.x.items()]
         for c in self.constraints:
             tag = "active" if c["active"] else "inactive"
+            if c["active"] and c.get("active_samples", 1) > 1:
+                tag += f" on {c['active_samples']} samples"
             lines.append(f"  {c['metric']} {'<=' if c['side'] == 'upper' else '>='} "
                          f"{c['bound']:g}: {c['value']:.6g} ({tag}, multiplier "
                          f"{c['multiplier']:.4g})")
