@@ -8,7 +8,9 @@ Timed: compilation apart (ahead of time, as `run_scene` compiles), a warm-up run
 `--repeats` rounds that run every program once each (interleaved, so that a loaded machine's
 drift hits every row alike), after `block_until_ready`; `run_s` the fastest. Per step: run
 seconds / accepted steps. A motion-driven L0 is forward kinematics and inverse dynamics alone
-(no integrator, no steps): its row gives the run time only. Writes
+(no integrator, no steps): its row gives the run time only. `input_s`: the scene's input
+alone (`AbstractScene.commands`, compiled apart and timed in the same rounds), built once per
+run; `per_step_after_input_s`: (run - input) / accepted steps, what each step costs. Writes
 benchmarks/results/path_cost.json.
 
 Run: python benchmarks/path_cost.py [--repeats 5] [--models double1r rigid]
@@ -73,6 +75,28 @@ def compiled(scene, model: str):
     return (lambda: fn(*c.args)), time.perf_counter() - t0
 
 
+def input_program(scene, model: str):
+    """The scene's input alone (`AbstractScene.commands`: the table of the input model's
+    torques or angles along the path, with its checks), compiled: a call builds it once, as
+    the scene's program does at the start of every run."""
+    import equinox as eqx
+
+    from ppr_jax._models import get_model
+    from ppr_jax._robot import as_robot
+    from ppr_jax._scenes._options import input_panels_at
+    from ppr_jax._scenes._registry import get_scene
+
+    scene = get_scene(scene)
+    mdl = get_model(model)
+    robot = as_robot(scene.default_params())
+    traj = scene.trajectory()
+    ts = jnp.linspace(0.0, T_END, N_OUT)
+    panels = input_panels_at(traj, ts)
+    fn = eqx.filter_jit(lambda robot, ts: scene.commands(mdl, robot, traj, ts, panels))
+    jax.block_until_ready(fn(robot, ts))
+    return lambda: fn(robot, ts)
+
+
 def timed(run) -> float:
     t0 = time.perf_counter()
     jax.block_until_ready(run())
@@ -85,7 +109,7 @@ def main():
     ap.add_argument("--models", nargs="*", default=["double1r", "rigid"])
     ap.add_argument("--out", default="path_cost.json")
     args = ap.parse_args()
-    rows, runs = [], []
+    rows, runs, inputs = [], [], []
     with tempfile.TemporaryDirectory() as d:
         for label, by_drive in scenes(d).items():
             for drive, scene in by_drive.items():
@@ -99,21 +123,29 @@ def main():
                                  "compile_s": compile_s, "accepted_steps": steps,
                                  "rejected_steps": int(res.num_rejected)})
                     runs.append(run)
+                    inputs.append(input_program(scene, model))
                     print(rows[-1], flush=True)
     # Interleaved: every program once per round, the fastest of the rounds (a loaded machine's
     # drift hits every row alike)
     best = [float("inf")] * len(rows)
+    best_input = [float("inf")] * len(rows)
     for _ in range(args.repeats):
-        for k, run in enumerate(runs):
+        for k, (run, inp) in enumerate(zip(runs, inputs)):
             best[k] = min(best[k], timed(run))
-    for row, run_s in zip(rows, best):
+            best_input[k] = min(best_input[k], timed(inp))
+    for row, run_s, input_s in zip(rows, best, best_input):
         row["run_s"] = run_s
-        row["per_step_s"] = run_s / row["accepted_steps"] if row["accepted_steps"] else None
+        row["input_s"] = input_s
+        steps = row["accepted_steps"]
+        row["per_step_s"] = run_s / steps if steps else None
+        # what a step costs once the input is built (its table is built once per run)
+        row["per_step_after_input_s"] = (run_s - input_s) / steps if steps else None
     for row in rows:  # the cost per step against the paper circle's, same drive and model
         base = next(r for r in rows if r["scene"] == "paper circle"
                     and r["drive"] == row["drive"] and r["model"] == row["model"])
-        row["per_step_vs_paper"] = (row["per_step_s"] / base["per_step_s"]
-                                    if row["per_step_s"] and base["per_step_s"] else None)
+        for key, ratio in (("per_step_s", "per_step_vs_paper"),
+                           ("per_step_after_input_s", "per_step_after_input_vs_paper")):
+            row[ratio] = row[key] / base[key] if row[key] and base[key] else None
         row["run_vs_paper"] = row["run_s"] / base["run_s"]
     out = {
         "machine": {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(),
