@@ -659,27 +659,12 @@ def test_docs_tier3_block_is_generated_from_the_benchmark_json():
 # below, t on its lower bound and the link thickened until f = lo, J ~ t_r, so
 # t_r = t_r,min (f(t_min, t_r,min)/lo)^2, which costs far more mass.
 
-BAND_SPEC = f"""
-[variables]
-t = [1e-4, 1e-3]
-r = [0.01, 0.04]
-w = [0.01, 0.03]
-
-[objective]
-maximize = "pivot_frequency_hz"
-
-[[constraints]]
-metric = "pivot_stress_Pa"
-upper = {SIGMA_A!r}
-
-[[constraints]]
+# tier 1's specification (SPEC) with a band on its frequency, its edges LO and HI
+BAND_SPEC = SPEC.replace("[settings]", """[[constraints]]
 metric = "pivot_frequency_hz"
 avoid = [LO, HI]
 
-[settings]
-stroke = {STROKE!r}
-grid = 1000
-"""
+[settings]""")
 
 
 def test_band_above_the_reach_lands_on_its_lower_edge(tmp_path, capsys):
