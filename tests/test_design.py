@@ -646,3 +646,195 @@ def test_docs_tier3_block_is_generated_from_the_benchmark_json():
     page = (root / "docs" / "design.md").read_text()
     block = page.split("<!-- design-tier3 -->\n", 1)[1].split("<!-- /design-tier3 -->", 1)[0]
     assert block.strip() == bench.tier3_markdown(data).strip()
+
+
+# --- a band to avoid: metric <= lo or metric >= hi -------------------------------------------
+#
+# Tier 1 with its frequency kept out of a band around the closed-form optimum f*: the stress
+# bound caps f at f*, so no design lies above a band (0.9 f*, 1.1 f*) and the optimum is its
+# lower edge, f = 0.9 f* (d f*/d lo = 1); a band (0.5 f*, 0.8 f*) below f* leaves f* feasible
+# above it. The least moving mass over (t, t_r) with the pivot frequency outside (lo, hi) has
+# an optimum on each side: above, f = hi with t_r on its lower bound and
+# t^3 = 12 L J (2 pi hi)^2/(E w) (d m*/d hi = 2 rho_m w L t*/hi, as for a lower bound f >= hi);
+# below, t on its lower bound and the link thickened until f = lo, J ~ t_r, so
+# t_r = t_r,min (f(t_min, t_r,min)/lo)^2, which costs far more mass.
+
+# tier 1's specification (SPEC) with a band on its frequency, its edges LO and HI
+BAND_SPEC = SPEC.replace("[settings]", """[[constraints]]
+metric = "pivot_frequency_hz"
+avoid = [LO, HI]
+
+[settings]""")
+
+
+def test_band_above_the_reach_lands_on_its_lower_edge(tmp_path, capsys):
+    """`ppr-jax design --spec` with a band around f*: design.json holds the lower edge, its
+    multipliers (1 on lo: the closed form; 0 on hi), the verification; the report names the
+    band and both edges; d f*/d lo against the optimum of a second design with lo moved."""
+    *_, f = tier1_closed_form()
+    lo, hi = 0.9 * f, 1.1 * f
+    data, out = design_cli(tmp_path, BAND_SPEC.replace("LO", repr(lo)).replace("HI", repr(hi)))
+    assert data["objective"]["value"] == pytest.approx(lo, rel=1e-6)
+    band = [c for c in data["constraints"] if c["side"] == "avoid"]
+    assert len(band) == 1 and len(data["constraints"]) == 2
+    (b,) = band
+    assert b["bound"] == [lo, hi] and b["edge"] == "lower" and b["active"]
+    assert b["value"] == pytest.approx(lo, rel=1e-8) and b["violation"] <= 1e-8
+    assert b["multipliers"]["lower"] == pytest.approx(1.0, rel=1e-6)
+    assert b["multipliers"]["upper"] == pytest.approx(0.0, abs=1e-9)
+    assert b["multiplier"] == b["multipliers"]["lower"]
+    v = data["verification"]
+    assert v["ok"] and v["kkt_residual"] < 1e-8
+    assert v["grid"]["best_objective"] <= lo * (1 + 1e-8)
+    stdout = capsys.readouterr().out
+    assert f"pivot_frequency_hz outside ({lo:g}, {hi:g})" in stdout and "lower side" in stdout
+    page = (out / "report.html").read_text()
+    assert "pivot_frequency_hz outside" in page
+    assert "band lower edge" in page and "band upper edge" in page
+    # the edge moved: the optimum follows it at the rate the multiplier says
+    dlo = 1e-2 * lo  # f* = lo: no truncation error; the optimum is on the edge to ~1e-9
+    moved = pj.design(BOUNDS, "pivot_frequency_hz",
+                      [pj.Constraint("pivot_stress_Pa", upper=SIGMA_A),
+                       {"metric": "pivot_frequency_hz", "avoid": (lo + dlo, hi)}],
+                      stroke=STROKE, grid=1000, l3_elements=None)
+    fd = (moved.objective["value"] - data["objective"]["value"]) / dlo
+    assert fd == pytest.approx(b["multipliers"]["lower"], rel=1e-5)
+
+
+def test_band_below_the_optimum_leaves_it_and_the_starts_cover_both_sides():
+    """A band below f*: the optimum is tier 1's (the band inactive, both its multipliers 0,
+    the stress's 1.5 f*/sigma_a), and a start below the band stopped on its lower edge: the
+    screening gave each side a start."""
+    t, r, w, f = tier1_closed_form()
+    lo, hi = 0.5 * f, 0.8 * f
+    d = pj.design(BOUNDS, "pivot_frequency_hz",
+                  [pj.Constraint("pivot_stress_Pa", upper=SIGMA_A),
+                   pj.Constraint("pivot_frequency_hz", avoid=(lo, hi))],
+                  stroke=STROKE, grid=1000, l3_elements=None)
+    assert d.objective["value"] == pytest.approx(f, rel=1e-6)
+    assert d.x["t"] == pytest.approx(t, rel=1e-6)
+    s, b = d.constraints
+    assert s["active"] and s["multiplier"] == pytest.approx(1.5 * f / SIGMA_A, rel=1e-6)
+    assert not b["active"] and b["edge"] == "upper"
+    assert b["multipliers"] == {"lower": 0.0, "upper": 0.0}
+    assert d.verification["ok"]
+    below = [st for st in d.starts
+             if pivot_frequency(st["start"]["t"], st["start"]["r"], st["start"]["w"])
+             < (lo + hi) / 2]
+    assert below and any(st["feasible"] and st["objective"] == pytest.approx(lo, rel=1e-6)
+                         for st in below)
+
+
+def test_band_least_mass_on_its_upper_edge_and_the_lower_sides_local_optimum():
+    """The least moving mass with the pivot frequency outside (lo, hi): the optimum on the upper
+    edge, its multiplier d m*/d hi the closed form's and a finite difference of the optimum; the
+    start the screening gave the lower side ends at that side's own (heavier) optimum."""
+    f_lo, f_hi, w, r, t_r = 0.1, 2.0, 0.026, 0.020, 0.005
+    L = r * THETA_C
+    t_min = 1e-4
+    assert f_lo < pivot_frequency(t_min, r, w, t_r) < f_hi  # the lightest corner is in the band
+
+    def run(hi):
+        return pj.design({"t": (t_min, 1e-3), "t_r": (t_r, 0.02)},
+                         pj.Objective("moving_mass_kg", "min"),
+                         [pj.Constraint("pivot_frequency_hz", avoid=(f_lo, hi))], grid=400,
+                         l3_elements=None)
+
+    d = run(f_hi)
+    t = (12 * L * link_inertia(t_r) * (2 * math.pi * f_hi) ** 2 / (E * w)) ** (1 / 3)
+    assert d.x["t"] == pytest.approx(t, rel=1e-6)
+    assert d.x["t_r"] == pytest.approx(t_r, rel=1e-9)
+    (c,) = d.constraints
+    assert c["edge"] == "upper" and c["active"]
+    assert c["multipliers"]["upper"] == pytest.approx(2 * RHO_M * w * L * t / f_hi, rel=1e-5)
+    assert abs(c["multipliers"]["lower"]) <= 1e-9 * c["multipliers"]["upper"]
+    assert d.verification["ok"]
+    # the lower side's own optimum, from the start the screening gave it: heavier
+    t_r_lo = t_r * (pivot_frequency(t_min, r, w, t_r) / f_lo) ** 2
+    lower = [st for st in d.starts if st["feasible"]
+             and st["optimum"]["t_r"] == pytest.approx(t_r_lo, rel=1e-6)]
+    assert lower and lower[0]["optimum"]["t"] == pytest.approx(t_min, rel=1e-9)
+    assert lower[0]["objective"] > d.objective["value"]
+    # d m*/d hi against the optimum of a second design with the edge moved
+    dhi = 1e-4 * f_hi
+    fd = (run(f_hi + dhi).objective["value"] - d.objective["value"]) / dhi
+    assert fd == pytest.approx(c["multipliers"]["upper"], rel=1e-4)
+
+
+def test_band_g_and_its_derivatives():
+    from ppr_jax._studies._design._goals import band_g
+
+    lo, hi = 2.0, 5.0
+    m = np.array([0.5, 2.0, 3.0, 3.5, 5.0, 7.0])
+    g, dm, dlo, dhi = band_g(m, lo, hi)
+    np.testing.assert_allclose(g, (m - lo) * (m - hi) / 9.0)
+    assert g[1] == g[4] == 0.0 and g[3] == -0.25 and np.all(g[[0, 5]] > 0)
+    h = 1e-6
+    for d, fd in ((dm, (band_g(m + h, lo, hi)[0] - band_g(m - h, lo, hi)[0]) / (2 * h)),
+                  (dlo, (band_g(m, lo + h, hi)[0] - band_g(m, lo - h, hi)[0]) / (2 * h)),
+                  (dhi, (band_g(m, lo, hi + h)[0] - band_g(m, lo, hi - h)[0]) / (2 * h))):
+        np.testing.assert_allclose(d, fd, rtol=1e-7, atol=1e-9)
+    # on the edges: the distance from the edge over the width
+    assert dm[1] == pytest.approx(-1 / 3) and dlo[1] == pytest.approx(1 / 3) and dhi[1] == 0
+    assert dm[4] == pytest.approx(1 / 3) and dhi[4] == pytest.approx(-1 / 3) and dlo[4] == 0
+
+
+def test_band_in_the_spec_and_as_a_dict(tmp_path):
+    from ppr_jax._studies import load_design_spec
+    from ppr_jax._studies._design._design import sampled_constraints
+    from ppr_jax._studies._design._goals import as_constraints
+
+    (c,) = as_constraints([{"metric": "pivot_frequency_hz", "avoid": [4, 6.5]}])
+    assert c == pj.Constraint("pivot_frequency_hz", avoid=(4.0, 6.5))
+    assert c.avoid == (4.0, 6.5) and c.sides() == [("avoid", (4.0, 6.5))]
+    spec = tmp_path / "spec.toml"
+    spec.write_text(BAND_SPEC.replace("LO", "4.0").replace("HI", "6.5"))
+    got = load_design_spec(str(spec))
+    assert got["constraints"][1] == {"metric": "pivot_frequency_hz", "avoid": [4.0, 6.5]}
+    assert as_constraints(got["constraints"])[1] == c
+    # a band on a peak over samples stays on the peak (one value), not on every sample
+    band = pj.Constraint("strip_stress_peak_Pa", avoid=(1e8, 2e8))
+    assert sampled_constraints(["base_frequency_hz", "strip_stress_peak_Pa"],
+                               [(1, band, *band.sides()[0])]) == ()
+
+
+@pytest.mark.parametrize("fields, words", [
+    ({"avoid": (6.0, 4.0)}, ["'pivot_frequency_hz'", "lo < hi", "lo = 6 >= hi = 4"]),
+    ({"avoid": (4.0, 4.0)}, ["'pivot_frequency_hz'", "lo = 4 >= hi = 4"]),
+    ({"avoid": (4.0, float("inf"))}, ["'pivot_frequency_hz'", "two finite numbers"]),
+    ({"avoid": (4.0,)}, ["'pivot_frequency_hz'", "(lo, hi)"]),
+    ({"avoid": "4-6"}, ["'pivot_frequency_hz'", "(lo, hi)"]),
+    ({"avoid": (4.0, "6")}, ["'pivot_frequency_hz'", "(lo, hi)"]),
+    ({"avoid": (4.0, 6.0), "lower": 1.0}, ["'pivot_frequency_hz'", "second constraint"]),
+])
+def test_bad_bands_are_refused(fields, words, tmp_path):
+    from ppr_jax._studies import load_design_spec
+
+    with pytest.raises(pj.DesignError) as info:
+        pj.Constraint("pivot_frequency_hz", **fields)
+    for w in words:
+        assert w in str(info.value)
+    # in a specification: the file and the same words
+    text = BAND_SPEC.replace("avoid = [LO, HI]", "\n".join(
+        f"{k} = {list(v) if isinstance(v, tuple) else v!r}".replace("'", '"')
+        for k, v in fields.items()))
+    spec = tmp_path / "spec.toml"
+    spec.write_text(text)
+    with pytest.raises(pj.DesignError) as info:
+        load_design_spec(str(spec))
+    assert str(spec) in str(info.value) and words[0] in str(info.value)
+
+
+def test_band_no_design_can_leave_is_infeasible_naming_it():
+    """A band over every frequency the box reaches under the stress bound: the error names the
+    band and the distance to its nearer edge at the best point found."""
+    *_, f = tier1_closed_form()
+    with pytest.raises(pj.DesignError) as info:
+        pj.design(BOUNDS, "pivot_frequency_hz",
+                  [pj.Constraint("pivot_stress_Pa", upper=SIGMA_A),
+                   pj.Constraint("pivot_frequency_hz", avoid=(0.0, 2 * f))],
+                  stroke=STROKE, grid=64)
+    msg = str(info.value)
+    assert f"pivot_frequency_hz outside (0, {2 * f:g})" in msg and "cannot be met" in msg
+    b = info.value.result.constraints[1]
+    assert b["violation_abs"] == pytest.approx(min(b["value"], 2 * f - b["value"]), rel=1e-12)

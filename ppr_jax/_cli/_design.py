@@ -53,7 +53,7 @@ def add_design(sub, parents, fmt):
                     "MJCF designed.xml. Catalogue: "
                     + ", ".join(DESIGN_METRICS) + ", and a scene's metrics.")
     d.add_argument("--spec", required=True, metavar="SPEC.toml",
-                   help="the design specification ([variables], [objective], [[constraints]], "
-                        "[settings], [params])")
+                   help="the design specification ([variables], [objective], [[constraints]] "
+                        "with upper, lower or avoid = [lo, hi], [settings], [params])")
     d.add_argument("--out", default="design_out", help="output directory")
     d.set_defaults(func=cmd_design)

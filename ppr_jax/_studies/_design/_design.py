@@ -30,7 +30,7 @@ from ._catalogue import (
     SceneContext,
     design_metrics,
 )
-from ._goals import Constraint, as_constraints, as_objective
+from ._goals import Constraint, as_constraints, as_objective, bound_text
 from ._optimise import FEAS_TOL, Scaled, optimise, screen
 from ._problem import Problem
 from ._rescore import rescore_l3
@@ -92,7 +92,9 @@ def design(
     normalised to [0, 1] and with the objective and constraints scaled to order one. A peak or
     margin over samples (`SAMPLED_METRICS`: stress, torque, path margins) bounded on its
     extreme's side is one constraint per sample, each smooth where the extreme has kinks at
-    ties (`sampled_constraints`). The best feasible optimum is then verified
+    ties (`sampled_constraints`). A band to avoid, whose feasible set lies on both of its sides,
+    has the best candidate of each side among the starts (`pick_starts`). The best feasible
+    optimum is then verified
     (`Design.verification`): its Karush-Kuhn-Tucker residual with the multipliers of the
     active constraints and bounds, the JAX gradient against finite differences there, and a
     dense grid over the box (a Sobol sample beyond four variables) in one batched call, whose
@@ -104,7 +106,10 @@ def design(
       inside each parameter's physical range (`PARAM_RANGES`).
     - `objective`: a metric name (maximised), `Objective(metric, sense)` or
       {"maximize": name} / {"minimize": name}.
-    - `constraints`: `Constraint(metric, upper=..., lower=...)`s or dicts of those fields.
+    - `constraints`: `Constraint(metric, upper=..., lower=...)`s, `Constraint(metric,
+      avoid=(lo, hi))`s (the metric outside the open band; one smooth constraint, and the
+      starts' screening covers both sides of the band: `Constraint`), or dicts of those
+      fields.
     - `params`: the robot whose other fields stay as they are (default: the scene's, else
       Table 1). Its gamma, rho and K_theta left None follow the PRB table as theta_c changes.
     - `stroke`: the joint rotation (rad, in (0, pi]) of `pivot_stress_Pa`.
@@ -229,15 +234,21 @@ def design(
     # one scaled constraint per raw row of the constrained metric (every sample of a sampled one)
     q_side = np.concatenate([np.full(blocks[r].size, q, dtype=int)
                              for q, (r, *_) in enumerate(sides)]) if sides else np.zeros(0, int)
+    # a band to avoid: its lo as the bound, its hi beside it, scale 1 (its g is relative to
+    # the band's width already)
+    band = [side == "avoid" for _, _, side, _ in sides]
+    edges = [b if side == "avoid" else (b, b) for _, _, side, b in sides]
     scaled = Scaled(
         problem=prob, sign=obj.sign, f_scale=None,
         rows=np.concatenate([blocks[r] for r, *_ in sides]) if sides else np.zeros(0, int),
-        bounds=np.array([sides[q][3] for q in q_side], dtype=np.float64),
+        bounds=np.array([edges[q][0] for q in q_side], dtype=np.float64),
         upper=np.array([sides[q][2] == "upper" for q in q_side], dtype=bool),
         # the path margins are of order one however small their bound
-        scale=np.array([1.0 if (sides[q][3] == 0 or sides[q][1].metric in PATH_METRICS)
-                        else abs(sides[q][3]) for q in q_side], dtype=np.float64),
-        sides=q_side)
+        scale=np.array([1.0 if (band[q] or edges[q][0] == 0
+                                or sides[q][1].metric in PATH_METRICS)
+                        else abs(edges[q][0]) for q in q_side], dtype=np.float64),
+        sides=q_side, avoid=np.array([band[q] for q in q_side], dtype=bool),
+        band_hi=np.array([edges[q][1] for q in q_side], dtype=np.float64))
 
     # screen, optimise from each start, keep the best feasible
     u_base = prob.u_of([float(getattr(base, n)) for n in names])
@@ -282,10 +293,12 @@ def design(
         result.timing["total_s"] = time.perf_counter() - t_start
     if not feasible:
         worst = max(result.constraints, key=lambda c: c["violation"])
+        how = (f"{worst['violation_abs']:.6g} (that far inside the band, from its nearer edge)"
+               if worst["side"] == "avoid" else
+               f"{worst['violation_abs']:.6g} ({worst['violation']:.3g} of the bound)")
         err = DesignError(
             f"the specification cannot be met: constraint {worst['metric']} "
-            f"{'<=' if worst['side'] == 'upper' else '>='} {worst['bound']:g} is violated by "
-            f"{worst['violation_abs']:.6g} ({worst['violation']:.3g} of the bound) at the best "
+            f"{bound_text(worst['side'], worst['bound'])} is violated by {how} at the best "
             f"point found ({', '.join(f'{k} = {v:.6g}' for k, v in result.x.items())}); widen "
             f"the bounds or relax the constraint")
         err.result = result
@@ -297,7 +310,8 @@ def sampled_constraints(metrics, sides) -> tuple:
     """The constrained metrics of `SAMPLED_METRICS` given to the optimiser as their samples:
     those whose every bound is on their extreme's side (an upper bound on a max, a lower bound
     on a min: then it holds on the extreme if and only if it holds on every sample), except the
-    objective's metric (`metrics[0]`)."""
+    objective's metric (`metrics[0]`). A band to avoid on such a metric is on neither side: the
+    metric stays its extreme, one value, the band's constraint on it."""
     out = []
     for m in dict.fromkeys(metrics[1:]):
         kind = SAMPLED_METRICS.get(m)
@@ -316,20 +330,32 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
     x = prob.x_of(u)
     v = prob.values(x)
     v0 = prob.values(prob.x_of(best["u0"]))
-    c_raw = scaled.constraints_of(prob.raw_value_and_jacobian(x)[0]) if sides else np.zeros(0)
+    raw = prob.raw_value_and_jacobian(x)[0]
+    c_raw = scaled.constraints_of(raw) if sides else np.zeros(0)
+    dc_lo, dc_hi = scaled.dc_dbounds(raw) if sides else (np.zeros(0), np.zeros(0))
+    mu_rows = np.zeros(scaled.rows.size)  # the KKT multipliers (scaled) of every row
+    for i, m in kk["constraints"]:
+        mu_rows[i] += m
     constraints = []
     for q, (row, c, side, b) in enumerate(sides):
         mine = scaled.sides == q
-        # d(optimum)/d(bound): relaxing an upper bound by delta adds delta/scale to the c of
-        # every row of this side (each sample of a sampled metric): their multipliers add up
-        mus = [mu for i, mu in kk["constraints"] if mine[i]]
-        d = -scaled.sign * fs * sum(mus) / scaled.scale[mine][0]
-        d = d if side == "upper" else -d
+        # d(optimum)/d(bound) = -mu dc/d(bound) for the scaled objective sign f/fs: relaxing an
+        # upper bound by delta adds delta/scale to the c of every row of this side (each sample
+        # of a sampled metric): their multipliers add up; a band's edges each have their own
+        d_lo = float(-scaled.sign * fs * np.sum(mu_rows[mine] * dc_lo[mine])) + 0.0
+        n_active = sum(1 for i, _ in kk["constraints"] if mine[i])
         viol = float(max(0.0, -np.min(c_raw[mine]))) if mine.any() else 0.0
-        constraints.append({"metric": c.metric, "side": side, "bound": b, "value": float(v[row]),
-                            "active": bool(mus), "active_samples": len(mus),
-                            "multiplier": float(d), "violation": viol,
-                            "violation_abs": viol * float(scaled.scale[mine][0])})
+        entry = {"metric": c.metric, "side": side, "bound": b, "value": float(v[row]),
+                 "active": bool(n_active), "active_samples": n_active, "multiplier": d_lo,
+                 "violation": viol, "violation_abs": viol * float(scaled.scale[mine][0])}
+        if side == "avoid":
+            lo, hi = b
+            d_hi = float(-scaled.sign * fs * np.sum(mu_rows[mine] * dc_hi[mine])) + 0.0
+            edge = "lower" if v[row] <= (lo + hi) / 2 else "upper"
+            entry.update(bound=[lo, hi], edge=edge, multipliers={"lower": d_lo, "upper": d_hi},
+                         multiplier=d_lo if edge == "lower" else d_hi,
+                         violation_abs=float(max(0.0, min(v[row] - lo, hi - v[row]))))
+        constraints.append(entry)
     active_bounds = []
     for i, side, mu in kk["bounds"]:
         width = prob.hi[i] - prob.lo[i]

@@ -35,21 +35,42 @@ class Objective:
 
 @dataclasses.dataclass(frozen=True)
 class Constraint:
-    """A bound on a metric: `lower <= metric <= upper` (either may be None).
+    """A bound on a metric, `lower <= metric <= upper` (either may be None), or a band it must
+    stay out of, `metric <= lo or metric >= hi` (`avoid=(lo, hi)`: a resonance to keep clear
+    of, say).
 
     **Arguments:**
 
     - `metric`: a name of the catalogue (`design_metrics`), SI units.
-    - `upper`, `lower`: the bounds in the metric's unit (at least one).
+    - `upper`, `lower`: the bounds in the metric's unit.
+    - `avoid`: (lo, hi) with lo < hi, in the metric's unit: the open interval the metric must
+      lie outside of. Not together with `upper` or `lower` (give a second `Constraint` on the
+      same metric for those).
+
+    One of `upper`, `lower`, `avoid` at least.
+
+    **A band to avoid** reaches the optimiser as one smooth constraint,
+    g = (metric - lo)(metric - hi)/(hi - lo)^2 >= 0: positive outside the band, zero on its
+    edges, -1/4 at its middle; near an edge it is the distance from the edge over the band's
+    width, (lo - metric)/(hi - lo) below it and (metric - hi)/(hi - lo) above. Its feasible
+    set has two parts, below and above the band, and a gradient-based optimiser stays in the
+    part its start leads to: `design` gives the starts' screening both parts (the best
+    candidate of each side of every band is among the starts where `starts` allows) and keeps
+    the best feasible optimum. Each edge has its own multiplier, d(optimum)/d lo and
+    d(optimum)/d hi (at most one non-zero). On a peak or margin over samples
+    (`SAMPLED_METRICS`) the band applies to the extreme itself (one constraint, a subgradient
+    where samples tie), not to every sample.
     """
 
     metric: str
     upper: Optional[float] = None
     lower: Optional[float] = None
+    avoid: Optional[tuple] = None
 
     def __post_init__(self):
-        if self.upper is None and self.lower is None:
-            raise DesignError(f"constraint on {self.metric!r} needs an upper or a lower bound")
+        if self.upper is None and self.lower is None and self.avoid is None:
+            raise DesignError(f"constraint on {self.metric!r} needs an upper or a lower bound "
+                              f"or a band to avoid (avoid=(lo, hi))")
         for side in ("upper", "lower"):
             v = getattr(self, side)
             if v is not None and (isinstance(v, (bool, str)) or not math.isfinite(float(v))):
@@ -58,11 +79,55 @@ class Constraint:
         if self.upper is not None and self.lower is not None and not self.lower < self.upper:
             raise DesignError(f"constraint on {self.metric!r}: lower {self.lower:g} must be "
                               f"below upper {self.upper:g}")
+        if self.avoid is not None:
+            object.__setattr__(self, "avoid", self._band(self.avoid))
+            if self.upper is not None or self.lower is not None:
+                raise DesignError(f"constraint on {self.metric!r}: avoid=(lo, hi) takes no "
+                                  f"upper or lower bound; give those as a second constraint "
+                                  f"on {self.metric!r}")
+
+    def _band(self, band) -> tuple:
+        where = f"constraint on {self.metric!r}: avoid must be (lo, hi), two finite numbers " \
+                f"with lo < hi"
+        if isinstance(band, (str, bytes, dict)) or not hasattr(band, "__len__") \
+                or len(band) != 2:
+            raise DesignError(f"{where}, got {band!r}")
+        if any(isinstance(v, (bool, str)) for v in band):
+            raise DesignError(f"{where}, got {band!r}")
+        try:
+            lo, hi = (float(v) for v in band)
+        except (TypeError, ValueError):
+            raise DesignError(f"{where}, got {band!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise DesignError(f"{where}, got ({lo:g}, {hi:g})")
+        if not lo < hi:
+            raise DesignError(f"{where}, got lo = {lo:g} >= hi = {hi:g}")
+        return (lo, hi)
 
     def sides(self) -> list:
-        """[(side, bound)] for the bounds given: 'upper' means metric <= bound."""
+        """[(side, bound)] for the bounds given: 'upper' means metric <= bound, 'lower'
+        metric >= bound, 'avoid' (bound (lo, hi)) metric outside the open interval."""
+        if self.avoid is not None:
+            return [("avoid", tuple(self.avoid))]
         return [(s, float(getattr(self, s))) for s in ("upper", "lower")
                 if getattr(self, s) is not None]
+
+
+def bound_text(side: str, bound) -> str:
+    """A constraint side as text: '<= b', '>= b' or 'outside (lo, hi)'."""
+    if side == "avoid":
+        return f"outside ({bound[0]:g}, {bound[1]:g})"
+    return f"{'<=' if side == 'upper' else '>='} {bound:g}"
+
+
+def band_g(m, lo, hi):
+    """The smooth constraint of a band to avoid (`Constraint`), (m - lo)(m - hi)/(hi - lo)^2,
+    and its derivatives in m, lo and hi: (g, dg/dm, dg/dlo, dg/dhi), elementwise."""
+    w = hi - lo
+    g = (m - lo) * (m - hi) / w**2
+    return (g, (2 * m - lo - hi) / w**2,
+            -(m - hi) / w**2 + 2 * (m - lo) * (m - hi) / w**3,
+            -(m - lo) / w**2 - 2 * (m - lo) * (m - hi) / w**3)
 
 
 def as_objective(objective) -> Objective:
@@ -88,7 +153,7 @@ def as_objective(objective) -> Objective:
 
 
 def as_constraints(constraints) -> list:
-    """`Constraint`s from themselves or dicts {"metric", "upper", "lower"}."""
+    """`Constraint`s from themselves or dicts {"metric", "upper", "lower", "avoid"}."""
     out = []
     for c in constraints or ():
         if isinstance(c, Constraint):
@@ -97,7 +162,8 @@ def as_constraints(constraints) -> list:
             try:
                 out.append(Constraint(**c))
             except TypeError:
-                raise DesignError(f"a constraint takes metric, upper and lower, got {c}") from None
+                raise DesignError(f"a constraint takes metric, upper, lower and avoid, got "
+                                  f"{c}") from None
         else:
             raise DesignError(f"a constraint must be a Constraint or a dict, got {c!r}")
     return out

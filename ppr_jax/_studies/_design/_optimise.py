@@ -19,10 +19,12 @@ import scipy.optimize as so
 from scipy.stats import qmc
 
 from ..._errors import DesignError
+from ._goals import band_g
 from ._problem import Problem
 
-#: a constraint counts as met where its scaled value c = (bound - metric)/|bound| (upper) or
-#: (metric - bound)/|bound| (lower) is at least -FEAS_TOL
+#: a constraint counts as met where its scaled value c = (bound - metric)/|bound| (upper),
+#: (metric - bound)/|bound| (lower) or (metric - lo)(metric - hi)/(hi - lo)^2 (a band to avoid,
+#: `Constraint`) is at least -FEAS_TOL
 FEAS_TOL = 1e-8
 
 
@@ -33,7 +35,9 @@ class Scaled:
     of a constrained metric (`Problem.sizes`: a sampled metric's bound holds on every sample):
     `rows` (q,) its raw row, `sides` (q,) the index of the constraint side (metric and bound) it
     belongs to, `bounds` (q,) the bound, `upper` (q,) bool, `scale` (q,) |bound| (1 where the
-    bound is 0). The objective's metric is raw row 0 (never sampled)."""
+    bound is 0). A band to avoid (`Constraint`) is a row with `avoid` (q,) True, `bounds` its
+    lo, `band_hi` (q,) its hi and scale 1: c = (m - lo)(m - hi)/(hi - lo)^2. The objective's
+    metric is raw row 0 (never sampled)."""
 
     problem: Problem
     sign: float
@@ -43,11 +47,43 @@ class Scaled:
     upper: np.ndarray
     scale: np.ndarray
     sides: Optional[np.ndarray] = None
+    avoid: Optional[np.ndarray] = None
+    band_hi: Optional[np.ndarray] = None
+
+    def _band(self):
+        """(avoid (q,) bool, hi (q,)): hi the band's upper edge, bound + 1 off the bands."""
+        if self.avoid is None or not self.avoid.any():
+            return None, None
+        return self.avoid, np.where(self.avoid, self.band_hi, self.bounds + 1.0)
+
+    def dc_dm(self, values) -> np.ndarray:
+        """d c/d metric (..., q) of the scaled constraints at raw values (..., n)."""
+        m = values[..., self.rows]
+        d = np.where(self.upper, -1.0, 1.0) + 0.0 * m
+        avoid, hi = self._band()
+        if avoid is not None:
+            d = np.where(avoid, band_g(m, self.bounds, hi)[1], d)
+        return d / self.scale
+
+    def dc_dbounds(self, values) -> tuple[np.ndarray, np.ndarray]:
+        """(d c/d bound, d c/d hi) (..., q) at raw values (..., n): the scaled constraints'
+        derivatives in their bound (a band's lo) and in a band's hi (0 off the bands)."""
+        m = values[..., self.rows]
+        d_lo = np.where(self.upper, 1.0, -1.0) + 0.0 * m
+        d_hi = 0.0 * m
+        avoid, hi = self._band()
+        if avoid is not None:
+            _, _, g_lo, g_hi = band_g(m, self.bounds, hi)
+            d_lo, d_hi = np.where(avoid, g_lo, d_lo), np.where(avoid, g_hi, d_hi)
+        return d_lo / self.scale, d_hi / self.scale
 
     def constraints_of(self, values) -> np.ndarray:
         """Scaled constraints c (..., q) of raw values (..., n): >= 0 where met."""
         m = values[..., self.rows]
         c = np.where(self.upper, self.bounds - m, m - self.bounds)
+        avoid, hi = self._band()
+        if avoid is not None:
+            c = np.where(avoid, band_g(m, self.bounds, hi)[0], c)
         return c / self.scale
 
     def merit(self, values) -> np.ndarray:
@@ -71,15 +107,19 @@ class Scaled:
         return self.constraints_of(v)
 
     def cons_jac(self, u):
-        _, J = self.problem.raw_value_and_jacobian(self.problem.x_of(u))
+        v, J = self.problem.raw_value_and_jacobian(self.problem.x_of(u))
         Ju = J[self.rows] * (self.problem.hi - self.problem.lo)[None, :]
-        return np.where(self.upper[:, None], -Ju, Ju) / self.scale[:, None]
+        return self.dc_dm(v)[:, None] * Ju
 
 
 def screen(scaled: Scaled, u_base, n_candidates: int, n_starts: int, seed: int):
     """The `n_starts` best of `n_candidates` points (the base robot's point, clipped into the
     box, and a scrambled Sobol sequence), ranked by `Scaled.merit` from one batched call. Sets
-    `scaled.f_scale` where it is None: |objective| at the base robot's point.
+    `scaled.f_scale` where it is None: |objective| at the base robot's point. Where a band is
+    avoided, the best candidate of each side of it (each combination of sides of several
+    bands, a candidate in a band counted on the side of its nearer edge) comes first, as far
+    as `n_starts` allows (`pick_starts`): the feasible set has a part on each side, and an
+    optimiser stays in the part its start leads to.
 
     **Returns:** (starts (n_starts, p), candidates (n, p), their merits (n,), seconds)."""
     p = len(scaled.problem.names)
@@ -98,7 +138,26 @@ def screen(scaled: Scaled, u_base, n_candidates: int, n_starts: int, seed: int):
     if ok.size == 0:
         raise DesignError(f"every one of the {U.shape[0]} screened starts failed (a metric is "
                           f"not finite there: the scene failed); narrow the bounds")
-    return U[ok[:n_starts]], U, merit, time.perf_counter() - t0
+    return U[pick_starts(scaled, V, ok, n_starts)], U, merit, time.perf_counter() - t0
+
+
+def pick_starts(scaled: Scaled, V, ok, n_starts: int) -> np.ndarray:
+    """The indices of the `n_starts` starts among the candidates `ok` (ranked best first) of
+    raw values V (n, n_raw): the best candidate of each combination of the bands' sides found
+    (above or below each band's middle), then the best of the rest; in rank order."""
+    ok = np.asarray(ok)
+    avoid, hi = scaled._band()
+    if avoid is None:
+        return ok[:n_starts]
+    mid = (scaled.bounds[avoid] + hi[avoid]) / 2
+    above = V[ok][:, scaled.rows[avoid]] > mid
+    first: dict = {}
+    for i, key in zip(ok, map(tuple, above)):
+        first.setdefault(key, i)
+    lead = list(first.values())[:n_starts]
+    taken = set(lead)
+    picked = set(lead + [i for i in ok if i not in taken][:n_starts - len(lead)])
+    return np.array([i for i in ok if i in picked], dtype=int)
 
 
 def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:

@@ -17,7 +17,8 @@ from .._html import figure, fmt, page, pyplot, table
 def bound_sensitivities(d) -> list:
     """Every bound of the design with d(optimal objective)/d(bound) (0 where inactive) and the
     elasticity (bound/f*) d f*/d bound: [{kind ('variable'|'constraint'), name, side, bound,
-    active, multiplier, elasticity}]."""
+    active, multiplier, elasticity}]; a band to avoid gives a row per edge (side 'band lower
+    edge', 'band upper edge')."""
     f = d.objective["value"]
     act = {(b["variable"], b["side"]): b["multiplier"] for b in d.active_bounds}
     rows = []
@@ -27,11 +28,28 @@ def bound_sensitivities(d) -> list:
             rows.append({"kind": "variable", "name": n, "side": side, "bound": b,
                          "active": (n, side) in act, "multiplier": mu})
     for c in d.constraints:
+        if c["side"] == "avoid":  # a band: each edge its own bound
+            rows += [{"kind": "constraint", "name": c["metric"], "side": f"band {edge} edge",
+                      "bound": b, "active": c["active"] and c["edge"] == edge,
+                      "multiplier": c["multipliers"][edge]}
+                     for edge, b in zip(("lower", "upper"), c["bound"])]
+            continue
         rows.append({"kind": "constraint", "name": c["metric"], "side": c["side"],
                      "bound": c["bound"], "active": c["active"], "multiplier": c["multiplier"]})
     for r in rows:
         r["elasticity"] = r["multiplier"] * r["bound"] / f if f else float("nan")
     return rows
+
+
+def _relation(c) -> str:
+    return {"upper": "<=", "lower": ">="}.get(c["side"], "outside")
+
+
+def _bound(c) -> str:
+    """A constraint's bound as the table shows it: the value, or a band's (lo, hi)."""
+    if c["side"] == "avoid":
+        return f"({fmt(c['bound'][0])}, {fmt(c['bound'][1])})"
+    return fmt(c["bound"])
 
 
 def _history_figure(d) -> Optional[str]:
@@ -111,8 +129,7 @@ def _verification_html(v) -> list:
                               for n, m in l3["metrics"].items()]))
         if l3["constraints_met"]:
             out.append(table(["constraint", "bound", "L3", "met under L3"],
-                             [[f"{c['metric']} {'<=' if c['side'] == 'upper' else '>='}",
-                               fmt(c["bound"]), fmt(c["l3"]), c["met"]]
+                             [[f"{c['metric']} {_relation(c)}", _bound(c), fmt(c["l3"]), c["met"]]
                               for c in l3["constraints_met"]]))
     return out
 
@@ -151,10 +168,10 @@ def write_design_report(d, path: str, *, command: Optional[str] = None) -> str:
         "<h2>Constraints</h2>",
         table(["constraint", "bound", "value at the optimum", "active",
                "multiplier d f*/d bound"],
-              [[f"{c['metric']} {'<=' if c['side'] == 'upper' else '>='}", fmt(c["bound"]),
-                fmt(c["value"]),
+              [[f"{c['metric']} {_relation(c)}", _bound(c), fmt(c["value"]),
                 (f"{c['active']} ({c['active_samples']} samples)"
-                 if c["active"] and c.get("active_samples", 1) > 1 else c["active"]),
+                 if c["active"] and c.get("active_samples", 1) > 1 else
+                 f"{c['active']} ({c['edge']} side)" if c["side"] == "avoid" else c["active"]),
                 fmt(c["multiplier"], 4)]
                for c in d.constraints]) if d.constraints else "<p>None.</p>",
         "<h2>Sensitivity of the optimum to each bound</h2>",

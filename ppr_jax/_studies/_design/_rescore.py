@@ -66,7 +66,8 @@ def rescore_l3(names, params, ctx: SceneContext, stroke: float, prb_values: dict
 
     - `names`: the design's metrics; `params`: the optimum's `RobotParams`; `ctx`: the design's
       `SceneContext`; `stroke`: of `pivot_stress_Pa`; `prb_values` {name: value} at the optimum.
-    - `objective`: the `Objective`; `constraints`: [(metric, side, bound)].
+    - `objective`: the `Objective`; `constraints`: [(metric, side, bound)] (side 'avoid':
+      bound (lo, hi), met outside the open band).
     - `n_elements`: L3's segments per strip.
     - `raw_options`: the scene's `SceneOptions` before `prepared` (re-prepared for L3).
     - `equal_links`: `Robot`'s static choice.
@@ -118,7 +119,10 @@ def rescore_l3(names, params, ctx: SceneContext, stroke: float, prb_values: dict
     for metric, side, bound in constraints:
         val = out["metrics"][metric]["l3"] if metric in out["metrics"] else float(
             prb_values[metric])
-        met = (val <= bound) if side == "upper" else (val >= bound)
+        if side == "avoid":
+            met = val <= bound[0] or val >= bound[1]
+        else:
+            met = (val <= bound) if side == "upper" else (val >= bound)
         out["constraints_met"].append({"metric": metric, "side": side, "bound": bound,
                                        "l3": val, "met": bool(np.isfinite(val) and met)})
     out["objective_within"] = (out["metrics"][objective.metric]["within"]

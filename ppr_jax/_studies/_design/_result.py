@@ -11,6 +11,7 @@ import numpy as np
 
 from ..._params import RobotParams
 from ..._params_file import save_params
+from ._goals import bound_text
 
 
 @dataclasses.dataclass
@@ -22,10 +23,14 @@ class Design:
     - `variables`: the design variables' names; `bounds` {name: (lo, hi)} (SI).
     - `x`: {name: value} the optimum (SI); `x_start`: the start the optimum came from.
     - `objective`: {metric, sense, value, start_value}, in the metric's unit.
-    - `constraints`: one dict per constraint side: {metric, side ('upper': metric <= bound),
-      bound, value, active, active_samples, multiplier, violation, violation_abs};
+    - `constraints`: one dict per constraint side: {metric, side ('upper': metric <= bound,
+      'lower': metric >= bound, 'avoid': a band, bound [lo, hi]), bound, value, active,
+      active_samples, multiplier, violation, violation_abs};
       `multiplier` is d(optimal objective)/d(bound) (objective unit per metric unit; 0 where
-      inactive): what relaxing the bound by one unit would gain. A peak over samples
+      inactive): what relaxing the bound by one unit would gain. A band also has `edge`
+      ('lower' or 'upper': the side of the band the value lies on) and `multipliers`
+      {lower: d(optimum)/d lo, upper: d(optimum)/d hi}; its `multiplier` is its `edge`'s,
+      `violation_abs` the distance to the nearer edge inside the band. A peak over samples
       (`SAMPLED_METRICS`, bounded on its extreme's side) is one constraint per sample for the
       optimiser: `active_samples` counts those on the bound, `multiplier` is their sum.
     - `active_bounds`: [{variable, side, bound, multiplier}] the variables' bounds the optimum
@@ -115,9 +120,13 @@ class Design:
             tag = "active" if c["active"] else "inactive"
             if c["active"] and c.get("active_samples", 1) > 1:
                 tag += f" on {c['active_samples']} samples"
-            lines.append(f"  {c['metric']} {'<=' if c['side'] == 'upper' else '>='} "
-                         f"{c['bound']:g}: {c['value']:.6g} ({tag}, multiplier "
-                         f"{c['multiplier']:.4g})")
+            if c["side"] == "avoid":
+                tag = f"{c['edge']} side, {tag}, multipliers d/d lo " \
+                      f"{c['multipliers']['lower']:.4g}, d/d hi {c['multipliers']['upper']:.4g}"
+            else:
+                tag += f", multiplier {c['multiplier']:.4g}"
+            lines.append(f"  {c['metric']} {bound_text(c['side'], c['bound'])}: "
+                         f"{c['value']:.6g} ({tag})")
         for b in self.active_bounds:
             lines.append(f"  bound {b['variable']} {b['side']} {b['bound']:g} active "
                          f"(multiplier {b['multiplier']:.4g})")

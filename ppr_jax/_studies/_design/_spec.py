@@ -13,6 +13,10 @@ maximize = "pivot_frequency_hz"
 metric = "pivot_stress_Pa"
 upper = 1e8
 
+[[constraints]]        # or a band the metric must stay out of: avoid = [lo, hi]
+metric = "pivot_frequency_hz"
+avoid = [4.0, 6.0]
+
 [settings]             # design()'s keywords; a scene's t_end, n_out, solver, rtol, atol,
 stroke = 0.3           # max_steps; params_file (relative to this file)
 optimizer = "slsqp"
@@ -27,6 +31,7 @@ from __future__ import annotations
 import os
 
 from ..._errors import DesignError
+from ._goals import as_constraints
 
 #: the [settings] keys that are `design`'s keywords
 DESIGN_KEYS = ("stroke", "scene", "model", "torque_model", "frequency_model", "optimizer",
@@ -78,6 +83,10 @@ def load_design_spec(path: str) -> dict:
     cons = data.get("constraints", [])
     if not isinstance(cons, list) or not all(isinstance(c, dict) for c in cons):
         raise DesignError(f"{where}: constraints must be [[constraints]] tables")
+    try:  # their fields checked here, so that the error names the file
+        as_constraints(cons)
+    except DesignError as err:
+        raise DesignError(f"{where}: {err}") from None
     settings = dict(data.get("settings", {}))
     params_file = settings.pop("params_file", None)
     if params_file is not None:
