@@ -12,6 +12,9 @@ the poses and the commanded angles. The fit starts at the PRB table's gamma (0.8
 Measured:
 - the command line, in fresh processes: "cold" with an empty compilation cache
   (`PPR_JAX_CACHE_DIR` a new directory), then a second process on that cache;
+- two hopeless starts on the command line (fresh processes, empty caches): the issue's call
+  with `--scene servo-circle`, and the file's poses moved 40 mm off its angles; each must be
+  refused with its cause named within a minute;
 - the API in one process without the persistent cache: the first fit (compiles) and a second
   one (the compiled function reused).
 Each row holds the load averages (`os.getloadavg`) before it ran: the machine may be shared.
@@ -56,14 +59,14 @@ def make_file(path: str, t_end: float, rate: float) -> None:
         f"commands of an L1 with gamma {NOMINAL}; noise 0.1 mm, 1 mrad, seed 0"])
 
 
-def cli_run(data: str, out: str, cache: str) -> dict:
+def cli_run(data: str, out: str, cache: str, extra=()) -> dict:
     env = dict(os.environ, PPR_JAX_CACHE_DIR=cache, PYTHONPATH=ROOT)
     load = os.getloadavg()
     t0 = time.perf_counter()
     proc = subprocess.run(
         [sys.executable, "-m", "ppr_jax_cli", "identify", "--data", data, "--model", "double1r",
-         "--unknown", "gamma", "--set", "t=0.5e-3", "--set", "K_theta=2.5", "--out", out],
-        cwd=ROOT, env=env, capture_output=True, text=True)
+         "--unknown", "gamma", "--set", "t=0.5e-3", "--set", "K_theta=2.5", "--out", out,
+         *extra], cwd=ROOT, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     row = {"wall_s": wall, "exit": proc.returncode, "load_before": load,
            "stderr_tail": proc.stderr[-600:]}
@@ -72,6 +75,16 @@ def cli_run(data: str, out: str, cache: str) -> dict:
         row.update(estimate=g["estimate"], std=g["std"],
                    miss_in_std=(g["estimate"] - GAMMA) / g["std"])
     return row
+
+
+def _shift(src: str, dst: str, dx: float) -> None:
+    """The file `src` with every x moved by dx (m)."""
+    import ppr_jax as pj
+
+    e = pj.load_csv(src)
+    X = e.X.copy() if hasattr(e.X, "copy") else e.X
+    X = X + [dx, 0.0, 0.0]
+    pj.write_csv(dst, pj.experiment(e.ts, X, th=e.th, name=e.name))
 
 
 def api_runs(data: str) -> list:
@@ -107,6 +120,19 @@ def main(t_end: float, rate: float, skip_cli: bool):
             cache = os.path.join(d, "cache")
             cli["cold"] = cli_run(data, os.path.join(d, "fit1"), cache)
             cli["second_process"] = cli_run(data, os.path.join(d, "fit2"), cache)
+            # hopeless starts, each in a fresh process on an empty cache: the issue's call
+            # (the paper's servo-circle named for a file on another path: the robot would start
+            # 100 mm from the file's first pose), and a file whose poses are 40 mm off the
+            # angles' forward kinematics; both refused before anything compiles
+            shifted = os.path.join(d, "shifted.csv")
+            _shift(data, shifted, 0.04)
+            cli["hopeless"] = {
+                "scene servo-circle named": cli_run(data, os.path.join(d, "fit3"),
+                                                    os.path.join(d, "cache3"),
+                                                    ("--scene", "servo-circle")),
+                "poses 40 mm off the angles": cli_run(shifted, os.path.join(d, "fit4"),
+                                                      os.path.join(d, "cache4")),
+            }
         api = api_runs(data)
     out = {
         "machine": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
