@@ -527,6 +527,38 @@ def path_cost() -> str:
             "what each step costs.\n\n" + _machine(d))
 
 
+def identify_own() -> str:
+    """Identification of one's own experiment: the command line cold and warm, the API, and
+    the hopeless starts refused (benchmarks/identify_own.py)."""
+    d = _load("identify_own.json")
+    if d is None:
+        return ""
+    cli, api = d.get("cli", {}), d["api (one process, no persistent cache)"]
+    rows = []
+    for key, what in (("cold", "`ppr-jax identify`, fresh process, empty compilation cache"),
+                      ("second_process", "`ppr-jax identify`, a second process")):
+        if key in cli:
+            r = cli[key]
+            rows.append([what, f"{r['wall_s']:.1f} s",
+                         f"gamma = {r['estimate']:.4f} +- {r['std']:.4f}" if "estimate" in r
+                         else f"exit {r['exit']}"])
+    rows.append(["`pj.identify`, first fit (compiles)", f"{api['first']['wall_s']:.1f} s",
+                 f"gamma = {api['first']['estimate']:.4f} +- {api['first']['std']:.4f}"])
+    rows.append(["`pj.identify`, a second fit", f"{api['second']['wall_s']:.2f} s",
+                 f"{api['second']['iterations']} iterations"])
+    for what, r in cli.get("hopeless", {}).items():
+        rows.append([f"hopeless start: {what}", f"{r['wall_s']:.1f} s",
+                     f"refused, exit {r['exit']}"])
+    loads = [r["load_before"][0] for r in (*[cli[k] for k in ("cold", "second_process")
+                                              if k in cli], api["first"], api["second"])]
+    e = d["experiment"]
+    return (_table(["run", "wall", "result"], rows)
+            + f"\n\n{e['t_end_s']:g} s at {e['rate_hz']:g} Hz on a path: {e['path']}; data of "
+            f"the {e['data']}, true gamma {e['truth_gamma']:g}, start at the {e['start_gamma']}; "
+            f"2 CPU cores, JAX {d['jax']}, load average {min(loads):.1f}-{max(loads):.1f} "
+            "before the runs.")
+
+
 def headline() -> dict:
     """The contenders' matched times, which the README's headline table quotes (to check it)."""
     d = _load("cpu", "contenders.json")
@@ -552,6 +584,7 @@ def tables() -> dict:
         "known-truth": known_truth(),
         "start-sensitivity": start_sensitivity(),
         "path-cost": path_cost(),
+        "identify-own": identify_own(),
     }
 
 
