@@ -112,3 +112,16 @@ def eqx_raise_mode():
             jax.clear_caches()
 
     return ctx()
+
+
+def env_with_devices(devices=None):
+    """`os.environ` for a subprocess that compiles what this process compiled: the suite's XLA
+    settings (`conftest._fast_compile_flags`) kept, so that its results match this process's to
+    the last bit, and `devices` host devices asked for (None: the child asks itself)."""
+    import os
+
+    name = "--xla_force_host_platform_device_count"
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if f.split("=")[0] != name]
+    if devices is not None:
+        flags.append(f"{name}={int(devices)}")
+    return dict(os.environ, XLA_FLAGS=" ".join(flags))

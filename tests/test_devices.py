@@ -14,6 +14,8 @@ import pytest
 import ppr_jax as pj
 from ppr_jax._devices import cpu_flags
 
+from helpers import env_with_devices
+
 SHORT = dict(t_end=0.3, n_out=31, rtol=1e-8, atol=1e-10)
 
 TWO_DEVICES = textwrap.dedent(
@@ -46,7 +48,7 @@ def test_split_batch_equals_one_device():
     p = pj.scene_params("paper-circle")
     batch = pj.stack_params([p.replace(t=t) if t > 0 else p.replace(a=3.0) for t in ts])
     ref = pj.paper_circle(batch, model="reduced", throw=False, **SHORT)
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env = env_with_devices()  # the child asks for two devices itself
     proc = subprocess.run([sys.executable, "-c", TWO_DEVICES, json.dumps([SHORT, ts])],
                           capture_output=True, text=True, timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]

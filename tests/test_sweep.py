@@ -19,6 +19,7 @@ import pytest
 import ppr_jax as pj
 from ppr_jax._cli import main
 from ppr_jax._studies import METRICS, design_members
+from helpers import env_with_devices
 
 KW = dict(model="reduced", torque_model="rigid", t_end=0.5, n_out=11)
 #: the thickest strip needs 38 steps over 0.5 s, the others 16-28
@@ -177,7 +178,7 @@ SHARDED = textwrap.dedent(
 def test_sharded_sweep_equals_unsharded(swept):
     """The same sweep split over two host devices (shard_map, a local vmap on each) in a fresh
     process, member by member against the unsharded fixture."""
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    env = env_with_devices(2)
     proc = subprocess.run(
         [sys.executable, "-c", SHARDED, json.dumps([KW, VARY, CHUNK, MAX_STEPS])],
         capture_output=True, text=True, timeout=600, env=env,
