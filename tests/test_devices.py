@@ -10,11 +10,10 @@ import textwrap
 
 import numpy as np
 import pytest
+from helpers import env_with_devices
 
 import ppr_jax as pj
 from ppr_jax._devices import cpu_flags
-
-from helpers import env_with_devices
 
 SHORT = dict(t_end=0.3, n_out=31, rtol=1e-8, atol=1e-10)
 
@@ -74,6 +73,45 @@ def test_configure_cpu_after_the_backend_started_is_a_clear_error():
 def test_cpu_flags():
     f = cpu_flags(3)
     assert f[0] == "--xla_force_host_platform_device_count=3"
-    assert cpu_flags(1, small_dots=False) == ["--xla_force_host_platform_device_count=1"]
+    assert cpu_flags(1, small_dots=False, fast_compile=False) == [
+        "--xla_force_host_platform_device_count=1"]
+
+
+def test_loop_emitters_only_on_the_measured_jaxlib(monkeypatch):
+    """XLA aborts on a flag it does not know: the fusion-emitter flag is asked for on jaxlib 0.10
+    (where it was measured) and on no other version."""
+    import importlib.metadata
+
+    import ppr_jax._devices as devices
+
+    for v, want in [("0.10.2", ["--xla_cpu_use_fusion_emitters=false"]), ("0.9.0", []),
+                    ("0.11.0", []), ("1.10.0", []), ("garbage", [])]:
+        monkeypatch.setattr(importlib.metadata, "version", lambda name, v=v: v)
+        assert devices.compile_flags() == want, v
+        assert cpu_flags(1, small_dots=False)[1:] == want, v
+
+
+def test_the_command_line_sets_the_compile_flag_before_jax_starts():
+    """A fresh `ppr-jax` process adds the loop-emitter flag to the user's XLA_FLAGS (kept) before
+    JAX's backend starts; `PPR_JAX_CPU_DEFAULTS=0` leaves XLA_FLAGS alone."""
+    code = textwrap.dedent(
+        """
+        import os, sys
+        from ppr_jax._cli import main
+        rc = main(["simulate", "--model", "rigid", "--t-end", "-1"])  # refused before compiling
+        print(rc, os.environ.get("XLA_FLAGS", ""))
+        """
+    )
+    from ppr_jax._devices import compile_flags
+
+    for defaults, want in [("1", compile_flags()), ("0", [])]:
+        env = dict(os.environ, XLA_FLAGS="--xla_cpu_enable_fast_math=false",
+                   PPR_JAX_CPU_DEFAULTS=defaults, PPR_JAX_CACHE="0")
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              timeout=300, env=env)
+        rc, *flags = proc.stdout.split()
+        assert rc == "2", proc.stderr[-2000:]
+        assert "t_end" in proc.stderr or "t-end" in proc.stderr, proc.stderr[-2000:]
+        assert flags == ["--xla_cpu_enable_fast_math=false"] + want, flags
     with pytest.raises(pj.PPRError, match="devices must be at least 1"):
         cpu_flags(0)

@@ -257,6 +257,7 @@ def open_chain_batch():
     return pj.paper_circle(batch, model="reduced", throw=False, **SHORT)
 
 
+@pytest.mark.xla_defaults  # the unreachable member's residual (1.80 m) is a diverged solve's
 def test_open_chain_fails_its_member_and_keeps_the_others(open_chain_batch):
     r = open_chain_batch
     np.testing.assert_array_equal(r.ok, [True, False, True])

@@ -218,6 +218,7 @@ def _base_centre_path(params, phi_end, n=41):
     return X, pj.inverse_kinematics(params, X).th_a
 
 
+@pytest.mark.xla_defaults  # which sample meets the fold is a matter of rounding
 def test_forward_kinematics_path_through_a_type2_singularity_is_refused(params):
     """The issue's reproducer: forward kinematics of the L1 angles of 41 poses through the
     singularity. Before, the returned phi rose to -0.812 and turned back to -0.728 while the

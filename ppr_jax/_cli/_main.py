@@ -119,11 +119,14 @@ def _main(argv, state) -> int:
     args.program_dir = None
     if getattr(args, "t_end", T_END) is None and getattr(args, "path", None) is None:
         args.t_end = T_END  # a --path file's own horizon is read with the file (scene_from_args)
-    if args.cmd == "sweep" and os.environ.get("PPR_JAX_CPU_DEFAULTS", "1") != "0":
-        from .._devices import configure_cpu
+    if os.environ.get("PPR_JAX_CPU_DEFAULTS", "1") != "0":
+        from .._devices import compile_flags, configure_cpu, set_xla_flags
 
         try:
-            configure_cpu()  # one host device per core: a sweep's chunks split over them
+            if args.cmd == "sweep":
+                configure_cpu()  # one host device per core: a sweep's chunks split over them
+            else:
+                set_xla_flags(compile_flags())  # half the compilation, the same run time
         except PPRError:  # JAX started already (the command called from Python): keep it
             pass
     if os.environ.get("PPR_JAX_CACHE", "1") != "0":
