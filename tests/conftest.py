@@ -144,9 +144,7 @@ if os.environ.get("PPR_TEST_COMPILE_STATS"):
 # at one sample or the next, a diverged solve's residual, a start solved on a short table that
 # agrees with a long table's to 5e-9 under XLA's default code (3.8e-9) but not under the suite's
 # (5.8e-9). They keep their tolerances and run, each module's marked tests in one subprocess,
-# under XLA's default settings (what the library's users get), with the suite's cache. So does
-# a test whose time is a long run, not compilation (the thick-strip modes: 12 s with XLA's
-# defaults, 37 s at -O0).
+# under XLA's default settings (what the library's users get), with the suite's cache.
 _XLA_DEFAULTS_RESULTS = {}
 
 

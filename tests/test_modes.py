@@ -54,7 +54,6 @@ def test_L2_locked_frequency_against_simulation(params, L2_locked):
     np.testing.assert_allclose(f_sim, f_mode, rtol=5e-3)
 
 
-@pytest.mark.xla_defaults  # a 2,001-output dopri8 run at rtol 1e-12: 3x slower at LLVM -O0
 def test_modes_of_thick_strips(params):
     """At t = 4 mm (joints 2,370 times stiffer) home is an equilibrium whose residual is at
     round-off (K eps); Newton's steps there are noise, which once read as divergence ("static
