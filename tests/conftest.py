@@ -181,26 +181,7 @@ def _run_under_xla_defaults(items):
         return out, proc.stdout[-4000:] + proc.stderr[-4000:]
 
 
-def _heaviest_files_first(items):
-    """Order the test files by their last measured seconds (`tests/durations.json`, written by
-    `scripts/test_durations.py`), longest first, each file's tests in their own order: the
-    workers take whole files (`--dist loadfile`) as they come free, so the long files start
-    early and the short ones fill the end (the longest-first rule), instead of a long file
-    (the notebooks) starting last. Files not in the table count as 10 s."""
-    import json
-
-    try:
-        with open(ROOT / "tests" / "durations.json") as f:
-            seconds = json.load(f)
-    except (OSError, ValueError):
-        return
-    order = {i.nodeid: k for k, i in enumerate(items)}
-    items.sort(key=lambda i: (-seconds.get(i.nodeid.split("::")[0], 10.0),
-                              i.nodeid.split("::")[0], order[i.nodeid]))
-
-
 def pytest_collection_modifyitems(config, items):
-    _heaviest_files_first(items)
     if not _add:  # XLA's defaults already: the marked tests run here as they are
         return
     marked = [i for i in items if i.get_closest_marker("xla_defaults") is not None]
