@@ -50,27 +50,27 @@ def _backend_started() -> bool:
         return True
 
 
-def _ynn_supported() -> bool:
-    """The YNNPACK flag exists from jaxlib 0.10 on (XLA aborts on a flag it does not know)."""
-    try:
-        import jaxlib
-
-        major, minor = (int(p) for p in jaxlib.__version__.split(".")[:2])
-    except (ImportError, ValueError):
-        return False
-    return (major, minor) >= (0, 10)
-
-
-def _loop_emitters_measured() -> bool:
-    """The jaxlib whose fusion-emitter flag was measured (module docstring): 0.10. Read from the
-    package's metadata, so that the command line can decide before JAX is imported."""
+def _jaxlib_version() -> Optional[tuple[int, int]]:
+    """(major, minor) of the installed jaxlib, from the package's metadata (no import of JAX, so
+    that flags can be chosen before it starts); None if unknown."""
     try:
         from importlib.metadata import version
 
         major, minor = (int(p) for p in version("jaxlib").split(".")[:2])
-    except Exception:  # no metadata or an odd version string: XLA's defaults
-        return False
-    return (major, minor) == (0, 10)
+    except Exception:  # no metadata or an odd version string
+        return None
+    return major, minor
+
+
+def _ynn_supported() -> bool:
+    """The YNNPACK flag exists from jaxlib 0.10 on (XLA aborts on a flag it does not know)."""
+    v = _jaxlib_version()
+    return v is not None and v >= (0, 10)
+
+
+def _loop_emitters_measured() -> bool:
+    """The jaxlib whose fusion-emitter flag was measured (module docstring): 0.10."""
+    return _jaxlib_version() == (0, 10)
 
 
 def compile_flags() -> list[str]:

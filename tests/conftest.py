@@ -23,36 +23,21 @@ if _CACHE != "0":
     os.environ.setdefault("EQX_ON_ERROR", "nan")
 
 
-def _fast_compile_flags() -> list[str]:
-    """XLA CPU settings that halve the suite's compilation, which is most of its time. Measured on
-    the 2-core CPU (one L2 `paper-circle` program, XLA's compile seconds, run time):
-    5.5 s, 51 ms by default; 3.2 s, 52 ms without the MLIR fusion emitters (XLA's older loop
-    emitters, no slower here); 1.9 s, 85 ms with LLVM's optimisation off as well. Each changes a
-    result by rounding only (1.5e-12 m in the poses), far below every tolerance of the suite,
-    none of which was loosened for them. The issue's allowance: "XLA's optimisation effort
-    lowered for tests only if no tolerance has to be loosened". XLA aborts on a flag it does not
-    know, so the fusion-emitter flag is only set on the jaxlib it was measured with (0.10);
-    `PPR_TEST_FAST_COMPILE=0` runs the suite with XLA's defaults."""
-    if os.environ.get("PPR_TEST_FAST_COMPILE", "1") == "0":
-        return []
-    flags = ["--xla_backend_optimization_level=0"]
-    try:
-        from importlib.metadata import version
-
-        major, minor = (int(p) for p in version("jaxlib").split(".")[:2])
-    except Exception:  # no jaxlib metadata: keep to the long-standing flag
-        return flags
-    if (major, minor) == (0, 10):
-        flags.append("--xla_cpu_use_fusion_emitters=false")
-    return flags
-
-
-# The flags as the user gave them, kept for the `xla_defaults` tests; set once, by the first
-# process (the xdist workers inherit the fast flags with it).
+# XLA's cheapest code generation halves the suite's compilation, which is most of its time.
+# Measured on the 2-core CPU (one L2 `paper-circle` program, XLA's compile seconds, run time):
+# 5.5 s, 51 ms by default; 3.2 s, 52 ms with the older loop emitters (`compile_flags`, which the
+# command line uses too); 1.9 s, 85 ms with LLVM's optimisation off as well. Each changes a
+# result by rounding only (1.5e-12 m in the poses); no tolerance was loosened for them (the
+# issue's allowance: "XLA's optimisation effort lowered for tests only if no tolerance has to be
+# loosened"). `PPR_TEST_FAST_COMPILE=0` runs the suite with XLA's defaults. The flags as the
+# user gave them are kept for the `xla_defaults` tests, set once by the first process (the
+# xdist workers inherit the fast flags with them).
 _USER_XLA_FLAGS = os.environ.setdefault("PPR_TEST_USER_XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
-_have = _USER_XLA_FLAGS.split()
-_add = [f for f in _fast_compile_flags() if f.split("=")[0] not in {h.split("=")[0] for h in _have}]
-os.environ["XLA_FLAGS"] = " ".join(_have + _add)
+_FAST = os.environ.get("PPR_TEST_FAST_COMPILE", "1") != "0"
+if _FAST:
+    from ppr_jax._devices import compile_flags, set_xla_flags  # noqa: E402
+
+    set_xla_flags(["--xla_backend_optimization_level=0", *compile_flags()])
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -182,7 +167,7 @@ def _run_under_xla_defaults(items):
 
 
 def pytest_collection_modifyitems(config, items):
-    if not _add:  # XLA's defaults already: the marked tests run here as they are
+    if not _FAST:  # XLA's defaults already: the marked tests run here as they are
         return
     marked = [i for i in items if i.get_closest_marker("xla_defaults") is not None]
     for item in marked:

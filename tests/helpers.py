@@ -116,8 +116,9 @@ def eqx_raise_mode():
 
 def env_with_devices(devices=None):
     """`os.environ` for a subprocess that compiles what this process compiled: the suite's XLA
-    settings (`conftest._fast_compile_flags`) kept, so that its results match this process's to
-    the last bit, and `devices` host devices asked for (None: the child asks itself)."""
+    settings (`conftest.py`: LLVM -O0 and `compile_flags`) kept, so that its results match this
+    process's to the last bit, and `devices` host devices asked for (None: the child asks
+    itself)."""
     import os
 
     name = "--xla_force_host_platform_device_count"
