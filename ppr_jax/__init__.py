@@ -43,7 +43,7 @@ _EXPORTS = {
     "._trajectory": ("Circle", "Hold", "Interpolated", "derivatives"),
     "._paths": (
         "Line", "Waypoints", "Fourier", "CommandLog", "load_path", "load_commands",
-        "check_same_rate", "StartPath", "fit_start",
+        "end_condition", "check_same_rate", "StartPath", "fit_start",
     ),
     "._actuation": (
         "AbstractActuation", "TorqueDriven", "MotionDriven", "PDServo", "InverseDynamicsTorque",
@@ -149,6 +149,7 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         CommandLog as CommandLog,
         load_path as load_path,
         load_commands as load_commands,
+        end_condition as end_condition,
         check_same_rate as check_same_rate,
         StartPath as StartPath,
         fit_start as fit_start,

@@ -42,6 +42,51 @@ MIN_SPLINE_SAMPLES = 4
 MAX_ANGLE = 4 * math.pi
 #: boundary conditions of `Waypoints`
 BOUNDARY = ("clamped", "natural")
+#: the loaders' choices: `BOUNDARY`, or "auto" (`end_condition`)
+LOAD_BOUNDARY = ("auto", *BOUNDARY)
+#: `end_condition`: a file moves at an end when its first or last step is more than this
+#: fraction of its largest step (in any column)
+MOVING_END = 0.05
+
+
+def end_condition(ts, values) -> str:
+    """The spline ends that samples (n, k) at times ts (n,) call for: `"clamped"` when the
+    samples are at rest at both ends (a commanded move that starts and ends still: the clamped
+    spline is exact there and the scene's start needs no velocity), `"natural"` when either end
+    moves (samples cut out of a motion: a clamped spline would stop the path within one sample
+    step, an acceleration of the velocity over the step, and the quasi-static start may then
+    find no balance).
+
+    An end moves when its step's speed (first or last difference over its time step) exceeds
+    `MOVING_END` (5 %) of the largest step's speed, in any column that changes at all. Noise
+    about as large as the motion per sample can read as motion: natural ends are then chosen,
+    which are right for data of any kind (clamped is exact only at rest).
+
+    **Arguments:**
+
+    - `ts`: sample times (n,) (s), strictly increasing.
+    - `values`: samples (n, k) (poses, angles or torques).
+
+    **Returns:** `"clamped"` or `"natural"`.
+    """
+    ts = np.asarray(ts, dtype=np.float64)
+    v = np.diff(np.asarray(values, dtype=np.float64).reshape(ts.shape[0], -1), axis=0)
+    v = np.abs(v / np.diff(ts)[:, None])
+    peak = v.max(axis=0)
+    moving = peak > 0
+    if not moving.any():
+        return "clamped"
+    ends = np.maximum(v[0], v[-1])[moving] / peak[moving]
+    return "natural" if float(ends.max()) > MOVING_END else "clamped"
+
+
+def _load_bc(source: str, bc: str, ts, values) -> str:
+    if bc not in LOAD_BOUNDARY:
+        raise DataError(f"{source}: unknown boundary condition bc={bc!r}; allowed: "
+                        f"{', '.join(LOAD_BOUNDARY)}")
+    if ts is None:  # checked before the file is read
+        return bc
+    return end_condition(ts, values) if bc == "auto" else bc
 
 
 def _is_traced(x) -> bool:
@@ -369,7 +414,7 @@ def _check_poses(source: str, rows, ts, X) -> None:
         check_pose_units(_at(source, "line", rows, ts, i), X[i:i + 1])
 
 
-def load_path(path: str, *, bc: str = "clamped", max_gap: Optional[float] = GAP_FACTOR,
+def load_path(path: str, *, bc: str = "auto", max_gap: Optional[float] = GAP_FACTOR,
               min_samples: int = MIN_SPLINE_SAMPLES, time_unit: Optional[str] = None,
               length_unit: Optional[str] = None, angle_unit: Optional[str] = None,
               drop_nan: bool = False, check_units: bool = True) -> Waypoints:
@@ -382,7 +427,9 @@ def load_path(path: str, *, bc: str = "clamped", max_gap: Optional[float] = GAP_
     **Arguments:**
 
     - `path`: the CSV file.
-    - `bc`: the spline's boundary condition, `"clamped"` or `"natural"` (see `Waypoints`).
+    - `bc`: the spline's boundary condition, `"clamped"` or `"natural"` (see `Waypoints`), or
+      `"auto"` (the default): clamped when the file is at rest at both ends, natural when it
+      starts or ends moving (`end_condition`).
     - `max_gap`: a time step longer than this many median steps is a gap (`GAP_FACTOR`, 10);
       None accepts uneven sampling (hand-written waypoints).
     - `min_samples`: fewest rows (at least 4, `MIN_SPLINE_SAMPLES`).
@@ -395,6 +442,7 @@ def load_path(path: str, *, bc: str = "clamped", max_gap: Optional[float] = GAP_
     increasing, a gap, a pose far outside the workspace; and whatever `load_csv` refuses
     (columns, units, numbers, encodings).
     """
+    _load_bc(path, bc, None, None)
     table = read_columns(path, required=REQUIRED, time_unit=time_unit, length_unit=length_unit,
                          angle_unit=angle_unit, drop_nan=drop_nan)
     col, lines, source = table.columns, table.lines, table.source
@@ -404,10 +452,10 @@ def load_path(path: str, *, bc: str = "clamped", max_gap: Optional[float] = GAP_
                    min_samples=max(min_samples, MIN_SPLINE_SAMPLES), what="pose")
     if check_units:
         _check_poses(source, lines, ts, X)
-    return Waypoints(ts, X, bc, name=source)
+    return Waypoints(ts, X, _load_bc(source, bc, ts, X), name=source)
 
 
-def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "clamped",
+def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "auto",
                   max_gap: Optional[float] = GAP_FACTOR, min_samples: int = MIN_SPLINE_SAMPLES,
                   time_unit: Optional[str] = None, angle_unit: Optional[str] = None,
                   torque_unit: Optional[str] = None, drop_nan: bool = False,
@@ -424,8 +472,8 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "clamped",
     - `path`: the CSV file.
     - `kind`: `"angles"` or `"torque"`: which columns to read when the file holds both; None
       takes the one present.
-    - `bc`: the spline's boundary condition (see `Waypoints`); `"natural"` for a log cut out of
-      a motion.
+    - `bc`: the spline's boundary condition (see `Waypoints`): `"auto"` (the default, as
+      `load_path`: natural when the log starts or ends changing), `"clamped"` or `"natural"`.
     - `max_gap`, `min_samples`, `drop_nan`: as `load_path`.
     - `time_unit`, `angle_unit`, `torque_unit`: units of undeclared columns.
     - `check_units`: refuse angles beyond two turns (degrees read as radians) and a step of more
@@ -436,6 +484,7 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "clamped",
     """
     if kind not in (None, "angles", "torque"):
         raise DataError(f"{path}: kind must be 'angles', 'torque' or None, got {kind!r}")
+    _load_bc(path, bc, None, None)
     table = read_columns(path, required=("time",), time_unit=time_unit, angle_unit=angle_unit,
                          torque_unit=torque_unit, drop_nan=drop_nan)
     col, lines, source = table.columns, table.lines, table.source
@@ -470,7 +519,7 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "clamped",
             raise DataError(f"{_at(source, 'line', lines, ts, i)}: an actuated angle jumps by "
                             f"{float(step[i - 1]):.4g} rad from line {int(lines[i - 1])}: wrapped "
                             f"at +-pi? unwrap it (numpy.unwrap) before loading")
-    return CommandLog(Waypoints(ts, V, bc, name=source), kind)
+    return CommandLog(Waypoints(ts, V, _load_bc(source, bc, ts, V), name=source), kind)
 
 
 def check_same_rate(a, b, *, rtol: float = 0.01) -> float:

@@ -266,7 +266,7 @@ def test_load_path_in_mm_and_deg_is_the_spline_of_the_si_samples(tmp_path):
     ts, X = _figure_eight(51)
     f = _write(tmp_path / "eight.csv", "time,x,y,phi", _pose_rows_mm_deg(ts, X),
                comments=["figure eight", "units: time=s, length=mm, angle=deg"])
-    path = pj.load_path(f)
+    path = pj.load_path(f, bc="clamped")
     assert isinstance(path, pj.Waypoints) and path.name == "eight.csv" and path.bc == "clamped"
     ref = CubicSpline(ts, X, bc_type="clamped", axis=0)
     tt = np.linspace(0, ts[-1], 37)
@@ -286,7 +286,7 @@ def test_load_commands_angles_and_torques(tmp_path):
     th = np.column_stack([0.5 + 0.1 * np.sin(3 * ts), 2.6 + 0.05 * ts, -1.6 + 0.02 * ts**2])
     f = _write(tmp_path / "angles.csv", "time,th_1[deg],th_2[deg],th_3[deg]",
                np.column_stack([ts, np.degrees(th)]))
-    log = pj.load_commands(f)
+    log = pj.load_commands(f, bc="clamped")
     assert log.kind == "angles" and log.name == "angles.csv"
     np.testing.assert_allclose(jax.vmap(log)(jnp.asarray(ts)), th, rtol=1e-13)
     act = log.actuation()
@@ -302,7 +302,7 @@ def test_load_commands_angles_and_torques(tmp_path):
     tau = np.column_stack([0.1 * np.cos(ts), -0.2 * ts, 0.05 + 0 * ts])
     g = _write(tmp_path / "torques.csv", "time,tau_1[Nmm],tau_2[Nmm],tau_3[Nmm]",
                np.column_stack([ts, tau * 1e3]))
-    tlog = pj.load_commands(g)
+    tlog = pj.load_commands(g, bc="clamped")
     act = tlog.actuation()
     assert tlog.kind == "torque" and isinstance(act, pj.TorqueDriven)
     np.testing.assert_allclose(act.torque_at(0.43, None, None),
@@ -315,6 +315,41 @@ def test_load_commands_angles_and_torques(tmp_path):
     with pytest.raises(DataError, match="both.csv: the file holds both.*kind="):
         pj.load_commands(h)
     assert pj.load_commands(h, kind="torque").kind == "torque"
+
+
+def test_loaders_choose_the_ends_the_file_calls_for(tmp_path):
+    """`bc="auto"`, the loaders' default: a file that starts and ends moving (the figure eight,
+    sin(w t) at t = 0) is splined with natural ends, as scipy's natural spline; a move that
+    starts and ends at rest (a quintic ramp; one column constant) with clamped ends, as
+    scipy's clamped spline; a torque log likewise by its rate. An unknown `bc` is refused
+    before the file is read, naming the allowed values."""
+    ts, X = _figure_eight(51)
+    f = _write(tmp_path / "eight.csv", "time,x[mm],y[mm],phi[deg]", _pose_rows_mm_deg(ts, X))
+    nat = pj.load_path(f)
+    assert nat.bc == "natural" and pj.end_condition(ts, X) == "natural"
+    tt = np.linspace(0, ts[-1], 29)
+    np.testing.assert_allclose(jax.vmap(nat)(jnp.asarray(tt)),
+                               CubicSpline(ts, X, bc_type="natural", axis=0)(tt),
+                               rtol=1e-12, atol=1e-15)
+    s = ts / ts[-1]
+    ramp = CENTER + np.column_stack([0.03 * (10 * s**3 - 15 * s**4 + 6 * s**5),
+                                     0.0 * s, 0.02 * (10 * s**3 - 15 * s**4 + 6 * s**5)])
+    g = _write(tmp_path / "ramp.csv", "time,x[mm],y[mm],phi[deg]", _pose_rows_mm_deg(ts, ramp))
+    clamped = pj.load_path(g)
+    assert clamped.bc == "clamped" and pj.end_condition(ts, ramp) == "clamped"
+    np.testing.assert_allclose(jax.vmap(clamped)(jnp.asarray(tt)),
+                               CubicSpline(ts, ramp, bc_type="clamped", axis=0)(tt),
+                               rtol=1e-12, atol=1e-15)
+    # a torque log cut out of a motion (its rate at both ends) and one that holds still there
+    tau = np.column_stack([0.1 * np.cos(3 * ts), 0 * ts, 0 * ts])
+    h = _write(tmp_path / "tau.csv", "time,tau_1,tau_2,tau_3", np.column_stack([ts, tau]))
+    assert pj.load_commands(h).spline.bc == "natural"
+    assert pj.load_commands(h, bc="clamped").spline.bc == "clamped"
+    assert pj.end_condition(ts, 0 * tau) == "clamped"  # nothing moves: at rest
+    for loader in (pj.load_path, pj.load_commands):
+        with pytest.raises(DataError, match=r"missing.csv: unknown boundary condition "
+                                            r"bc='free'; allowed: auto, clamped, natural"):
+            loader(str(tmp_path / "missing.csv"), bc="free")
 
 
 def test_check_same_rate(tmp_path):
@@ -452,7 +487,7 @@ def test_torque_driven_scene_on_a_loaded_spline_runs_at_defaults(tmp_path):
     path during the move (open loop, so the gap is the integration's and the table's: 2e-8 m
     over the 2 s of samples, 7e-7 m when the integrator stepped across the knots); in the
     hold after it the open-loop gap grows by about e^(1.5 t) (4e-6 m at 7.54 s)."""
-    path = pj.load_path(_eight_file(tmp_path))
+    path = pj.load_path(_eight_file(tmp_path), bc="clamped")
     rep = pj.run_scene(pj.PathScene(path, drive="torque"))
     r = rep.result
     assert r.ok and r.X.shape == (755, 3)

@@ -149,6 +149,10 @@ def parent_parsers() -> dict:
     files.add_argument("--torques", default=None, metavar="FILE.csv",
                        help="with --path: the torques a controller applied (time, "
                             "tau_1..tau_3), which drive the model (a torque drive)")
+    files.add_argument("--bc", default="auto", choices=["auto", "clamped", "natural"],
+                       help="with --path: the splines' ends: clamped (at rest), natural (the "
+                            "samples cut out of a motion), or auto (default): clamped when the "
+                            "file is at rest at both ends, else natural")
     files.add_argument("--drive", default="torque", choices=["torque", "motion"],
                        help="with --path and no command log: the torque model's inverse-dynamics "
                             "torques along the path (torque), or its inverse-kinematics angles "
@@ -185,9 +189,10 @@ def scene_from_args(args):
     from .._paths import check_same_rate, load_commands, load_path
     from .._scenes import PathScene
 
-    traj = load_path(path)
-    log = (load_commands(angles, kind="angles") if angles is not None
-           else load_commands(torques, kind="torque") if torques is not None else None)
+    bc = getattr(args, "bc", "auto")
+    traj = load_path(path, bc=bc)
+    log = (load_commands(angles, kind="angles", bc=bc) if angles is not None
+           else load_commands(torques, kind="torque", bc=bc) if torques is not None else None)
     if log is not None:
         check_same_rate(traj, log)
     drive = "motion" if angles is not None else "torque" if torques is not None else args.drive
