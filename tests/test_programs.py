@@ -299,3 +299,36 @@ def test_an_executable_with_lapack_calls_loads_in_a_fresh_process(tmp_path):
     assert second["how"] == "loaded"
     a = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
     np.testing.assert_allclose(second["x"], np.linalg.solve(a, [1.0, 2.0, 3.0]), rtol=1e-14)
+
+
+def test_identification_program_is_stored_and_loaded(tmp_path, monkeypatch):
+    """`identify(program_dir=...)` (the command line passes its store): the fit's
+    residual-and-Jacobian program is exported once; a later fit of the same structure and
+    shapes, other data included, loads it without tracing (export is made to fail here), and
+    every fit equals the usual compile's to rounding. L0 torque-driven, 0.3 s."""
+    from ppr_jax._studies._identify import _problem
+
+    truth = pj.scene_params("paper-circle")
+    kw = dict(model="rigid", scene="paper-circle", noise=(5e-6, 5e-5), starts=1,
+              initial={"t": 0.8 * float(truth.t)})
+    exps = [pj.synthesize("paper-circle", "rigid", truth, noise_pos=5e-6, noise_phi=5e-5,
+                          rate=100, t_end=0.3, seed=s) for s in (0, 1)]
+    d = str(tmp_path / "programs")
+    monkeypatch.setattr(_problem, "_STORED", {})
+    stored = pj.identify(exps[0], ("t",), program_dir=d, **kw)
+    files = list(pathlib.Path(d).glob("identify-rigid-*.jaxexport"))
+    assert len(files) == 1, sorted(os.listdir(d))
+
+    def no_export(*a, **k):
+        raise AssertionError("traced and exported again instead of loading the stored program")
+
+    monkeypatch.setattr(_problem, "_STORED", {})  # as a fresh process
+    monkeypatch.setattr(_programs, "_export", no_export)
+    loaded = [pj.identify(e, ("t",), program_dir=d, **kw) for e in exps]
+    assert list(pathlib.Path(d).glob("identify-rigid-*.jaxexport")) == files
+    usual = [pj.identify(e, ("t",), **kw) for e in exps]
+    for a, b in zip([stored, *loaded], [usual[0], *usual]):
+        np.testing.assert_allclose(a.estimate, b.estimate, rtol=1e-12)
+        np.testing.assert_allclose(a.std, b.std, rtol=1e-9)
+        assert a.history["iterations"] == b.history["iterations"]
+    assert abs(usual[1].estimate[0] - usual[0].estimate[0]) > 1e-3 * usual[0].std[0]

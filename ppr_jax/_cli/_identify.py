@@ -79,7 +79,7 @@ def cmd_identify(args):
                        ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
                        max_steps=args.max_steps, validation=_validation(args.validation),
                        nuisance=tuple(args.nuisance), starts=_starts(args.starts),
-                       force=args.force)
+                       force=args.force, program_dir=getattr(args, "program_dir", None))
     except StartError as err:
         # the experiment's name is its file's stem: name the file as the user typed it
         msg = str(err)

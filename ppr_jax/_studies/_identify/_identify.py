@@ -157,6 +157,7 @@ def identify(
     starts: Union[str, int] = "auto",
     seed: int = 0,
     force: bool = False,
+    program_dir: Optional[str] = None,
 ) -> Identification:
     """Fit `unknowns` (names of `RobotParams` float leaves) to measured experiments.
 
@@ -242,6 +243,10 @@ def identify(
     - `seed`: the Latin hypercube's seed.
     - `force`: fit even when the preflight refuses (the result's identifiability and
         `quality["preflight_not_identifiable"]` then report it).
+    - `program_dir`: a directory of stored programs (as `run_scene`'s; the command line's):
+        the fit's residual-and-Jacobian program is exported there once and loaded by later
+        processes, which then skip its trace (most of a warm fit's wait). None: compiled in
+        this process as usual. The results are the same either way.
 
     **Returns:**
 
@@ -447,7 +452,7 @@ def identify(
         meas=meas, scene_obj=scene_obj, drive=drive,
         paths=None if paths is None else jnp.asarray(paths),
         starts=None if start_fits is None else jnp.asarray(start_fits),
-        experiment_names=tuple(e.name for e in exps),
+        experiment_names=tuple(e.name for e in exps), program_dir=program_dir,
     )
     p0 = np.array([float(getattr(base, n)) for n in names])
     z0 = np.concatenate([_to_z(lg, lo, hi, p0), np.zeros(n_init * len(exps) + len(meas))])

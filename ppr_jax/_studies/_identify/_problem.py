@@ -105,6 +105,10 @@ class _Problem(eqx.Module):
     starts: Optional[Array] = None
     #: the experiments' names (messages)
     experiment_names: tuple = eqx.field(static=True, default=())
+    #: a directory of stored programs (`_programs.py`; the command line's), where the fit's
+    #: residual-and-Jacobian program is exported once and loaded by later processes; None:
+    #: compiled in this process as usual
+    program_dir: Optional[str] = eqx.field(static=True, default=None)
 
 
 def _to_p(prob: _Problem, z):
@@ -255,16 +259,42 @@ def _residual_vector(prob: _Problem, z):
 
 
 def _anonymous(prob: _Problem) -> _Problem:
-    """The problem without the experiments' names (static, they would key the compilation: a
-    second file of the same shapes must reuse the compiled program)."""
-    return dataclasses.replace(prob, experiment_names=()) if prob.experiment_names else prob
+    """The problem without the experiments' names and the program directory (static, they
+    would key the compilation: a second file of the same shapes must reuse the compiled
+    program)."""
+    if prob.experiment_names or prob.program_dir is not None:
+        return dataclasses.replace(prob, experiment_names=(), program_dir=None)
+    return prob
+
+
+#: the stored residual-and-Jacobian programs loaded in this process, by the call's structure
+_STORED: dict = {}
 
 
 def _residual_and_jacobian(prob: _Problem, z):
     """(r (N,), J (N, P) = dr/dz, the simulations' result codes (E,) (0: success; `_succeeded`),
     simulated pose (E, m, 3)) in one compiled forward-mode pass: the fit, the covariance and the
-    fitted trajectory share it."""
-    return _residual_and_jacobian_jit(_anonymous(prob), z)
+    fitted trajectory share it.
+
+    With `prob.program_dir` the program comes from the program store (`_programs.py`): a later
+    process with a problem of the same structure and shapes (another file, other numbers)
+    loads it instead of tracing it (the trace is most of a warm fit's wait: 8 s of L2's)."""
+    directory = prob.program_dir
+    prob = _anonymous(prob)
+    if directory is None:
+        return _residual_and_jacobian_jit(prob, z)
+    from ..._programs import compiled_program
+
+    dyn, static = eqx.partition((prob, z), eqx.is_array)
+    key = (directory, jax.tree_util.tree_structure(static), jax.tree_util.tree_structure(dyn),
+           tuple((x.shape, x.dtype) for x in jax.tree_util.tree_leaves(dyn)))
+    run = _STORED.get(key)
+    if run is None:
+        # r, J, codes, X: the result's structure is all the store needs (no trace for it)
+        run, _ = compiled_program(_residual_and_jacobian_jit, (prob, z), (0, 0, 0, 0), directory,
+                                  f"identify-{prob.model.name}")
+        _STORED[key] = run
+    return run(prob, z)
 
 
 @eqx.filter_jit
