@@ -7,6 +7,7 @@ the compiled cases share one small program per scene.
 """
 
 import math
+import re
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -257,12 +258,13 @@ def open_chain_batch():
     return pj.paper_circle(batch, model="reduced", throw=False, **SHORT)
 
 
-@pytest.mark.xla_defaults  # the unreachable member's residual (1.80 m) is a diverged solve's
 def test_open_chain_fails_its_member_and_keeps_the_others(open_chain_batch):
     r = open_chain_batch
     np.testing.assert_array_equal(r.ok, [True, False, True])
     f = r.failures()
-    assert list(f) == [1] and "reach" in f[1] and "1.8 m" in f[1]
+    # The residual named is the last iterate of a diverged closure solve, not a geometric
+    # distance: 1.80 m under XLA's default code, 1.81 m under the suite's (rounding).
+    assert list(f) == [1] and "reach" in f[1] and re.search(r"\b1\.8\d? m\b", f[1]), f[1]
     for i in (0, 2):
         assert np.all(np.isfinite(r.X[i])) and float(np.max(r.residual[i])) < 1e-9
         # the good members still follow the circle to a few mm in 0.3 s of open loop
