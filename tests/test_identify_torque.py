@@ -88,9 +88,11 @@ def test_paper_circle_with_measured_torques_recovers_t():
 def test_multi_start_escapes_the_minimum_of_a_far_start():
     """A torque-driven fit of t (L1 open loop under the file's torques) from a start 30 times
     off, 9 mm against 0.3 mm, ends in a distant minimum (s about 1e4) and is reported as a poor
-    fit. With `starts=6` (a Latin hypercube of log t within its bounds, on the same compiled
-    function) half the starts reach the truth: the result is the best (s about 1, the truth
-    within its interval), and the table says that the given start ended elsewhere."""
+    fit. With `starts=3` (the given start and two points of a Latin hypercube of log t within
+    its bounds, on the same compiled function) both hypercube points reach the truth: the
+    result is the best (s about 1, the truth within its interval), and the table says that
+    the given start ended elsewhere. (With 6 starts, 3 of them reach it; one of the others
+    runs to the iteration limit, 10 s of this test's time.)"""
     truth = pj.scene_params("paper-circle")
     exp = pj.synthesize("paper-circle", "reduced", truth, noise_pos=NOISE[0],
                         noise_phi=NOISE[1], rate=100, t_end=T_END, seed=2)
@@ -99,11 +101,11 @@ def test_multi_start_escapes_the_minimum_of_a_far_start():
     one = pj.identify(exp, ("t",), starts=1, **kw)
     assert math.sqrt(one.sigma2) > 100 and one.history["stop"] == "poor fit", one.table()
     assert one.history["escalation"] is None and one.quality["escalated"] is None
-    ms = pj.identify(exp, ("t",), starts=6, **kw)
+    ms = pj.identify(exp, ("t",), starts=3, **kw)
     lo, hi = ms.ci95[0]
     assert lo <= float(truth.t) <= hi and 0.7 < math.sqrt(ms.sigma2) < 1.3, ms.table()
     st = ms.quality["starts"]
-    assert st["n"] == 6 and st["reached_best"] >= 2 and not st["given_start_reached_best"]
+    assert st["n"] == 3 and st["reached_best"] == 2 and not st["given_start_reached_best"]
     assert ms.history["starts"][0]["estimate"][0] > 10 * float(truth.t)
     assert "the given start ended in another minimum" in ms.table()
     for bad in (0, 1001, "all", 2.5, True):
