@@ -332,3 +332,34 @@ def test_identification_program_is_stored_and_loaded(tmp_path, monkeypatch):
         np.testing.assert_allclose(a.std, b.std, rtol=1e-9)
         assert a.history["iterations"] == b.history["iterations"]
     assert abs(usual[1].estimate[0] - usual[0].estimate[0]) > 1e-3 * usual[0].std[0]
+
+
+def test_sensitivity_programs_are_stored_and_loaded(tmp_path, monkeypatch):
+    """`sensitivity(program_dir=...)` (the command line passes its store): the metrics' and
+    the Jacobian's programs are exported once; a later call of the same setting, at another
+    nominal robot, loads them without tracing (export made to fail), and every result equals
+    the usual compile's."""
+    from ppr_jax._studies import _sensitivity
+
+    kw = dict(model="rigid", parameters=("t", "gamma"), metrics=("radial_error_max_m",),
+              t_end=0.1, n_out=11)
+    p0 = pj.scene_params("paper-circle")
+    d = str(tmp_path / "programs")
+    monkeypatch.setattr(_sensitivity, "_COMPILED", {})
+    stored = pj.sensitivity("paper-circle", p0, program_dir=d, **kw)
+    files = sorted(pathlib.Path(d).glob("sensitivity-*.jaxexport"))
+    assert len(files) == 2, sorted(os.listdir(d))  # the values and the forward Jacobian
+
+    def no_export(*a, **k):
+        raise AssertionError("traced and exported again instead of loading the stored program")
+
+    monkeypatch.setattr(_sensitivity, "_COMPILED", {})  # as a fresh process
+    monkeypatch.setattr(_programs, "_export", no_export)
+    p1 = p0.replace(t=0.35e-3)
+    loaded = [pj.sensitivity("paper-circle", p, program_dir=d, **kw) for p in (p0, p1)]
+    assert sorted(pathlib.Path(d).glob("sensitivity-*.jaxexport")) == files
+    usual = [pj.sensitivity("paper-circle", p, **kw) for p in (p0, p1)]
+    for a, b in zip([stored, *loaded], [usual[0], *usual]):
+        np.testing.assert_allclose(a.jacobian, b.jacobian, rtol=1e-12)
+        assert a.values == pytest.approx(b.values, rel=1e-13)
+    assert abs(usual[1].jacobian[0, 0] / usual[0].jacobian[0, 0] - 1) > 1e-3

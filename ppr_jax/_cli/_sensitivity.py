@@ -46,6 +46,7 @@ def cmd_sensitivity(args):
         frequency_model=args.frequency_model,
         parameters=names, metrics=metrics, t_end=args.t_end, n_out=args.n_out,
         solver=args.solver, rtol=args.rtol, atol=args.atol, max_steps=args.max_steps,
+        program_dir=getattr(args, "program_dir", None),
     )
     rows = s.rows()
     cols = ["metric", "parameter", "metric_value", "parameter_value", "derivative", "normalized"]

@@ -52,7 +52,7 @@ from .._prb import derived
 from .._robot import Robot
 from .._scenes import SceneOptions, get_scene
 from .._statics import assemble, static_equilibrium
-from ._sweep import FLOAT_PARAMS, _plain, sweep_metrics, traced_metrics
+from ._sweep import FLOAT_PARAMS, sweep_metrics, traced_metrics
 
 #: eigenvalues within this relative distance of the lowest are one (repeated) cluster
 CLUSTER_RTOL = 1e-6
@@ -219,28 +219,62 @@ def _metric_function(scene, params, *, model, torque_model, frequency_model, par
     # closed-form inverse kinematics, whose one Newton step carries the implicit-function
     # derivative in l1 or l3 alone (ppr_jax._robot).
     equal = float(base.l1) == float(base.l3)
-    scene_metrics_needed = [m for m in metrics if m != "base_frequency_hz"]
+    setting = _Setting(base=base, names=tuple(names), metrics=metrics, scene=scene_,
+                       model=model_, frequency_model=fmodel, options=options, equal=equal)
 
     def f(x, adjoint=None):
-        p = eqx.tree_at(lambda q: [getattr(q, n) for n in names], base, list(x))
-        robot = Robot(p, equal_links=equal)
-        out = {}
-        if scene_metrics_needed:
-            opts = options if adjoint is None else eqx.tree_at(
-                lambda o: o.adjoint, options, adjoint)
-            res = scene_.run(model_, robot, opts)
-            out.update(traced_metrics(res, opts.trajectory, scene_metrics_needed))
-            # A failed solve must not pass as a number: NaN through every metric.
-            bad = res.result != RESULTS.successful
-            out = {k: jnp.where(bad, jnp.nan, v) for k, v in out.items()}
-        if "base_frequency_hz" in metrics:
-            out["base_frequency_hz"] = base_frequency(fmodel, robot)
-        return jnp.stack([out[m] for m in metrics])
+        return _metrics_at(x, setting, adjoint)
 
-    return f, x0, names, metrics, scene_, options
+    return f, x0, names, metrics, scene_, options, setting
 
 
-_JIT_CACHE: dict = {}
+class _Setting(eqx.Module):
+    """Everything the metrics depend on besides the parameters varied: the nominal robot's
+    parameters (arrays: inputs of the compiled programs, so that a stored program serves any
+    nominal robot) and the structural choices (static: they key it)."""
+
+    base: RobotParams
+    names: tuple = eqx.field(static=True)
+    metrics: tuple = eqx.field(static=True)
+    scene: object
+    model: object = eqx.field(static=True)
+    frequency_model: object = eqx.field(static=True)
+    options: SceneOptions
+    equal: bool = eqx.field(static=True)
+
+
+def _metrics_at(x, setting: _Setting, adjoint=None):
+    """The metrics (k,) at parameter values x (p,) (`metric_function`'s f)."""
+    p = eqx.tree_at(lambda q: [getattr(q, n) for n in setting.names], setting.base, list(x))
+    robot = Robot(p, equal_links=setting.equal)
+    out = {}
+    needed = [m for m in setting.metrics if m != "base_frequency_hz"]
+    if needed:
+        opts = setting.options if adjoint is None else eqx.tree_at(
+            lambda o: o.adjoint, setting.options, adjoint)
+        res = setting.scene.run(setting.model, robot, opts)
+        out.update(traced_metrics(res, opts.trajectory, needed))
+        # A failed solve must not pass as a number: NaN through every metric.
+        bad = res.result != RESULTS.successful
+        out = {k: jnp.where(bad, jnp.nan, v) for k, v in out.items()}
+    if "base_frequency_hz" in setting.metrics:
+        out["base_frequency_hz"] = base_frequency(setting.frequency_model, robot)
+    return jnp.stack([out[m] for m in setting.metrics])
+
+
+@eqx.filter_jit
+def _values(x, setting):
+    return _metrics_at(x, setting)
+
+
+@eqx.filter_jit
+def _jacobian_fwd(x, setting):
+    return jax.jacfwd(lambda y: _metrics_at(y, setting, diffrax.ForwardMode()))(x)
+
+
+@eqx.filter_jit
+def _jacobian_rev(x, setting, adjoint):
+    return jax.jacrev(lambda y: _metrics_at(y, setting, adjoint))(x)
 
 
 def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
@@ -249,8 +283,8 @@ def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
                 metrics: Optional[Sequence[str]] = None, options: Optional[SceneOptions] = None,
                 t_end: Optional[float] = None, n_out: Optional[int] = None, solver=None,
                 rtol: Optional[float] = None, atol: Optional[float] = None,
-                max_steps: Optional[int] = None, checkpoints: Optional[int] = None
-                ) -> Sensitivity:
+                max_steps: Optional[int] = None, checkpoints: Optional[int] = None,
+                program_dir: Optional[str] = None) -> Sensitivity:
     """d(metric)/d(parameter) of `metrics` of `scene` to `parameters` (default every float
     parameter of `RobotParams`), at `params` (default the scene's).
 
@@ -265,41 +299,34 @@ def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
     None), as `sweep`; the default `model` is L2 under L1's torques (the paper's question).
     The tracking error of a model that follows its own input (`follows_its_input`: L0 or L1
     under its own torques, L1 in servo-circle) is refused with a `PPRError`: it is the
-    integrator's error. Returns `Sensitivity`."""
+    integrator's error. `program_dir`: a directory of stored programs (as `run_scene`'s; the
+    command line's): the metrics' and their derivatives' programs are exported there once and
+    loaded by later processes, which skip tracing them; None: compiled in this process (and
+    kept for later calls of the same setting). Returns `Sensitivity`."""
     if mode not in ("fwd", "rev"):
         raise PPRError(f"mode must be 'fwd' or 'rev', got {mode!r}")
-    f, x0, names, metrics, scene_, opts = _metric_function(
+    f, x0, names, metrics, scene_, opts, setting = _metric_function(
         scene, params, model=model, torque_model=torque_model, frequency_model=frequency_model,
         parameters=parameters, options=options, metrics=metrics, t_end=t_end, n_out=n_out,
         solver=solver, rtol=rtol, atol=atol, max_steps=max_steps)
-    base = explicit_params(scene_.default_params() if params is None else params)
-    key = (eqx.tree_pformat((scene_, opts), short_arrays=False), get_model(model),
-           get_model(frequency_model), tuple(names), tuple(metrics), mode, checkpoints,
-           tuple((fl.name, _plain(getattr(base, fl.name))) for fl in dataclasses.fields(base)))
-    try:
-        cached = _JIT_CACHE.get(key)
-    except TypeError:  # an unhashable model or solver: no reuse
-        key, cached = None, None
-    if cached is None:
-        if mode == "fwd":
-            jac = jax.jit(jax.jacfwd(lambda x: f(x, diffrax.ForwardMode())))
-        else:
-            adj = diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints)
-            jac = jax.jit(jax.jacrev(lambda x: f(x, adj)))
-        cached = (jax.jit(f), jac)
-        if key is not None:
-            _JIT_CACHE[key] = cached
-    value, jac = cached
+    if mode == "fwd":
+        jac_fn, jac_args = _jacobian_fwd, (x0, setting)
+    else:
+        jac_fn = _jacobian_rev
+        jac_args = (x0, setting, diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints))
+    label = f"sensitivity-{scene_.name}-{get_model(model).name}"
     t0 = time.perf_counter()
-    v = np.asarray(value(x0))
+    value = _compiled(_values, (x0, setting), program_dir, f"{label}-values")
+    v = np.asarray(value(x0, setting))
     t1 = time.perf_counter()
-    v = np.asarray(value(x0))
+    v = np.asarray(value(x0, setting))
     value_run = time.perf_counter() - t1
     value_compile = max(t1 - t0 - value_run, 0.0)
     t2 = time.perf_counter()
-    J = np.asarray(jac(x0))
+    jac = _compiled(jac_fn, jac_args, program_dir, f"{label}-{mode}")
+    J = np.asarray(jac(*jac_args))
     t3 = time.perf_counter()
-    J = np.asarray(jac(x0))
+    J = np.asarray(jac(*jac_args))
     run = time.perf_counter() - t3
     if not np.all(np.isfinite(v)):
         bad = [m for m, x in zip(metrics, v) if not np.isfinite(x)]
@@ -320,5 +347,33 @@ def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
                   frequency_model=get_model(frequency_model).name, t_end=float(opts.t_end),
                   n_out=int(opts.n_out), rtol=float(opts.rtol), atol=float(opts.atol),
                   checkpoints=checkpoints),
-        evaluate=lambda x: np.asarray(value(jnp.asarray(x, dtype=jnp.float64))),
+        evaluate=lambda x: np.asarray(value(jnp.asarray(x, dtype=jnp.float64), setting)),
     )
+
+
+#: compiled programs of this process, by their function, structure and shapes
+_COMPILED: dict = {}
+
+
+def _compiled(fn, args, program_dir, label):
+    """`fn` (an `eqx.filter_jit` function) compiled for `args`' structure and shapes, kept for
+    later calls in this process; from the program store (`_programs.compiled_program`) when
+    `program_dir` is given. The result is called with arguments of that structure."""
+    dyn, static = eqx.partition(args, eqx.is_array)
+    key = (fn, program_dir, jax.tree_util.tree_structure(static),
+           jax.tree_util.tree_structure(dyn),
+           tuple((x.shape, x.dtype) for x in jax.tree_util.tree_leaves(dyn)))
+    try:
+        run = _COMPILED.get(key)
+    except TypeError:  # an unhashable static part (a model or solver without __hash__)
+        key, run = None, None
+    if run is None:
+        if program_dir is None:
+            run = fn
+        else:
+            from .._programs import compiled_program
+
+            run, _ = compiled_program(fn, args, 0, program_dir, label)
+        if key is not None:
+            _COMPILED[key] = run
+    return run
