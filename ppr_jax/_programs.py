@@ -416,3 +416,34 @@ def compiled_program(fn: Callable, args: tuple, out_template, directory: Optiona
         except (NotExportable, OSError, ImportError):
             pass
     return fn.lower(*args).compile(), "compiled"
+
+
+#: the callables of `cached_program` in this process
+_CACHED: dict = {}
+
+
+def cached_program(fn: Callable, args: tuple, out_template, directory: Optional[str],
+                   label: str) -> Callable:
+    """`compiled_program(fn, args, ...)` (from the store in `directory` when given), kept for
+    later calls in this process by `fn` and the structure and shapes of `args` (the static
+    parts compared by equality): a study calling its program once per iteration looks it up
+    instead of keying the store again, and a call with and one without a store share one
+    compilation (the two programs differ by rounding only). Call the result with arguments of
+    the structure of `args`."""
+    dyn, static = eqx.partition(args, eqx.is_array)
+    key = (fn, jax.tree_util.tree_structure(static), jax.tree_util.tree_structure(dyn),
+           tuple((x.shape, x.dtype) for x in jax.tree_util.tree_leaves(dyn)))
+    try:
+        run = _CACHED.get(key)
+    except TypeError:  # an unhashable static part (a model or solver without __hash__)
+        key, run = None, None
+    if run is None:
+        run, _ = compiled_program(fn, args, out_template, directory, label)
+        if key is not None:
+            _CACHED[key] = run
+    return run
+
+
+def clear_cached_programs() -> None:
+    """Drop the callables `cached_program` keeps (their executables with them)."""
+    _CACHED.clear()

@@ -65,6 +65,9 @@ def _release_compiled_code():
     not executables, so nothing shared is lost."""
     yield
     jax.clear_caches()
+    from ppr_jax._programs import clear_cached_programs
+
+    clear_cached_programs()
 
 
 @pytest.fixture(scope="session")

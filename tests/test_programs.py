@@ -306,15 +306,16 @@ def test_identification_program_is_stored_and_loaded(tmp_path, monkeypatch):
     residual-and-Jacobian program is exported once; a later fit of the same structure and
     shapes, other data included, loads it without tracing (export is made to fail here), and
     every fit equals the usual compile's to rounding. L0 torque-driven, 0.3 s."""
-    from ppr_jax._studies._identify import _problem
-
     truth = pj.scene_params("paper-circle")
     kw = dict(model="rigid", scene="paper-circle", noise=(5e-6, 5e-5), starts=1,
               initial={"t": 0.8 * float(truth.t)})
     exps = [pj.synthesize("paper-circle", "rigid", truth, noise_pos=5e-6, noise_phi=5e-5,
                           rate=100, t_end=0.3, seed=s) for s in (0, 1)]
     d = str(tmp_path / "programs")
-    monkeypatch.setattr(_problem, "_STORED", {})
+    # each phase as a fresh process would run it: nothing compiled kept from the one before
+    monkeypatch.setattr(_programs, "_CACHED", {})
+    usual = [pj.identify(e, ("t",), **kw) for e in exps]
+    monkeypatch.setattr(_programs, "_CACHED", {})
     stored = pj.identify(exps[0], ("t",), program_dir=d, **kw)
     files = list(pathlib.Path(d).glob("identify-rigid-*.jaxexport"))
     assert len(files) == 1, sorted(os.listdir(d))
@@ -322,11 +323,10 @@ def test_identification_program_is_stored_and_loaded(tmp_path, monkeypatch):
     def no_export(*a, **k):
         raise AssertionError("traced and exported again instead of loading the stored program")
 
-    monkeypatch.setattr(_problem, "_STORED", {})  # as a fresh process
+    monkeypatch.setattr(_programs, "_CACHED", {})
     monkeypatch.setattr(_programs, "_export", no_export)
     loaded = [pj.identify(e, ("t",), program_dir=d, **kw) for e in exps]
     assert list(pathlib.Path(d).glob("identify-rigid-*.jaxexport")) == files
-    usual = [pj.identify(e, ("t",), **kw) for e in exps]
     for a, b in zip([stored, *loaded], [usual[0], *usual]):
         np.testing.assert_allclose(a.estimate, b.estimate, rtol=1e-12)
         np.testing.assert_allclose(a.std, b.std, rtol=1e-9)
@@ -339,13 +339,14 @@ def test_sensitivity_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     the Jacobian's programs are exported once; a later call of the same setting, at another
     nominal robot, loads them without tracing (export made to fail), and every result equals
     the usual compile's."""
-    from ppr_jax._studies import _sensitivity
-
     kw = dict(model="rigid", parameters=("t", "gamma"), metrics=("radial_error_max_m",),
               t_end=0.1, n_out=11)
     p0 = pj.scene_params("paper-circle")
+    p1 = p0.replace(t=0.35e-3)
     d = str(tmp_path / "programs")
-    monkeypatch.setattr(_sensitivity, "_COMPILED", {})
+    monkeypatch.setattr(_programs, "_CACHED", {})
+    usual = [pj.sensitivity("paper-circle", p, **kw) for p in (p0, p1)]
+    monkeypatch.setattr(_programs, "_CACHED", {})
     stored = pj.sensitivity("paper-circle", p0, program_dir=d, **kw)
     files = sorted(pathlib.Path(d).glob("sensitivity-*.jaxexport"))
     assert len(files) == 2, sorted(os.listdir(d))  # the values and the forward Jacobian
@@ -353,12 +354,10 @@ def test_sensitivity_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     def no_export(*a, **k):
         raise AssertionError("traced and exported again instead of loading the stored program")
 
-    monkeypatch.setattr(_sensitivity, "_COMPILED", {})  # as a fresh process
+    monkeypatch.setattr(_programs, "_CACHED", {})
     monkeypatch.setattr(_programs, "_export", no_export)
-    p1 = p0.replace(t=0.35e-3)
     loaded = [pj.sensitivity("paper-circle", p, program_dir=d, **kw) for p in (p0, p1)]
     assert sorted(pathlib.Path(d).glob("sensitivity-*.jaxexport")) == files
-    usual = [pj.sensitivity("paper-circle", p, **kw) for p in (p0, p1)]
     for a, b in zip([stored, *loaded], [usual[0], *usual]):
         np.testing.assert_allclose(a.jacobian, b.jacobian, rtol=1e-12)
         assert a.values == pytest.approx(b.values, rel=1e-13)

@@ -49,6 +49,7 @@ from .._names import (  # the table's rows, SI units
 )
 from .._params import RobotParams
 from .._prb import derived
+from .._programs import cached_program
 from .._robot import Robot
 from .._scenes import SceneOptions, get_scene
 from .._statics import assemble, static_equilibrium
@@ -316,14 +317,14 @@ def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
         jac_args = (x0, setting, diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints))
     label = f"sensitivity-{scene_.name}-{get_model(model).name}"
     t0 = time.perf_counter()
-    value = _compiled(_values, (x0, setting), program_dir, f"{label}-values")
+    value = cached_program(_values, (x0, setting), 0, program_dir, f"{label}-values")
     v = np.asarray(value(x0, setting))
     t1 = time.perf_counter()
     v = np.asarray(value(x0, setting))
     value_run = time.perf_counter() - t1
     value_compile = max(t1 - t0 - value_run, 0.0)
     t2 = time.perf_counter()
-    jac = _compiled(jac_fn, jac_args, program_dir, f"{label}-{mode}")
+    jac = cached_program(jac_fn, jac_args, 0, program_dir, f"{label}-{mode}")
     J = np.asarray(jac(*jac_args))
     t3 = time.perf_counter()
     J = np.asarray(jac(*jac_args))
@@ -349,31 +350,3 @@ def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
                   checkpoints=checkpoints),
         evaluate=lambda x: np.asarray(value(jnp.asarray(x, dtype=jnp.float64), setting)),
     )
-
-
-#: compiled programs of this process, by their function, structure and shapes
-_COMPILED: dict = {}
-
-
-def _compiled(fn, args, program_dir, label):
-    """`fn` (an `eqx.filter_jit` function) compiled for `args`' structure and shapes, kept for
-    later calls in this process; from the program store (`_programs.compiled_program`) when
-    `program_dir` is given. The result is called with arguments of that structure."""
-    dyn, static = eqx.partition(args, eqx.is_array)
-    key = (fn, program_dir, jax.tree_util.tree_structure(static),
-           jax.tree_util.tree_structure(dyn),
-           tuple((x.shape, x.dtype) for x in jax.tree_util.tree_leaves(dyn)))
-    try:
-        run = _COMPILED.get(key)
-    except TypeError:  # an unhashable static part (a model or solver without __hash__)
-        key, run = None, None
-    if run is None:
-        if program_dir is None:
-            run = fn
-        else:
-            from .._programs import compiled_program
-
-            run, _ = compiled_program(fn, args, 0, program_dir, label)
-        if key is not None:
-            _COMPILED[key] = run
-    return run

@@ -267,10 +267,6 @@ def _anonymous(prob: _Problem) -> _Problem:
     return prob
 
 
-#: the stored residual-and-Jacobian programs loaded in this process, by the call's structure
-_STORED: dict = {}
-
-
 def _residual_and_jacobian(prob: _Problem, z):
     """(r (N,), J (N, P) = dr/dz, the simulations' result codes (E,) (0: success; `_succeeded`),
     simulated pose (E, m, 3)) in one compiled forward-mode pass: the fit, the covariance and the
@@ -279,21 +275,12 @@ def _residual_and_jacobian(prob: _Problem, z):
     With `prob.program_dir` the program comes from the program store (`_programs.py`): a later
     process with a problem of the same structure and shapes (another file, other numbers)
     loads it instead of tracing it (the trace is most of a warm fit's wait: 8 s of L2's)."""
-    directory = prob.program_dir
-    prob = _anonymous(prob)
-    if directory is None:
-        return _residual_and_jacobian_jit(prob, z)
-    from ..._programs import compiled_program
+    from ..._programs import cached_program
 
-    dyn, static = eqx.partition((prob, z), eqx.is_array)
-    key = (directory, jax.tree_util.tree_structure(static), jax.tree_util.tree_structure(dyn),
-           tuple((x.shape, x.dtype) for x in jax.tree_util.tree_leaves(dyn)))
-    run = _STORED.get(key)
-    if run is None:
-        # r, J, codes, X: the result's structure is all the store needs (no trace for it)
-        run, _ = compiled_program(_residual_and_jacobian_jit, (prob, z), (0, 0, 0, 0), directory,
-                                  f"identify-{prob.model.name}")
-        _STORED[key] = run
+    directory, prob = prob.program_dir, _anonymous(prob)
+    # r, J, codes, X: the result's structure is all the store needs (no trace for it)
+    run = cached_program(_residual_and_jacobian_jit, (prob, z), (0, 0, 0, 0), directory,
+                         f"identify-{prob.model.name}")
     return run(prob, z)
 
 
