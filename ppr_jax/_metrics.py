@@ -66,6 +66,30 @@ def _safe_sqrt(x, xp):
     return xp.where(pos, xp.sqrt(xp.where(pos, x, 1.0)), 0.0)
 
 
+def _extreme(x, axis, xp, largest: bool):
+    """The max (or min) of x over `axis` (an int or the two last axes), as the element at the
+    arg-max: its derivative is that element's. `jnp.max`'s own derivative spreads the tangent
+    over the elements equal to the result, and XLA may compute the reduction and that equality
+    test from two copies of x that round differently: no element then equals the result and
+    the derivative is 0/0 (seen under LLVM -O0: the end-rotation difference's derivative over
+    the whole paper circle NaN, 1243.15 under -O2). NaN propagates as in `max` (argmax points
+    at it). On the host (numpy) the plain reduction."""
+    if xp is np:
+        return np.max(x, axis=axis) if largest else np.min(x, axis=axis)
+    if isinstance(axis, tuple):  # the two last axes
+        x, axis = x.reshape(*x.shape[:-2], -1), -1
+    i = jnp.argmax(x, axis=axis) if largest else jnp.argmin(x, axis=axis)
+    return jnp.take_along_axis(x, jnp.expand_dims(i, axis), axis=axis).squeeze(axis)
+
+
+def _max(x, axis, xp):
+    return _extreme(x, axis, xp, True)
+
+
+def _min(x, axis, xp):
+    return _extreme(x, axis, xp, False)
+
+
 def _is_circle(trajectory) -> bool:
     return (getattr(trajectory, "center", None) is not None
             and getattr(trajectory, "radius", None) is not None)
@@ -126,42 +150,42 @@ def metric_table(res, trajectory, xp=jnp) -> dict:
         radius = xp.asarray(trajectory.radius)
         er = radial_error(X, trajectory.center, radius, xp)
         out.update(
-            radial_error_max_m=xp.max(er, axis=-1),
-            radial_error_min_m=xp.min(er, axis=-1),
+            radial_error_max_m=_max(er, -1, xp),
+            radial_error_min_m=_min(er, -1, xp),
             radial_error_mean_m=xp.mean(er, axis=-1),
-            radial_error_max_relative_percent=xp.max(xp.abs(er), axis=-1) / radius * 100,
+            radial_error_max_relative_percent=_max(xp.abs(er), -1, xp) / radius * 100,
         )
     dphi = X[..., 2] - Xn[..., 2]
     dpos2 = xp.sum((X[..., :2] - Xn[..., :2]) ** 2, axis=-1)
     dpos = _safe_sqrt(dpos2, xp)
     rot = xp.degrees(xp.asarray(res.end_rot))
     diff = rot[..., 0] - rot[..., 1]
-    scale = xp.maximum(xp.max(xp.abs(rot), axis=(-2, -1)), 1e-300)
+    scale = xp.maximum(_max(xp.abs(rot), (-2, -1), xp), 1e-300)
     E = xp.asarray(res.kinetic) + xp.asarray(res.potential)
     out.update(
-        position_error_max_m=xp.max(dpos, axis=-1),
+        position_error_max_m=_max(dpos, -1, xp),
         position_error_rms_m=_safe_sqrt(xp.mean(dpos2, axis=-1), xp),
         position_error_end_m=dpos[..., -1],
-        phi_error_max_rad=xp.max(xp.abs(dphi), axis=-1),
+        phi_error_max_rad=_max(xp.abs(dphi), -1, xp),
         phi_error_rms_rad=_safe_sqrt(xp.mean(dphi**2, axis=-1), xp),
         phi_error_end_rad=xp.abs(dphi[..., -1]),
-        end_rotation_1_max_deg=xp.max(rot[..., 0], axis=-1),
-        end_rotation_1_min_deg=xp.min(rot[..., 0], axis=-1),
-        end_rotation_2_max_deg=xp.max(rot[..., 1], axis=-1),
-        end_rotation_2_min_deg=xp.min(rot[..., 1], axis=-1),
-        end_rotation_diff_max_deg=xp.max(diff, axis=-1),
-        end_rotation_diff_min_deg=xp.min(diff, axis=-1),
+        end_rotation_1_max_deg=_max(rot[..., 0], -1, xp),
+        end_rotation_1_min_deg=_min(rot[..., 0], -1, xp),
+        end_rotation_2_max_deg=_max(rot[..., 1], -1, xp),
+        end_rotation_2_min_deg=_min(rot[..., 1], -1, xp),
+        end_rotation_diff_max_deg=_max(diff, -1, xp),
+        end_rotation_diff_min_deg=_min(diff, -1, xp),
         end_rotation_diff_mean_deg=xp.mean(diff, axis=-1),
-        end_rotation_diff_max_relative_percent=xp.max(xp.abs(diff), axis=-1) / scale * 100,
-        constraint_residual_max_m=xp.max(xp.asarray(res.residual), axis=-1),
+        end_rotation_diff_max_relative_percent=_max(xp.abs(diff), -1, xp) / scale * 100,
+        constraint_residual_max_m=_max(xp.asarray(res.residual), -1, xp),
         energy_initial_J=E[..., 0],
         energy_final_J=E[..., -1],
-        energy_min_J=xp.min(E, axis=-1),
-        energy_max_J=xp.max(E, axis=-1),
+        energy_min_J=_min(E, -1, xp),
+        energy_max_J=_max(E, -1, xp),
     )
     tau = getattr(res, "tau", None)
     if tau is not None:
-        out["torque_peak_Nm"] = xp.max(xp.abs(xp.asarray(tau)), axis=(-2, -1))
+        out["torque_peak_Nm"] = _max(xp.abs(xp.asarray(tau)), (-2, -1), xp)
     return out
 
 
