@@ -220,8 +220,8 @@ def package(tmp_path_factory):
     _edit(pkg / "_simulate.py", '    "ros34pw2": Ros34PW2,\n', '    "bosh3": diffrax.Bosh3,\n')
     _edit(pkg / "_names.py", '"kvaerno5-kept",\n                "ros34pw2"', ', "bosh3"')
     # a metric: one entry of metric_table, its name in TRACKING_METRICS
-    _edit(pkg / "_metrics.py", "        position_error_max_m=xp.max(dpos, axis=-1),\n",
-          "        x_error_max_m=xp.max(xp.abs(X[..., 0] - Xn[..., 0]), axis=-1),\n",
+    _edit(pkg / "_metrics.py", "        position_error_max_m=_max(dpos, -1, xp),\n",
+          "        x_error_max_m=_max(xp.abs(X[..., 0] - Xn[..., 0]), -1, xp),\n",
           after=False)
     text = (pkg / "_metrics.py").read_text()
     m = re.search(r"TRACKING_METRICS = \(\n", text)
