@@ -429,18 +429,20 @@ def cached_program(fn: Callable, args: tuple, out_template, directory: Optional[
     parts compared by equality): a study calling its program once per iteration looks it up
     instead of keying the store again, and a call with and one without a store share one
     compilation (the two programs differ by rounding only). Call the result with arguments of
-    the structure of `args`."""
+    the structure of `args` and the same static values."""
     dyn, static = eqx.partition(args, eqx.is_array)
-    key = (fn, jax.tree_util.tree_structure(static), jax.tree_util.tree_structure(dyn),
+    # As `eqx.filter_jit` keys its cache: the static leaves' values (a controller's
+    # coefficients, a Python float of a path) as well as the structure and the shapes.
+    static_leaves, static_def = jax.tree_util.tree_flatten(static)
+    key = (fn, static_def, tuple(static_leaves), jax.tree_util.tree_structure(dyn),
            tuple((x.shape, x.dtype) for x in jax.tree_util.tree_leaves(dyn)))
     try:
         run = _CACHED.get(key)
-    except TypeError:  # an unhashable static part (a model or solver without __hash__)
-        key, run = None, None
+    except TypeError:  # an unhashable static leaf: `fn` itself, which keys its own way
+        return fn
     if run is None:
         run, _ = compiled_program(fn, args, out_template, directory, label)
-        if key is not None:
-            _CACHED[key] = run
+        _CACHED[key] = run
     return run
 
 

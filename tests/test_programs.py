@@ -362,3 +362,25 @@ def test_sensitivity_programs_are_stored_and_loaded(tmp_path, monkeypatch):
         np.testing.assert_allclose(a.jacobian, b.jacobian, rtol=1e-12)
         assert a.values == pytest.approx(b.values, rel=1e-13)
     assert abs(usual[1].jacobian[0, 0] / usual[0].jacobian[0, 0] - 1) > 1e-3
+
+
+def test_cached_program_is_keyed_by_static_values(monkeypatch):
+    """`cached_program` reuses a compilation only for the same static values, not merely the
+    same structure and shapes: a Python float among the static leaves (as a controller's
+    coefficients are) is part of the program."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    class Scaled(eqx.Module):
+        k: float  # a static leaf: traced into the program as a constant
+
+    @eqx.filter_jit
+    def fn(m, x):
+        return m.k * x
+
+    monkeypatch.setattr(_programs, "_CACHED", {})
+    x = jnp.ones(3)
+    for k in (2.0, 3.0, 2.0):
+        run = _programs.cached_program(fn, (Scaled(k), x), 0, None, "t")
+        np.testing.assert_array_equal(np.asarray(run(Scaled(k), x)), k * np.ones(3))
+    assert len(_programs._CACHED) == 2
