@@ -80,12 +80,15 @@ def end_condition(ts, values) -> str:
     return "natural" if float(ends.max()) > MOVING_END else "clamped"
 
 
-def _load_bc(source: str, bc: str, ts, values) -> str:
+def _check_bc(source: str, bc: str) -> None:
+    """Raise `DataError` unless `bc` is one of `LOAD_BOUNDARY` (before the file is read)."""
     if bc not in LOAD_BOUNDARY:
         raise DataError(f"{source}: unknown boundary condition bc={bc!r}; allowed: "
                         f"{', '.join(LOAD_BOUNDARY)}")
-    if ts is None:  # checked before the file is read
-        return bc
+
+
+def _load_bc(bc: str, ts, values) -> str:
+    """The ends of a spline through the loaded samples: `bc`, with "auto" resolved."""
     return end_condition(ts, values) if bc == "auto" else bc
 
 
@@ -442,7 +445,7 @@ def load_path(path: str, *, bc: str = "auto", max_gap: Optional[float] = GAP_FAC
     increasing, a gap, a pose far outside the workspace; and whatever `load_csv` refuses
     (columns, units, numbers, encodings).
     """
-    _load_bc(path, bc, None, None)
+    _check_bc(path, bc)
     table = read_columns(path, required=REQUIRED, time_unit=time_unit, length_unit=length_unit,
                          angle_unit=angle_unit, drop_nan=drop_nan)
     col, lines, source = table.columns, table.lines, table.source
@@ -452,7 +455,7 @@ def load_path(path: str, *, bc: str = "auto", max_gap: Optional[float] = GAP_FAC
                    min_samples=max(min_samples, MIN_SPLINE_SAMPLES), what="pose")
     if check_units:
         _check_poses(source, lines, ts, X)
-    return Waypoints(ts, X, _load_bc(source, bc, ts, X), name=source)
+    return Waypoints(ts, X, _load_bc(bc, ts, X), name=source)
 
 
 def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "auto",
@@ -484,7 +487,7 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "auto",
     """
     if kind not in (None, "angles", "torque"):
         raise DataError(f"{path}: kind must be 'angles', 'torque' or None, got {kind!r}")
-    _load_bc(path, bc, None, None)
+    _check_bc(path, bc)
     table = read_columns(path, required=("time",), time_unit=time_unit, angle_unit=angle_unit,
                          torque_unit=torque_unit, drop_nan=drop_nan)
     col, lines, source = table.columns, table.lines, table.source
@@ -519,7 +522,7 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "auto",
             raise DataError(f"{_at(source, 'line', lines, ts, i)}: an actuated angle jumps by "
                             f"{float(step[i - 1]):.4g} rad from line {int(lines[i - 1])}: wrapped "
                             f"at +-pi? unwrap it (numpy.unwrap) before loading")
-    return CommandLog(Waypoints(ts, V, _load_bc(source, bc, ts, V), name=source), kind)
+    return CommandLog(Waypoints(ts, V, _load_bc(bc, ts, V), name=source), kind)
 
 
 def check_same_rate(a, b, *, rtol: float = 0.01) -> float:

@@ -12,7 +12,12 @@ _CACHE = os.environ.get("PPR_TEST_CACHE_DIR", str(ROOT / ".pytest_cache" / "jax"
 if _CACHE != "0":
     os.environ["PPR_JAX_CACHE_DIR"] = _CACHE  # the command line's cache: the same directory
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _CACHE)
-    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    # Programs that compiled in under a second are not kept: the suite compiles about 6,700
+    # programs, most of them eager single operations, and writing each cost more than reading
+    # it back saved (test_kinematics and test_dynamics in one process: 91 s with every program
+    # kept, 86 s with those over 1 s, 84 s with no cache; the suite's cache hits saved -4 s in
+    # all). The console script keeps all of its own (`enable_compilation_cache`).
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
     # a size limit turns on JAX's file lock around reads and writes (two workers, one directory)
     os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(16 * 2**30))
@@ -53,7 +58,8 @@ import ppr_jax as pj  # noqa: E402
 if _CACHE != "0":
     from ppr_jax._cache import enable_compilation_cache  # noqa: E402
 
-    enable_compilation_cache(_CACHE, min_compile_time_s=0.0)
+    enable_compilation_cache(_CACHE, min_compile_time_s=float(
+        os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -121,7 +127,8 @@ if os.environ.get("PPR_TEST_COMPILE_STATS"):
         out.mkdir(parents=True, exist_ok=True)
         t = time.perf_counter()
         yield
-        row = dict(_NOW, test=request.node.nodeid, wall_s=time.perf_counter() - t)
+        row = dict(_NOW, test=request.node.nodeid, wall_s=time.perf_counter() - t,
+                   end=time.time())
         _NOW.clear()
         worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
         with open(out / f"{worker}.jsonl", "a") as f:
@@ -169,7 +176,27 @@ def _run_under_xla_defaults(items):
         return out, proc.stdout[-4000:] + proc.stderr[-4000:]
 
 
+#: each test file's seconds on one worker of the 2-core machine (`scripts/test_durations.py`
+#: writes it from a `PPR_TEST_COMPILE_STATS` run); a file not listed counts as the median
+DURATIONS = ROOT / "tests" / "durations.json"
+
+
+def _longest_files_first(items):
+    """Order the items by their file's duration, longest first (within a file as collected).
+    The suite hands whole files to its two workers in collection order (`--dist loadfile
+    --no-loadscope-reorder`): longest first, the last files handed out are short and the
+    workers finish together. xdist's own order, most tests first, handed out the notebooks
+    (four tests, 90 s) near the end and left one worker idle for a minute."""
+    import json
+    import statistics
+
+    cost = json.loads(DURATIONS.read_text()) if DURATIONS.exists() else {}
+    default = statistics.median(cost.values()) if cost else 0.0
+    items.sort(key=lambda i: -cost.get(i.nodeid.split("::")[0], default))
+
+
 def pytest_collection_modifyitems(config, items):
+    _longest_files_first(items)
     if not _FAST:  # XLA's defaults already: the marked tests run here as they are
         return
     marked = [i for i in items if i.get_closest_marker("xla_defaults") is not None]
