@@ -39,7 +39,8 @@ def main(argv):
                       indent=1)
     (ROOT / "tests" / "durations.json").write_text(text + "\n")
     total = sum(cost.values())
-    print(f"{len(cost)} files, {total:.0f} worker-seconds, at best {total / 2:.0f} s on two workers")
+    print(f"{len(cost)} files, {total:.0f} worker-seconds, at best {total / 2:.0f} s on two "
+          f"workers")
 
 
 if __name__ == "__main__":

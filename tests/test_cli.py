@@ -363,6 +363,34 @@ def test_ctrl_c_is_one_line_naming_what_was_kept(tmp_path, capsys, monkeypatch):
     assert capsys.readouterr().err.splitlines() == ["ppr-jax: interrupted; kept: nothing written"]
 
 
+def test_ctrl_c_swallowed_by_a_library_is_raised_again(tmp_path, capsys, monkeypatch):
+    """A real SIGINT whose KeyboardInterrupt a bare `except:` swallows (JAX's tracing has some)
+    is raised again until the command line catches it: exit 130 and the one line, not a command
+    that runs to its end with Ctrl-C ignored."""
+    import signal
+    import time
+
+    from ppr_jax._cli import _torques
+
+    def swallows(args):
+        try:
+            signal.raise_signal(signal.SIGINT)
+            time.sleep(1.0)
+        except BaseException:  # noqa: BLE001 (a library's bare except)
+            pass
+        for _ in range(50):  # the repeat comes within 0.2 s, and wakes the sleeper
+            time.sleep(0.1)
+            naps.append(1)
+        return 0
+
+    naps = []
+    monkeypatch.setattr(_torques, "cmd_torques", swallows)
+    assert main(["torques", "--out", str(tmp_path / "run")]) == 130
+    assert len(naps) < 50
+    assert capsys.readouterr().err.splitlines() == ["ppr-jax: interrupted; kept: nothing written"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
 def test_sigint_ends_a_running_command_with_one_line(tmp_path):
     """The real signal: `ppr-jax identify` in a subprocess, sent SIGINT once it says it is
     compiling: exit 130, the one line, no traceback. The data must pass identification's checks

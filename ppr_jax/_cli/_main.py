@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
+import threading
 import time
 
 from .._names import T_END
@@ -64,12 +66,51 @@ def main(argv=None) -> int:
     (SIGINT) is one line too, naming what the command had written (`kept_files`), and exit
     status 130 (128 + SIGINT, the shell's convention)."""
     state = {"started": time.time(), "args": None}
+    caught = threading.Event()
+    previous = _insist_on_sigint(caught)
     try:
         return _main(argv, state)
     except KeyboardInterrupt:
+        caught.set()
         print(f"ppr-jax: interrupted; kept: {kept_files(state['args'], state['started'])}",
               file=sys.stderr)
         return 130
+    finally:
+        caught.set()
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
+#: seconds between the repeats of an interrupt not yet caught (`_insist_on_sigint`)
+INTERRUPT_REPEAT_S = 0.2
+
+
+def _insist_on_sigint(caught: threading.Event):
+    """Make Ctrl-C (SIGINT) raise KeyboardInterrupt, and raise it again every
+    `INTERRUPT_REPEAT_S` until `main` has caught it (`caught` set). JAX's tracing runs code under
+    bare `except:` clauses (dtype and hashability probes); a KeyboardInterrupt raised inside one
+    is swallowed, and the command then ran to its end, Ctrl-C ignored (seen in the suite's run
+    of `ppr-jax identify`). Returns the SIGINT handler replaced, or None where none can be set
+    (not the main thread)."""
+    repeating = []
+
+    main = threading.main_thread().ident
+
+    def repeat():
+        # a signal, not `_thread.interrupt_main`: it also wakes a main thread that sleeps
+        while not caught.wait(INTERRUPT_REPEAT_S):
+            signal.pthread_kill(main, signal.SIGINT)
+
+    def on_sigint(signum, frame):
+        if not repeating:
+            repeating.append(threading.Thread(target=repeat, daemon=True))
+            repeating[0].start()
+        raise KeyboardInterrupt
+
+    try:
+        return signal.signal(signal.SIGINT, on_sigint)
+    except ValueError:  # signal handlers belong to the main thread
+        return None
 
 
 #: kept_files names at most this many files, then counts the rest
