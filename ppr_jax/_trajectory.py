@@ -73,6 +73,12 @@ class Interpolated(eqx.Module):
         coeffs = diffrax.backward_hermite_coefficients(ts, ys)
         self.interp = diffrax.CubicInterpolation(ts, coeffs)
 
+    @property
+    def breakpoints(self) -> Float[Array, " m"]:
+        """The sample times ts (s), where the second derivative jumps (an integrator steps to
+        them, `SceneInput.step_ts`)."""
+        return self.interp.ts
+
     def __call__(self, t):
         return self.interp.evaluate(t)
 

@@ -223,9 +223,15 @@ class AbstractScene(eqx.Module):
         """
         ts = options.times() if ts is None else ts
         traj = options.trajectory
-        inp = (self.commands(model, robot, traj, ts, options.panels) if actuation is None
-               else SceneInput(actuation, coarse=input_too_coarse(
-                   getattr(actuation, "torque", getattr(actuation, "angles", None)))))
+        if actuation is None:
+            inp = self.commands(model, robot, traj, ts, options.panels)
+        else:
+            fn = getattr(actuation, "torque", getattr(actuation, "angles", None))
+            # Stepped to the given input's own knots (a log's samples), or else to the path's
+            # (where an input computed from it kinks), as the scene's own commands are.
+            knots = breakpoints(fn)
+            inp = SceneInput(actuation, coarse=input_too_coarse(fn),
+                             step_ts=breakpoints(traj) if knots is None else knots)
         act = inp.actuation
         # the pose, its rates and accelerations that the start takes (the path's by default)
         start = self.start_trajectory(traj)
