@@ -88,10 +88,13 @@ INTERRUPT_REPEAT_S = 0.2
 def _insist_on_sigint(caught: threading.Event):
     """Make Ctrl-C (SIGINT) raise KeyboardInterrupt, and raise it again every
     `INTERRUPT_REPEAT_S` until `main` has caught it (`caught` set). JAX's tracing runs code under
-    bare `except:` clauses (dtype and hashability probes); a KeyboardInterrupt raised inside one
-    is swallowed, and the command then ran to its end, Ctrl-C ignored (seen in the suite's run
-    of `ppr-jax identify`). Returns the SIGINT handler replaced, or None where none can be set
-    (not the main thread)."""
+    bare `except:` clauses (`operator.index` probes of every shape); a KeyboardInterrupt raised
+    inside one is swallowed, and the command would run to its end with Ctrl-C ignored. A SIGINT
+    ignored by whoever started the process (a shell's background job) stays ignored, as Python
+    leaves it. Returns the SIGINT handler replaced, or None where none is set (ignored, or not
+    the main thread)."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        return None
     repeating = []
 
     main = threading.main_thread().ident
