@@ -416,13 +416,16 @@ def test_sigint_ends_a_running_command_with_one_line(tmp_path):
     data = example_path()
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = dict(os.environ, PPR_JAX_CACHE="0", PYTHONPATH=root)
-    proc = subprocess.Popen([sys.executable, "-m", "ppr_jax_cli", "identify", "--data",
-                             str(data), "--out", str(tmp_path / "fit")],
-                            stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
-                            cwd=root,
-                            # as from a terminal: a suite started as a shell's background job
-                            # ignores SIGINT, and a child would inherit that
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    # As from a terminal: a suite started as a shell's background job ignores SIGINT, and a
+    # child inherits an ignored signal (a handler is reset to the default at exec).
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "ppr_jax_cli", "identify", "--data",
+                                 str(data), "--out", str(tmp_path / "fit")],
+                                stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                                env=env, cwd=root)
+    finally:
+        signal.signal(signal.SIGINT, before)
     try:
         seen = []
         while not seen or ("compiling" not in seen[-1] and seen[-1]):

@@ -334,6 +334,14 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
     assert "measured" in pj.identify(exp, ("t", "K_theta"), scene=SC, model="double1r",
                                      initial=start, noise=NOISE, initial_state="pose-velocity",
                                      max_iter=1, starts=1, force=True).actuation
+    # max_iter=0: no step, the statistics at the initial values (a fit only lowers the cost)
+    at_start = pj.identify(exp, ("t", "K_theta"), scene=SC, model="double1r", initial=start,
+                           noise=NOISE, initial_state="pose-velocity", max_iter=0, force=True)
+    assert at_start.history["iterations"] == 0, at_start.history
+    assert "no step" in at_start.history["stop"]
+    # (to the round trip through the fit's log coordinates)
+    np.testing.assert_allclose(at_start.estimate, [start["t"], start["K_theta"]], rtol=1e-14)
+    assert at_start.sigma2 > fit.sigma2
 
 
 def test_profile_likelihood(truth, clean, fits):
@@ -417,7 +425,8 @@ def _still_experiment(n=20):
     (dict(loss_scale=0.0), r"loss_scale = 0.0 is out of its allowed range \(0, 1e\+06\] "
                            r"noise units"),
     (dict(loss_scale=float("inf")), r"loss_scale must be finite"),
-    (dict(max_iter=0), r"max_iter = 0 is out of its allowed range \[1, 100000\]"),
+    (dict(max_iter=-1), r"max_iter = -1 is out of its allowed range \[0, 100000\]"),
+    (dict(max_iter=0, solver="optimistix-gn"), r"max_iter = 0 \(no step.*needs solver='lm'"),
     (dict(xtol="1e-8"), r"xtol must be a number"),
     (dict(ftol=-1.0), r"ftol = -1.0 is out of its allowed range \[0, 1\]"),
     (dict(stat_tol=float("nan")), r"stat_tol must be finite"),

@@ -116,7 +116,7 @@ def _levenberg_marquardt(prob, z0, max_iter, xtol, ftol, stat_tol, free=None, fi
     lam = 1e-3  # dimensionless: the damping term is lam * diag(J^T J) (Marquardt's scaling)
     nu = 2.0
     costs = [cost]
-    n_eval, it, reason = 1, 0, "max_iter"
+    n_eval, it, reason = 1, 0, "max_iter" if max_iter > 0 else "no step (max_iter = 0)"
     for it in range(1, max_iter + 1):
         Jf = J[:, sel]
         g = Jf.T @ r

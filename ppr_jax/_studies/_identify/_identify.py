@@ -211,7 +211,9 @@ def identify(
     - `max_iter`, `xtol`, `ftol`, `stat_tol`: stop when the step in z or the relative cost
         change is below `xtol`, `ftol`; "lm" also stops when an accepted step is shorter than
         `stat_tol` standard errors (measured with the information matrix J^T J / s^2, so that
-        steps along undetermined directions do not count).
+        steps along undetermined directions do not count). `max_iter=0` takes no step: the
+        result is the statistics (residuals, s, covariance) at the initial values (solver "lm",
+        one start), how well given parameters (a table's, a datasheet's) explain the data.
     - `ode_solver`, `rtol`, `atol`, `max_steps`: the simulation's (default the model's solver
         and tolerances, `AbstractModel.default_solver`, `default_rtol`, `default_atol`, and the
         scenes' step budget).
@@ -255,7 +257,7 @@ def identify(
     **Raises:**
 
     `IdentificationError` for unknown or fixed names that are not leaves, a numeric option out
-    of its range (loss_scale in (0, 1e6], max_iter in [1, 1e5], xtol and ftol in [0, 1],
+    of its range (loss_scale in (0, 1e6], max_iter in [0, 1e5], xtol and ftol in [0, 1],
     stat_tol in [0, 1e3], rtol in [1e-14, 1e-2], atol in [1e-16, 1e-2], max_steps in
     [1, 1e9], seed in [0, 2^63 - 1]; checked before anything is compiled), bounds outside the
     physical range, an initial value outside its bounds, a bad option (naming it and its
@@ -296,6 +298,10 @@ def identify(
         raise IdentificationError(f"unknown loss {loss!r}; allowed: {', '.join(LOSSES)}")
     if solver not in SOLVERS:
         raise IdentificationError(f"unknown solver {solver!r}; allowed: {', '.join(SOLVERS)}")
+    if max_iter == 0 and (solver != "lm" or starts not in ("auto", 1)):
+        raise IdentificationError(
+            f"max_iter = 0 (no step: the statistics at the initial values) needs solver='lm' "
+            f"and one start, got solver={solver!r}, starts={starts!r}")
     names = tuple(unknowns)
     if not names:
         raise IdentificationError("no unknown given; choose among " + ", ".join(PARAM_RANGES))
@@ -489,7 +495,7 @@ def identify(
     guess = (lambda z: _initial_state_guess(prob, z, mask)) if n_init else None
     given = fit_one(z0, (r0, J0, ok0, X0, pre_s))
     escalation = None
-    if starts == "auto":
+    if starts == "auto" and max_iter > 0:
         why = _escalation_reason(prob, given[0], n_res - n_unknown)
         if why:
             z, hist = _multi_start(prob, z0, AUTO_STARTS, seed, fit_one, guess,
@@ -501,7 +507,7 @@ def identify(
                                   f"the given start; the lowest cost wins"}
         else:
             z, hist = given
-    elif starts > 1:
+    elif starts != "auto" and starts > 1:
         z, hist = _multi_start(prob, z0, int(starts), seed, fit_one, guess, given=given)
     else:
         z, hist = given
@@ -585,7 +591,7 @@ def _check_solver_args(loss_scale, max_iter, xtol, ftol, stat_tol, rtol, atol, m
     from ..._errors import PPRError, check_number
 
     checks = [("loss_scale", loss_scale, 0.0, 1e6, "noise units", False, True),
-              ("max_iter", max_iter, 1, 100_000, "", True, False),
+              ("max_iter", max_iter, 0, 100_000, "", True, False),
               ("xtol", xtol, 0.0, 1.0, "", False, False),
               ("ftol", ftol, 0.0, 1.0, "", False, False),
               ("stat_tol", stat_tol, 0.0, 1e3, "standard errors", False, False),
