@@ -506,7 +506,7 @@ def suite_goal(log_path: str, commit: str, others=()) -> dict:
         g["bound"] = (f"{wall:.0f} s against the goal's {SUITE_BASE['wall_s'] / 3:.0f} s with "
                       f"{tests} tests against the base's {SUITE_BASE['tests']} ("
                       f"{spread[0]:.0f}-{spread[-1]:.0f} s in {len(spread)} runs of nearly the "
-                      f"same suite within the hour: the machine's speed varies); the two "
+                      f"same suite on one afternoon: the machine's speed varies); the two "
                       f"workers finish within 5-25 s of each other (files handed out longest "
                       f"first), so the bound is the work: XLA compilation about half of it, "
                       f"tracing a third, one distinct program per test setting (no large "
