@@ -59,6 +59,17 @@ class SceneInput(eqx.Module):
     step_ts: Optional[Array] = None
 
 
+def step_times(fn, traj) -> Optional[Array]:
+    """The times (k,) (s) a run driven by `fn` along `traj` steps to (`SceneInput.step_ts`):
+    fn's own knots where it has them (a command log's samples: `PiecewiseCubic`,
+    `Interpolated`), else the path's (an input computed from the path kinks where the path's
+    third derivative jumps); None where neither has any. One rule for a scene's own commands
+    and for an input given to `AbstractScene.run` (identification's), so that both runs step
+    alike."""
+    knots = breakpoints(fn)
+    return breakpoints(traj) if knots is None else knots
+
+
 def tabulated(fn, ts, panels: int):
     """(table, coarse, out_of_reach): the input `fn` (an `InverseDynamicsTorque` or
     `InverseKinematicsAngles`) tabulated over the output times `ts` and the quasi-static
@@ -96,10 +107,11 @@ def torque_input(input_model, robot, traj, ts, panels: int) -> SceneInput:
     """`input_model`'s inverse-dynamics torques along `traj`, tabulated over `ts`, with the
     path's reach, the table's fineness and the path's type-II singularities checked (where
     the torques are unbounded)."""
-    torque, coarse, out = tabulated(InverseDynamicsTorque(input_model, robot, traj), ts, panels)
+    fn = InverseDynamicsTorque(input_model, robot, traj)
+    torque, coarse, out = tabulated(fn, ts, panels)
     return SceneInput(TorqueDriven(torque), out_of_reach=out, coarse=coarse,
                       singular=path_singular_at(input_model, robot, traj, ts),
-                      step_ts=breakpoints(traj))
+                      step_ts=step_times(fn, traj))
 
 
 def motion_input(model, input_model, robot, traj, ts, panels: int) -> SceneInput:
@@ -112,7 +124,7 @@ def motion_input(model, input_model, robot, traj, ts, panels: int) -> SceneInput
                           out_of_reach=path_out_of_reach(input_model, robot, traj, ts))
     table, coarse, out = tabulated(angles, ts, panels)
     return SceneInput(MotionDriven(table), out_of_reach=out, coarse=coarse,
-                      step_ts=breakpoints(traj))
+                      step_ts=step_times(angles, traj))
 
 
 def stepping_to(controller, step_ts):
@@ -227,11 +239,8 @@ class AbstractScene(eqx.Module):
             inp = self.commands(model, robot, traj, ts, options.panels)
         else:
             fn = getattr(actuation, "torque", getattr(actuation, "angles", None))
-            # Stepped to the given input's own knots (a log's samples), or else to the path's
-            # (where an input computed from it kinks), as the scene's own commands are.
-            knots = breakpoints(fn)
             inp = SceneInput(actuation, coarse=input_too_coarse(fn),
-                             step_ts=breakpoints(traj) if knots is None else knots)
+                             step_ts=step_times(fn, traj))
         act = inp.actuation
         # the pose, its rates and accelerations that the start takes (the path's by default)
         start = self.start_trajectory(traj)

@@ -9,8 +9,14 @@ import equinox as eqx
 from .._actuation import MotionDriven, TorqueDriven
 from .._errors import PPRError
 from .._models import AbstractModel, Reduced
-from .._tabulated import breakpoints
-from ._base import AbstractScene, SceneInput, motion_input, path_out_of_reach, torque_input
+from ._base import (
+    AbstractScene,
+    SceneInput,
+    motion_input,
+    path_out_of_reach,
+    step_times,
+    torque_input,
+)
 
 #: the drives a `PathScene` runs
 DRIVES = ("torque", "motion")
@@ -91,7 +97,7 @@ class PathScene(AbstractScene):
             # A log's own samples are its table; the nominal path's reach is still checked.
             return SceneInput(act, out_of_reach=path_out_of_reach(self.input_model, robot, traj,
                                                                   ts),
-                              step_ts=breakpoints(self.command_log))
+                              step_ts=step_times(self.command_log, traj))
         if self.drive == "motion":
             return motion_input(model, self.input_model, robot, traj, ts, panels)
         return torque_input(self.input_model, robot, traj, ts, panels)
