@@ -335,8 +335,9 @@ def test_identification_program_is_stored_and_loaded(tmp_path, monkeypatch):
 
 
 def test_sensitivity_programs_are_stored_and_loaded(tmp_path, monkeypatch):
-    """`sensitivity(program_dir=...)` (the command line passes its store): the metrics' and
-    the Jacobian's programs are exported once; a later call of the same setting, at another
+    """`sensitivity(program_dir=...)` (the command line passes its store): the Jacobian's
+    program (which gives the metrics' values too) is exported once, and the metrics' own
+    program only when `evaluate` is first called; a later call of the same setting, at another
     nominal robot, loads them without tracing (export made to fail), and every result equals
     the usual compile's."""
     kw = dict(model="rigid", parameters=("t", "gamma"), metrics=("radial_error_max_m",),
@@ -349,7 +350,11 @@ def test_sensitivity_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     monkeypatch.setattr(_programs, "_CACHED", {})
     stored = pj.sensitivity("paper-circle", p0, program_dir=d, **kw)
     files = sorted(pathlib.Path(d).glob("sensitivity-*.jaxexport"))
-    assert len(files) == 2, sorted(os.listdir(d))  # the values and the forward Jacobian
+    assert len(files) == 1, sorted(os.listdir(d))  # the forward Jacobian, values its primal
+    x0 = [stored.param_values[n] for n in stored.parameters]
+    assert stored.evaluate(x0) == pytest.approx(list(stored.values.values()), rel=1e-13)
+    files = sorted(pathlib.Path(d).glob("sensitivity-*.jaxexport"))
+    assert len(files) == 2, sorted(os.listdir(d))  # and now the values' own program
 
     def no_export(*a, **k):
         raise AssertionError("traced and exported again instead of loading the stored program")
@@ -357,6 +362,7 @@ def test_sensitivity_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     monkeypatch.setattr(_programs, "_CACHED", {})
     monkeypatch.setattr(_programs, "_export", no_export)
     loaded = [pj.sensitivity("paper-circle", p, program_dir=d, **kw) for p in (p0, p1)]
+    assert loaded[0].evaluate(x0) == pytest.approx(list(stored.values.values()), rel=1e-13)
     assert sorted(pathlib.Path(d).glob("sensitivity-*.jaxexport")) == files
     for a, b in zip([stored, *loaded], [usual[0], *usual]):
         np.testing.assert_allclose(a.jacobian, b.jacobian, rtol=1e-12)
