@@ -370,9 +370,17 @@ LEVERS = {
         "116.8 s against 120.1 s on four heavy files in one process), the persistent cache for "
         "every program (91 s against 86 s), the notebooks in the test process instead of a "
         "subprocess each (a process's imports take 0.9 s: 5 s of the suite's 1,260 "
-        "worker-seconds). Remaining: fewer distinct programs, tests sharing one setting's "
-        "compiled run (shapes, solver and options), and smaller programs (the implicit "
-        "solvers' full L3, 17-26 s of XLA time per solver in test_implicit)"),
+        "worker-seconds); a third worker (a .ci/run, install included, used 185 % of the two "
+        "cores: 1,302 CPU-s in 700 s, so the two workers keep both busy). Read in equinox's "
+        "source and not taken: the implicit solvers' right-hand side under noinline (diffrax's "
+        "2022 lever) lowers to a host callback, a separately compiled function called from "
+        "Python at every evaluation, which jax.export cannot store and which costs a host "
+        "round trip per right-hand side. Taken since: a sensitivity is one program (the "
+        "Jacobian's primal gives the values; a separate values program was 2 s of tracing "
+        "and 2 s of XLA time). "
+        "Remaining: fewer distinct programs, tests sharing one setting's compiled run (shapes, "
+        "solver and options), and smaller programs (the implicit solvers' full L3, 17-26 s of "
+        "XLA time per solver in test_implicit, its quasi-static start compiled into each)"),
     "cold_compile_new_over_base": (
         "taken: the command line compiles with XLA's CPU loop emitters on jaxlib 0.10 "
         "(--xla_cpu_use_fusion_emitters=false, ppr_jax/_devices.py), 40-55 % less XLA time at "
@@ -389,7 +397,9 @@ LEVERS = {
         "would be shared between models and processes, 1.5-3 s of each model's XLA time after "
         "the first model (compile_budget.json's parts compiled apart and chained give the whole "
         "program's poses to 0.0 m, so the split need not move a number), but not the first "
-        "model's cold compilation"),
+        "model's cold compilation. equinox's noinline for the right-hand side (diffrax's lever "
+        "for implicit solvers) lowers to a host callback, which the program store cannot "
+        "export (read in equinox 0.13.8's source): not taken"),
     "warm_over_cold_wall": (
         "the warm process loads the program's executable (no trace, lowering or compilation); "
         "what is left is the interpreter and its imports (jax, equinox, diffrax, which the "
