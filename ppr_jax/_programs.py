@@ -257,8 +257,25 @@ def _compile(exported, leaves):
     persistent-cache hit meanwhile, in any thread: then an executable may be stored)."""
     _listen()
     before = _HITS[0]
-    compiled = jax.jit(exported.call).lower(*leaves).compile()
+    compiled = _caller(exported).lower(*leaves).compile()
     return compiled, _HITS[0] == before
+
+
+def _caller(exported):
+    """`jax.jit(exported.call)`; for a program split over n devices (a sweep's chunk under
+    `shard_map`), on the first n local devices, its inputs and outputs replicated there (the
+    program splits the batch itself). Raises `NotExportable` where there are fewer devices."""
+    n = exported.nr_devices
+    if n <= 1:
+        return jax.jit(exported.call)
+    devices = jax.local_devices()[:n]
+    if len(devices) < n:
+        raise NotExportable(f"the program runs on {n} devices; this process has "
+                            f"{len(devices)}")
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    everywhere = NamedSharding(Mesh(devices, ("d",)), PartitionSpec())
+    return jax.jit(exported.call, in_shardings=everywhere, out_shardings=everywhere)
 
 
 def _trees(n_in: int, n_out: int):

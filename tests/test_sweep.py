@@ -29,8 +29,54 @@ CHUNK = 4
 
 
 @pytest.fixture(scope="module")
-def swept():
-    return pj.sweep("paper-circle", vary=VARY, chunk_size=CHUNK, max_steps=MAX_STEPS, **KW)
+def program_dir(tmp_path_factory):
+    return str(tmp_path_factory.mktemp("programs"))
+
+
+@pytest.fixture(scope="module")
+def swept(program_dir):
+    """The module's sweep, through a program store as the command line runs it: its chunk
+    programs are exported and compiled from the stored form (checked against single runs
+    below); the sweeps without a store compile as usual."""
+    return pj.sweep("paper-circle", vary=VARY, chunk_size=CHUNK, max_steps=MAX_STEPS,
+                    program_dir=program_dir, **KW)
+
+
+def _no_export(*a, **k):
+    raise AssertionError("traced and exported again instead of loading the stored program")
+
+
+def _same_rows(rows, ref_rows):
+    assert len(rows) == len(ref_rows)
+    for r, ref in zip(rows, ref_rows):
+        assert set(r) == set(ref)
+        for k, v in ref.items():
+            assert r[k] == v or (isinstance(v, float) and np.isnan(v) and np.isnan(r[k])), k
+
+
+def test_a_stored_sweep_program_is_loaded_not_traced(swept, program_dir, monkeypatch):
+    """The fixture stored one program per group (equal links or not). A later sweep of the
+    same setting loads them without tracing (export made to fail): the same rows, bit for bit
+    (the same executable); and at other values of the varied parameters (the robot's
+    parameters are the program's inputs), rows of those values."""
+    import pathlib
+
+    from ppr_jax import _programs
+
+    files = sorted(pathlib.Path(program_dir).glob("sweep-*.jaxexport"))
+    assert len(files) == 2, sorted(os.listdir(program_dir))
+    monkeypatch.setattr(_programs, "_CACHED", {})
+    monkeypatch.setattr(_programs, "_export", _no_export)
+    again = pj.sweep("paper-circle", vary=VARY, chunk_size=CHUNK, max_steps=MAX_STEPS,
+                     program_dir=program_dir, **KW)
+    _same_rows(again.rows, swept.rows)
+    other = dict(VARY, t=[0.26e-3, 0.3e-3, 0.34e-3])
+    moved = pj.sweep("paper-circle", vary=other, chunk_size=CHUNK, max_steps=MAX_STEPS,
+                     program_dir=program_dir, **KW)
+    assert [r["t"] for r in moved.rows[::4]] == other["t"]
+    ok = [r for r in moved.rows if r["status"] == "ok"]
+    assert ok and all(np.isfinite(r["radial_error_max_m"]) for r in ok)
+    assert sorted(pathlib.Path(program_dir).glob("sweep-*.jaxexport")) == files
 
 
 def test_grid_order_and_columns(swept):
@@ -167,24 +213,37 @@ SHARDED = textwrap.dedent(
     import jax
     import ppr_jax as pj
     assert len(jax.devices()) == 2, jax.devices()
-    kw, vary, chunk, max_steps = json.loads(sys.argv[1])
+    kw, vary, chunk, max_steps, store = json.loads(sys.argv[1])
     r = pj.sweep("paper-circle", vary=vary, chunk_size=chunk, max_steps=max_steps,
-                 devices=jax.devices(), **kw)
-    print(json.dumps(r.rows))
+                 devices=jax.devices(), program_dir=store, **kw)
+    # the stored two-device programs, loaded (no trace) and run again
+    from ppr_jax import _programs
+    _programs._CACHED.clear()
+    def no_export(*a, **k):
+        raise AssertionError("traced and exported again instead of loading")
+    _programs._export = no_export
+    again = pj.sweep("paper-circle", vary=vary, chunk_size=chunk, max_steps=max_steps,
+                     devices=jax.devices(), program_dir=store, **kw)
+    print(json.dumps([r.rows, again.rows]))
     """
 )
 
 
-def test_sharded_sweep_equals_unsharded(swept):
+def test_sharded_sweep_equals_unsharded(swept, tmp_path):
     """The same sweep split over two host devices (shard_map, a local vmap on each) in a fresh
-    process, member by member against the unsharded fixture."""
+    process, through a program store as the command line runs it (its two-device programs
+    exported, then loaded and run again without tracing), member by member against the
+    unsharded fixture."""
     env = env_with_devices(2)
     proc = subprocess.run(
-        [sys.executable, "-c", SHARDED, json.dumps([KW, VARY, CHUNK, MAX_STEPS])],
+        [sys.executable, "-c", SHARDED,
+         json.dumps([KW, VARY, CHUNK, MAX_STEPS, str(tmp_path / "programs")])],
         capture_output=True, text=True, timeout=600, env=env,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    rows = json.loads(proc.stdout.strip().splitlines()[-1])
+    rows, again = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert len(list((tmp_path / "programs").glob("sweep-*-2dev-*.jaxexport"))) == 2
+    _same_rows(again, rows)
     assert len(rows) == len(swept.rows)
     for r, ref in zip(rows, swept.rows):
         assert r["status"] == ref["status"] and r["reason"] == ref["reason"]
@@ -198,11 +257,11 @@ def test_chunked_members_equal_the_plain_vmap(swept, monkeypatch):
     """With chunks of members smaller than a sweep chunk (the scenes' `MEMBER_CHUNK`, here 3 of
     a sweep chunk of 4: a loop over a chunk of 3 and a remainder of 1), every member, failures
     included, equals the plain-vmap sweep of the fixture."""
+    import ppr_jax._programs as programs
     import ppr_jax._scenes._batch as scenes
-    import ppr_jax._studies._sweep as sweep_mod
 
     monkeypatch.setattr(scenes, "MEMBER_CHUNK", 3)
-    monkeypatch.setattr(sweep_mod, "_PROGRAMS", {})  # trace again with the patched chunk
+    monkeypatch.setattr(programs, "_CACHED", {})  # trace again with the patched chunk
     again = pj.sweep("paper-circle", vary=VARY, chunk_size=CHUNK, max_steps=MAX_STEPS, **KW)
     assert len(again.rows) == len(swept.rows)
     for r, ref in zip(again.rows, swept.rows):

@@ -128,6 +128,7 @@ def cmd_sweep(args):
         t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol, atol=args.atol,
         max_steps=args.max_steps, chunk_size=args.chunk, devices=devices,
         checkpoint_dir=os.path.join(args.out, "chunks"), progress=True,
+        program_dir=getattr(args, "program_dir", None),
     )
     _write_rows(os.path.join(args.out, "sweep.csv"), res.rows, res.columns)
     written = ["sweep.csv"]

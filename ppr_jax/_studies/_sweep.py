@@ -39,6 +39,7 @@ from .._kinematics import REACH_TOL, SINGULAR_TOL, ik_solve
 from .._metrics import CIRCLE_METRICS, TRACKING_METRICS, metric_table, path_metrics
 from .._models import get_model
 from .._params import PARAM_RANGES, RobotParams, stack_params
+from .._programs import cached_program
 from .._robot import Robot
 from .._scenes import (
     T_END,
@@ -211,35 +212,26 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
 # ---------------------------------------------------------------------------------------------
 
 
-def _program(scene, model, options, robot_static, devices):
-    """jit(f)(robot_arrays, rtol, atol) -> ({metric: (B,)}, result codes (B,), num_steps (B,)).
-
-    `options`: prepared `SceneOptions` (their tolerances replaced by the program's inputs).
-    Members are mapped as the scenes' batches are (`map_members`: vmapped chunks, split over
-    `devices` by `shard_map` when there are several): adaptive steps never synchronise across
-    devices."""
-
-    def member(robot_dyn, rtol, atol):
-        robot = eqx.combine(robot_dyn, robot_static)
-        opts = eqx.tree_at(lambda o: o.controller, options,
-                           default_controller(options.solver, rtol, atol))
-        res = scene.run(model, robot, opts)
-        return traced_metrics(res, opts.trajectory), result_code(res.result), res.num_steps
-
-    return jax.jit(map_members(member, devices or ()))
+def _member(robot_dyn, robot_static, scene, model, options, rtol, atol):
+    """One member's (metrics, result code, steps) at tolerances (rtol, atol)."""
+    robot = eqx.combine(robot_dyn, robot_static)
+    opts = eqx.tree_at(lambda o: o.controller, options,
+                       default_controller(options.solver, rtol, atol))
+    res = scene.run(model, robot, opts)
+    return traced_metrics(res, opts.trajectory), result_code(res.result), res.num_steps
 
 
-_PROGRAMS: dict = {}
+@eqx.filter_jit
+def _chunk_program(robot, scene, model, options, rtol, atol, devices):
+    """A chunk's ({metric: (B,)}, result codes (B,), num_steps (B,)) for the batched `robot`.
 
-
-def _get_program(key, *args):
-    try:
-        hash(key)
-    except TypeError:
-        return _program(*args)
-    if key not in _PROGRAMS:
-        _PROGRAMS[key] = _program(*args)
-    return _PROGRAMS[key]
+    `options`: prepared `SceneOptions` (their tolerances replaced by the program's inputs
+    `rtol`, `atol`). Members are mapped as the scenes' batches are (`map_members`: vmapped
+    chunks, split over `devices` by `shard_map` when there are several): adaptive steps never
+    synchronise across devices. Every array of the arguments is an input, so one program serves
+    any values of the same shapes; the command line keeps it in its program store."""
+    dyn, static = eqx.partition(robot, eqx.is_array)
+    return map_members(_member, devices)(dyn, static, scene, model, options, rtol, atol)
 
 
 def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
@@ -330,12 +322,6 @@ def _plain(v):
     return v if v is None or isinstance(v, (int, str)) else float(v)
 
 
-def _static_fields(params) -> tuple:
-    """The static (non-array) choices of `RobotParams` (elbow, joint geometry, ...)."""
-    return tuple((f.name, getattr(params, f.name)) for f in dataclasses.fields(params)
-                 if isinstance(getattr(params, f.name), (int, str)))
-
-
 def _failed_row(i, members, names, reason, metrics):
     return {"member": int(i), **{k: float(members[k][i]) for k in names}, "status": "failed",
             "reason": reason, **{k: float("nan") for k in metrics}, "result_code": -1,
@@ -383,6 +369,7 @@ def sweep(
     devices: Optional[Sequence] = None,
     checkpoint_dir: Optional[str] = None,
     progress: Union[bool, Callable] = False,
+    program_dir: Optional[str] = None,
 ) -> SweepResult:
     """Run `scene` over a design of parameter values and return a `SweepResult` table.
 
@@ -405,7 +392,10 @@ def sweep(
     their number); default one device.
     `checkpoint_dir`: each finished chunk's rows are written there, and a rerun with the same
     settings loads them instead of running them again (resume). `progress`: True for a bar on
-    stderr, or a callable `f(done, total)`.
+    stderr, or a callable `f(done, total)`. `program_dir`: a directory of stored programs (as
+    `run_scene`'s; the command line's): the chunk's program is exported there once and loaded
+    by later processes, which skip tracing it; None: compiled in this process (and kept for
+    later sweeps of the same setting and shapes).
     """
     scene_ = get_scene(scene, torque_model)
     base = scene_.default_params() if base_params is None else base_params
@@ -478,27 +468,17 @@ def sweep(
     update(len(rows))
 
     tol = (options.rtol, options.atol)
-    fns = {}
-
-    def program(equal, i0):
-        if equal not in fns:
-            sample = Robot(stack_params([plist[i0]] * chunk_size), equal_links=equal)
-            robot_static = eqx.partition(sample, eqx.is_array)[1]
-            key = (eqx.tree_pformat(scene_, short_arrays=False), model_, options.n_out,
-                   float(options.t_end), type(options.solver), options.max_steps, equal,
-                   _static_fields(base), chunk_size, tuple(devices or ()),
-                   eqx.tree_pformat(traj, short_arrays=False),
-                   tuple(sorted(n for n in ("gamma", "rho", "K_theta")
-                                if getattr(base, n) is None and n not in names)))
-            fns[equal] = _get_program(key, scene_, model_, options, robot_static, devices)
-        return fns[equal]
+    dev = tuple(devices or ())
+    template = ({m: 0 for m in metric_names}, 0, 0)
+    label = f"sweep-{scene_.name}-{model_.name}-{len(dev) or 1}dev"
 
     def run(equal, idx):
-        fn = program(equal, idx[0])
         members_p = [plist[i] for i in idx] + [plist[idx[0]]] * (chunk_size - len(idx))
-        robot = Robot(stack_params(members_p), equal_links=equal)
-        dyn = eqx.partition(robot, eqx.is_array)[0]
-        out, codes, steps = fn(dyn, *tol)
+        args = (Robot(stack_params(members_p), equal_links=equal), scene_, model_, options,
+                *tol, dev)
+        # one compilation per group (equal links or not) and shape, kept for later chunks
+        fn = cached_program(_chunk_program, args, template, program_dir, label)
+        out, codes, steps = fn(*args)
         out = {k: np.asarray(v) for k, v in out.items()}
         return out, np.asarray(codes), np.asarray(steps)
 
