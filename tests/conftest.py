@@ -76,6 +76,18 @@ def _release_compiled_code():
     clear_cached_programs()
 
 
+@pytest.fixture(autouse=True)
+def _keep_the_suites_cache_threshold():
+    """The command line called in a test (`main([...])`) sets JAX's persistent-cache threshold
+    to 0 for its process (`enable_compilation_cache`: a command keeps all of its programs); in
+    a test worker that would last for every later test file, each writing its thousands of
+    small programs. The suite's threshold is restored after each test."""
+    before = jax.config.jax_persistent_cache_min_compile_time_secs
+    yield
+    if jax.config.jax_persistent_cache_min_compile_time_secs != before:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+
+
 @pytest.fixture(scope="session")
 def params():
     """Table 1 defaults, t = 0.3 mm."""

@@ -126,3 +126,17 @@ def env_with_devices(devices=None):
     if devices is not None:
         flags.append(f"{name}={int(devices)}")
     return dict(os.environ, XLA_FLAGS=" ".join(flags))
+
+
+def suite_program_dir():
+    """The program store the command line uses in the suite (`PROGRAM_SUBDIR` of the suite's
+    cache, `conftest.py`), or None where the suite runs without a cache. A test that runs a
+    setting a command-line test runs too passes it to `run_scene(program_dir=...)`: whichever
+    runs first, on either worker, exports the program; the other loads it, neither tracing nor
+    compiling."""
+    import os
+
+    from ppr_jax._programs import PROGRAM_SUBDIR
+
+    d = os.environ.get("PPR_JAX_CACHE_DIR")
+    return os.path.join(d, PROGRAM_SUBDIR) if d else None

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
+from helpers import suite_program_dir
 
 import ppr_jax as pj
 from ppr_jax._scenes._solver_choice import choose_solver
@@ -300,9 +301,15 @@ def test_full_l3_on_the_stiff_path_matches_the_quasi_static_l3(quasi_static_l3_s
     Jacobian, a missed stage or a start that rings would show far above that. The steps are
     the robot's, not the strips' (an explicit solver is held to microseconds by the strip
     modes): measured Kvaerno5 103 steps (12 rejected), Ros34PW2 135 (25 rejected: it keeps
-    its Jacobian over 10 steps; a fresh one every step rejects about 10 %)."""
-    full = pj.paper_circle(pj.scene_params("paper-circle"), model=pj.Beam(4), solver=name,
-                           rtol=1e-4, atol=1e-6, t_end=0.05, n_out=11)
+    its Jacobian over 10 steps; a fresh one every step rejects about 10 %).
+
+    `kvaerno5-kept` at these settings is the command line's full L3 on its defaults
+    (`test_cli`): it runs through the suite's program store, so that the command line loads
+    this program, or this test the command line's."""
+    store = suite_program_dir() if name == "kvaerno5-kept" else None
+    full = pj.run_scene("paper-circle", pj.scene_params("paper-circle"), model=pj.Beam(4),
+                        solver=name, rtol=1e-4, atol=1e-6, t_end=0.05, n_out=11,
+                        program_dir=store).result
     qs = quasi_static_l3_start
     d = np.max(np.hypot(*(np.asarray(full.X)[:, :2] - np.asarray(qs.X)[:, :2]).T))
     assert 1e-8 < d < 1e-6, d
