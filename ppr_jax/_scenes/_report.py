@@ -118,7 +118,8 @@ def run_scene(
     # cache), then run `repeats` times; no extra run just to separate compilation from the run.
     # Tolerances are arrays, so changing them does not recompile.
     t0 = time.perf_counter()
-    # A batch split over devices is compiled as usual (stored programs are single-device).
+    # A batch split over devices is compiled as usual: the command line stores single runs (a
+    # sweep stores its split chunk program, `_programs._caller`).
     directory = None if c.devices else program_dir
     fn, how = compiled_program(c.fn, c.args, c.template(), directory,
                                f"{scene.name}-{c.args[1].name}")
