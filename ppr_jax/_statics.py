@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from jaxtyping import Array
 
 from ._actuation import (
     AbstractActuation,
@@ -149,36 +150,71 @@ D1, D2 = _differentiation_matrices(STENCIL)
 FD_STEP = 1e-6
 
 
-def _fd_newton_solve(resid, y0, rtol: float = 1e-13, atol: float = 1e-13, max_steps: int = 100):
-    """Solve resid(y) = 0 near y0 by Newton's iteration with the Jacobian by central
-    differences (steps FD_STEP (1 + |y_j|), 1e-10 relative error, so the convergence is
-    quadratic down to rounding), the residual and its 2n neighbours in one vmapped evaluation:
-    the equations of motion appear once in the program. (A chord iteration with the springs'
-    Jacobian from a separate evaluation of the passive forces, the previous form, put a second
-    copy of the springs into the program: for L3's strips, 0.25 M of its 0.92 M characters and
-    a third of its compilation.) `resid` returns (residual, aux). Found by optimistix
-    (`FixedPointIteration` on y -> y - J(y)^-1 resid(y), stopping when a step is below
-    atol + rtol |y|, with a result code) and differentiated implicitly (J under stop_gradient:
-    at the root only resid's own derivatives enter, so the derivatives are exact whatever J's
-    error).
-    Returns (y, relative residual at the last iterate, optimistix result, aux of that iterate)."""
-    n = y0.shape[0]
+class _FDNewtonState(eqx.Module):
+    #: the step's size in units of atol + rtol |y| (max norm)
+    relative_step: Array
+    #: max |resid| at the last iterate, relative to max |J| max |y| (`_fd_newton_solve`)
+    relative_residual: Array
 
-    def newton(y, _):
+
+class _FDNewton(optx.AbstractRootFinder):
+    """Newton's iteration for resid(y) = 0 with the Jacobian J by central differences (steps
+    FD_STEP (1 + |y_j|)), the residual and its 2n neighbours in one vmapped evaluation; stops
+    when a step is below atol + rtol |y| (max norm). `_fd_newton_solve` says why."""
+
+    rtol: float
+    atol: float
+    norm: Callable = optx.max_norm
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        del fn, args, options, f_struct, aux_struct, tags
+        inf = jnp.array(jnp.inf, dtype=y.dtype)
+        return _FDNewtonState(inf, inf)
+
+    def step(self, fn, y, args, options, state, tags):
+        del options, state, tags
+        n = y.shape[0]
         d = FD_STEP * (1 + jnp.abs(y))
         pts = jnp.concatenate([y[None], y[None] + jnp.diag(d), y[None] - jnp.diag(d)])
-        F, aux = jax.vmap(resid)(pts)
+        F, aux = jax.vmap(lambda p: fn(p, args))(pts)
         J = jax.lax.stop_gradient(((F[1:n + 1] - F[n + 1:]) / (2 * d)[:, None]).T)
         scale = jnp.maximum(jnp.max(jnp.abs(J)) * jnp.max(jnp.abs(y)), 1e-300)
         r = F[0]
-        return y - solve(J, r), (jnp.max(jnp.abs(r)) / scale, jax.tree.map(lambda a: a[0], aux))
+        new_y = y - solve(J, r)
+        size = self.norm((y - new_y) / (self.atol + self.rtol * jnp.abs(new_y)))
+        state = _FDNewtonState(size, jnp.max(jnp.abs(r)) / scale)
+        return new_y, state, jax.tree.map(lambda a: a[0], aux)
 
-    sol = optx.fixed_point(
-        newton, optx.FixedPointIteration(rtol=rtol, atol=atol), y0, has_aux=True,
+    def terminate(self, fn, y, args, options, state, tags):
+        del fn, y, args, options, tags
+        return state.relative_step < 1, optx.RESULTS.successful
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        del fn, args, options, state, tags, result
+        return y, aux, {}
+
+
+def _fd_newton_solve(resid, y0, rtol: float = 1e-13, atol: float = 1e-13, max_steps: int = 100):
+    """Solve resid(y) = 0 near y0 by Newton's iteration with the Jacobian by central
+    differences (`_FDNewton`: steps FD_STEP (1 + |y_j|), 1e-10 relative error, so the
+    convergence is quadratic down to rounding), the residual and its 2n neighbours in one
+    vmapped evaluation: the equations of motion appear once in the program. (A chord iteration
+    with the springs' Jacobian from a separate evaluation of the passive forces, the previous
+    form, put a second copy of the springs into the program: for L3's strips, 0.25 M of its
+    0.92 M characters and a third of its compilation.) `resid` returns (residual, aux).
+
+    Differentiated implicitly as a root of resid (optimistix's `ImplicitAdjoint`): dy =
+    -(d resid/dy)^-1 (d resid/dparameters) at the root, with resid's own exact Jacobian at that
+    one point, whatever the iteration's J. (Differentiated as a fixed point of the Newton map
+    instead, the derivative held the Jacobian of the whole iteration, the 2n + 1 vmapped
+    evaluations of the equations of motion: on L2's identification program that was 1.4 s of
+    tracing and 2 s of XLA compilation of 13 s; the derivatives are the same to rounding.)
+    Returns (y, relative residual at the last iterate, optimistix result, aux of that iterate)."""
+    sol = optx.root_find(
+        lambda y, args: resid(y), _FDNewton(rtol=rtol, atol=atol), y0, has_aux=True,
         max_steps=max_steps, throw=False, adjoint=optx.ImplicitAdjoint(SmallLU()),
     )
-    err, aux = sol.aux
-    return sol.value, err, sol.result, aux
+    return sol.value, sol.state.relative_residual, sol.result, sol.aux
 
 
 def quasi_static_state(
