@@ -416,8 +416,14 @@ LEVERS = {
         "before). Within one process the second fit reuses the compiled program, so the ratio "
         "of first to second fit is compilation against iterations: the first fit's XLA "
         "compilation of the simulation's forward-mode Jacobian (L2 servo circle: about 8 s "
-        "with the loop emitters) is the bound; a smaller program (a cheaper Jacobian, "
-        "the input table shared with the scenes) is the remaining lever"),
+        "with the loop emitters) is the bound. Taken since: the quasi-static start is "
+        "differentiated as a root of its balance, not through its Newton iteration (XLA 5.4 -> "
+        "4.8 s, lowering 1.0 -> 0.5 s of L2's fit program). Measured and not taken: the start's "
+        "two passes with carries that hold the parameters' tangent from the first (JAX's "
+        "fixpoint over a scan's carry tangents then ends in one trace): 0.3 s less tracing, "
+        "0.2 s more XLA time. Remaining: tracing the forward-mode Jacobian of the solve "
+        "itself (6 s for L2, of which the start's is 1.4 s at most) and the input table shared "
+        "with the scenes"),
 }
 
 
