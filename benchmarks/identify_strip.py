@@ -3,6 +3,7 @@
 Data from L2 on the actual strip (joint_geometry='strip', MODEL.md 3a), the motors commanded
 by the centre-line L1 inverse kinematics (what a user of the paper's model sends), fitted by L2
 on the centre lines: what do the PRB parameters become?"""
+import argparse
 import json
 import os
 import time
@@ -19,7 +20,11 @@ cl = pj.scene_params("servo-circle")
 dv = pj.derived(cl)
 cl = cl.replace(K_theta=float(dv.K_theta), gamma=float(dv.gamma))
 strip = cl.replace(joint_geometry="strip")
-T_END, RATE = 2.0, 100.0
+ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+ap.add_argument("--t-end", type=float, default=2.0,
+                help="seconds of data (default 2, the published run); shorter only to check "
+                     "that the script runs (tests/test_benchmarks_run.py), not for results")
+T_END, RATE = ap.parse_args().t_end, 100.0
 ts = jnp.linspace(0.0, T_END, int(T_END * RATE) + 1)
 # the strip robot under the commands of the centre-line robot: the scene's run with the
 # scene's commands computed for `cl`
