@@ -23,9 +23,9 @@ MuJoCo MJX (the `bench` extra), which the test environment lacks: it is skipped 
 No number is checked (tiny settings measure nothing): only that each script runs and writes
 its file. The scripts inherit the suite's environment (its fast XLA compile flags and persistent
 compilation cache). On the 2-core CPU a script takes 2 to 50 s, mostly XLA compilation, and
-`l3_validation.py --quick` (the smallest run it has: about twenty programs) about 2 minutes; the
-file took 10 minutes on an empty cache (`python -m pytest -m slow -n 0
-tests/test_benchmarks_run.py`).
+`l3_validation.py --quick` (the smallest run it has: about twenty programs) 1 to 2 minutes; the
+file took 10 minutes on an empty cache and 7 on the cache that run left
+(`python -m pytest -m slow -n 0 tests/test_benchmarks_run.py`).
 """
 
 import importlib
