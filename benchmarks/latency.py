@@ -508,10 +508,12 @@ def _suite_wall(log_path: str):
 def suite_goal(log_path: str, commit: str, others=()) -> dict:
     """The test suite's goal from a `.ci/run` log of a fresh clone (pytest's last line "N passed
     in X s" and `.ci/run`'s "rc=... wall=..."): pytest's wall against `SUITE_BASE`'s, with what
-    bounds it and the remaining lever when it is not met."""
+    bounds it and the remaining lever when it is not met. `others`: logs of other fresh-clone
+    runs of the same code: the goal is met only if every run meets it (the machine's speed
+    varies by 10-20 % between runs), and `value` is the slowest run's."""
     tests, failed, wall = _suite_wall(log_path)
     spread = sorted([wall] + [_suite_wall(o)[2] for o in others])
-    value = wall / SUITE_BASE["wall_s"]
+    value = spread[-1] / SUITE_BASE["wall_s"]
     g = {"goal": "suite_new_over_base", "limit": GOALS["suite_new_over_base"], "value": value,
          "met": bool(value <= GOALS["suite_new_over_base"]), "base": SUITE_BASE,
          "new": {"commit": commit, "tests": tests, "wall_s": wall,
@@ -519,10 +521,10 @@ def suite_goal(log_path: str, commit: str, others=()) -> dict:
          "measured": "pytest's wall of `.ci/run` on a fresh clone, 2 workers, 2-core machine, "
                      "nothing else running (the base's from the issue)"}
     if not g["met"]:
-        g["bound"] = (f"{wall:.0f} s against the goal's {SUITE_BASE['wall_s'] / 3:.0f} s with "
-                      f"{tests} tests against the base's {SUITE_BASE['tests']} ("
-                      f"{spread[0]:.0f}-{spread[-1]:.0f} s in {len(spread)} runs of nearly the "
-                      f"same suite on one afternoon: the machine's speed varies); the two "
+        g["bound"] = (f"{spread[-1]:.0f} s against the goal's {SUITE_BASE['wall_s'] / 3:.0f} s "
+                      f"with {tests} tests against the base's {SUITE_BASE['tests']} ("
+                      f"{spread[0]:.0f}-{spread[-1]:.0f} s in {len(spread)} runs of this code: "
+                      f"the machine's speed varies); the two "
                       f"workers finish within 5-25 s of each other (files handed out longest "
                       f"first), so the bound is the work: XLA compilation about half of it, "
                       f"tracing a third, one distinct program per test setting (no large "
@@ -547,7 +549,8 @@ def main(argv=None) -> int:
                     help="only add the test suite's goal, from the log of `.ci/run` on a "
                          "fresh clone of COMMIT, to the JSON at --out (no process is timed)")
     ap.add_argument("--suite-also", nargs="*", default=(), metavar="LOG",
-                    help="logs of nearby runs of the suite, for the spread of its wall")
+                    help="logs of other fresh-clone runs of the same code: the goal is met "
+                         "only if every run meets it")
     ap.add_argument("--new", default=".", help="the checkout measured (default: this one)")
     ap.add_argument("--base", default=None, help="a second checkout to compare against")
     ap.add_argument("--python", default=sys.executable,
