@@ -390,3 +390,64 @@ def test_cached_program_is_keyed_by_static_values(monkeypatch):
         run = _programs.cached_program(fn, (Scaled(k), x), 0, None, "t")
         np.testing.assert_array_equal(np.asarray(run(Scaled(k), x)), k * np.ones(3))
     assert len(_programs._CACHED) == 2
+
+
+def _path_scene(d, amp):
+    """A torque-driven scene on a file's path: an ellipse of half-axes (amp, amp/2) m sampled at
+    21 knots, written as d/path.csv (the same name in every directory: a re-measured path)."""
+    ts = np.linspace(0.0, 1.0, 21)
+    w = 2 * np.pi * ts
+    X = np.column_stack([0.45 + amp * np.sin(w), 0.26 + 0.5 * amp * (1 - np.cos(w)),
+                         0.02 * np.sin(w)])
+    os.makedirs(d, exist_ok=True)
+    path = os.path.join(d, "path.csv")
+    np.savetxt(path, np.column_stack([ts, X]), delimiter=",", header="time,x,y,phi",
+               comments="", fmt="%.17g")
+    return pj.PathScene(pj.load_path(path, bc="natural"), drive="torque", name="file")
+
+
+def test_design_programs_are_stored_and_loaded(tmp_path, monkeypatch):
+    """`design(program_dir=...)` (the command line passes its store): the metrics with their
+    Jacobian, the batch and the metrics' sizes are stored once; a design on another path of
+    the same shape (its spline's knots are the programs' inputs, not constants) loads them
+    without tracing anything (the metrics' function made to fail), and each design equals the
+    usual compile's. Lightest links with a reach margin of 0.3 along the path: the margin binds,
+    so the optimum moves with the path."""
+    from ppr_jax._studies._design import _problem
+
+    kw = dict(options=pj.SceneOptions(t_end=1.0, n_out=11), starts=1, candidates=8, grid=16,
+              l3_elements=None)
+    spec = ({"l1": (0.25, 0.45), "l3": (0.25, 0.45)}, {"minimize": "moving_mass_kg"},
+            [pj.Constraint("path_reach_margin", lower=0.3)])
+    scenes = [_path_scene(str(tmp_path / f"p{a}"), a) for a in (0.05, 0.12)]
+    d = str(tmp_path / "programs")
+
+    def fresh():  # each phase as a fresh process would run it
+        monkeypatch.setattr(_programs, "_CACHED", {})
+        monkeypatch.setattr(_problem, "_SIZES", {})
+
+    fresh()
+    usual = [pj.design(*spec, scene=s, **kw) for s in scenes]
+    fresh()
+    stored = pj.design(*spec, scene=scenes[0], program_dir=d, **kw)
+    names = sorted(os.listdir(d))
+    exported = [n.rsplit("-", 1)[0] for n in names if n.endswith(".jaxexport")]
+    assert exported == ["design-file-batch", "design-file-fwd"], names
+    assert len([n for n in names if n.startswith("design-sizes-")]) == 1, names
+
+    def no_trace(*a, **k):
+        raise AssertionError("traced the metrics again instead of loading the stored programs")
+
+    fresh()
+    monkeypatch.setattr(_programs, "_export", no_trace)
+    monkeypatch.setattr(_problem, "_raw_blocks", no_trace)
+    loaded = [pj.design(*spec, scene=s, program_dir=d, **kw) for s in scenes]
+    assert sorted(os.listdir(d)) == names
+    for a, b in zip([stored, *loaded], [usual[0], *usual]):
+        assert a.verification["ok"], a.summary()
+        for n in ("l1", "l3"):
+            np.testing.assert_allclose(a.x[n], b.x[n], rtol=1e-10, err_msg=n)
+        assert a.objective["value"] == pytest.approx(b.objective["value"], rel=1e-12)
+        (reach,) = [c for c in a.constraints if c["metric"] == "path_reach_margin"]
+        assert reach["active"], a.summary()
+    assert abs(loaded[1].x["l1"] / loaded[0].x["l1"] - 1) > 0.1

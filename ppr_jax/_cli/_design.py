@@ -31,7 +31,7 @@ def cmd_design(args):
     _out_dir(args.out)
     _log(f"design: {', '.join(spec['variables'])} ... compiling and optimising")
     d = design(spec["variables"], spec["objective"], spec["constraints"], params=base,
-               options=options, **settings)
+               options=options, program_dir=getattr(args, "program_dir", None), **settings)
     report = d.save(os.path.join(args.out, "design.json"))
     robot = d.to_params_file(os.path.join(args.out, "designed.toml"))
     mjcf = d.to_mjcf(os.path.join(args.out, "designed.xml"))

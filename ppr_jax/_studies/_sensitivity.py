@@ -53,6 +53,7 @@ from .._programs import cached_program
 from .._robot import Robot
 from .._scenes import SceneOptions, get_scene
 from .._statics import assemble, static_equilibrium
+from ._jacobian import jacobian_with_values
 from ._sweep import FLOAT_PARAMS, sweep_metrics, traced_metrics
 
 #: eigenvalues within this relative distance of the lowest are one (repeated) cluster
@@ -269,25 +270,14 @@ def _values(x, setting):
     return _metrics_at(x, setting)
 
 
-def _with_values(x, setting, adjoint):
-    """The metrics twice, (m, m): the derivative's output and its auxiliary value."""
-    m = _metrics_at(x, setting, adjoint)
-    return m, m
-
-
-# The derivative programs return (J, m): the metrics are the derivative's own primal (forward
-# mode's tangents ride on the same solve; reverse mode's pullback starts from it), so one
-# program gives both, and `values` need no program of its own. Measured on L1 paper-circle
-# (three metrics, 2-core CPU): a separate values program was 2.0 s of tracing and 2.0 s of
-# XLA compilation beside the Jacobian's 6.2 s and 4.9 s.
 @eqx.filter_jit
 def _jacobian_fwd(x, setting):
-    return jax.jacfwd(_with_values, has_aux=True)(x, setting, diffrax.ForwardMode())
+    return jacobian_with_values(_metrics_at, "fwd", x, setting, diffrax.ForwardMode())
 
 
 @eqx.filter_jit
 def _jacobian_rev(x, setting, adjoint):
-    return jax.jacrev(_with_values, has_aux=True)(x, setting, adjoint)
+    return jacobian_with_values(_metrics_at, "rev", x, setting, adjoint)
 
 
 def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,

@@ -77,6 +77,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Optional
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -222,11 +223,13 @@ def compliance(model, robot: Robot, X=None):
     return jnp.where(bad, jnp.nan, (a + d) / 2 + root), jnp.where(bad, jnp.nan, C[2, 2])
 
 
-@dataclasses.dataclass(frozen=True)
-class SceneContext:
+class SceneContext(eqx.Module):
     """What the scene metrics need: the scene, the model that runs it and its prepared
     `SceneOptions` (or None: no scene metric asked for), the model of the pose metrics
-    (`POSE_METRICS`), and the pose (3,) of the compliance (None: home)."""
+    (`POSE_METRICS`), the pose (3,) of the compliance (None: home) and the elastica's end load.
+    A pytree: the design's programs take it as an argument, so the scene's and the options'
+    arrays are the programs' inputs, not constants, and a stored program serves any of their
+    values."""
 
     scene: Optional[object]
     model: Optional[object]
@@ -239,7 +242,15 @@ class SceneContext:
 def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_links=True,
                   samples=()):
     """The metrics `names` (tuple) at `params` as one traced array: (k,), or longer where
-    `samples` asks for some metrics' samples.
+    `samples` asks for some metrics' samples: `metric_blocks` concatenated."""
+    return jnp.concatenate(metric_blocks(names, params, ctx, stroke, adjoint, equal_links,
+                                         samples))
+
+
+def metric_blocks(names, params, ctx: SceneContext, stroke, adjoint=None, equal_links=True,
+                  samples=()):
+    """The metrics `names` (tuple) at `params` as one traced 1-D array each: its value (1,), or
+    its samples where `samples` names it.
 
     **Arguments:**
 
@@ -252,8 +263,8 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
     - `samples`: names of `SAMPLED_METRICS` given as their samples (the values whose max or min
       they are, flattened) instead of that extreme.
 
-    **Returns:** the values in SI units, each metric's in `names`' order (one entry, or its
-    samples); NaN for every scene metric where the scene failed.
+    **Returns:** a list of the values in SI units, each metric's in `names`' order (one entry,
+    or its samples); NaN for every scene metric where the scene failed.
     """
     robot = Robot(params, equal_links=equal_links)
     dv = robot.dv
@@ -300,4 +311,4 @@ def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
         X = None if ctx.pose is None else jnp.asarray(ctx.pose, dtype=jnp.float64)
         cxy, cphi = compliance(ctx.frequency_model, robot, X)
         out.update(compliance_xy_m_per_N=cxy, compliance_phi_rad_per_Nm=cphi)
-    return jnp.concatenate([jnp.ravel(jnp.asarray(out[n], dtype=jnp.float64)) for n in names])
+    return [jnp.ravel(jnp.asarray(out[n], dtype=jnp.float64)) for n in names]

@@ -79,6 +79,7 @@ def design(
     grid_rtol: float = DESIGN_GRID_RTOL,
     fd_rtol: Optional[float] = None,
     seed: int = 0,
+    program_dir: Optional[str] = None,
 ) -> Design:
     """Design a robot with gradients: the `variables` (fields of `RobotParams`) within their
     bounds that optimise `objective` subject to `constraints`, found by a gradient-based
@@ -130,6 +131,10 @@ def design(
     - `grid`: points of the verification grid; `grid_rtol`: its tolerance (relative).
     - `fd_rtol`: the finite-difference check's tolerance (default 1e-5, 1e-3 with a scene).
     - `seed`: of the Sobol sequences.
+    - `program_dir`: a directory of stored programs (as `run_scene`'s; the command line's): the
+      design's programs (the metrics with their Jacobian, the batch, the L3 re-score) are
+      exported there once and loaded by later processes, which skip tracing them; None:
+      compiled in this process (and kept for later designs of the same structure).
 
     **Returns:** a `Design`.
 
@@ -227,7 +232,8 @@ def design(
     sides = [(metrics.index(c.metric), c, side, b) for c in cons for side, b in c.sides()]
     samples = sampled_constraints(metrics, sides)
     prob = Problem(names=names, lo=lo, hi=hi, metrics=tuple(metrics), base=base, stroke=stroke,
-                   ctx=ctx, mode=mode, equal_links=equal, samples=samples)
+                   ctx=ctx, mode=mode, equal_links=equal, samples=samples,
+                   program_dir=program_dir)
     if mode_given is None and samples:  # the samples are rows: count them
         prob.mode = mode = "fwd" if p <= int(np.sum(prob.sizes)) else "rev"
     blocks = prob.blocks
@@ -288,7 +294,7 @@ def design(
             prob.metrics, result.params, ctx, stroke, result.metrics, obj,
             [(c.metric, side, b) for _, c, side, b in sides], l3_elements,
             None if ctx_scene is None else (SceneOptions() if options is None else options),
-            prob.equal_links)
+            prob.equal_links, program_dir)
         result.timing["l3_s"] = time.perf_counter() - t3
         result.timing["total_s"] = time.perf_counter() - t_start
     if not feasible:

@@ -1,10 +1,19 @@
 """A design problem as compiled programs: the metrics at one point with their Jacobian (forward
 or reverse mode), and the metrics at many points in one batched call (the starts' screening,
-the verification grid, the finite differences)."""
+the verification grid, the finite differences).
+
+The programs are functions of their arguments (the variables, the base robot, the stroke and
+the `Structure`, whose `SceneContext` holds the scene, its models and options), so every array
+of them is an input and one program serves any values of the same shapes. Through
+`cached_program` they are kept for later calls in the process and, given a `program_dir` (the
+command line's store), exported there once and loaded by later processes, which skip tracing
+them."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
 from typing import Optional
 
 import diffrax
@@ -14,15 +23,74 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._params import RobotParams
-from ._catalogue import SAMPLED_METRICS, SceneContext, metric_values
+from ..._programs import NotExportable, cached_program, program_key
+from .._jacobian import jacobian_with_values
+from ._catalogue import SAMPLED_METRICS, SceneContext, metric_blocks, metric_values
 
-#: compiled programs, shared by every design of the same structure (the variables' names, the
-#: metrics, the scene, the models, the robot's static choices): values change nothing
-_PROGRAMS: dict = {}
-#: the raw rows of each metric (`Problem.sizes`), by the same key
+#: the raw rows of each metric (`Problem.sizes`), by the values program's key
 _SIZES: dict = {}
 #: points per batched call (`jax.lax.map`'s batch): bounds the memory of a large grid
 BATCH = 1024
+
+
+class Structure(eqx.Module):
+    """What a design's programs evaluate: the variables' `names` (fields of `RobotParams`),
+    the catalogue `metrics`, `Robot`'s static `equal_links`, the `samples` (`metric_values`')
+    and the `SceneContext`. Its strings and flags are static (they key the programs), the
+    context's arrays are inputs."""
+
+    names: tuple
+    metrics: tuple
+    equal_links: bool
+    samples: tuple
+    ctx: SceneContext
+
+
+def _raw(x, base, stroke, st: Structure, adjoint=None):
+    """`metric_values` at the variables x (p,) replacing the fields `st.names` of `base`."""
+    return jnp.concatenate(_raw_blocks(x, base, stroke, st, adjoint))
+
+
+def _raw_blocks(x, base, stroke, st: Structure, adjoint=None):
+    p = eqx.tree_at(lambda q: [getattr(q, n) for n in st.names], base,
+                    [x[i] for i in range(len(st.names))])
+    return metric_blocks(st.metrics, p, st.ctx, stroke, adjoint, st.equal_links, st.samples)
+
+
+def _adjoint(st: Structure, mode: str):
+    """diffrax's adjoint of the scene's solve under `mode`'s derivative (None: no scene)."""
+    if st.ctx.scene is None:
+        return None
+    return diffrax.ForwardMode() if mode == "fwd" else diffrax.RecursiveCheckpointAdjoint()
+
+
+@eqx.filter_jit
+def _value_and_jacobian_fwd(x, base, stroke, st: Structure):
+    J, v = jacobian_with_values(_raw, "fwd", x, base, stroke, st, _adjoint(st, "fwd"))
+    return v, J
+
+
+@eqx.filter_jit
+def _value_and_jacobian_rev(x, base, stroke, st: Structure):
+    J, v = jacobian_with_values(_raw, "rev", x, base, stroke, st, _adjoint(st, "rev"))
+    return v, J
+
+
+@eqx.filter_jit
+def _batch(X, base, stroke, st: Structure):
+    return jax.lax.map(lambda x: _raw(x, base, stroke, st), X, batch_size=BATCH)
+
+
+@eqx.filter_jit
+def metrics_program(params, stroke, st: Structure):
+    """`metric_values` of `st` at `params` (`st.names` unused): the L3 re-score's program."""
+    return metric_values(st.metrics, params, st.ctx, stroke, None, st.equal_links, st.samples)
+
+
+def program_label(st: Structure, kind: str) -> str:
+    """The store's label of a design program: design-<scene or closed-form>-<kind>."""
+    scene = "closed-form" if st.ctx.scene is None else st.ctx.scene.name
+    return f"design-{scene}-{kind}"
 
 
 @dataclasses.dataclass
@@ -36,7 +104,8 @@ class Problem:
     of `SAMPLED_METRICS` evaluated as their samples (the programs' raw values: each such metric
     a block of rows, every other metric one row; `sizes` (k,) the rows of each); the metrics
     (k,) are the raw values reduced (`reduce`: each block's max or min). `evaluations` counts
-    the points evaluated (with and without the Jacobian)."""
+    the points evaluated (with and without the Jacobian). `program_dir`: a directory of stored
+    programs (`cached_program`'s; the command line's), None: compiled in this process."""
 
     names: list
     lo: np.ndarray
@@ -50,40 +119,59 @@ class Problem:
     samples: tuple = ()
     evaluations: int = 0
     jacobians: int = 0
-    _programs: Optional[tuple] = dataclasses.field(default=None, repr=False)
+    program_dir: Optional[str] = None
     _last: Optional[tuple] = dataclasses.field(default=None, repr=False)
     _sizes: Optional[np.ndarray] = dataclasses.field(default=None, repr=False)
 
-    def _compiled(self):
-        if self._programs is None:
-            self._programs = programs(self.names, self.metrics, self.base, self.ctx, self.mode,
-                                      self.equal_links, self.samples)
-        return self._programs
+    @property
+    def structure(self) -> Structure:
+        return Structure(tuple(self.names), tuple(self.metrics), bool(self.equal_links),
+                         tuple(self.samples), self.ctx)
+
+    def _args(self, x) -> tuple:
+        return (jnp.asarray(x, dtype=jnp.float64), self.base,
+                jnp.asarray(self.stroke, dtype=jnp.float64), self.structure)
+
+    def _program(self, fn, kind: str, args: tuple, template):
+        return cached_program(fn, args, template, self.program_dir,
+                              program_label(self.structure, kind))
 
     @property
     def sizes(self) -> np.ndarray:
-        """Raw rows (k,) of each metric: its samples' count, or 1."""
-        if self._sizes is None:
-            key = _key(self.names, self.metrics, self.base, self.ctx, self.mode,
-                       self.equal_links, self.samples)
+        """Raw rows (k,) of each metric: its samples' count, or 1. Found by tracing the metrics'
+        shapes (the scene's solve, a second or more), so they are kept by the values' key in
+        this process and, with a `program_dir`, beside the stored programs."""
+        if self._sizes is not None:
+            return self._sizes
+        args = self._args(np.zeros(len(self.names)))
+        try:
+            key = program_key(args, "design-sizes")
+        except NotExportable:
+            key = None
+        path = None if key is None or self.program_dir is None else os.path.join(
+            self.program_dir, f"design-sizes-{key}.json")
+        sizes = _SIZES.get(key)
+        if sizes is None and path is not None and os.path.exists(path):
             try:
-                self._sizes = _SIZES.get(key)
-            except TypeError:
-                key = None
-            if self._sizes is None:
-                self._sizes = np.asarray([self._size(m) for m in self.metrics], dtype=int)
-                if key is not None:
-                    _SIZES[key] = self._sizes
-        return self._sizes
-
-    def _size(self, metric) -> int:
-        if metric not in self.samples:
-            return 1
-        x = jax.ShapeDtypeStruct((len(self.names),), jnp.float64)
-        out = jax.eval_shape(lambda x: _values(self.names, (metric,), self.ctx, self.equal_links,
-                                               self.samples, x, self.base,
-                                               jnp.asarray(self.stroke)), x)
-        return int(out.shape[0])
+                sizes = np.asarray(json.loads(open(path).read()), dtype=int)
+                if sizes.shape != (len(self.metrics),):
+                    sizes = None
+            except (OSError, ValueError, TypeError):
+                sizes = None
+        if sizes is None:
+            out = eqx.filter_eval_shape(_raw_blocks, *args)
+            sizes = np.asarray([int(np.prod(b.shape)) for b in out], dtype=int)
+            if path is not None:
+                try:
+                    os.makedirs(self.program_dir, exist_ok=True)
+                    with open(path, "w") as f:
+                        f.write(json.dumps(sizes.tolist()))
+                except OSError:
+                    pass
+        if key is not None:
+            _SIZES[key] = sizes
+        self._sizes = sizes
+        return sizes
 
     @property
     def blocks(self) -> list:
@@ -117,8 +205,9 @@ class Problem:
         x = np.asarray(x, dtype=np.float64)
         if self._last is not None and np.array_equal(self._last[0], x):
             return self._last[1], self._last[2]
-        _, vjac, _ = self._compiled()
-        v, J = vjac(jnp.asarray(x), self.base, jnp.asarray(self.stroke))
+        args = self._args(x)
+        fn = _value_and_jacobian_fwd if self.mode == "fwd" else _value_and_jacobian_rev
+        v, J = self._program(fn, self.mode, args, (0, 0))(*args)
         v, J = np.asarray(v), np.asarray(J)
         self.evaluations += 1
         self.jacobians += 1
@@ -138,12 +227,12 @@ class Problem:
         """The raw values (m, n) at m points X (m, p), in one batched call. The batch is padded
         to `padded_size(m)` points (copies of the first), so that a design compiles two or three
         shapes, not one per call."""
-        _, _, batch = self._compiled()
         X = np.asarray(X, dtype=np.float64)
         m = X.shape[0]
         Xp = np.concatenate([X, np.repeat(X[:1], padded_size(m) - m, axis=0)], axis=0)
         self.evaluations += m
-        return np.asarray(batch(jnp.asarray(Xp), self.base, jnp.asarray(self.stroke)))[:m]
+        args = self._args(Xp)
+        return np.asarray(self._program(_batch, "batch", args, 0)(*args))[:m]
 
     def batch(self, X) -> np.ndarray:
         """The metrics (m, k) at m points X (m, p), in one batched call (`batch_raw`)."""
@@ -158,61 +247,6 @@ class Problem:
         return (np.asarray(x, dtype=np.float64) - self.lo) / (self.hi - self.lo)
 
 
-def _values(names, metrics, ctx, equal_links, samples, x, base, stroke, adjoint=None):
-    """`metric_values` at the variables x (p,) replacing the fields `names` of `base`."""
-    p = eqx.tree_at(lambda q: [getattr(q, n) for n in names], base,
-                    [x[i] for i in range(len(names))])
-    return metric_values(tuple(metrics), p, ctx, stroke, adjoint, equal_links, tuple(samples))
-
-
 def padded_size(m: int) -> int:
     """The batch size m points are padded to: 64, or a multiple of `BATCH`."""
     return 64 if m <= 64 else -(-m // BATCH) * BATCH
-
-
-def _key(names, metrics, base, ctx, mode, equal_links, samples):
-    static = jax.tree_util.tree_structure(base)
-    scene = None if ctx.scene is None else eqx.tree_pformat(
-        (ctx.scene, ctx.model, ctx.options), short_arrays=False)
-    return (tuple(names), tuple(metrics), str(static), scene, ctx.frequency_model, ctx.pose,
-            ctx.strip_load,
-            mode, equal_links, tuple(samples))
-
-
-def programs(names, metrics, base, ctx: SceneContext, mode: str, equal_links: bool,
-             samples: tuple = ()):
-    """(values, value_and_jacobian, batch) compiled for this structure (cached): each takes
-    (x, base, stroke); batch takes X (m, p). `samples`: as `metric_values`'."""
-    key = _key(names, metrics, base, ctx, mode, equal_links, samples)
-    try:
-        hit = _PROGRAMS.get(key)
-    except TypeError:  # an unhashable model: no reuse
-        key, hit = None, None
-    if hit is not None:
-        return hit
-
-    def f(x, base, stroke, adjoint=None):
-        return _values(names, metrics, ctx, equal_links, samples, x, base, stroke, adjoint)
-
-    def both(x, base, stroke, adjoint):
-        v = f(x, base, stroke, adjoint)
-        return v, v
-
-    if mode == "fwd":
-        adj = diffrax.ForwardMode() if ctx.scene is not None else None
-        jac = jax.jacfwd(lambda x, b, s: both(x, b, s, adj), has_aux=True)
-    else:
-        adj = diffrax.RecursiveCheckpointAdjoint() if ctx.scene is not None else None
-        jac = jax.jacrev(lambda x, b, s: both(x, b, s, adj), has_aux=True)
-
-    def vjac(x, base, stroke):
-        J, v = jac(x, base, stroke)
-        return v, J
-
-    def batch(X, base, stroke):
-        return jax.lax.map(lambda x: f(x, base, stroke), X, batch_size=BATCH)
-
-    out = (eqx.filter_jit(f), eqx.filter_jit(vjac), eqx.filter_jit(batch))
-    if key is not None:
-        _PROGRAMS[key] = out
-    return out

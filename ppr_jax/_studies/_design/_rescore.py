@@ -25,13 +25,15 @@ a design on the default geometry will show as outside the band.
 from __future__ import annotations
 
 import dataclasses
+from typing import Optional
 
-import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
 from ..._prb_table import prb_table
-from ._catalogue import CLOSED_FORM_METRICS, PATH_METRICS, SceneContext, metric_values
-from ._problem import _PROGRAMS, _key
+from ..._programs import cached_program
+from ._catalogue import CLOSED_FORM_METRICS, PATH_METRICS, SceneContext
+from ._problem import Structure, metrics_program, program_label
 
 #: the metrics that are frequencies (their band is that of sqrt(K))
 FREQUENCY_METRICS = ("base_frequency_hz",)
@@ -58,7 +60,8 @@ def model_dependent(names) -> list:
 
 
 def rescore_l3(names, params, ctx: SceneContext, stroke: float, prb_values: dict, objective,
-               constraints, n_elements: int, raw_options=None, equal_links: bool = True) -> dict:
+               constraints, n_elements: int, raw_options=None, equal_links: bool = True,
+               program_dir: Optional[str] = None) -> dict:
     """The model-dependent metrics at the optimum with `QuasiStaticBeam(n_elements)`, against
     the PRB values and the band (module docstring).
 
@@ -71,6 +74,7 @@ def rescore_l3(names, params, ctx: SceneContext, stroke: float, prb_values: dict
     - `n_elements`: L3's segments per strip.
     - `raw_options`: the scene's `SceneOptions` before `prepared` (re-prepared for L3).
     - `equal_links`: `Robot`'s static choice.
+    - `program_dir`: a directory of stored programs (`Problem`'s), or None.
 
     **Returns:** {model, n_elements, kappa0, band (e), band_source, metrics: {name: {prb, l3,
     relative, band, within}}, objective_within, constraints_met (per constraint side, with
@@ -97,19 +101,10 @@ def rescore_l3(names, params, ctx: SceneContext, stroke: float, prb_values: dict
     ctx3 = dataclasses.replace(ctx, model=None if ctx.model is None else l3,
                                options=scene_opts if scene_opts is not None else ctx.options,
                                frequency_model=l3)
-    # the context closed over (its options hold arrays: not a static argument); one program
-    # per structure, shared by later designs (the key of the design's own programs)
-    key = _key((), tuple(dep), params, ctx3, "l3", equal_links, ())
-    try:
-        values = _PROGRAMS.get(key)
-    except TypeError:  # an unhashable model: no reuse
-        key, values = None, None
-    if values is None:
-        values = eqx.filter_jit(
-            lambda p, s: metric_values(tuple(dep), p, ctx3, s, None, equal_links))
-        if key is not None:
-            _PROGRAMS[key] = values
-    v = np.asarray(values(params, np.float64(stroke)))
+    st = Structure((), tuple(dep), bool(equal_links), (), ctx3)
+    args = (params, jnp.asarray(stroke, dtype=jnp.float64), st)
+    values = cached_program(metrics_program, args, 0, program_dir, program_label(st, "l3"))
+    v = np.asarray(values(*args))
     for n, v3 in zip(dep, map(float, v)):
         prb = float(prb_values[n])
         rel = abs(v3 - prb) / max(abs(prb), 1e-300) if np.isfinite(v3) else float("nan")
