@@ -36,6 +36,7 @@ import numpy as np
 
 from ._custom_types import Array
 from ._errors import DataError
+from ._labels import label_field
 
 #: unit name -> factor to SI, per kind of quantity
 UNITS = {
@@ -78,7 +79,7 @@ class Experiment(eqx.Module):
     X: Array
     th: Optional[Array] = None
     tau: Optional[Array] = None
-    name: str = eqx.field(static=True, default="experiment")
+    name: str = label_field(default="experiment")
     dropped_lines: tuple = eqx.field(static=True, default=())
 
     @property

@@ -30,6 +30,7 @@ from ._actuation import AbstractActuation, MotionDriven, PDServo, TorqueDriven
 from ._custom_types import Array, Float
 from ._data import REQUIRED, WORKSPACE_SCALE, check_pose_units, read_columns
 from ._errors import DataError
+from ._labels import label_field
 from ._trajectory import PiecewiseCubic
 
 #: a time step longer than GAP_FACTOR times the median step of a loaded file is a gap (samples
@@ -305,7 +306,7 @@ class Waypoints(eqx.Module):
 
     spline: PiecewiseCubic
     bc: str = eqx.field(static=True)
-    name: str = eqx.field(static=True)
+    name: str = label_field()
 
     def __init__(self, ts, poses, bc: str = "clamped", *, name: str = "Waypoints"):
         if bc not in BOUNDARY:

@@ -11,7 +11,10 @@ structural choices such as `equal_links`), the shapes and dtypes of the inputs, 
 versions of ppr_jax and its numerical dependencies (`DEPENDENCIES`: jax, jaxlib, diffrax,
 equinox, optimistix, lineax), and a hash of this package's source and data files, so that
 editing the library or upgrading a dependency exports afresh instead of loading a stale program.
-The numbers (parameters, tolerances, t_end) are inputs: changing them reuses the program.
+The numbers (parameters, tolerances, t_end) are inputs: changing them reuses the program. The key
+reads the arguments in a canonical form (`canonical`): a field at its default value keys as if
+left out, and a label (a path file's or an experiment's name, `_labels.label_field`) not at all,
+so a measured path re-read from another file of the same shape loads the same program.
 
 Each stored file starts with a header holding the sha256 of the serialised program. A file
 whose header or checksum does not match, that does not deserialise, or whose program does not
@@ -46,6 +49,7 @@ deleted, and the program is compiled (an executable stored afresh as above).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import glob
 import hashlib
@@ -63,6 +67,7 @@ import equinox as eqx
 import jax
 
 from ._errors import RepairWarning
+from ._labels import LABEL
 
 #: bump when the stored layout changes
 FORMAT = 2
@@ -108,29 +113,64 @@ class NotExportable(Exception):
     """A scene call whose program this module does not store (the caller compiles it as usual)."""
 
 
-def _static_functions(static) -> list[str]:
-    """The functions among the static arguments, by module and name. A function defined inside
-    another (a closure, a lambda) may capture values its name does not show, so two different
-    programs could share a key: such a call is not stored."""
-    names = []
-    for leaf in jax.tree_util.tree_leaves(static):
-        if isinstance(leaf, types.FunctionType):
-            if "<" in leaf.__qualname__:
-                raise NotExportable(f"static function {leaf.__qualname__} is not keyable")
-            names.append(f"{leaf.__module__}.{leaf.__qualname__}")
-    return names
+def _function_name(fn) -> str:
+    """A function's module and name. A function defined inside another (a closure, a lambda)
+    may capture values its name does not show, so two different programs could share a key:
+    such a call is not stored."""
+    if "<" in fn.__qualname__:
+        raise NotExportable(f"static function {fn.__qualname__} is not keyable")
+    return f"{fn.__module__}.{fn.__qualname__}"
+
+
+def _is_default(f: dataclasses.Field, value) -> bool:
+    """Whether a field holds its declared default (a Python scalar, string or None, compared by
+    value: `Beam(4)` and `Beam(4, strip_loss=0.0)` are one program)."""
+    d = f.default
+    if d is dataclasses.MISSING or not isinstance(d, (bool, int, float, str, type(None))):
+        return False
+    return type(value) in (bool, int, float, str, type(None)) and value == d
+
+
+def canonical(obj) -> str:
+    """A canonical text of a call's arguments for `program_key`: arrays as their dtype and
+    shape (their values are the program's inputs), modules and dataclasses as their class and
+    fields, less the fields that hold their default (`_is_default`) and the labels
+    (`label_field`); functions by module and name; other values by `repr`. Two argument
+    trees of equal canonical text trace to the same program."""
+    if eqx.is_array(obj):
+        return f"{obj.dtype}{list(obj.shape)}"
+    if isinstance(obj, (bool, int, float, str, type(None))):
+        return repr(obj)
+    if isinstance(obj, types.FunctionType):
+        return _function_name(obj)
+    if isinstance(obj, types.MethodType):
+        return f"{canonical(obj.__self__)}.{obj.__func__.__name__}"
+    if isinstance(obj, (tuple, list)):
+        return f"{type(obj).__name__}[{', '.join(canonical(x) for x in obj)}]"
+    if isinstance(obj, dict):
+        return "{" + ", ".join(f"{k!r}: {canonical(obj[k])}" for k in sorted(obj)) + "}"
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        parts = []
+        for f in dataclasses.fields(obj):
+            if f.metadata.get(LABEL) or not hasattr(obj, f.name):
+                continue
+            v = getattr(obj, f.name)
+            if not _is_default(f, v):
+                parts.append(f"{f.name}={canonical(v)}")
+        return f"{type(obj).__module__}.{type(obj).__qualname__}({', '.join(parts)})"
+    children, treedef = jax.tree_util.tree_flatten(obj, is_leaf=lambda x: x is not obj)
+    if children and not (len(children) == 1 and children[0] is obj):
+        # another pytree node (jax's own containers): its structure and its children
+        return f"{treedef}({', '.join(canonical(c) for c in children)})"
+    return repr(obj)
 
 
 def program_key(args: tuple, label: str) -> str:
-    """The key of a scene call's program (module docstring): a hex digest."""
-    dyn, static = eqx.partition(args, eqx.is_array)
-    functions = _static_functions(static)
-    leaves = jax.tree_util.tree_leaves(dyn)
+    """The key of a scene call's program (module docstring): a hex digest of the label, the
+    versions, the backend, the source's hash and the arguments' `canonical` text."""
     text = "\n".join([
         f"format {FORMAT}", label, dependency_versions(), jax.default_backend(), source_hash(),
-        str(jax.tree_util.tree_structure(dyn)),
-        eqx.tree_pformat(static, short_arrays=True), str(functions),
-        str([(tuple(x.shape), str(x.dtype)) for x in leaves]),
+        canonical(args),
     ])
     # Object addresses in reprs differ between processes and say nothing about the program.
     text = re.sub(r" at 0x[0-9a-fA-F]+", "", text)
@@ -153,6 +193,15 @@ def _errors_as_nan():
         _errors.EQX_ON_ERROR = old
 
 
+@contextlib.contextmanager
+def export_tracing():
+    """The state an exported program is traced in (`_export`). A trace made for the same
+    program before exporting it (its output shapes, `jax.eval_shape`) shares its inner traces
+    with the export when made in this state too."""
+    with jax.default_matmul_precision("highest"), _errors_as_nan():
+        yield
+
+
 def _export(fn: Callable, args: tuple, out_template):
     dyn, static = eqx.partition(args, eqx.is_array)
     leaves, tdef = jax.tree_util.tree_flatten(dyn)
@@ -169,7 +218,7 @@ def _export(fn: Callable, args: tuple, out_template):
     # equinox's raising checks, whose cached traces hold host callbacks; and this trace's NaN-mode
     # checks stay out of the usual calls' cache. "highest" changes nothing numerically here: it
     # concerns matrix products of 32-bit inputs, and every array is 64-bit.
-    with jax.default_matmul_precision("highest"), _errors_as_nan():
+    with export_tracing():
         try:
             exported = jax.export.export(jax.jit(flat))(*leaves)
         except NotImplementedError as err:

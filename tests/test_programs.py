@@ -250,6 +250,31 @@ def test_key_follows_what_the_trace_depends_on():
     assert program_key(_call().args, "y") != base
 
 
+def test_key_leaves_out_labels_and_defaults(tmp_path):
+    """Equal programs key alike: a field given its default value (`Beam(4, strip_loss=0.0)` is
+    `Beam(4)`), and a path read from another file of the same shape (its name is a label,
+    `label_field`; its knots are inputs). What changes the program still changes the key: a
+    damped beam, the spline's boundary condition, the number of knots."""
+    assert (program_key(_call(model=pj.Beam(4, strip_loss=0.0)).args, "x")
+            == program_key(_call(model=pj.Beam(4)).args, "x"))
+    assert (program_key(_call(model=pj.Beam(4, strip_loss=1e-4)).args, "x")
+            != program_key(_call(model=pj.Beam(4)).args, "x"))
+
+    def key(name, n=21, bc="natural", amp=0.05):
+        ts = np.linspace(0.0, 1.0, n)
+        X = np.column_stack([0.45 + amp * np.sin(2 * np.pi * ts), 0.26 + 0 * ts, 0 * ts])
+        path = tmp_path / name
+        np.savetxt(path, np.column_stack([ts, X]), delimiter=",", header="time,x,y,phi",
+                   comments="", fmt="%.17g")
+        scene = pj.PathScene(pj.load_path(str(path), bc=bc), drive="torque", name=name)
+        return program_key(_call(scene).args, "x")
+
+    base = key("run1.csv")
+    assert key("run2.csv", amp=0.07) == base
+    assert key("run3.csv", bc="clamped") != base
+    assert key("run4.csv", n=22) != base
+
+
 def test_a_closure_in_the_static_arguments_is_not_stored():
     norm = lambda x: jax.numpy.max(jax.numpy.abs(x))  # noqa: E731
     c = _call(controller=diffrax.PIDController(rtol=1e-8, atol=1e-10, norm=norm))

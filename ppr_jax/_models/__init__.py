@@ -64,10 +64,7 @@ def get_model(
         n = check_number("elements (beam elements per strip of L3)", n, 2, MAX_ELEMENTS,
                          integer=True)
         if strip_dynamics == "full":
-            # The undamped beam built as `Beam(n)`: equal to Beam(n, strip_loss=0.0) but printed
-            # without the field, and the program store keys a program on the printed form, so
-            # the command line's run and `Beam(n)`'s share one stored program.
-            return Beam(n) if strip_loss == 0 else Beam(n, strip_loss=strip_loss)
+            return Beam(n, strip_loss=strip_loss)
         if strip_loss != 0:
             raise PPRError(f"strip_loss = {strip_loss!r} s needs strip_dynamics 'full' (the "
                            "quasi-static strips have no strip modes to damp); use 0 or full")

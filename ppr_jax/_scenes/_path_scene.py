@@ -8,6 +8,7 @@ import equinox as eqx
 
 from .._actuation import MotionDriven, TorqueDriven
 from .._errors import PPRError
+from .._labels import label_field
 from .._models import AbstractModel, Reduced
 from ._base import (
     AbstractScene,
@@ -56,7 +57,7 @@ class PathScene(AbstractScene):
     command_log: Optional[Callable] = None
     # keyword-only (as the base class declares some, they would come before `path`)
     input_model: AbstractModel = eqx.field(static=True, default_factory=Reduced, kw_only=True)
-    name: str = eqx.field(static=True, default="path", kw_only=True)
+    name: str = label_field(default="path", kw_only=True)
     thickness: float = eqx.field(static=True, default=0.3e-3, kw_only=True)
     start_path: Optional[Callable] = eqx.field(default=None, kw_only=True)
 

@@ -11,6 +11,7 @@ them."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -23,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._params import RobotParams
-from ..._programs import NotExportable, cached_program, program_key
+from ..._programs import NotExportable, cached_program, export_tracing, program_key
 from .._jacobian import jacobian_with_values
 from ._catalogue import SAMPLED_METRICS, SceneContext, metric_blocks, metric_values
 
@@ -159,7 +160,10 @@ class Problem:
             except (OSError, ValueError, TypeError):
                 sizes = None
         if sizes is None:
-            out = eqx.filter_eval_shape(_raw_blocks, *args)
+            # in the state the programs are exported in: the export reuses this trace's
+            # inner traces (the scene's solve)
+            with export_tracing() if path is not None else contextlib.nullcontext():
+                out = eqx.filter_eval_shape(_raw_blocks, *args)
             sizes = np.asarray([int(np.prod(b.shape)) for b in out], dtype=int)
             if path is not None:
                 try:

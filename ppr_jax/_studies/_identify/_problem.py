@@ -16,6 +16,7 @@ import numpy as np
 from ..._actuation import MotionDriven, TorqueDriven
 from ..._custom_types import Array
 from ..._errors import result_code
+from ..._labels import label_field
 from ..._names import (  # the choices the command line offers, written there
     ACTUATIONS as ACTUATIONS,
     ID_SOLVERS,
@@ -104,7 +105,7 @@ class _Problem(eqx.Module):
     #: samples (`fit_start`), which its own scene's quasi-static start takes
     starts: Optional[Array] = None
     #: the experiments' names (messages)
-    experiment_names: tuple = eqx.field(static=True, default=())
+    experiment_names: tuple = label_field(default=())
     #: a directory of stored programs (`_programs.py`; the command line's), where the fit's
     #: residual-and-Jacobian program is exported once and loaded by later processes; None:
     #: compiled in this process as usual
