@@ -7,6 +7,8 @@ negative eigenvalue; it is reported as a negative signed frequency and a growth 
 
 from __future__ import annotations
 
+from typing import Optional
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -16,8 +18,9 @@ from ._dynamics import eom_terms, generalized_force
 from ._errors import PPRError, check_array, raise_if
 from ._geometry import home_pose
 from ._models import AbstractModel
+from ._programs import cached_program
 from ._robot import RobotLike, as_robot
-from ._statics import assemble, static_equilibrium
+from ._statics import assemble, free_coordinates, static_equilibrium
 
 
 class Modes(eqx.Module):
@@ -43,18 +46,25 @@ def modes(
     *,
     actuators: str = "locked",
     wrench=None,
+    program_dir: Optional[str] = None,
 ) -> Modes:
     """Linear modes of `model` about its static equilibrium near pose X (default home).
 
     actuators="locked": the actuated angles are held at the L1 inverse-kinematics angles of X
     (the L0 model's own for L0); L0 and L1 then have no free coordinate and no mode.
-    actuators="free": zero actuator torque, every coordinate free.
+    actuators="free": zero actuator torque, every coordinate free. `program_dir`: a directory
+    of stored programs (`run_scene`'s; the command line's): the program is loaded from there,
+    or exported there on first use; None: compiled in this process.
     """
     if actuators not in ("locked", "free"):
         raise PPRError(f"actuators must be 'locked' or 'free', got {actuators!r}")
     X = home_pose(robot) if X is None else check_array("X", X, (3,))
     w = jnp.zeros(3) if wrench is None else check_array("wrench", wrench, (3,))
-    res, failed = _modes_jit(model, as_robot(robot), X, actuators, w)
+    args = (model, as_robot(robot), X, actuators, w)
+    free = free_coordinates(model, actuators == "locked")
+    template = (Modes(*[0] * 7, free), 0)
+    res, failed = cached_program(_modes_jit, args, template, program_dir,
+                                 f"modes-{model.name}-{actuators}")(*args)
     # The check outside the compiled program: a status, not a host callback inside it.
     return raise_if(
         res, failed,

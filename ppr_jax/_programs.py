@@ -495,8 +495,11 @@ def cached_program(fn: Callable, args: tuple, out_template, directory: Optional[
     parts compared by equality): a study calling its program once per iteration looks it up
     instead of keying the store again, and a call with and one without a store share one
     compilation (the two programs differ by rounding only). Call the result with arguments of
-    the structure of `args` and the same static values."""
+    the structure of `args` and the same static values. Called with traced arguments (under
+    `jax.grad`, `jax.vmap` or `jax.jit` of a caller), it returns `fn` itself."""
     dyn, static = eqx.partition(args, eqx.is_array)
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(dyn)):
+        return fn  # called under a transformation (jax.grad of a caller): `fn` composes with it
     # As `eqx.filter_jit` keys its cache: the static leaves' values (a controller's
     # coefficients, a Python float of a path) as well as the structure and the shapes.
     static_leaves, static_def = jax.tree_util.tree_flatten(static)

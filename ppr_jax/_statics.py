@@ -60,6 +60,17 @@ def _newton(resid, y0, args, rtol=1e-12, atol=1e-12, max_steps=100):
     return jnp.where(ok, y - step, y), result
 
 
+def free_coordinates(model: AbstractModel, locked: bool) -> tuple:
+    """The coordinates `static_equilibrium` solves for, decided in Python: every one with free
+    actuators; with locked actuators all but the actuated angles (none for L0 and L1, whose
+    pose follows from the angles)."""
+    if not locked:
+        return tuple(range(model.n_dof))
+    if model.actuated_index is None:
+        return ()
+    return tuple(i for i in range(model.n_dof) if i not in tuple(model.actuated_index))
+
+
 def static_equilibrium(
     model: AbstractModel,
     robot: RobotLike,
@@ -85,13 +96,10 @@ def static_equilibrium(
     tau = jnp.zeros(3) if tau is None else jnp.asarray(tau, dtype=jnp.float64)
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
     z_guess = jnp.asarray(z_guess, dtype=jnp.float64)
-    if locked:
-        if model.actuated_index is None:
-            return (z_guess, (), jnp.asarray(False)) if return_failed else (z_guess, ())
-        known = tuple(model.actuated_index)
-    else:
-        known = ()
-    free = tuple(i for i in range(n) if i not in known)
+    free = free_coordinates(model, locked)
+    if not free:
+        return (z_guess, (), jnp.asarray(False)) if return_failed else (z_guess, ())
+    known = tuple(i for i in range(n) if i not in free)
     zk = z_guess[jnp.array(known)] if known else None
 
     def resid(zf, _):

@@ -86,3 +86,12 @@ def test_unstable_growth_rate_against_simulation(params):
                       jnp.zeros(3), ts, rtol=1e-12, atol=1e-20)
     dphi = np.asarray(sol.z[:, 2] - r.z_eq[2])
     np.testing.assert_allclose(dphi, dphi[0] * np.cosh(lam * np.asarray(ts)), rtol=1e-3)
+
+
+def test_modes_scene_defaults_to_table_1():
+    """`modes_scene()` without parameters runs on Table 1, as `ppr-jax modes` does (it asked
+    for the parameters of a registered scene named 'modes', which does not exist, and raised)."""
+    r = pj.modes_scene(model="double1r")
+    assert r["frequencies_hz"] == pj.modes_scene(pj.RobotParams(), model="double1r")[
+        "frequencies_hz"]
+    assert len(r["frequencies_hz"]) == 3 and min(r["frequencies_hz"]) > 0

@@ -476,3 +476,48 @@ def test_design_programs_are_stored_and_loaded(tmp_path, monkeypatch):
         (reach,) = [c for c in a.constraints if c["metric"] == "path_reach_margin"]
         assert reach["active"], a.summary()
     assert abs(loaded[1].x["l1"] / loaded[0].x["l1"] - 1) > 0.1
+
+
+def test_modes_torques_and_synth_programs_are_stored_and_loaded(tmp_path, monkeypatch):
+    """`ppr-jax modes`, `torques` and `synth` store their programs too (`program_dir`): a
+    second call at other parameter values loads them without tracing (export made to fail),
+    and every result equals the usual compile's. Under a transformation (`jax.jacfwd` of the
+    frequencies) `modes` compiles as before, and its derivative matches central differences."""
+    from ppr_jax._scenes import nominal_torques
+
+    model = pj.get_model("double1r")
+    p0 = pj.RobotParams()
+    p1 = p0.replace(t=0.35e-3)
+    d = str(tmp_path / "programs")
+
+    def calls(params, program_dir):
+        m = pj.modes(model, params, program_dir=program_dir)
+        ts, tau = nominal_torques(params, t_end=0.1, n_out=11, program_dir=program_dir)
+        exp = pj.synthesize("paper-circle", "rigid", params, rate=50.0, t_end=0.1,
+                            program_dir=program_dir)
+        return np.asarray(m.freq_hz), tau, exp.X, exp.th
+
+    monkeypatch.setattr(_programs, "_CACHED", {})
+    usual = [calls(p, None) for p in (p0, p1)]
+    monkeypatch.setattr(_programs, "_CACHED", {})
+    stored = calls(p0, d)
+    labels = sorted({n.rsplit("-", 1)[0] for n in os.listdir(d) if n.endswith(".jaxexport")})
+    assert labels == ["modes-double1r-locked", "paper-circle-rigid", "synth-angles-rigid",
+                      "torques-reduced"], labels
+
+    def no_export(*a, **k):
+        raise AssertionError("traced and exported again instead of loading the stored program")
+
+    monkeypatch.setattr(_programs, "_CACHED", {})
+    monkeypatch.setattr(_programs, "_export", no_export)
+    loaded = [calls(p, d) for p in (p0, p1)]
+    for a, b in zip([stored, *loaded], [usual[0], *usual]):
+        for x, y in zip(a, b):
+            np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-15)
+    assert abs(usual[1][0][0] / usual[0][0][0] - 1) > 1e-3
+
+    t0, h = float(p0.t), 1e-8
+    f = lambda t: pj.modes(model, p0.replace(t=t), program_dir=d).freq_hz[0]  # noqa: E731
+    dfdt = jax.jacfwd(f)(jax.numpy.asarray(t0))
+    fd = (f(t0 + h) - f(t0 - h)) / (2 * h)
+    np.testing.assert_allclose(float(dfdt), float(fd), rtol=1e-5)

@@ -17,7 +17,7 @@ def cmd_modes(args):
     params = _parse_sets(args.set, "modes", getattr(args, "params_file", None))
     X = None if args.pose is None else [float(v) for v in args.pose.split(",")]
     r = modes_scene(params, model=model_from_args(args, args.model), actuators=args.actuators,
-                    X=X)
+                    X=X, program_dir=getattr(args, "program_dir", None))
     if args.json:
         print(json.dumps(r, indent=2))
     else:

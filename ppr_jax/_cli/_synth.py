@@ -31,7 +31,8 @@ def cmd_synth(args):
                      noise_pos=args.noise_pos, noise_phi=args.noise_phi, rate=args.rate,
                      t_end=args.t_end, seed=args.seed,
                      name=os.path.splitext(os.path.basename(args.out))[0], solver=args.solver,
-                     rtol=args.rtol, atol=args.atol, max_steps=args.max_steps)
+                     rtol=args.rtol, atol=args.atol, max_steps=args.max_steps,
+                     program_dir=getattr(args, "program_dir", None))
     sets = " ".join(args.set or []) or "scene defaults"
     write_csv(args.out, exp, length_unit=args.length_unit, angle_unit=args.angle_unit, comments=[
         f"synthetic tracker data from ppr_jax: scene {scene.name}, model {args.model}, "

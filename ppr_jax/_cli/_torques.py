@@ -19,7 +19,8 @@ def cmd_torques(args):
 
     params = _parse_sets(args.set, "paper-circle", getattr(args, "params_file", None))
     check_out_dir(args.out)
-    ts, tau = nominal_torques(params, model=args.model, t_end=args.t_end, n_out=args.n_out)
+    ts, tau = nominal_torques(params, model=args.model, t_end=args.t_end, n_out=args.n_out,
+                              program_dir=getattr(args, "program_dir", None))
     path = os.path.join(args.out, "torques.csv")
     with open(path, "w", newline="") as f:
         w = csv.writer(f)

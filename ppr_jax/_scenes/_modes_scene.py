@@ -11,7 +11,6 @@ import numpy as np
 from .._models import get_model
 from .._modes import modes as _modes
 from .._params import RobotParams
-from ._registry import scene_params
 
 
 def modes_scene(
@@ -20,13 +19,16 @@ def modes_scene(
     model="double1r",
     actuators: str = "locked",
     X=None,
+    program_dir: Optional[str] = None,
 ) -> dict:
     """Scene `modes`: natural frequencies (Hz, signed: negative = unstable) about the static
-    equilibrium near pose X (default home), actuators locked or free."""
+    equilibrium near pose X (default home), actuators locked or free, of `params` (default
+    Table 1). `program_dir`: as `modes`'."""
     model = get_model(model)
-    params = scene_params("modes") if params is None else params
+    # `modes` is no registered scene: Table 1 (the command line's base for it too)
+    params = RobotParams() if params is None else params
     t0 = time.perf_counter()
-    r = _modes(model, params, X, actuators=actuators)
+    r = _modes(model, params, X, actuators=actuators, program_dir=program_dir)
     jax.block_until_ready(r)
     wall = time.perf_counter() - t0
     free = len(r.free)

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 
 from .._models import get_model
 from .._params import RobotParams
+from .._programs import cached_program
 from .._robot import Robot
 from ._base import AbstractScene
 from ._batch import batch_devices, map_members
@@ -102,6 +103,7 @@ def solve_scene(
     model="reduced",
     options: Optional[SceneOptions] = None,
     throw: bool = True,
+    program_dir: Optional[str] = None,
 ) -> SceneResult:
     """Run a scene, by name or an `AbstractScene` instance (your own, too).
 
@@ -115,12 +117,19 @@ def solve_scene(
       default solver and tolerances).
     - `throw`: raise `SimulationError` naming the failed members; False, or under a JAX
       transformation: check `result` instead (as diffrax's `throw`).
+    - `program_dir`: a directory of stored programs (as `run_scene`'s; the command line's): the
+      scene's program is loaded from there, or exported there on first use, so that a later
+      process skips tracing it; None (or a batch split over devices): compiled as usual.
 
     **Returns:** a `SceneResult`, with a leading axis for a batch.
     """
     options = SceneOptions() if options is None else options
     c = prepare(scene, params, model, options)
-    return finish(c.fn(*c.args), throw, params, c.solver_name)
+    fn = c.fn
+    if program_dir is not None and not c.devices:
+        fn = cached_program(c.fn, c.args, c.template(), program_dir,
+                            f"{c.scene}-{c.args[1].name}")
+    return finish(fn(*c.args), throw, params, c.solver_name)
 
 
 def _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory) -> SceneOptions:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Optional, Union
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,9 +14,17 @@ from .._errors import PPRError, check_number
 from .._kinematics import inverse_kinematics
 from .._models import get_model
 from .._params import RobotParams
+from .._programs import cached_program
 from ._base import AbstractScene
 from ._options import N_OUT, T_END
 from ._registry import get_scene
+
+
+@eqx.filter_jit
+def _torques_at(torque: InverseDynamicsTorque, ts):
+    """The torques (n, 3) at the times ts (n,): a function of its arguments, so that the robot
+    and the path's arrays are the program's inputs (one stored program for any values)."""
+    return jax.vmap(torque)(ts)
 
 
 def nominal_torques(
@@ -26,6 +35,7 @@ def nominal_torques(
     t_end: float = T_END,
     n_out: int = N_OUT,
     trajectory=None,
+    program_dir: Optional[str] = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The actuator torques that move a kinematic model (L0 or L1) along the scene's nominal path,
     by inverse dynamics (MODEL.md section 5), at `n_out` equal steps over [0, t_end].
@@ -39,6 +49,9 @@ def nominal_torques(
     - `model`: `"rigid"` or `"reduced"` (a model whose pose is its coordinates).
     - `scene`: whose nominal path (default `paper-circle`, eq 55); `trajectory` replaces it.
     - `t_end`, `n_out`: horizon (s) and number of output times.
+    - `program_dir`: a directory of stored programs (`run_scene`'s; the command line's): the
+      torques' program is loaded from there, or exported there on first use; None: compiled in
+      this process.
 
     **Returns:** `(ts, tau)`: (n_out,) times (s) and (n_out, 3) torques (N m).
     """
@@ -53,7 +66,9 @@ def nominal_torques(
     traj = scene.trajectory() if trajectory is None else trajectory
     ts = jnp.linspace(0.0, t_end, n_out)
     inverse_kinematics(params, jax.vmap(traj)(ts), model)
-    tau = np.asarray(jax.jit(jax.vmap(InverseDynamicsTorque(model, params, traj)))(ts))
+    args = (InverseDynamicsTorque(model, params, traj), ts)
+    tau = np.asarray(cached_program(_torques_at, args, 0, program_dir,
+                                    f"torques-{model.name}")(*args))
     if not np.all(np.isfinite(tau)):
         raise PPRError("inverse dynamics produced non-finite torques (singular configuration)")
     return np.asarray(ts), tau

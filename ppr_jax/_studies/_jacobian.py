@@ -1,4 +1,4 @@
-"""The metrics with their Jacobian in one program, as the sensitivities and the designs take them."""
+"""The metrics with their Jacobian in one program, as sensitivities and designs take them."""
 
 from __future__ import annotations
 

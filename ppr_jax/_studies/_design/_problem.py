@@ -154,7 +154,8 @@ class Problem:
         sizes = _SIZES.get(key)
         if sizes is None and path is not None and os.path.exists(path):
             try:
-                sizes = np.asarray(json.loads(open(path).read()), dtype=int)
+                with open(path) as f:
+                    sizes = np.asarray(json.loads(f.read()), dtype=int)
                 if sizes.shape != (len(self.metrics),):
                     sizes = None
             except (OSError, ValueError, TypeError):

@@ -12,6 +12,7 @@ import numpy as np
 from ..._data import DataError, Experiment
 from ..._models import get_model
 from ..._params import RobotParams
+from ..._programs import cached_program
 from ..._robot import Robot
 from ..._scenes import T_END, AbstractScene, SceneOptions, get_scene, solve_scene
 
@@ -45,6 +46,7 @@ def synthesize(
     seed: int = 0,
     name: str = "synthetic",
     n_elements: Optional[int] = None,
+    program_dir: Optional[str] = None,
     **scene_kw,
 ) -> Experiment:
     """A tracker-like `Experiment` from a scene: the simulated pose sampled at `rate` (Hz) from
@@ -54,7 +56,8 @@ def synthesize(
     than a tracker) and the torques (applied, or the reactions of a motion-driven scene) are
     included. `scene`: a registered name or an `AbstractScene` (a `PathScene` on your own
     path). `params` defaults to the scene's; `scene_kw`: `torque_model` (a registered
-    torque-driven scene's) and `SceneOptions`' fields (solver, tolerances)."""
+    torque-driven scene's) and `SceneOptions`' fields (solver, tolerances). `program_dir`: a
+    directory of stored programs (`solve_scene`'s; the command line's), or None."""
     scene_ = get_scene(scene, scene_kw.pop("torque_model", None))
     try:
         options = SceneOptions().updated(**scene_kw)
@@ -67,8 +70,11 @@ def synthesize(
     mdl = get_model(model, n_elements)
     params = scene_.default_params() if params is None else params
     res = solve_scene(scene_, params, model=mdl,
-                      options=options.updated(t_end=(n - 1) / rate, n_out=n))
-    th = np.asarray(_actuated_angles(mdl, Robot(params), res.z))
+                      options=options.updated(t_end=(n - 1) / rate, n_out=n),
+                      program_dir=program_dir)
+    args = (mdl, Robot(params), res.z)
+    angles = cached_program(_actuated_angles, args, 0, program_dir, f"synth-angles-{mdl.name}")
+    th = np.asarray(angles(*args))
     rng = np.random.default_rng(seed)
     X = np.asarray(res.X).copy()
     X[:, :2] += noise_pos * rng.standard_normal((n, 2))
