@@ -35,3 +35,22 @@ def test_kvaerno_statement_is_generated_from_the_json():
     # rows measured before the current stage solve say so
     predates = wp["machine"]["date"][:10] < _gen_perf().STAGE_SOLVE_DATE
     assert ("predate the current stage solve" in text) == predates
+
+
+def test_design_latency_sentences_quote_the_benchmark():
+    """The first and second `ppr-jax design` processes quoted by the README, docs/design.md and
+    docs/performance.md are `benchmarks/results/design_latency.json`'s (its rows' minima)."""
+    d = json.loads((ROOT / "benchmarks/results/design_latency.json").read_text())
+    new, base = d["rows"]["new"], d["rows"]["base"]
+    first, second = new["first_wall_s"], new["second_wall_s"]
+
+    def text(path):
+        return " ".join((ROOT / path).read_text().split())
+
+    assert f"| {first:.0f} s / {second:.1f} s |" in text("README.md")
+    assert (f"takes {first:.0f} s in a first process and {second:.1f} s in a second"
+            in text("docs/design.md"))
+    assert (f"{first:.1f} s in a first process and {second:.1f} s in a second, where the second "
+            f"had taken {base['second_wall_s']:.1f} s" in text("docs/performance.md"))
+    assert new["second_over_first"] < 0.5 * base["second_over_first"]
+    assert max(d["x_rel_diff"].values()) < 1e-9
