@@ -330,12 +330,13 @@ def test_identification_program_is_stored_and_loaded(tmp_path, monkeypatch):
     """`identify(program_dir=...)` (the command line passes its store): the fit's
     residual-and-Jacobian program is exported once; a later fit of the same structure and
     shapes, other data included, loads it without tracing (export is made to fail here), and
-    every fit equals the usual compile's to rounding. L0 torque-driven, 0.3 s."""
+    every fit equals the usual compile's to rounding. The two experiments have other names
+    (their files', a label): one program. L0 torque-driven, 0.3 s."""
     truth = pj.scene_params("paper-circle")
     kw = dict(model="rigid", scene="paper-circle", noise=(5e-6, 5e-5), starts=1,
               initial={"t": 0.8 * float(truth.t)})
     exps = [pj.synthesize("paper-circle", "rigid", truth, noise_pos=5e-6, noise_phi=5e-5,
-                          rate=100, t_end=0.3, seed=s) for s in (0, 1)]
+                          rate=100, t_end=0.3, seed=s, name=f"run{s}") for s in (0, 1)]
     d = str(tmp_path / "programs")
     # each phase as a fresh process would run it: nothing compiled kept from the one before
     monkeypatch.setattr(_programs, "_CACHED", {})
@@ -493,7 +494,7 @@ def test_modes_torques_and_synth_programs_are_stored_and_loaded(tmp_path, monkey
     def calls(params, program_dir):
         m = pj.modes(model, params, program_dir=program_dir)
         ts, tau = nominal_torques(params, t_end=0.1, n_out=11, program_dir=program_dir)
-        exp = pj.synthesize("paper-circle", "rigid", params, rate=50.0, t_end=0.1,
+        exp = pj.synthesize("paper-circle", "rigid", params, rate=100.0, t_end=0.1,
                             program_dir=program_dir)
         return np.asarray(m.freq_hz), tau, exp.X, exp.th
 
