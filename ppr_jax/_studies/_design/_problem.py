@@ -123,19 +123,30 @@ class Problem:
     program_dir: Optional[str] = None
     _last: Optional[tuple] = dataclasses.field(default=None, repr=False)
     _sizes: Optional[np.ndarray] = dataclasses.field(default=None, repr=False)
+    _callables: dict = dataclasses.field(default_factory=dict, repr=False)
+    _structure: Optional[Structure] = dataclasses.field(default=None, repr=False)
 
     @property
     def structure(self) -> Structure:
-        return Structure(tuple(self.names), tuple(self.metrics), bool(self.equal_links),
-                         tuple(self.samples), self.ctx)
+        if self._structure is None:
+            self._structure = Structure(tuple(self.names), tuple(self.metrics),
+                                        bool(self.equal_links), tuple(self.samples), self.ctx)
+        return self._structure
 
     def _args(self, x) -> tuple:
-        return (jnp.asarray(x, dtype=jnp.float64), self.base,
-                jnp.asarray(self.stroke, dtype=jnp.float64), self.structure)
+        # NumPy arrays: the compiled call places them itself (an optimiser calls this for
+        # every iterate; `jnp.asarray` was a third of a closed-form design's time)
+        return (np.asarray(x, dtype=np.float64), self.base, np.float64(self.stroke),
+                self.structure)
 
     def _program(self, fn, kind: str, args: tuple, template):
-        return cached_program(fn, args, template, self.program_dir,
-                              program_label(self.structure, kind))
+        # kept per problem by kind and shape (its base, stroke and structure are fixed), so an
+        # optimiser's iterations do not key `cached_program` afresh each time
+        key = (fn, kind, args[0].shape)
+        if key not in self._callables:
+            self._callables[key] = cached_program(fn, args, template, self.program_dir,
+                                                  program_label(self.structure, kind))
+        return self._callables[key]
 
     @property
     def sizes(self) -> np.ndarray:
