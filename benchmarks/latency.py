@@ -384,6 +384,9 @@ LEVERS = {
         "smaller derivative. Interleaved fresh-clone runs on one evening: 135cbef 700.6 s, "
         "this code 640.5 s and 620.2 s around it (584.6 s an hour earlier; 1,154 "
         "worker-seconds against 1,257-1,399). "
+        "The next landing added the stored programs' tests of design, synth, torques and "
+        "modes (each compiles its programs twice, usual and exported: 653 -> 658 tests), "
+        "623.8 s on a fresh clone. "
         "Remaining: fewer distinct programs, tests sharing one setting's compiled run (shapes, "
         "solver and options), and smaller programs (the implicit solvers' full L3, 17-26 s of "
         "XLA time per solver in test_implicit, its quasi-static start compiled into each)"),
