@@ -54,3 +54,30 @@ def test_too_thin_a_strip_names_the_cause():
     p = pj.scene_params("paper-circle", t=3e-5)
     with pytest.raises(pj.SimulationError, match="quasi-static initial state was not found"):
         pj.paper_circle(p, model="double1r", t_end=0.5, n_out=N_OUT)
+
+
+def test_a_start_whose_stencil_collapses_is_refused_not_run(tmp_path):
+    """L2 motion-driven along a figure eight read from a file, strips 0.333 mm x 10 mm: the
+    balance holds at t = 0, but the start's neighbours 10 ms either side (its rates are their
+    differences) collapse out of the chains' reach. The start must fail, as it does for a
+    thinner strip, and the run must stop at once: it was reported found with z' ~ 1e287 and
+    stalled at t = 0 for all 200,000 steps (11 s, and as long for every member of a batch
+    holding it). A slightly thicker strip starts and runs."""
+    ts = np.arange(0.0, 1.2 + 1e-9, 0.02)
+    w = 2 * np.pi * ts / 1.2
+    X = np.column_stack([0.45 + 0.04 * np.sin(w), 0.26 + 0.03 * np.sin(2 * w),
+                         0.01 * np.sin(w)])
+    path = tmp_path / "fig8.csv"
+    np.savetxt(path, np.column_stack([ts, X]), delimiter=",", header="time,x,y,phi",
+               comments="", fmt="%.17g")
+    scene = pj.PathScene(pj.load_path(str(path)), drive="motion", name="fig8")
+    opts = pj.SceneOptions(t_end=1.2, n_out=25)
+    base = scene.default_params().replace(w=0.01)
+    bad = pj.solve_scene(scene, base.replace(t=0.333e-3), model="double1r", options=opts,
+                         throw=False)
+    assert bad.result == pj.RESULTS.initial_state_failed, bad.result
+    assert int(bad.num_steps) < 1000
+    good = pj.solve_scene(scene, base.replace(t=0.4e-3), model="double1r", options=opts,
+                          throw=False)
+    assert good.result == pj.RESULTS.successful, good.result
+    assert np.all(np.isfinite(np.asarray(good.X)))
