@@ -387,7 +387,8 @@ LEVERS = {
         "The next landing added the stored programs' tests of design, synth, torques and "
         "modes (each compiles its programs twice, usual and exported: 653 -> 658 tests), "
         "623.8 s on a fresh clone, and 602.2 s for the landing's code (its step-aside test "
-        "on a small program instead of the 7 s jacfwd of modes). "
+        "on a small program instead of the 7 s jacfwd of modes); 640.6 s with the start's "
+        "stencil check and its test (660 tests). "
         "Remaining: fewer distinct programs, tests sharing one setting's compiled run (shapes, "
         "solver and options), and smaller programs (the implicit solvers' full L3, 17-26 s of "
         "XLA time per solver in test_implicit, its quasi-static start compiled into each)"),
