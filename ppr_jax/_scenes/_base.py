@@ -50,13 +50,19 @@ class SceneInput(eqx.Module):
     path it is computed from, or of a command log: a kink of the torques or of the prescribed
     accelerations), so that no step straddles one (a Runge-Kutta step across a kink loses its
     order, and its error estimate does not see it: a drift of 1e-6 m over 2 s of L1 under its
-    own torques on a 20 Hz spline at rtol 1e-8, against 1e-10 m on the circle); None: none."""
+    own torques on a 20 Hz spline at rtol 1e-8, against 1e-10 m on the circle); None: none.
+    `start`: the actuation the quasi-static start reads, where it differs from `actuation`: the
+    exact commands a table was made from. A prescribed motion's start takes the angles' rates
+    and accelerations at t0, and a table's polynomials give them to ~1e-7 only, differently for
+    every horizon (the start of a 5 ms run was 5e-9 rad from a 1 s run's); the exact commands
+    make the start independent of the table, as a torque drive's is. None: `actuation`."""
 
     actuation: AbstractActuation
     out_of_reach: Optional[Array] = None
     coarse: Optional[Array] = None
     singular: Optional[Array] = None
     step_ts: Optional[Array] = None
+    start: Optional[AbstractActuation] = None
 
 
 def step_times(fn, traj) -> Optional[Array]:
@@ -124,7 +130,7 @@ def motion_input(model, input_model, robot, traj, ts, panels: int) -> SceneInput
                           out_of_reach=path_out_of_reach(input_model, robot, traj, ts))
     table, coarse, out = tabulated(angles, ts, panels)
     return SceneInput(MotionDriven(table), out_of_reach=out, coarse=coarse,
-                      step_ts=step_times(angles, traj))
+                      step_ts=step_times(angles, traj), start=MotionDriven(angles))
 
 
 def stepping_to(controller, step_ts):
@@ -256,7 +262,8 @@ class AbstractScene(eqx.Module):
                            num_accepted=zero, num_rejected=zero)
             return self._result(model, robot, traj, sol, ref_open=inp.out_of_reach,
                                 singular=inp.singular)
-        z0, zd0, failed = quasi_static_core(model, robot, start, ts[0], act)
+        z0, zd0, failed = quasi_static_core(model, robot, start, ts[0],
+                                            act if inp.start is None else inp.start)
         if initial_offset is not None:
             # the platform pose and its rate are z[:3] in every model
             z0, zd0 = z0.at[:3].add(initial_offset[:3]), zd0.at[:3].add(initial_offset[3:])
