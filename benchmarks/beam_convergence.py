@@ -108,8 +108,18 @@ def paper_circle_metrics(params, t_end, Ns=(4, 8)):
     out_all = {}
     for N in Ns:
         t0 = time.perf_counter()
-        r = pj.run_scene("paper-circle", params, model=Beam(N), solver="kvaerno5", rtol=1e-8,
-                         atol=1e-10, t_end=t_end, n_out=int(round(t_end * 100)) + 1)
+        r = pj.run_scene(
+            "paper-circle",
+            params,
+            model=Beam(N),
+            options=pj.SceneOptions(
+                solver="kvaerno5",
+                rtol=1e-8,
+                atol=1e-10,
+                t_end=t_end,
+                n_out=int(round(t_end * 100)) + 1,
+            ),
+        )
         mt = dict(r.metrics, result=str(r.result.result),
                   wall_incl_compile_s=time.perf_counter() - t0)
         out_all[f"beam{N}"] = mt

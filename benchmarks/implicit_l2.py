@@ -71,8 +71,15 @@ def upsert(rows, row, keys):
 
 
 def run_library(params, t_end, solver, rtol, atol, repeats):
-    r = pj.run_scene("servo-circle", params, model="double1r", t_end=t_end, solver=solver,
-                     rtol=rtol, atol=atol, max_steps=2_000_000, repeats=repeats)
+    r = pj.run_scene(
+        "servo-circle",
+        params,
+        model="double1r",
+        repeats=repeats,
+        options=pj.SceneOptions(
+            t_end=t_end, solver=solver, rtol=rtol, atol=atol, max_steps=2_000_000
+        ),
+    )
     return r.result, r.timing["compile_s"], r.timing["run_s"]
 
 

@@ -32,8 +32,19 @@ def main():
     for N in (int(n) for n in args.elements.split(",")):
         res = {}
         for kind, model in (("quasi-static", pj.QuasiStaticBeam(N)), ("full", pj.Beam(N))):
-            r = pj.run_scene("paper-circle", params, model=model, t_end=args.t_end, n_out=n_out,
-                             solver="tsit5", rtol=1e-8, atol=1e-10, max_steps=2_000_000)
+            r = pj.run_scene(
+                "paper-circle",
+                params,
+                model=model,
+                options=pj.SceneOptions(
+                    t_end=args.t_end,
+                    n_out=n_out,
+                    solver="tsit5",
+                    rtol=1e-8,
+                    atol=1e-10,
+                    max_steps=2_000_000,
+                ),
+            )
             res[kind] = r
             print(N, kind, r.timing, int(r.result.num_steps), flush=True)
         Xq, Xf = (np.asarray(res[k].result.X) for k in ("quasi-static", "full"))

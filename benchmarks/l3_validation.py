@@ -49,8 +49,14 @@ def e_r(result):
 
 def run(scene, params, model, t_end, n_out, repeats=1, **solve):
     solve = {**TIGHT, **solve}
-    r = pj.run_scene(scene, params, model=model, t_end=t_end, n_out=n_out, repeats=repeats,
-                     max_steps=400_000, **solve)
+    r = pj.run_scene(
+        scene,
+        params,
+        model=model,
+        repeats=repeats,
+        **solve,
+        options=pj.SceneOptions(t_end=t_end, n_out=n_out, max_steps=400_000),
+    )
     m = {k: float(r.metrics[k]) for k in METRICS + ("num_steps",)}
     return r, m, r.timing
 

@@ -73,8 +73,13 @@ def main():
     params = pj.scene_params(scene)
     for N in (int(n) for n in args.elements.split(",")):
         # the baseline's run is short and its timing noisy: the fastest of three
-        qs = pj.run_scene(scene, params, model=pj.QuasiStaticBeam(N), t_end=T_END, n_out=N_OUT,
-                          repeats=3)
+        qs = pj.run_scene(
+            scene,
+            params,
+            model=pj.QuasiStaticBeam(N),
+            repeats=3,
+            options=pj.SceneOptions(t_end=T_END, n_out=N_OUT),
+        )
         qrow = dict(scene=scene, N=N, solver=qs.solver["name"], rtol=qs.solver["rtol"],
                     run_s=qs.timing["run_s"], compile_s=qs.timing["compile_s"],
                     steps=int(qs.result.num_steps), metrics=metrics(qs),
@@ -85,9 +90,10 @@ def main():
         for tau in (float(v) for v in args.losses.split(",")):
             for s in args.solvers.split(","):
                 for rtol in (float(v) for v in args.rtols.split(",")):
+                    opts = pj.SceneOptions(t_end=T_END, n_out=N_OUT, solver=s, rtol=rtol,
+                                           atol=rtol / 100, max_steps=args.max_steps)
                     r = pj.run_scene(scene, params, model=pj.Beam(N, strip_loss=tau),
-                                     t_end=T_END, n_out=N_OUT, solver=s, rtol=rtol,
-                                     atol=rtol / 100, max_steps=args.max_steps)
+                                     options=opts)
                     m = metrics(r)
                     dev = max(abs(m[k] - qrow["metrics"][k]) / abs(qrow["metrics"][k])
                               for k in METRICS)

@@ -174,8 +174,14 @@ def main():
            "rows": []}
 
     # the reference for member 0's error: the library's L2 run at tight tolerance
-    ref = pj.run_scene("paper-circle", base.replace(t=0.28e-3), model="double1r",
-                       solver="dopri8", rtol=1e-11, atol=1e-13, t_end=args.t_end, n_out=n_out)
+    ref = pj.run_scene(
+        "paper-circle",
+        base.replace(t=0.28e-3),
+        model="double1r",
+        options=pj.SceneOptions(
+            solver="dopri8", rtol=1e-11, atol=1e-13, t_end=args.t_end, n_out=n_out
+        ),
+    )
     X_ref = np.asarray(ref.X)
 
     for B in args.sizes:
@@ -187,9 +193,9 @@ def main():
         params = (base.replace(t=float(ts[0])) if B == 1 else
                   pj.stack_params([base.replace(t=float(t)) for t in ts]))
         for rtol in args.rtols:
-            r = pj.run_scene("paper-circle", params, model="double1r", rtol=rtol,
-                             atol=rtol * 1e-2, t_end=args.t_end, n_out=n_out,
-                             repeats=args.repeats)
+            r = pj.run_scene("paper-circle", params, model="double1r", repeats=args.repeats,
+                             options=pj.SceneOptions(rtol=rtol, atol=rtol * 1e-2,
+                                                     t_end=args.t_end, n_out=n_out))
             X0 = np.asarray(r.X if B == 1 else r.X[0])
             e = float(np.max(np.linalg.norm(X0[:, :2] - X_ref[:, :2], axis=-1)))
             prow = {"tool": "ppr_jax", "batch": B, "rtol": rtol,

@@ -108,9 +108,20 @@ def position_error(X, ref_X) -> float:
 
 
 def run_point(scene, model, solver, rtol, t_end, n_out, repeats):
-    r = pj.run_scene(scene, pj.scene_params(scene), model=model_of(model), solver=solver,
-                     rtol=rtol, atol=rtol * 1e-2, t_end=t_end, n_out=n_out,
-                     max_steps=1_000_000, repeats=repeats)
+    r = pj.run_scene(
+        scene,
+        pj.scene_params(scene),
+        model=model_of(model),
+        repeats=repeats,
+        options=pj.SceneOptions(
+            solver=solver,
+            rtol=rtol,
+            atol=rtol * 1e-2,
+            t_end=t_end,
+            n_out=n_out,
+            max_steps=1_000_000,
+        ),
+    )
     return r
 
 
@@ -341,8 +352,13 @@ def part_batch(args, out_dir) -> dict:
     if args.sizes:
         plan = {m: tuple(args.sizes) for m in (args.models or plan)}
     rtols = tuple(args.rtols) if args.rtols else rtols
-    data = {"machine": machine(args.quick), "scene": "paper-circle", "t_end_s": t_end,
-            "members": "strip thickness spread evenly over 0.28-0.40 mm", "rows": []}
+    data = {
+        "machine": machine(args.quick),
+        "scene": "paper-circle",
+        "t_end_s": t_end,
+        "members": "strip thickness spread evenly over 0.28-0.40 mm",
+        "rows": [],
+    }
     old = _load(out_dir, "batch")
     if args.models:
         plan = {m: b for m, b in plan.items() if m in args.models}
@@ -354,9 +370,9 @@ def part_batch(args, out_dir) -> dict:
                 ts = np.linspace(0.28e-3, 0.40e-3, B)
                 params = (base.replace(t=float(ts[0])) if B == 1 else
                           pj.stack_params([base.replace(t=float(t)) for t in ts]))
-                r = pj.run_scene("paper-circle", params, model=model, rtol=rtol,
-                                 atol=rtol * 1e-2, t_end=t_end, repeats=args.repeats,
-                                 max_steps=400_000)
+                r = pj.run_scene("paper-circle", params, model=model, repeats=args.repeats,
+                                 options=pj.SceneOptions(rtol=rtol, atol=rtol * 1e-2,
+                                                         t_end=t_end, max_steps=400_000))
                 row = dict(model=model, rtol=rtol, batch=B, compile_s=r.timing["compile_s"],
                            run_s=r.timing["run_s"], per_robot_ms=r.timing["run_s"] / B * 1e3,
                            trajectories_per_s=B / r.timing["run_s"])

@@ -109,12 +109,13 @@ from ppr_jax._names import MODEL_NAMES, SCENE_NAMES, SOLVER_NAMES
 
 out = {}
 which = sys.argv[1]
-kw = dict(t_end=0.3, n_out=7)
+opts = dict(t_end=0.3, n_out=7)
+kw = dict(options=pj.SceneOptions(**opts))
 if which == "model":
     assert "tight-reduced" in MODEL_NAMES
     new = pj.run_scene("paper-circle", model="tight-reduced", torque_model="rigid", **kw)
-    ref = pj.run_scene("paper-circle", model="reduced", torque_model="rigid", rtol=1e-10,
-                       atol=1e-10, **kw)
+    ref = pj.run_scene("paper-circle", model="reduced", torque_model="rigid",
+                       options=pj.SceneOptions(rtol=1e-10, atol=1e-10, **opts))
     out["X_diff"] = float(np.abs(np.asarray(new.result.X) - np.asarray(ref.result.X)).max())
     out["moved"] = float(np.abs(np.asarray(ref.result.X)[-1] - np.asarray(ref.result.X)[0]).max())
     out["rtol"] = new.solver["rtol"]
@@ -126,10 +127,10 @@ if which == "model":
                        "--out", sys.argv[2]])
 elif which == "solver":
     assert "bosh3" in SOLVER_NAMES
-    new = pj.run_scene("paper-circle", model="reduced", torque_model="rigid", solver="bosh3",
-                       rtol=1e-10, atol=1e-12, **kw)
-    ref = pj.run_scene("paper-circle", model="reduced", torque_model="rigid", solver="tsit5",
-                       rtol=1e-10, atol=1e-12, **kw)
+    new = pj.run_scene("paper-circle", model="reduced", torque_model="rigid",
+                       options=pj.SceneOptions(solver="bosh3", rtol=1e-10, atol=1e-12, **opts))
+    ref = pj.run_scene("paper-circle", model="reduced", torque_model="rigid",
+                       options=pj.SceneOptions(solver="tsit5", rtol=1e-10, atol=1e-12, **opts))
     out["X_diff"] = float(np.abs(np.asarray(new.result.X) - np.asarray(ref.result.X)).max())
     out["solver"] = new.solver["name"]
     out["cli"] = main(["simulate", "--scene", "paper-circle", "--model", "reduced",
@@ -152,7 +153,7 @@ elif which == "metric":
     out["fd"] = float((s.evaluate(x0 + h)[0] - s.evaluate(x0 - h)[0]) / (2 * h[0]))
 elif which == "scene":
     assert "line" in SCENE_NAMES
-    rep = pj.run_scene("line", model="reduced", t_end=1.0, n_out=11)
+    rep = pj.run_scene("line", model="reduced", options=pj.SceneOptions(t_end=1.0, n_out=11))
     ts = np.asarray(rep.result.ts)
     u = np.clip(ts, 0.0, 1.0)
     s_ = u**3 * (10 - 15 * u + 6 * u**2)

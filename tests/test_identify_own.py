@@ -216,8 +216,12 @@ def test_experiment_scene_runs_the_file(data_file):
     _, exp = data_file
     scene = pj.experiment_scene(exp)
     assert scene.drive == "motion" and scene.name == exp.name
-    rep = pj.run_scene(scene, pj.RobotParams(**BASE).replace(gamma=GAMMA), model="reduced",
-                       t_end=float(exp.ts[-1]), n_out=exp.n)
+    rep = pj.run_scene(
+        scene,
+        pj.RobotParams(**BASE).replace(gamma=GAMMA),
+        model="reduced",
+        options=pj.SceneOptions(t_end=float(exp.ts[-1]), n_out=exp.n),
+    )
     X = np.asarray(rep.result.X)
     assert np.max(np.hypot(*(X[:, :2] - np.asarray(exp.X)[:, :2]).T)) < 5e-3
     with pytest.raises(pj.DataError, match="hold no actuated angles"):

@@ -307,9 +307,13 @@ def test_full_l3_on_the_stiff_path_matches_the_quasi_static_l3(quasi_static_l3_s
     (`test_cli`): it runs through the suite's program store, so that the command line loads
     this program, or this test the command line's."""
     store = suite_program_dir() if name == "kvaerno5-kept" else None
-    full = pj.run_scene("paper-circle", pj.scene_params("paper-circle"), model=pj.Beam(4),
-                        solver=name, rtol=1e-4, atol=1e-6, t_end=0.05, n_out=11,
-                        program_dir=store).result
+    full = pj.run_scene(
+        "paper-circle",
+        pj.scene_params("paper-circle"),
+        model=pj.Beam(4),
+        program_dir=store,
+        options=pj.SceneOptions(solver=name, rtol=1e-4, atol=1e-6, t_end=0.05, n_out=11),
+    ).result
     qs = quasi_static_l3_start
     d = np.max(np.hypot(*(np.asarray(full.X)[:, :2] - np.asarray(qs.X)[:, :2]).T))
     assert 1e-8 < d < 1e-6, d

@@ -512,8 +512,12 @@ def test_torque_driven_spline_scene_matches_the_scipy_l2(tmp_path):
 
     path = pj.load_path(_eight_file(tmp_path), bc="natural")
     params = pj.scene_params("paper-circle")
-    r = pj.run_scene(pj.PathScene(path, drive="torque"), params, model="double1r", t_end=0.4,
-                     n_out=41).result
+    r = pj.run_scene(
+        pj.PathScene(path, drive="torque"),
+        params,
+        model="double1r",
+        options=pj.SceneOptions(t_end=0.4, n_out=41),
+    ).result
     fn = library.scene_torque_fn(params, path)
     exact = jax.jit(lambda t: fn(t))
     out = scipy_l2.run(params, method="DOP853", rtol=1e-11, atol=1e-13, t_end=0.4, n_out=41,

@@ -58,7 +58,11 @@ def _closed_form(ts):
 
 @pytest.fixture(scope="module")
 def line_report():
-    return pj.run_scene(LineScene(), model="reduced", t_end=OPTIONS.t_end, n_out=OPTIONS.n_out)
+    return pj.run_scene(
+        LineScene(),
+        model="reduced",
+        options=pj.SceneOptions(t_end=OPTIONS.t_end, n_out=OPTIONS.n_out),
+    )
 
 
 def test_own_scene_with_a_line_follows_the_closed_form(line_report):
@@ -167,14 +171,13 @@ PATH_OPTIONS = pj.SceneOptions(t_end=1.0, n_out=21)
 
 @pytest.fixture(scope="module")
 def path_report():
-    return pj.run_scene(PATH_SCENE, model="double1r", t_end=PATH_OPTIONS.t_end,
-                        n_out=PATH_OPTIONS.n_out)
+    return pj.run_scene(PATH_SCENE, model="double1r", options=PATH_OPTIONS)
 
 
 def test_path_scene_l1_follows_its_own_tabulated_torques():
     """A `PathScene` tabulates L1's inverse-dynamics torques along the line; L1 driven by them
     follows the closed-form line to the table's and the integrator's accuracy."""
-    r = pj.run_scene(PATH_SCENE, model="reduced", t_end=1.0, n_out=21)
+    r = pj.run_scene(PATH_SCENE, model="reduced", options=pj.SceneOptions(t_end=1.0, n_out=21))
     assert r.result.scene == "my-line"
     ref = _smooth_closed_form(np.asarray(r.ts))
     np.testing.assert_allclose(r.result.X, ref, rtol=0, atol=1e-8)
@@ -271,7 +274,7 @@ def test_sensitivity_of_a_path_scene_against_finite_differences():
     vals = []
     for t in (t0 + h, t0 - h):
         r = pj.run_scene(PATH_SCENE, PATH_SCENE.default_params(t=t), model="double1r",
-                         t_end=1.0, n_out=21, rtol=1e-11, atol=1e-13)
+                         options=pj.SceneOptions(t_end=1.0, n_out=21, rtol=1e-11, atol=1e-13))
         vals.append([r.metrics["position_error_rms_m"], r.metrics["phi_error_rms_rad"]])
     fd = (np.asarray(vals[0]) - np.asarray(vals[1])) / (2 * h)
     np.testing.assert_allclose(s.jacobian[:, 0], fd, rtol=1e-4)
@@ -339,13 +342,13 @@ def test_cli_simulate_your_own_experiment(tmp_path):
     exact = pj.InverseKinematicsAngles(pj.Reduced(), pj.Robot(scene.default_params()),
                                        SmoothLine())
     ref = pj.run_scene(pj.PathScene(SmoothLine(), drive="motion", command_log=exact,
-                                    thickness=0.5e-3),
-                       model="double1r", t_end=1.0, n_out=21).metrics
+                                    thickness=0.5e-3), model="double1r",
+                       options=PATH_OPTIONS).metrics
     assert "radial_error_max_m" not in got
     # The same angles tabulated by the scene: 2 % off while the start read the table's
     # extrapolation before t = 0 (tests/test_horizon.py), 0.4 % while a panel spanned the
     # move's start at t = 0 (where its third derivative jumps); t0 is now a panel boundary.
-    tab = pj.run_scene(scene, model="double1r", t_end=1.0, n_out=21).metrics
+    tab = pj.run_scene(scene, model="double1r", options=PATH_OPTIONS).metrics
     for k in ("position_error_max_m", "position_error_rms_m", "phi_error_max_rad"):
         np.testing.assert_allclose(got[k], ref[k], rtol=1e-3, err_msg=k)
         np.testing.assert_allclose(tab[k], ref[k], rtol=1e-3, err_msg=k)
@@ -438,3 +441,16 @@ def test_identify_gamma_on_the_line_scene_from_independent_data():
     assert 0 < std < 0.01 and abs(est - 0.80) < 2 * std, fit.table()
     assert abs(fit.initial[0] - 0.80) > 3 * std  # the start was away from the truth
     assert 0.7 < np.sqrt(fit.sigma2) < 1.4, fit.table()
+
+
+def test_options_enter_run_scene_as_one_object(line_report):
+    """`run_scene` takes its options as one `SceneOptions`; the fields as keywords still work
+    for one release with a `DeprecationWarning`, and both at once are refused."""
+    with pytest.warns(DeprecationWarning, match="options=SceneOptions"):
+        old = pj.run_scene(LineScene(), model="reduced", t_end=OPTIONS.t_end,
+                           n_out=OPTIONS.n_out)
+    np.testing.assert_array_equal(old.result.X, line_report.result.X)
+    with pytest.raises(pj.PPRError, match="not both"):
+        pj.run_scene(LineScene(), model="reduced", options=OPTIONS, t_end=1.0)
+    with pytest.raises(pj.PPRError, match="must be a SceneOptions"):
+        pj.paper_circle(options={"t_end": 1.0})

@@ -32,8 +32,12 @@ N_OUT = 401  # every 1 ms: the torque table's grid
 def scene():
     """(params, library paper-circle L2 report, torque spline) over [0, T_END]."""
     params = pj.scene_params("paper-circle")
-    rep = pj.run_scene("paper-circle", params, model="double1r", t_end=T_END, n_out=N_OUT,
-                       rtol=1e-10, atol=1e-12)
+    rep = pj.run_scene(
+        "paper-circle",
+        params,
+        model="double1r",
+        options=pj.SceneOptions(t_end=T_END, n_out=N_OUT, rtol=1e-10, atol=1e-12),
+    )
     torque = scipy_l2.TorqueSpline(rep.result.ts, rep.result.tau)
     return params, rep, torque
 
@@ -92,8 +96,9 @@ def test_damping_friction_and_rotor_inertia_match_library(scene):
     """The optional terms of MODEL.md section 1 (spring damping, actuator friction, rotor
     inertia): parameters are leaves, so the library's compiled scene is reused."""
     params = scene[0].replace(c_spring=1e-4, c_act=1e-3, J_rotor=1e-3)
-    res = pj.run_scene("paper-circle", params, model="double1r", t_end=T_END, n_out=N_OUT,
-                       rtol=1e-10, atol=1e-12).result
+    res = pj.run_scene("paper-circle", params, model="double1r",
+                       options=pj.SceneOptions(t_end=T_END, n_out=N_OUT, rtol=1e-10,
+                                               atol=1e-12)).result
     out = scipy_l2.run(params, method="DOP853", rtol=1e-11, atol=1e-13, t_end=T_END,
                        n_out=N_OUT, repeats=1, z0=res.z[0], zdot0=res.zdot[0],
                        torque=scipy_l2.TorqueSpline(res.ts, res.tau))  # rotor inertia: new torques

@@ -70,8 +70,15 @@ def circle_short():
     the metrics, their central differences and the start; and the reference's."""
     params = pj.scene_params("paper-circle")
     t0 = float(params.t)
-    reps = [pj.run_scene("paper-circle", params.replace(t=t), model="double1r", t_end=T_SHORT,
-                         n_out=N_SHORT, **TOL) for t in (t0, t0 * (1 + REL_H), t0 * (1 - REL_H))]
+    reps = [
+        pj.run_scene(
+            "paper-circle",
+            params.replace(t=t),
+            model="double1r",
+            options=pj.SceneOptions(t_end=T_SHORT, n_out=N_SHORT, **TOL),
+        )
+        for t in (t0, t0 * (1 + REL_H), t0 * (1 - REL_H))
+    ]
     m = [np.array([r.metrics[k] for k in CIRCLE_METRICS]) for r in reps]
     start = (np.asarray(reps[0].result.z[0]), np.asarray(reps[0].result.zdot[0]))
     lib = (m[0], (m[1] - m[2]) / (2 * REL_H * t0), start)

@@ -25,7 +25,7 @@ def cmd_simulate(args):
 
     from .._errors import PPRError
     from .._metrics import path_metrics
-    from .._scenes import check_scene_args, modes_scene, run_scene, scene_names
+    from .._scenes import SceneOptions, check_scene_args, modes_scene, run_scene, scene_names
     from ._figures import scene_figures
 
     # `modes` is a static solve, not a scene; every other choice (and --path) is a scene
@@ -49,8 +49,8 @@ def cmd_simulate(args):
         print(f"wrote {args.out}/summary.json")
         return 0
     models = _models(args.model, "rigid,reduced,double1r")
-    kw = dict(t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol,
-              atol=args.atol, max_steps=args.max_steps)
+    options = SceneOptions(t_end=args.t_end, n_out=args.n_out, solver=args.solver,
+                           rtol=args.rtol, atol=args.atol, max_steps=args.max_steps)
     results, failed = [], {}
     traj = scene.trajectory()
     circle = "radial_error_max_m" in path_metrics(traj)
@@ -90,7 +90,7 @@ def cmd_simulate(args):
         t0 = time.perf_counter()
         try:
             r = run_scene(scene, params, model=objs[i],
-                          program_dir=getattr(args, "program_dir", None), **kw)
+                          program_dir=getattr(args, "program_dir", None), options=options)
         except PPRError as err:
             failed[m] = " ".join(str(err).split())
             _log(f"      {m} failed: {failed[m]}")

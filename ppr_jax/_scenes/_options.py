@@ -163,3 +163,44 @@ class SceneOptions(eqx.Module):
         """The solver's name as reports print it."""
         s = default_solver(model) if self.solver is None or self.auto_solver else self.solver
         return str(s) if isinstance(s, str) else type(s).__name__
+
+
+#: the `SceneOptions` fields that the scene functions also took as keywords
+OPTION_KEYWORDS = ("t_end", "n_out", "solver", "rtol", "atol", "max_steps", "trajectory",
+                   "adjoint")
+
+
+def options_from(options: Optional["SceneOptions"], where: str, deprecated: bool,
+                 **keywords) -> "SceneOptions":
+    """The one `SceneOptions` of a call that takes `options` and, for compatibility, its fields
+    as keywords (`keywords`: those given, None for those left out). Both at once is an error;
+    the keywords alone build the options, with a `DeprecationWarning` where `deprecated`
+    (`run_scene`; the `paper_circle`/`servo_circle` conveniences keep them).
+
+    **Arguments:**
+
+    - `options`: a `SceneOptions` or None.
+    - `where`: the function's name, for the messages.
+    - `deprecated`: warn when keywords are given.
+    - `keywords`: `SceneOptions` fields (`OPTION_KEYWORDS`), None where not given.
+
+    **Returns:** a `SceneOptions`.
+    """
+    from .._errors import PPRError
+
+    given = {k: v for k, v in keywords.items() if v is not None}
+    if options is not None:
+        if not isinstance(options, SceneOptions):
+            raise PPRError(f"{where}: options must be a SceneOptions, got "
+                           f"{type(options).__name__}")
+        if given:
+            raise PPRError(f"{where}: give the options either as options=SceneOptions(...) or "
+                           f"as keywords ({', '.join(sorted(given))}), not both")
+        return options
+    if given and deprecated:
+        import warnings
+
+        warnings.warn(f"{where}({', '.join(f'{k}=...' for k in sorted(given))}) is deprecated: "
+                      f"pass options=SceneOptions({', '.join(f'{k}=...' for k in sorted(given))})",
+                      DeprecationWarning, stacklevel=3)
+    return SceneOptions(**given)

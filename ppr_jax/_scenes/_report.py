@@ -18,7 +18,7 @@ from .._metrics import metric_table
 from .._params import RobotParams
 from .._programs import compiled_program
 from ._base import AbstractScene
-from ._options import MAX_STEPS, N_OUT, T_END, SceneOptions
+from ._options import SceneOptions, options_from
 from ._registry import get_scene
 from ._result import SceneResult, finish
 from ._run import prepare
@@ -87,32 +87,45 @@ def run_scene(
     params: Optional[RobotParams] = None,
     *,
     model="reduced",
+    options: Optional[SceneOptions] = None,
     torque_model="reduced",
+    repeats: int = 1,
+    program_dir: Optional[str] = None,
     trajectory=None,
-    t_end: float = T_END,
-    n_out: int = N_OUT,
+    t_end: Optional[float] = None,
+    n_out: Optional[int] = None,
     solver=None,
     rtol: Optional[float] = None,
     atol: Optional[float] = None,
-    max_steps: int = MAX_STEPS,
-    repeats: int = 1,
-    program_dir: Optional[str] = None,
+    max_steps: Optional[int] = None,
 ) -> SceneReport:
-    """Run a scene (`paper-circle`, `servo-circle` or an `AbstractScene`; arguments as
-    `paper_circle`, which are `SceneOptions`' fields; `torque_model` is used by `paper-circle`
-    only) and time it: compilation ahead of time (lowering and
-    compiling; a cache hit once a model and shapes have run), then `repeats` runs (at least one),
-    each after `block_until_ready`; `timing = {compile_s, run_s: fastest run}`. A failure raises
-    `SimulationError` naming the failed members. Returns a `SceneReport`.
+    """Run a scene and time it: compilation ahead of time (lowering and compiling; a cache hit
+    once a model and shapes have run), then `repeats` runs, each after `block_until_ready`.
 
-    `program_dir`: a directory of exported scene programs (`_programs.py`; the command line
-    passes one inside its compilation cache): the program is loaded from there, or exported there
-    on first use, so that a later process skips tracing too; `timing["program"]` says which
-    ("loaded", "exported", or "compiled" where the program cannot be stored)."""
+    **Arguments:**
+
+    - `scene`: `"paper-circle"`, `"servo-circle"`, a registered name or an `AbstractScene`.
+    - `params`: a `RobotParams` or a batch (`stack_params`); None: the scene's defaults.
+    - `model`: a model or its name.
+    - `options`: a `SceneOptions` (horizon, output times, solver, tolerances); None: defaults.
+    - `torque_model`: the model whose inverse dynamics gives `paper-circle`'s torques.
+    - `repeats`: timed runs (at least one); `timing["run_s"]` is the fastest.
+    - `program_dir`: a directory of exported scene programs (`_programs.py`; the command line
+      passes one inside its compilation cache): the program is loaded from there, or exported
+      there on first use, so that a later process skips tracing too; `timing["program"]` says
+      which ("loaded", "exported", or "compiled" where the program cannot be stored).
+    - `trajectory`, `t_end`, `n_out`, `solver`, `rtol`, `atol`, `max_steps`: deprecated
+      spellings of `options`' fields (a `DeprecationWarning`; not together with `options`).
+
+    **Returns:** a `SceneReport`: the result as NumPy arrays, the scene's metrics, and
+    `timing = {compile_s, run_s, program}`. A failure raises `SimulationError` naming the
+    failed members.
+    """
     scene = get_scene(scene, torque_model)
     params = scene.default_params() if params is None else params
-    options = SceneOptions(t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
-                           max_steps=max_steps, trajectory=trajectory)
+    options = options_from(options, "run_scene", True, trajectory=trajectory, t_end=t_end,
+                           n_out=n_out, solver=solver, rtol=rtol, atol=atol,
+                           max_steps=max_steps)
     c = prepare(scene, params, model, options)
     # Compiled ahead of time (a cache hit if this shape ran before: lowering shares the jit
     # cache), then run `repeats` times; no extra run just to separate compilation from the run.

@@ -15,7 +15,7 @@ from .._programs import cached_program
 from .._robot import Robot
 from ._base import AbstractScene
 from ._batch import batch_devices, map_members
-from ._options import MAX_STEPS, N_OUT, T_END, SceneOptions, default_solver
+from ._options import SceneOptions, default_solver, options_from
 from ._registry import get_scene, scene_params
 from ._result import SceneResult, finish, result_template
 from ._solver_choice import choose_solver
@@ -132,9 +132,12 @@ def solve_scene(
     return finish(fn(*c.args), throw, params, c.solver_name)
 
 
-def _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory) -> SceneOptions:
-    return SceneOptions(t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
-                        max_steps=max_steps, adjoint=adjoint, trajectory=trajectory)
+def _options(options, where, t_end, n_out, solver, rtol, atol, max_steps, adjoint,
+             trajectory) -> SceneOptions:
+    # the scene conveniences keep `SceneOptions`' fields as keywords (not deprecated)
+    return options_from(options, where, False, t_end=t_end, n_out=n_out, solver=solver,
+                        rtol=rtol, atol=atol, max_steps=max_steps, adjoint=adjoint,
+                        trajectory=trajectory)
 
 
 def paper_circle(
@@ -142,27 +145,31 @@ def paper_circle(
     *,
     model="reduced",
     torque_model="reduced",
+    options: Optional[SceneOptions] = None,
+    throw: bool = True,
     trajectory=None,
-    t_end: float = T_END,
-    n_out: int = N_OUT,
+    t_end: Optional[float] = None,
+    n_out: Optional[int] = None,
     solver=None,
     rtol: Optional[float] = None,
     atol: Optional[float] = None,
-    max_steps: int = MAX_STEPS,
-    throw: bool = True,
+    max_steps: Optional[int] = None,
     adjoint: Optional[diffrax.AbstractAdjoint] = None,
 ) -> SceneResult:
     """Scene `paper-circle` (paper Fig 8-12, `PaperCircle`): torques from `torque_model`'s
     inverse dynamics along eq 55 (default L1; `rigid` gives the paper's "simplified model"
     torques), `model` simulated torque-driven from its quasi-static state at t = 0. Default
-    params: Table 1 with t = 0.3 mm. The keywords are `SceneOptions`' fields.
+    params: Table 1 with t = 0.3 mm. `options`: a `SceneOptions`; or, as a convenience, its
+    fields as keywords (`t_end`, `n_out`, `solver`, `rtol`, `atol`, `max_steps`, `trajectory`,
+    `adjoint`), not both.
 
     Returns a `SceneResult`, with a leading axis for batched `params` (`stack_params`): one
     compiled vmapped call. A failed member raises `SimulationError` naming it; with
     `throw=False`, or under a JAX transformation, check `result` instead (as diffrax's `throw`).
     `adjoint`: diffrax's default (reverse mode, `jax.grad`) or `diffrax.ForwardMode()` for
     `jax.jvp` / `jax.jacfwd` through the scene. Metrics and timings: `run_scene`."""
-    opts = _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory)
+    opts = _options(options, "paper_circle", t_end, n_out, solver, rtol, atol, max_steps,
+                    adjoint, trajectory)
     c = prepare("paper-circle", params, model, opts, torque_model)
     return finish(c.fn(*c.args), throw, params, c.solver_name)
 
@@ -171,22 +178,24 @@ def servo_circle(
     params: Optional[RobotParams] = None,
     *,
     model="double1r",
+    options: Optional[SceneOptions] = None,
+    throw: bool = True,
     trajectory=None,
-    t_end: float = T_END,
-    n_out: int = N_OUT,
+    t_end: Optional[float] = None,
+    n_out: Optional[int] = None,
     solver=None,
     rtol: Optional[float] = None,
     atol: Optional[float] = None,
-    max_steps: int = MAX_STEPS,
-    throw: bool = True,
+    max_steps: Optional[int] = None,
     adjoint: Optional[diffrax.AbstractAdjoint] = None,
 ) -> SceneResult:
     """Scene `servo-circle` (paper Fig 17-18, `ServoCircle`): the actuated angles follow L1's
     inverse kinematics of eq 55 exactly (motion-driven); the platform's response of `model`.
     L0/L1 need no ODE (forward kinematics + inverse dynamics). Default params: Table 1 with
-    t = 0.5 mm. Returns a `SceneResult` (batched like `paper_circle`); `throw` and `adjoint` as
-    there."""
-    opts = _options(t_end, n_out, solver, rtol, atol, max_steps, adjoint, trajectory)
+    t = 0.5 mm. Returns a `SceneResult` (batched like `paper_circle`); `options` (or its fields
+    as keywords), `throw` and `adjoint` as there."""
+    opts = _options(options, "servo_circle", t_end, n_out, solver, rtol, atol, max_steps,
+                    adjoint, trajectory)
     c = prepare("servo-circle", params, model, opts)
     return finish(c.fn(*c.args), throw, params, c.solver_name)
 
