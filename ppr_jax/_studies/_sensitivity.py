@@ -1,11 +1,11 @@
 """Sensitivities d(metric)/d(parameter) of the paper's metrics to every float parameter.
 
-The metrics are traced functions of the parameters (`_sweep.traced_metrics` of a scene,
-plus the first locked natural frequency), differentiated in forward mode (`jax.jacfwd` with
-`diffrax.ForwardMode()`: one tangent per parameter, all in one vmapped pass) or reverse mode
-(`jax.jacrev` with diffrax's `RecursiveCheckpointAdjoint`: one forward pass, one backward pass
-per metric). Normalised sensitivities are (p / m) dm/dp: the relative change of the metric per
-relative change of the parameter.
+The metrics are traced functions of the parameters (an `_evaluation.Evaluation` of the
+catalogue's scene metrics and the first locked natural frequency), differentiated in forward
+mode (`jax.jacfwd` with `diffrax.ForwardMode()`: one tangent per parameter, all in one vmapped
+pass) or reverse mode (`jax.jacrev` with diffrax's `RecursiveCheckpointAdjoint`: one forward
+pass, one backward pass per metric). Normalised sensitivities are (p / m) dm/dp: the relative
+change of the metric per relative change of the parameter.
 
 Max / min over time: the metrics radial_error_max/min, end_rotation_diff_max and torque_peak are
 the exact max (min) over the output samples, so their derivative is the derivative at the
@@ -37,12 +37,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._dynamics import eom_terms, generalized_force
-from .._errors import RESULTS, PPRError
-from .._geometry import home_pose
+from .._errors import PPRError
 from .._metrics import path_metrics
 from .._models import get_model
-from .._modes import reduced_eigh
 from .._names import (  # the table's rows, SI units
     PATH_SENSITIVITY_METRICS as PATH_SENSITIVITY_METRICS,
     SENSITIVITY_METRICS as SENSITIVITY_METRICS,
@@ -50,26 +47,18 @@ from .._names import (  # the table's rows, SI units
 from .._params import RobotParams
 from .._prb import derived
 from .._programs import cached_program
-from .._robot import Robot
 from .._scenes import SceneOptions, get_scene
-from .._statics import assemble, static_equilibrium
+from ._catalogue import (
+    CLUSTER_RTOL as CLUSTER_RTOL,
+    SceneContext,
+    allowed_metrics as allowed_metrics,
+    base_frequency as base_frequency,
+    default_metrics as default_metrics,
+    locked_stiffness as locked_stiffness,
+)
+from ._evaluation import Evaluation, equal_links
 from ._jacobian import jacobian_with_values
-from ._sweep import FLOAT_PARAMS, sweep_metrics, traced_metrics
-
-#: eigenvalues within this relative distance of the lowest are one (repeated) cluster
-CLUSTER_RTOL = 1e-6
-
-
-def default_metrics(trajectory) -> tuple:
-    """The sensitivity table's default metrics along `trajectory`: `SENSITIVITY_METRICS` on a
-    circle, `PATH_SENSITIVITY_METRICS` on any other path."""
-    return (SENSITIVITY_METRICS if "radial_error_max_m" in path_metrics(trajectory)
-            else PATH_SENSITIVITY_METRICS)
-
-
-def allowed_metrics(trajectory) -> tuple:
-    """Every metric a sensitivity may ask for along `trajectory`."""
-    return sweep_metrics(trajectory) + ("base_frequency_hz",)
+from ._sweep import FLOAT_PARAMS
 
 
 def explicit_params(params: RobotParams) -> RobotParams:
@@ -77,63 +66,6 @@ def explicit_params(params: RobotParams) -> RobotParams:
     they are None), so that every float parameter is a leaf to differentiate."""
     dv = derived(params)
     return params.replace(gamma=float(dv.gamma), rho=float(dv.rho), K_theta=float(dv.K_theta))
-
-
-def locked_stiffness(model, robot: Robot, X=None):
-    """The stiffness of `model` about its static equilibrium near the pose X (default home)
-    with the actuators locked, in its free coordinates, differentiable (no host callback: a
-    failed equilibrium is returned as a flag).
-
-    **Arguments:**
-
-    - `model`: a model with free coordinates when locked (L2, L3); `robot`: a `Robot`.
-    - `X`: the pose (3,) (m, m, rad) near which the equilibrium is found.
-
-    **Returns:** `(z_eq, free, K, failed)`: the equilibrium (n,), the free coordinates' indices,
-    K = -dQ/dz_free (symmetrised), Q the generalised force at rest, and whether Newton failed.
-
-    **Raises:** `PPRError` for a model without free coordinates when locked (L0, L1).
-    """
-    X = home_pose(robot) if X is None else X
-    z_eq, free, failed = static_equilibrium(model, robot, model.coords_from_pose(robot, X),
-                                            locked=True, wrench=jnp.zeros(3), check=False,
-                                            return_failed=True)
-    if not free:
-        raise PPRError(f"model {model.name!r} has no free coordinate with locked actuators; "
-                       f"use double1r (or beam) for the base frequency or the compliance")
-    n = model.n_dof
-    known = tuple(i for i in range(n) if i not in free)
-    f = jnp.array(free)
-    zk = z_eq[jnp.array(known)] if known else None
-
-    def Q(zf):
-        z = assemble(n, free, zf, known, zk)
-        return generalized_force(eom_terms(model, robot, z, jnp.zeros(n)), jnp.zeros(3),
-                                 jnp.zeros(3))[f]
-
-    K = -jax.jacfwd(Q)(z_eq[f])
-    return z_eq, free, (K + K.T) / 2, failed
-
-
-def base_frequency(model, robot: Robot, X=None):
-    """The lowest natural frequency (Hz, signed: negative = unstable) of `model` about its static
-    equilibrium near X (default home) with the actuators locked, differentiable (module
-    docstring: Rayleigh quotient with the mode shapes held fixed; repeated lowest eigenvalues
-    averaged). Raises for a model without free coordinates when locked (L0, L1)."""
-    z_eq, free, K, failed = locked_stiffness(model, robot, X)
-    n = model.n_dof
-    f = jnp.array(free)
-    M = eom_terms(model, robot, z_eq, jnp.zeros(n)).M[f][:, f]
-    # Mode shapes from a non-differentiated eigenproblem: eigh's derivative is NaN at repeated
-    # eigenvalues. The Rayleigh quotients below carry the exact first derivative.
-    Ms, Ks = jax.lax.stop_gradient(M), jax.lax.stop_gradient(K)
-    lam0, _, shapes = reduced_eigh(Ms, Ks)  # shapes M-orthonormal
-    lam = jnp.einsum("ik,ij,jk->k", shapes, K, shapes) / jnp.einsum("ik,ij,jk->k", shapes, M,
-                                                                    shapes)
-    w = (jnp.abs(lam0 - lam0[0]) <= CLUSTER_RTOL * jnp.abs(lam0[0])).astype(lam.dtype)
-    lam1 = jnp.sum(w * lam) / jnp.sum(w)
-    f = jnp.sign(lam1) * jnp.sqrt(jnp.abs(lam1)) / (2 * jnp.pi)
-    return jnp.where(failed, jnp.nan, f)
 
 
 @dataclasses.dataclass
@@ -218,66 +150,34 @@ def _metric_function(scene, params, *, model, torque_model, frequency_model, par
             f"another model's input, torque_model='rigid' for L1 under the rigid model's "
             f"torques), or leave these metrics out")
     fmodel = get_model(frequency_model)
-    # The structural choice of the nominal robot, as its single run makes it: with l1 == l3 the
-    # closed-form inverse kinematics, whose one Newton step carries the implicit-function
-    # derivative in l1 or l3 alone (ppr_jax._robot).
-    equal = float(base.l1) == float(base.l3)
-    setting = _Setting(base=base, names=tuple(names), metrics=metrics, scene=scene_,
-                       model=model_, frequency_model=fmodel, options=options, equal=equal)
+    # the nominal robot's structural choice, as its single run makes it (`equal_links`)
+    equal = equal_links(base, names, local=True)
+    ev = Evaluation(names=tuple(names), metrics=metrics, equal_links=equal, samples=(),
+                    ctx=SceneContext(scene_, model_, options, fmodel))
 
     def f(x, adjoint=None):
-        return _metrics_at(x, setting, adjoint)
+        return ev.values(x, base, adjoint=adjoint)
 
-    return f, x0, names, metrics, scene_, options, setting
-
-
-class _Setting(eqx.Module):
-    """Everything the metrics depend on besides the parameters varied: the nominal robot's
-    parameters (arrays: inputs of the compiled programs, so that a stored program serves any
-    nominal robot) and the structural choices (static: they key it)."""
-
-    base: RobotParams
-    names: tuple = eqx.field(static=True)
-    metrics: tuple = eqx.field(static=True)
-    scene: object
-    model: object = eqx.field(static=True)
-    frequency_model: object = eqx.field(static=True)
-    options: SceneOptions
-    equal: bool = eqx.field(static=True)
-
-
-def _metrics_at(x, setting: _Setting, adjoint=None):
-    """The metrics (k,) at parameter values x (p,) (`metric_function`'s f)."""
-    p = eqx.tree_at(lambda q: [getattr(q, n) for n in setting.names], setting.base, list(x))
-    robot = Robot(p, equal_links=setting.equal)
-    out = {}
-    needed = [m for m in setting.metrics if m != "base_frequency_hz"]
-    if needed:
-        opts = setting.options if adjoint is None else eqx.tree_at(
-            lambda o: o.adjoint, setting.options, adjoint)
-        res = setting.scene.run(setting.model, robot, opts)
-        out.update(traced_metrics(res, opts.trajectory, needed))
-        # A failed solve must not pass as a number: NaN through every metric.
-        bad = res.result != RESULTS.successful
-        out = {k: jnp.where(bad, jnp.nan, v) for k, v in out.items()}
-    if "base_frequency_hz" in setting.metrics:
-        out["base_frequency_hz"] = base_frequency(setting.frequency_model, robot)
-    return jnp.stack([out[m] for m in setting.metrics])
+    return f, x0, names, metrics, scene_, options, (base, ev)
 
 
 @eqx.filter_jit
-def _values(x, setting):
-    return _metrics_at(x, setting)
+def _values(x, base, ev):
+    return ev.values(x, base)
+
+
+def _metrics_at(x, base, ev, adjoint):
+    return ev.values(x, base, adjoint=adjoint)
 
 
 @eqx.filter_jit
-def _jacobian_fwd(x, setting):
-    return jacobian_with_values(_metrics_at, "fwd", x, setting, diffrax.ForwardMode())
+def _jacobian_fwd(x, base, ev):
+    return jacobian_with_values(_metrics_at, "fwd", x, base, ev, diffrax.ForwardMode())
 
 
 @eqx.filter_jit
-def _jacobian_rev(x, setting, adjoint):
-    return jacobian_with_values(_metrics_at, "rev", x, setting, adjoint)
+def _jacobian_rev(x, base, ev, adjoint):
+    return jacobian_with_values(_metrics_at, "rev", x, base, ev, adjoint)
 
 
 def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
@@ -308,15 +208,15 @@ def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
     kept for later calls of the same setting). Returns `Sensitivity`."""
     if mode not in ("fwd", "rev"):
         raise PPRError(f"mode must be 'fwd' or 'rev', got {mode!r}")
-    f, x0, names, metrics, scene_, opts, setting = _metric_function(
+    f, x0, names, metrics, scene_, opts, (base, ev) = _metric_function(
         scene, params, model=model, torque_model=torque_model, frequency_model=frequency_model,
         parameters=parameters, options=options, metrics=metrics, t_end=t_end, n_out=n_out,
         solver=solver, rtol=rtol, atol=atol, max_steps=max_steps)
     if mode == "fwd":
-        jac_fn, jac_args = _jacobian_fwd, (x0, setting)
+        jac_fn, jac_args = _jacobian_fwd, (x0, base, ev)
     else:
         jac_fn = _jacobian_rev
-        jac_args = (x0, setting, diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints))
+        jac_args = (x0, base, ev, diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints))
     label = f"sensitivity-{scene_.name}-{get_model(model).name}"
     # compiled (or loaded) ahead of time, then run once: the derivative is not run a second time
     # just to time it
@@ -328,8 +228,8 @@ def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
 
     def evaluate(x):
         # compiled on first use (finite differences, checks): the table needs no values program
-        value = cached_program(_values, (x0, setting), 0, program_dir, f"{label}-values")
-        return np.asarray(value(jnp.asarray(x, dtype=jnp.float64), setting))
+        value = cached_program(_values, (x0, base, ev), 0, program_dir, f"{label}-values")
+        return np.asarray(value(jnp.asarray(x, dtype=jnp.float64), base, ev))
 
     if not np.all(np.isfinite(v)):
         bad = [m for m, x in zip(metrics, v) if not np.isfinite(x)]

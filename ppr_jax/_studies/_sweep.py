@@ -36,7 +36,6 @@ import numpy as np
 
 from .._errors import PPRError, RepairWarning, check_number, result_code, result_message
 from .._kinematics import REACH_TOL, SINGULAR_TOL, ik_solve
-from .._metrics import CIRCLE_METRICS, TRACKING_METRICS, metric_table, path_metrics
 from .._models import get_model
 from .._params import PARAM_RANGES, RobotParams, stack_params
 from .._programs import cached_program
@@ -49,43 +48,18 @@ from .._scenes import (
     map_members,
 )
 from .._simulate import default_controller
+from ._catalogue import (
+    METRICS as METRICS,
+    ROBOT_METRICS as ROBOT_METRICS,
+    sweep_metrics as sweep_metrics,
+    traced_metrics as traced_metrics,
+)
+from ._evaluation import equal_links
 
 #: a member whose max loop-closure residual (m) at the output times exceeds this has failed
 RESIDUAL_TOL = 1e-9
-#: the per-member metrics computed inside the program besides the path's (`sweep_metrics`)
-ROBOT_METRICS = (
-    "end_rotation_diff_max_deg",
-    "end_rotation_diff_min_deg",
-    "end_rotation_diff_mean_deg",
-    "torque_peak_Nm",
-    "constraint_residual_max_m",
-)
 #: the float parameters a sweep (or a sensitivity) may vary
 FLOAT_PARAMS = tuple(PARAM_RANGES)
-
-
-def sweep_metrics(trajectory) -> tuple:
-    """The per-member metrics of a sweep along `trajectory`: how far the platform leaves it
-    (`_metrics.path_metrics`: the radial error for a circle, the tracking error for any path)
-    and `ROBOT_METRICS`."""
-    return path_metrics(trajectory) + ROBOT_METRICS
-
-
-#: the metrics of a sweep of the circle scenes (the columns of their tables)
-METRICS = CIRCLE_METRICS + TRACKING_METRICS + ROBOT_METRICS
-
-
-def traced_metrics(res, trajectory, names: Optional[Sequence[str]] = None) -> dict:
-    """The metrics `names` (default `sweep_metrics(trajectory)`) of one member's
-    `SceneResult` as traced scalars (jit-, vmap- and grad-able): the program-side columns of
-    `metric_table`."""
-    table = metric_table(res, trajectory)
-    names = sweep_metrics(trajectory) if names is None else names
-    missing = [k for k in names if k not in table]
-    if missing:
-        raise PPRError(f"metric {missing[0]!r} does not apply to this scene's path; allowed: "
-                       f"{', '.join(table)}")
-    return {k: table[k] for k in names}
 
 
 def follows_its_input(scene, model, torque_model=None) -> str:
@@ -446,7 +420,7 @@ def sweep(
     valid = [i for i in range(N) if not reasons[i]]
     # Members grouped by the static structure of their program (equal links or not), so that
     # each runs the same program as its single run; one compilation per group present.
-    groups = {eq: [i for i in valid if (float(plist[i].l1) == float(plist[i].l3)) == eq]
+    groups = {eq: [i for i in valid if equal_links(plist[i], (), local=False) == eq]
               for eq in (True, False)}
     chunks = [(eq, g[k:k + chunk_size]) for eq, g in groups.items()
               for k in range(0, len(g), chunk_size)]

@@ -5,7 +5,7 @@ verification of the optimum (`_verify`), the result (`_result`), the entry point
 (`_design`) and the specification file of the command line (`_spec`)."""
 
 from ..._errors import DesignError
-from ._catalogue import (
+from .._catalogue import (
                          CLOSED_FORM_METRICS,
                          compliance,
                          design_metrics,

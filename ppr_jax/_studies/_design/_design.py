@@ -21,8 +21,7 @@ from ..._names import (
 )
 from ..._params import RobotParams
 from ..._scenes import SceneOptions, get_scene
-from .._sensitivity import explicit_params
-from ._catalogue import (
+from .._catalogue import (
     ELASTICA_METRICS,
     PATH_METRICS,
     POSE_METRICS,
@@ -30,6 +29,8 @@ from ._catalogue import (
     SceneContext,
     design_metrics,
 )
+from .._evaluation import equal_links
+from .._sensitivity import explicit_params
 from ._goals import Constraint, as_constraints, as_objective, bound_text
 from ._optimise import FEAS_TOL, Scaled, optimise, screen
 from ._problem import Problem
@@ -220,7 +221,7 @@ def design(
         raise DesignError("a design starts from one robot, not a batch")
     if any(n in ("gamma", "rho", "K_theta") and getattr(base, n) is None for n in names):
         base = explicit_params(base)
-    equal = ("l1" not in names and "l3" not in names) and float(base.l1) == float(base.l3)
+    equal = equal_links(base, names, local=False)
     k, p = len(metrics), len(names)
     mode_given = mode
     if mode is None:

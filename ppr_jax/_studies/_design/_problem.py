@@ -3,7 +3,7 @@ or reverse mode), and the metrics at many points in one batched call (the starts
 the verification grid, the finite differences).
 
 The programs are functions of their arguments (the variables, the base robot, the stroke and
-the `Structure`, whose `SceneContext` holds the scene, its models and options), so every array
+the `Evaluation`, whose `SceneContext` holds the scene, its models and options), so every array
 of them is an input and one program serves any values of the same shapes. Through
 `cached_program` they are kept for later calls in the process and, given a `program_dir` (the
 command line's store), exported there once and loaded by later processes, which skip tracing
@@ -20,13 +20,13 @@ from typing import Optional
 import diffrax
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ..._params import RobotParams
 from ..._programs import NotExportable, cached_program, export_tracing, program_key
+from .._catalogue import SAMPLED_METRICS, SceneContext, metric_values
+from .._evaluation import Evaluation
 from .._jacobian import jacobian_with_values
-from ._catalogue import SAMPLED_METRICS, SceneContext, metric_blocks, metric_values
 
 #: the raw rows of each metric (`Problem.sizes`), by the values program's key
 _SIZES: dict = {}
@@ -34,31 +34,17 @@ _SIZES: dict = {}
 BATCH = 1024
 
 
-class Structure(eqx.Module):
-    """What a design's programs evaluate: the variables' `names` (fields of `RobotParams`),
-    the catalogue `metrics`, `Robot`'s static `equal_links`, the `samples` (`metric_values`')
-    and the `SceneContext`. Its strings and flags are static (they key the programs), the
-    context's arrays are inputs."""
-
-    names: tuple
-    metrics: tuple
-    equal_links: bool
-    samples: tuple
-    ctx: SceneContext
+def _raw(x, base, stroke, st: Evaluation, adjoint=None):
+    """The catalogue's values at the variables x (p,) replacing the fields `st.names` of
+    `base`."""
+    return st.values(x, base, stroke, adjoint)
 
 
-def _raw(x, base, stroke, st: Structure, adjoint=None):
-    """`metric_values` at the variables x (p,) replacing the fields `st.names` of `base`."""
-    return jnp.concatenate(_raw_blocks(x, base, stroke, st, adjoint))
+def _raw_blocks(x, base, stroke, st: Evaluation, adjoint=None):
+    return st.blocks(x, base, stroke, adjoint)
 
 
-def _raw_blocks(x, base, stroke, st: Structure, adjoint=None):
-    p = eqx.tree_at(lambda q: [getattr(q, n) for n in st.names], base,
-                    [x[i] for i in range(len(st.names))])
-    return metric_blocks(st.metrics, p, st.ctx, stroke, adjoint, st.equal_links, st.samples)
-
-
-def _adjoint(st: Structure, mode: str):
+def _adjoint(st: Evaluation, mode: str):
     """diffrax's adjoint of the scene's solve under `mode`'s derivative (None: no scene)."""
     if st.ctx.scene is None:
         return None
@@ -66,29 +52,29 @@ def _adjoint(st: Structure, mode: str):
 
 
 @eqx.filter_jit
-def _value_and_jacobian_fwd(x, base, stroke, st: Structure):
+def _value_and_jacobian_fwd(x, base, stroke, st: Evaluation):
     J, v = jacobian_with_values(_raw, "fwd", x, base, stroke, st, _adjoint(st, "fwd"))
     return v, J
 
 
 @eqx.filter_jit
-def _value_and_jacobian_rev(x, base, stroke, st: Structure):
+def _value_and_jacobian_rev(x, base, stroke, st: Evaluation):
     J, v = jacobian_with_values(_raw, "rev", x, base, stroke, st, _adjoint(st, "rev"))
     return v, J
 
 
 @eqx.filter_jit
-def _batch(X, base, stroke, st: Structure):
+def _batch(X, base, stroke, st: Evaluation):
     return jax.lax.map(lambda x: _raw(x, base, stroke, st), X, batch_size=BATCH)
 
 
 @eqx.filter_jit
-def metrics_program(params, stroke, st: Structure):
+def metrics_program(params, stroke, st: Evaluation):
     """`metric_values` of `st` at `params` (`st.names` unused): the L3 re-score's program."""
     return metric_values(st.metrics, params, st.ctx, stroke, None, st.equal_links, st.samples)
 
 
-def program_label(st: Structure, kind: str) -> str:
+def program_label(st: Evaluation, kind: str) -> str:
     """The store's label of a design program: design-<scene or closed-form>-<kind>."""
     scene = "closed-form" if st.ctx.scene is None else st.ctx.scene.name
     return f"design-{scene}-{kind}"
@@ -124,12 +110,12 @@ class Problem:
     _last: Optional[tuple] = dataclasses.field(default=None, repr=False)
     _sizes: Optional[np.ndarray] = dataclasses.field(default=None, repr=False)
     _callables: dict = dataclasses.field(default_factory=dict, repr=False)
-    _structure: Optional[Structure] = dataclasses.field(default=None, repr=False)
+    _structure: Optional[Evaluation] = dataclasses.field(default=None, repr=False)
 
     @property
-    def structure(self) -> Structure:
+    def structure(self) -> Evaluation:
         if self._structure is None:
-            self._structure = Structure(tuple(self.names), tuple(self.metrics),
+            self._structure = Evaluation(tuple(self.names), tuple(self.metrics),
                                         bool(self.equal_links), tuple(self.samples), self.ctx)
         return self._structure
 

@@ -32,8 +32,9 @@ import numpy as np
 
 from ..._prb_table import prb_table
 from ..._programs import cached_program
-from ._catalogue import CLOSED_FORM_METRICS, PATH_METRICS, SceneContext
-from ._problem import Structure, metrics_program, program_label
+from .._catalogue import CLOSED_FORM_METRICS, PATH_METRICS, SceneContext
+from .._evaluation import Evaluation
+from ._problem import metrics_program, program_label
 
 #: the metrics that are frequencies (their band is that of sqrt(K))
 FREQUENCY_METRICS = ("base_frequency_hz",)
@@ -101,7 +102,7 @@ def rescore_l3(names, params, ctx: SceneContext, stroke: float, prb_values: dict
     ctx3 = dataclasses.replace(ctx, model=None if ctx.model is None else l3,
                                options=scene_opts if scene_opts is not None else ctx.options,
                                frequency_model=l3)
-    st = Structure((), tuple(dep), bool(equal_links), (), ctx3)
+    st = Evaluation((), tuple(dep), bool(equal_links), (), ctx3)
     args = (params, jnp.asarray(stroke, dtype=jnp.float64), st)
     values = cached_program(metrics_program, args, 0, program_dir, program_label(st, "l3"))
     v = np.asarray(values(*args))

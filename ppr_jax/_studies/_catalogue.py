@@ -1,5 +1,8 @@
-"""The design catalogue: every metric an objective or a constraint may name, as traced,
-differentiable functions of the parameters.
+"""The metric catalogue of every study: each metric a sweep, a sensitivity or a design may name,
+as a traced, differentiable function of the parameters (`metric_blocks`, one entry per metric),
+and which metrics a scene allows (`sweep_metrics`, `allowed_metrics`, `design_metrics`).
+
+The scene metrics are the columns of `_metrics.metric_table` of a run (`traced_metrics`).
 
 Closed forms (no scene): `pivot_frequency_hz`, `pivot_stress_Pa`, `moving_mass_kg`. The robot's
 first locked natural frequency `base_frequency_hz` (`ppr_jax.modes`' linearisation, differentiated
@@ -75,20 +78,133 @@ derivative is that of their mean.
 from __future__ import annotations
 
 import dataclasses
-from typing import Optional
+from typing import Optional, Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ..._errors import RESULTS
-from ..._geometry import home_pose
-from ..._kinematics import det3
-from ..._names import DESIGN_METRICS
-from ..._prb import Derived
-from ..._robot import Robot
-from .._sensitivity import allowed_metrics, base_frequency, locked_stiffness
-from .._sweep import traced_metrics
+from .._dynamics import eom_terms, generalized_force
+from .._errors import RESULTS, PPRError
+from .._geometry import home_pose
+from .._kinematics import det3
+from .._metrics import CIRCLE_METRICS, TRACKING_METRICS, metric_table, path_metrics
+from .._modes import reduced_eigh
+from .._names import (  # the tables' rows, SI units
+    DESIGN_METRICS,
+    PATH_SENSITIVITY_METRICS,
+    SENSITIVITY_METRICS,
+)
+from .._prb import Derived
+from .._robot import Robot
+from .._statics import assemble, static_equilibrium
+
+#: the per-member metrics computed inside the program besides the path's (`sweep_metrics`)
+ROBOT_METRICS = (
+    "end_rotation_diff_max_deg",
+    "end_rotation_diff_min_deg",
+    "end_rotation_diff_mean_deg",
+    "torque_peak_Nm",
+    "constraint_residual_max_m",
+)
+
+
+def sweep_metrics(trajectory) -> tuple:
+    """The per-member metrics of a sweep along `trajectory`: how far the platform leaves it
+    (`_metrics.path_metrics`: the radial error for a circle, the tracking error for any path)
+    and `ROBOT_METRICS`."""
+    return path_metrics(trajectory) + ROBOT_METRICS
+
+
+#: the metrics of a sweep of the circle scenes (the columns of their tables)
+METRICS = CIRCLE_METRICS + TRACKING_METRICS + ROBOT_METRICS
+
+
+def traced_metrics(res, trajectory, names: Optional[Sequence[str]] = None) -> dict:
+    """The metrics `names` (default `sweep_metrics(trajectory)`) of one member's
+    `SceneResult` as traced scalars (jit-, vmap- and grad-able): the program-side columns of
+    `metric_table`."""
+    table = metric_table(res, trajectory)
+    names = sweep_metrics(trajectory) if names is None else names
+    missing = [k for k in names if k not in table]
+    if missing:
+        raise PPRError(f"metric {missing[0]!r} does not apply to this scene's path; allowed: "
+                       f"{', '.join(table)}")
+    return {k: table[k] for k in names}
+
+
+#: eigenvalues within this relative distance of the lowest are one (repeated) cluster
+CLUSTER_RTOL = 1e-6
+
+
+def default_metrics(trajectory) -> tuple:
+    """The sensitivity table's default metrics along `trajectory`: `SENSITIVITY_METRICS` on a
+    circle, `PATH_SENSITIVITY_METRICS` on any other path."""
+    return (SENSITIVITY_METRICS if "radial_error_max_m" in path_metrics(trajectory)
+            else PATH_SENSITIVITY_METRICS)
+
+
+def allowed_metrics(trajectory) -> tuple:
+    """Every metric a sensitivity may ask for along `trajectory`."""
+    return sweep_metrics(trajectory) + ("base_frequency_hz",)
+
+
+def locked_stiffness(model, robot: Robot, X=None):
+    """The stiffness of `model` about its static equilibrium near the pose X (default home)
+    with the actuators locked, in its free coordinates, differentiable (no host callback: a
+    failed equilibrium is returned as a flag).
+
+    **Arguments:**
+
+    - `model`: a model with free coordinates when locked (L2, L3); `robot`: a `Robot`.
+    - `X`: the pose (3,) (m, m, rad) near which the equilibrium is found.
+
+    **Returns:** `(z_eq, free, K, failed)`: the equilibrium (n,), the free coordinates' indices,
+    K = -dQ/dz_free (symmetrised), Q the generalised force at rest, and whether Newton failed.
+
+    **Raises:** `PPRError` for a model without free coordinates when locked (L0, L1).
+    """
+    X = home_pose(robot) if X is None else X
+    z_eq, free, failed = static_equilibrium(model, robot, model.coords_from_pose(robot, X),
+                                            locked=True, wrench=jnp.zeros(3), check=False,
+                                            return_failed=True)
+    if not free:
+        raise PPRError(f"model {model.name!r} has no free coordinate with locked actuators; "
+                       f"use double1r (or beam) for the base frequency or the compliance")
+    n = model.n_dof
+    known = tuple(i for i in range(n) if i not in free)
+    f = jnp.array(free)
+    zk = z_eq[jnp.array(known)] if known else None
+
+    def Q(zf):
+        z = assemble(n, free, zf, known, zk)
+        return generalized_force(eom_terms(model, robot, z, jnp.zeros(n)), jnp.zeros(3),
+                                 jnp.zeros(3))[f]
+
+    K = -jax.jacfwd(Q)(z_eq[f])
+    return z_eq, free, (K + K.T) / 2, failed
+
+
+def base_frequency(model, robot: Robot, X=None):
+    """The lowest natural frequency (Hz, signed: negative = unstable) of `model` about its static
+    equilibrium near X (default home) with the actuators locked, differentiable (module
+    docstring: Rayleigh quotient with the mode shapes held fixed; repeated lowest eigenvalues
+    averaged). Raises for a model without free coordinates when locked (L0, L1)."""
+    z_eq, free, K, failed = locked_stiffness(model, robot, X)
+    n = model.n_dof
+    f = jnp.array(free)
+    M = eom_terms(model, robot, z_eq, jnp.zeros(n)).M[f][:, f]
+    # Mode shapes from a non-differentiated eigenproblem: eigh's derivative is NaN at repeated
+    # eigenvalues. The Rayleigh quotients below carry the exact first derivative.
+    Ms, Ks = jax.lax.stop_gradient(M), jax.lax.stop_gradient(K)
+    lam0, _, shapes = reduced_eigh(Ms, Ks)  # shapes M-orthonormal
+    lam = jnp.einsum("ik,ij,jk->k", shapes, K, shapes) / jnp.einsum("ik,ij,jk->k", shapes, M,
+                                                                    shapes)
+    w = (jnp.abs(lam0 - lam0[0]) <= CLUSTER_RTOL * jnp.abs(lam0[0])).astype(lam.dtype)
+    lam1 = jnp.sum(w * lam) / jnp.sum(w)
+    f = jnp.sign(lam1) * jnp.sqrt(jnp.abs(lam1)) / (2 * jnp.pi)
+    return jnp.where(failed, jnp.nan, f)
+
 
 #: the catalogue's metrics that need no scene and no model of the robot (closed forms, and one
 #: strip's elastica)
@@ -164,7 +280,7 @@ def strip_stress_peak(model, robot: Robot, z):
 def strip_elastica(params, dv: Derived, load):
     """(tip rotation from rest (rad), peak stress (Pa)) of one strip under the end load
     `load` = (fx, fy, m) by the elastica (module docstring); NaN where it did not converge."""
-    from ...elastica import solve_cantilever
+    from ..elastica import solve_cantilever
 
     EI = params.E * params.w * params.t**3 / 12
     fx, fy, m = (jnp.asarray(v, dtype=jnp.float64) for v in load)

@@ -1,0 +1,88 @@
+"""One evaluation under the studies: named parameters -> named metrics of the catalogue.
+
+A sensitivity differentiates it, a design optimises it (and screens and verifies it in
+batches): both evaluate an `Evaluation`, the variables' names, the catalogue's metrics and the
+scene they run (`_catalogue.SceneContext`), at parameter values x (p,) that replace those fields
+of a base robot. The structural choice of the robot (`Robot`'s `equal_links`: the closed-form
+inverse kinematics where l1 == l3) is decided once, in Python, by `equal_links`.
+
+An `Evaluation` is a pytree: its names are static (they key the compiled programs), the
+context's arrays (the scene's path, the options' tolerances) are inputs, so one compiled (or
+stored) program serves any of their values.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._params import RobotParams
+from .._robot import Robot
+from ._catalogue import SceneContext, metric_blocks
+
+
+def equal_links(base: RobotParams, names, local: bool) -> bool:
+    """`Robot`'s static choice of the closed-form inverse kinematics (l1 == l3) for an
+    evaluation that varies the fields `names` of `base`.
+
+    **Arguments:**
+
+    - `base`: the base robot (one robot, concrete values).
+    - `names`: the fields varied.
+    - `local`: True where only derivatives at `base` are taken (a sensitivity): the nominal
+      robot's choice holds even where l1 or l3 is varied, whose one Newton step then carries
+      the implicit-function derivative (`ppr_jax._robot`); False where the values move away
+      from `base` (a design, a sweep): l1 == l3 only while neither is varied.
+
+    **Returns:** the flag.
+    """
+    same = float(base.l1) == float(base.l3)
+    return same if local else same and "l1" not in names and "l3" not in names
+
+
+class Evaluation(eqx.Module):
+    """The catalogue's `metrics` of a robot whose fields `names` take the values x.
+
+    `names` (p,) fields of `RobotParams`; `metrics` (k,) catalogue names; `equal_links` the
+    robot's static choice (`equal_links` above); `samples` the metrics of
+    `_catalogue.SAMPLED_METRICS` given as their samples; `ctx` the scene, its models and
+    options (`SceneContext`)."""
+
+    names: tuple = eqx.field(static=True)
+    metrics: tuple = eqx.field(static=True)
+    equal_links: bool = eqx.field(static=True)
+    samples: tuple = eqx.field(static=True)
+    ctx: SceneContext
+
+    def params(self, x, base: RobotParams) -> RobotParams:
+        """`base` with the fields `names` replaced by x (p,) (traced or not)."""
+        return eqx.tree_at(lambda q: [getattr(q, n) for n in self.names], base,
+                           [x[i] for i in range(len(self.names))])
+
+    def robot(self, x, base: RobotParams) -> Robot:
+        """The `Robot` at x (p,), with the evaluation's structural choice."""
+        return Robot(self.params(x, base), equal_links=self.equal_links)
+
+    def blocks(self, x, base: RobotParams, stroke=None, adjoint=None) -> list:
+        """The metrics at x (p,) as one 1-D array each (`_catalogue.metric_blocks`: NaN for
+        every scene metric where the scene failed).
+
+        **Arguments:**
+
+        - `x`: (p,) the values of `names` (SI).
+        - `base`: the `RobotParams` whose other fields stay.
+        - `stroke`: the joint rotation (rad) of `pivot_stress_Pa` (None where not asked for).
+        - `adjoint`: diffrax's adjoint of the scene's solve (`ForwardMode` under `jacfwd`).
+
+        **Returns:** a list of (1,) arrays, or a metric's samples where `samples` names it.
+        """
+        stroke = jnp.zeros(()) if stroke is None else stroke
+        return metric_blocks(self.metrics, self.params(x, base), self.ctx, stroke, adjoint,
+                             self.equal_links, self.samples)
+
+    def values(self, x, base: RobotParams, stroke=None, adjoint=None):
+        """`blocks` concatenated: (k,), or longer where `samples` asks for samples."""
+        return jnp.concatenate(self.blocks(x, base, stroke, adjoint))
+
+
+__all__ = ["Evaluation", "equal_links"]
