@@ -267,11 +267,13 @@ def check_int(name: str, value, lo: int, hi: Optional[int] = None, *, error=PPRE
                         error=error)
 
 
-def check_bounds(name: str, value, *, error=PPRError, unit: str = "") -> tuple:
-    """`value` as bounds (lo, hi): exactly two finite numbers with lo < hi. Raises `error`
-    naming `name` (a third value is refused, not ignored)."""
-    want = f"{name} must be (lo, hi), two finite numbers{' in ' + unit if unit else ''} with " \
-           f"lo < hi"
+def check_bounds(name: str, value, *, error=PPRError, unit: str = "",
+                 ordered: bool = True) -> tuple:
+    """`value` as bounds (lo, hi): exactly two finite numbers, with lo < hi if `ordered` (else
+    the caller checks the order with its range). Raises `error` naming `name` (a third value
+    is refused, not ignored)."""
+    want = f"{name} must be (lo, hi), two finite numbers{' in ' + unit if unit else ''}" \
+           f"{' with lo < hi' if ordered else ''}"
     if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__len__") \
             or _ndim(value) != 1 or len(value) != 2:
         raise error(f"{want}, got {_shown(value)}")
@@ -279,7 +281,7 @@ def check_bounds(name: str, value, *, error=PPRError, unit: str = "") -> tuple:
         lo, hi = (check_real(name, v) for v in value)
     except PPRError:
         raise error(f"{want}, got {_shown(value)}") from None
-    if not lo < hi:
+    if ordered and not lo < hi:
         raise error(f"{want}, got lo = {lo:g} >= hi = {hi:g}")
     return lo, hi
 
@@ -328,7 +330,7 @@ def check_names(name: str, value, allowed, *, error=PPRError) -> tuple:
     out = tuple(value)
     for item in out:
         if not isinstance(item, str) or item not in allowed:
-            raise error(f"{name}: unknown {_shown(item)}; allowed: {', '.join(allowed)}")
+            raise error(f"unknown {name} {_shown(item)}; allowed: {', '.join(allowed)}")
     return out
 
 

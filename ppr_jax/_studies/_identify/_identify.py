@@ -328,7 +328,7 @@ def identify(
                              allowed=_range_text(k)) for k, v in initial.items()}
     bounds = check_mapping("bounds", bounds, error=IdentificationError,
                            what="{unknown: (lo, hi)}")
-    bounds = {k: check_bounds(f"bounds of {k!r}", v, error=IdentificationError,
+    bounds = {k: check_bounds(f"bounds of {k!r}", v, error=IdentificationError, ordered=False,
                               unit=PARAM_RANGES[k][2] if k in PARAM_RANGES else "")
               for k, v in bounds.items()}
     for what, robot in (("params", params), ("commands", commands)):
