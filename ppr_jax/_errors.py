@@ -198,25 +198,148 @@ def check_result(result, what: str = "simulation", detail=None, value=None,
 
 
 def check_number(name: str, value, lo: float, hi: float, unit: str = "", *,
-                 integer: bool = False, open_lo: bool = False):
+                 integer: bool = False, open_lo: bool = False, error=PPRError):
     """Validate a scalar argument before any computation: a finite number (an integer if
     `integer`) in [lo, hi] (lo excluded with `open_lo`). Returns it as float or int; raises
-    `PPRError` naming the argument and the allowed range."""
+    `error` (a `PPRError` class) naming the argument and the allowed range."""
     rng = f"{'(' if open_lo else '['}{lo:g}, {hi:g}] {unit}".rstrip()
     kind = "an integer" if integer else "a number"
-    if isinstance(value, (bool, str, bytes)):  # "0.5" would pass float() and reach JAX
-        raise PPRError(f"{name} must be {kind}, got {value!r} (allowed range {rng})")
+    if integer and isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        v = int(value)  # exact: an integer beyond float's range is out of range, not an error
+        if v < lo or v > hi or (open_lo and v == lo):
+            raise error(f"{name} = {_shown(value)} is out of its allowed range {rng}")
+        return v
+    v = check_real(name, value, error=error, allowed=f"allowed range {rng}", kind=kind)
+    if integer and v != int(v):
+        raise error(f"{name} must be an integer, got {value!r} (allowed range {rng})")
+    if v < lo or v > hi or (open_lo and v == lo):
+        raise error(f"{name} = {_shown(value)} is out of its allowed range {rng}")
+    return int(v) if integer else v
+
+
+# --- the studies' argument checks: one place for the type, count and range of each argument,
+# so that any bad value is a `PPRError` subclass naming it (never a TypeError from float(),
+# an IndexError from b[1] or an OverflowError from a huge integer), before anything compiles
+
+
+def _shown(value, limit: int = 60) -> str:
+    """`repr(value)`, an integer too long for it as its digit count, cut at `limit`."""
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool) \
+            and abs(int(value)) >= 10**30:
+        return f"an integer of {len(str(abs(int(value))))} digits"
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _ndim(value) -> int:
+    """np.ndim, -1 for what NumPy cannot make an array of (a ragged list)."""
+    try:
+        return np.ndim(value)
+    except (TypeError, ValueError):
+        return -1
+
+
+def check_real(name: str, value, *, error=PPRError, allowed: str = "",
+               kind: str = "a number") -> float:
+    """`value` as a finite float: a real number (a Python or NumPy scalar, a 0-d array), not a
+    bool, string, None, sequence, or an integer beyond float64's range (1.8e308). Raises
+    `error` naming the argument `name` and `allowed` (the allowed values, appended in
+    parentheses where given)."""
+    tail = f" ({allowed})" if allowed else ""
+    if value is None or isinstance(value, (bool, str, bytes)) or _ndim(value) != 0:
+        raise error(f"{name} must be {kind}, got {_shown(value)}{tail}")
     try:
         v = float(value)
+    except OverflowError:
+        raise error(f"{name} = {_shown(value)} is beyond the range of a float (1.8e308)"
+                    f"{tail}") from None
     except (TypeError, ValueError):
-        raise PPRError(f"{name} must be {kind}, got {value!r} (allowed range {rng})") from None
+        raise error(f"{name} must be {kind}, got {_shown(value)}{tail}") from None
     if not np.isfinite(v):
-        raise PPRError(f"{name} must be finite: {value!r} is not finite (allowed range {rng})")
-    if integer and v != int(v):
-        raise PPRError(f"{name} must be an integer, got {value!r} (allowed range {rng})")
-    if v < lo or v > hi or (open_lo and v == lo):
-        raise PPRError(f"{name} = {value!r} is out of its allowed range {rng}")
-    return int(v) if integer else v
+        raise error(f"{name} must be finite: {_shown(value)} is not finite{tail}")
+    return v
+
+
+def check_int(name: str, value, lo: int, hi: Optional[int] = None, *, error=PPRError) -> int:
+    """`value` as an int in [lo, hi] (hi None: no upper limit): an integer (a float with an
+    integer value too), not a bool or string. Raises `error` naming `name` and the range."""
+    return check_number(name, value, lo, float("inf") if hi is None else hi, integer=True,
+                        error=error)
+
+
+def check_bounds(name: str, value, *, error=PPRError, unit: str = "",
+                 ordered: bool = True) -> tuple:
+    """`value` as bounds (lo, hi): exactly two finite numbers, with lo < hi if `ordered` (else
+    the caller checks the order with its range). Raises `error` naming `name` (a third value
+    is refused, not ignored)."""
+    want = f"{name} must be (lo, hi), two finite numbers{' in ' + unit if unit else ''}" \
+           f"{' with lo < hi' if ordered else ''}"
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__len__") \
+            or _ndim(value) != 1 or len(value) != 2:
+        raise error(f"{want}, got {_shown(value)}")
+    try:
+        lo, hi = (check_real(name, v) for v in value)
+    except PPRError:
+        raise error(f"{want}, got {_shown(value)}") from None
+    if ordered and not lo < hi:
+        raise error(f"{want}, got lo = {lo:g} >= hi = {hi:g}")
+    return lo, hi
+
+
+def check_vector(name: str, value, n: int, *, error=PPRError, what: str = "") -> tuple:
+    """`value` as a tuple of `n` finite floats (`what` describes them: "(x, y, phi) (m, m,
+    rad)"). Raises `error` naming `name`."""
+    want = f"{name} must be {what + ', ' if what else ''}{n} finite numbers"
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__len__") \
+            or _ndim(value) != 1 or len(value) != n:
+        raise error(f"{want}, got {_shown(value)}")
+    return tuple(check_real(f"{name}[{i}]", v, error=error, allowed=want) for i, v in
+                 enumerate(value))
+
+
+def check_mapping(name: str, value, allowed=None, *, error=PPRError, what: str = "") -> dict:
+    """`value` (None: empty) as a dict with string keys, each among `allowed` (None: any).
+    Raises `error` naming `name`, the stray keys and the allowed ones (`what` describes the
+    values: "{name: (lo, hi)}")."""
+    from collections.abc import Mapping
+
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise error(f"{name} must be a mapping {what or '{name: value}'}, got "
+                    f"{type(value).__name__} {_shown(value)}")
+    out = dict(value)
+    bad = [k for k in out if not isinstance(k, str)]
+    stray = sorted(map(str, bad)) + sorted(k for k in out if isinstance(k, str)
+                                           and allowed is not None and k not in allowed)
+    if stray:
+        listed = f"; allowed: {', '.join(allowed)}" if allowed is not None else \
+            "; keys are names (strings)"
+        raise error(f"{name}: unknown key(s) {stray}{listed}")
+    return out
+
+
+def check_names(name: str, value, allowed, *, error=PPRError) -> tuple:
+    """`value` as a tuple of names, each among `allowed`; one string is one name (not its
+    letters). Raises `error` naming `name`, the bad entry and the allowed names."""
+    if isinstance(value, str):
+        value = (value,)
+    if isinstance(value, (bytes, dict)) or not hasattr(value, "__iter__"):
+        raise error(f"{name} must be a sequence of names among {', '.join(allowed)}, got "
+                    f"{_shown(value)}")
+    out = tuple(value)
+    for item in out:
+        if not isinstance(item, str) or item not in allowed:
+            raise error(f"unknown {name} {_shown(item)}; allowed: {', '.join(allowed)}")
+    return out
+
+
+def check_instance(name: str, value, cls, *, error=PPRError, what: str = ""):
+    """`value` if it is a `cls`, else `error` naming `name` and the type expected."""
+    if not isinstance(value, cls):
+        raise error(f"{name} must be {what or cls.__name__}, got {type(value).__name__} "
+                    f"{_shown(value)}")
+    return value
 
 
 def check_array(name: str, value, shape: Optional[tuple] = None):

@@ -22,6 +22,13 @@ from ._names import PARAM_RANGES, settable_names
 
 
 def _f(x):
+    if isinstance(x, (str, bytes)) or x is None:
+        raise PPRError(f"a parameter must be a number or an array of numbers, got {x!r}")
+    if isinstance(x, int) and not isinstance(x, bool):
+        try:
+            x = float(x)
+        except OverflowError:  # beyond float64: inf, which `check_params` names with the field
+            x = math.inf if x > 0 else -math.inf
     if isinstance(x, (int, float)):  # through numpy: a host number needs no XLA program
         x = np.asarray(x, dtype=np.float64)
     return jnp.asarray(x, dtype=jnp.float64)
@@ -96,9 +103,40 @@ class RobotParams(eqx.Module):
             raise PPRError(
                 f"unknown parameter(s) {sorted(unknown)}; allowed: {sorted(settable_names())}"
             )
+        for name, v in changes.items():  # named here: the converter does not know the field
+            if name in PARAM_RANGES and not (v is None and name in OPTIONAL_PARAMS):
+                _check_value(name, v)
         kw = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         kw.update(changes)
         return RobotParams(**kw)
+
+
+#: the float parameters that may be None (the PRB table's or Howell's value)
+OPTIONAL_PARAMS = ("gamma", "K_theta", "rho")
+
+
+def _check_value(name: str, v) -> None:
+    """Raise `PPRError` naming parameter `name` and its range where `v` is no number or array
+    of numbers (a string, None, an integer beyond float64's range); a traced value passes."""
+    if is_traced(v):
+        return
+    lo, hi, unit, meaning = PARAM_RANGES[name]
+    rng = f"allowed range [{lo:g}, {hi:g}] {unit}".rstrip()
+    if isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 10**300:
+        try:
+            float(v)
+        except OverflowError:
+            raise PPRError(f"parameter {name!r} ({meaning}) = an integer of {len(str(abs(v)))} "
+                           f"digits is beyond the range of a float ({rng})") from None
+    if v is None or isinstance(v, (str, bytes, bool)):
+        raise PPRError(f"parameter {name!r} ({meaning}) must be a number, got {v!r} ({rng})")
+    try:
+        np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        text = repr(v)
+        text = text if len(text) <= 60 else text[:57] + "..."
+        raise PPRError(f"parameter {name!r} ({meaning}) must be a number or an array of "
+                       f"numbers, got {text} ({rng})") from None
 
 
 def check_params(params: RobotParams) -> None:
@@ -114,7 +152,9 @@ def check_params(params: RobotParams) -> None:
         bad = nonfinite | (arr < lo) | (arr > hi)
         if np.any(bad):
             where = "" if arr.ndim == 0 else f" at batch index {np.flatnonzero(bad).tolist()}"
-            what = ("is not finite" if np.all(nonfinite[bad]) else
+            what = (("is not finite" + (" (an integer beyond the range of a float reads as "
+                                         "inf)" if np.any(np.isinf(arr[bad])) else ""))
+                    if np.all(nonfinite[bad]) else
                     f"is out of its physical range [{lo:g}, {hi:g}] {unit}")
             raise PPRError(
                 f"parameter {name!r} ({meaning}) = {arr[bad].tolist() if arr.ndim else float(arr)}"

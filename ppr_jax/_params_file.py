@@ -23,6 +23,65 @@ def _format(path: str) -> str:
     return ext
 
 
+#: the UTF-8 byte-order mark some editors write first (Windows' Notepad): not TOML, skipped
+BOM = b"\xef\xbb\xbf"
+
+
+def read_toml(path: str) -> dict:
+    """The TOML file `path` as a dict, a UTF-8 byte-order mark before it skipped (the one place
+    this library reads TOML). Raises `OSError` for a file that cannot be read, `ValueError`
+    (tomllib's `TOMLDecodeError`) for text that is not TOML, and `PPRError` where no TOML
+    reader is installed (Python 3.10 without tomli)."""
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10
+        try:
+            import tomli as tomllib
+        except ImportError:
+            raise PPRError("reading TOML needs Python 3.11 or the tomli package") from None
+    with open(path, "rb") as f:
+        raw = f.read()
+    if raw.startswith(BOM):
+        raw = raw[len(BOM):]
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ValueError(f"not UTF-8 text ({err})") from None
+    return tomllib.loads(text)
+
+
+def check_param_values(data: dict, where: str) -> dict:
+    """The values of `data` {name: value} as `RobotParams.replace` takes them, each checked for
+    its kind (a number, an integer `sigma`, a string `joint_geometry`) and, for a number, for
+    float64's range: a `PPRError` names `where` (the file), the name and the value. Unknown
+    names are refused with the allowed ones."""
+    unknown = sorted(set(data) - set(settable_names()))
+    if unknown:
+        raise PPRError(f"{where}: unknown name(s) {unknown}; allowed: "
+                       f"{', '.join(settable_names())}")
+    changes = {}
+    for name, value in data.items():
+        if name == "joint_geometry":
+            ok = isinstance(value, str)
+        elif name == "sigma":
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        else:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if not ok:
+            raise PPRError(f"{where}: {name} = {value!r} is not a "
+                           f"{'string' if name == 'joint_geometry' else 'number'}")
+        if name in PARAM_RANGES:
+            try:
+                value = float(value)
+            except OverflowError:  # an integer beyond float's range (TOML reads 1e400 as inf)
+                lo, hi, unit, _ = PARAM_RANGES[name]
+                digits = len(str(abs(value)))
+                raise PPRError(f"{where}: {name} = an integer of {digits} digits is out of "
+                               f"range; allowed: [{lo:g}, {hi:g}] {unit}".rstrip()) from None
+        changes[name] = value
+    return changes
+
+
 def load_params(path: str, base: Optional[RobotParams] = None) -> RobotParams:
     """Read a robot's parameters from a TOML or JSON file (by extension).
 
@@ -42,20 +101,10 @@ def load_params(path: str, base: Optional[RobotParams] = None) -> RobotParams:
     ext = _format(path)
     try:
         if ext == ".json":
-            with open(path, encoding="utf-8") as f:
+            with open(path, encoding="utf-8-sig") as f:  # a byte-order mark skipped
                 data = json.load(f)
         else:
-            try:
-                import tomllib
-            except ImportError:  # Python 3.10
-                try:
-                    import tomli as tomllib
-                except ImportError:
-                    raise PPRError("reading TOML needs Python 3.11 or the tomli package; or use "
-                                   "a .json file") from None
-
-            with open(path, "rb") as f:
-                data = tomllib.load(f)
+            data = read_toml(path)
     except OSError as err:
         raise PPRError(f"parameter file {str(path)!r}: {err.strerror or err}") from None
     except ValueError as err:  # json.JSONDecodeError and tomllib.TOMLDecodeError
@@ -65,31 +114,7 @@ def load_params(path: str, base: Optional[RobotParams] = None) -> RobotParams:
         data = data["params"]
     if not isinstance(data, dict):
         raise PPRError(f"parameter file {str(path)!r} must hold name = value pairs")
-    unknown = sorted(set(data) - set(settable_names()))
-    if unknown:
-        raise PPRError(f"parameter file {str(path)!r}: unknown name(s) {unknown}; allowed: "
-                       f"{', '.join(settable_names())}")
-    changes = {}
-    for name, value in data.items():
-        if name == "joint_geometry":
-            ok = isinstance(value, str)
-        elif name == "sigma":
-            ok = isinstance(value, int) and not isinstance(value, bool)
-        else:
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-        if not ok:
-            raise PPRError(f"parameter file {str(path)!r}: {name} = {value!r} is not a "
-                           f"{'string' if name == 'joint_geometry' else 'number'}")
-        if name in PARAM_RANGES:
-            try:
-                value = float(value)
-            except OverflowError:  # an integer beyond float's range (TOML reads 1e400 as inf)
-                lo, hi, unit, _ = PARAM_RANGES[name]
-                digits = len(str(abs(value)))
-                raise PPRError(f"parameter file {str(path)!r}: {name} = an integer of {digits} "
-                               f"digits is out of range; allowed: [{lo:g}, {hi:g}] {unit}"
-                               .rstrip()) from None
-        changes[name] = value
+    changes = check_param_values(data, f"parameter file {str(path)!r}")
     base = RobotParams() if base is None else base
     try:
         return base.replace(**changes)

@@ -29,7 +29,7 @@ import numpy as np
 from ._actuation import AbstractActuation, MotionDriven, PDServo, TorqueDriven
 from ._custom_types import Array, Float
 from ._data import REQUIRED, WORKSPACE_SCALE, check_pose_units, read_columns
-from ._errors import DataError
+from ._errors import DataError, check_number
 from ._labels import label_field
 from ._trajectory import PiecewiseCubic
 
@@ -141,6 +141,17 @@ def _check_samples(source: str, ts, values, *, rows=None, label: str = "sample",
                 f"{max_gap:g} times the median time step {med:.6g} s ({gap.size} gap"
                 f"{'s' if gap.size > 1 else ''}): samples are missing; split the file there, "
                 f"or pass max_gap=None if the sampling is meant to be uneven")
+
+
+def _check_load_args(max_gap, min_samples) -> tuple:
+    """(max_gap, min_samples) of the file loaders checked before the file is read: a factor
+    of the median step in [1, 1e12] or None (below 1 every step would be a gap), an integer
+    of at least 2."""
+    if max_gap is not None:
+        max_gap = check_number("max_gap", max_gap, 1.0, 1e12, "median time steps (or None)",
+                               error=DataError)
+    return max_gap, check_number("min_samples", min_samples, 2, 10**12, integer=True,
+                                 error=DataError)
 
 
 def _host_times(ts, source: str) -> np.ndarray:
@@ -446,6 +457,7 @@ def load_path(path: str, *, bc: str = "auto", max_gap: Optional[float] = GAP_FAC
     increasing, a gap, a pose far outside the workspace; and whatever `load_csv` refuses
     (columns, units, numbers, encodings).
     """
+    max_gap, min_samples = _check_load_args(max_gap, min_samples)
     _check_bc(path, bc)
     table = read_columns(path, required=REQUIRED, time_unit=time_unit, length_unit=length_unit,
                          angle_unit=angle_unit, drop_nan=drop_nan)
@@ -488,6 +500,7 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "auto",
     """
     if kind not in (None, "angles", "torque"):
         raise DataError(f"{path}: kind must be 'angles', 'torque' or None, got {kind!r}")
+    max_gap, min_samples = _check_load_args(max_gap, min_samples)
     _check_bc(path, bc)
     table = read_columns(path, required=("time",), time_unit=time_unit, angle_unit=angle_unit,
                          torque_unit=torque_unit, drop_nan=drop_nan)
@@ -539,10 +552,18 @@ def check_same_rate(a, b, *, rtol: float = 0.01) -> float:
     **Returns:** the common median time step (s). Raises `DataError` naming both sources, their
     rates and median steps when they differ by more than `rtol`.
     """
+    rtol = check_number("rtol", rtol, 0.0, 1.0, error=DataError)
     steps = []
-    for x in (a, b):
-        ts = np.asarray(x.ts, dtype=np.float64)
-        if ts.ndim != 1 or ts.shape[0] < 2:
+    for which, x in (("a", a), ("b", b)):
+        ts = getattr(x, "ts", None)
+        try:
+            ts = np.asarray(ts, dtype=np.float64)
+        except (TypeError, ValueError):
+            ts = None
+        if ts is None or ts.ndim != 1:
+            raise DataError(f"check_same_rate: {which} must have sample times ts (a Waypoints, "
+                            f"CommandLog or Experiment), got {type(x).__name__}")
+        if ts.shape[0] < 2:
             raise DataError(f"{getattr(x, 'name', 'signal')}: needs at least two sample times")
         steps.append(float(np.median(np.diff(ts))))
     da, db = steps

@@ -840,6 +840,42 @@ def test_band_no_design_can_leave_is_infeasible_naming_it():
     assert b["violation_abs"] == pytest.approx(min(b["value"], 2 * f - b["value"]), rel=1e-12)
 
 
+def test_band_over_every_reachable_value_is_infeasible_on_the_command_line(tmp_path, capsys):
+    """A band (0, 1e12) covers every frequency the box reaches: the least one, at the box's
+    corner (t, w lowest, r highest), is inside it, and the band's smooth constraint g is -4e-14
+    there, inside the optimiser's own tolerance. Feasibility is judged on the metric against
+    the band's edges: `ppr-jax design` exits 2 with one line naming the band and the value,
+    and writes design.json, report.html and designed.toml marked INFEASIBLE (no MJCF)."""
+    import json
+
+    from ppr_jax._cli import main
+    from ppr_jax._studies._design._goals import band_g
+    from ppr_jax._studies._design._optimise import FEAS_TOL
+
+    f_least = pivot_frequency(BOUNDS["t"][0], BOUNDS["r"][1], BOUNDS["w"][0])
+    g = band_g(f_least, 0.0, 1e12)[0]
+    assert -FEAS_TOL < g < 0  # the smooth form calls it met; the edges do not
+    spec = tmp_path / "spec.toml"
+    spec.write_text(BAND_SPEC.replace("LO", "0.0").replace("HI", "1e12"))
+    out = tmp_path / "out"
+    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("ppr-jax:")]
+    assert len(err) == 1 and err[0].startswith("ppr-jax: error: "), err
+    assert "cannot be met: constraint pivot_frequency_hz outside (0, 1e+12)" in err[0]
+    assert f"pivot_frequency_hz = {f_least:.6g} lies inside the band" in err[0]
+    assert "marked INFEASIBLE" in err[0]
+    data = json.loads((out / "design.json").read_text())
+    assert data["feasible"] is False and "lies inside the band" in data["infeasibility"]
+    (b,) = [c for c in data["constraints"] if c["side"] == "avoid"]
+    assert b["value"] == pytest.approx(f_least, rel=1e-9) and b["violation"] > FEAS_TOL
+    assert data["x"]["t"] == pytest.approx(BOUNDS["t"][0], rel=1e-9)
+    assert data["x"]["r"] == pytest.approx(BOUNDS["r"][1], rel=1e-9)
+    robot = (out / "designed.toml").read_text().splitlines()
+    assert robot[1].startswith("# WARNING: INFEASIBLE design") and "(0, 1e+12)" in robot[1]
+    assert "INFEASIBLE" in (out / "report.html").read_text()
+    assert not (out / "designed.xml").exists()
+
+
 @pytest.mark.slow
 def test_design_on_a_path_from_a_file_equals_the_design_on_its_formula(tmp_path):
     """Design off the paper's circles: the strips' t and w for the highest locked frequency

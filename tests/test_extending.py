@@ -261,10 +261,55 @@ def test_registries_and_choices(package, tmp_path):
     assert out["allowed"] and abs(out["metric"] - 0.002) < 1e-15, out
 
 
-def test_the_page_names_the_recipes():
-    for words in ("**A model level**", "**A solver**", "**A scene**", "| a metric |",
-                  "default_rtol"):
-        assert words in PAGE, words
+def _defined(name: str, path: pathlib.Path) -> bool:
+    """Whether the module at `path` defines `name` at its top level (an assignment, a function
+    or a class), read from its source."""
+    import ast
+
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, (ast.FunctionDef, ast.ClassDef)) and node.name == name:
+            return True
+        targets = (node.targets if isinstance(node, ast.Assign) else
+                   [node.target] if isinstance(node, ast.AnnAssign) else [])
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            return True
+    return False
+
+
+def test_the_page_says_where_things_are():
+    """What the page says of the code holds: every registry, name list or class its table of
+    where things go names is defined in the module it names (`MODELS` in
+    ppr_jax/_models/__init__.py, ...), every file the recipes above edit is among those
+    modules, and the class variables and methods each recipe lists are those of the base class
+    it subclasses (no compilation, no copy of the package)."""
+    from ppr_jax._actuation import AbstractActuation
+    from ppr_jax._models import AbstractModel
+    from ppr_jax._scenes import AbstractScene
+
+    table = PAGE.split("## Where things go", 1)[1].split("\n\n", 2)[1]
+    pairs = re.findall(r"`(\w+)(?:\([^`]*\))?`(?: / `(\w+)`)? (?:\(|in )"
+                       r"`((?:ppr_jax/)?[\w/]+\.py)`", table)
+    assert len(pairs) >= 10, pairs  # the table still reads as it did
+    named = set()
+    for first, second, where in pairs:
+        path = ROOT / (where if where.startswith("ppr_jax/") else "ppr_jax/" + where)
+        named.add(path.relative_to(ROOT / "ppr_jax").as_posix())
+        for name in filter(None, (first, second)):
+            assert _defined(name, path), (name, where)
+    # the recipes followed in `package` edit exactly such modules
+    edited = {"_models/__init__.py", "_names.py", "_simulate.py", "_metrics.py",
+              "_scenes/_registry.py"}
+    assert edited <= named, edited - named
+    for head, base in (("**A model level**", AbstractModel), ("**A scene**", AbstractScene),
+                       ("**A model's defaults**", AbstractModel),
+                       ("**An actuation**", AbstractActuation)):
+        bullet = PAGE.split("- " + head, 1)[1].split("\n- ", 1)[0]
+        names = [n for m in re.finditer(r"(?:class\s+variables?|methods)\s+((?:`\w+(?:\([^`]*"
+                                        r"\))?`(?:,?\s+and\s+|,\s*)?)+)", bullet)
+                 for n in re.findall(r"`(\w+)", m.group(1))]
+        assert len(names) >= 3, (head, names)
+        for n in names:
+            assert hasattr(base, n) or n in getattr(base, "__annotations__", {}), (head, n)
 
 
 @pytest.mark.slow

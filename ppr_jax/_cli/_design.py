@@ -11,6 +11,7 @@ from ._common import _log, _out_dir
 
 
 def cmd_design(args):
+    from .._errors import DesignError
     from .._params import parse_value
     from .._scenes import SceneOptions
     from .._studies import design, load_design_spec
@@ -30,16 +31,33 @@ def cmd_design(args):
     options = SceneOptions().updated(**spec["options"]) if spec["options"] else None
     _out_dir(args.out)
     _log(f"design: {', '.join(spec['variables'])} ... compiling and optimising")
-    d = design(spec["variables"], spec["objective"], spec["constraints"], params=base,
-               options=options, program_dir=getattr(args, "program_dir", None), **settings)
-    report = d.save(os.path.join(args.out, "design.json"))
-    robot = d.to_params_file(os.path.join(args.out, "designed.toml"))
-    mjcf = d.to_mjcf(os.path.join(args.out, "designed.xml"))
-    page = d.report(os.path.join(args.out, "report.html"),
-                    command="ppr-jax " + " ".join(sys.argv[1:]) if sys.argv else None)
+    try:
+        d = design(spec["variables"], spec["objective"], spec["constraints"], params=base,
+                   options=options, program_dir=getattr(args, "program_dir", None), **settings)
+    except DesignError as err:
+        if err.result is None:
+            raise
+        # computed but not to be trusted: written and marked (design.json's "feasible",
+        # the report's and designed.toml's INFEASIBLE line), not withheld; the exit status 2
+        d = err.result
+        written = _write(d, args)
+        raise DesignError(f"{err} (written, marked INFEASIBLE: {', '.join(written)})") from None
+    report, page, robot, mjcf = _write(d, args)
     print(d.summary())
     print(f"wrote {report}, {page}, {robot} (ppr-jax ... --params-file {robot}), {mjcf} (MJCF)")
     return 0
+
+
+def _write(d, args) -> list:
+    """Write a design's design.json, report.html and designed.toml under --out, and for a
+    feasible one its MJCF designed.xml (a model file carries no warning). Returns the paths."""
+    out = [d.save(os.path.join(args.out, "design.json")),
+           d.report(os.path.join(args.out, "report.html"),
+                    command="ppr-jax " + " ".join(sys.argv[1:]) if sys.argv else None),
+           d.to_params_file(os.path.join(args.out, "designed.toml"))]
+    if d.feasible:
+        out.append(d.to_mjcf(os.path.join(args.out, "designed.xml")))
+    return out
 
 
 def add_design(sub, parents, fmt):

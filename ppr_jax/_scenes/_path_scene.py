@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Callable, ClassVar, Optional
+from typing import Callable, ClassVar, Optional, Union
 
 import equinox as eqx
 
 from .._actuation import MotionDriven, TorqueDriven
 from .._errors import PPRError
 from .._labels import label_field
-from .._models import AbstractModel, Reduced
+from .._models import AbstractModel, Reduced, get_model
 from ._base import (
     AbstractScene,
     SceneInput,
@@ -66,6 +66,10 @@ class PathScene(AbstractScene):
     def __check_init__(self):
         if self.drive not in DRIVES:
             raise PPRError(f"drive must be one of {', '.join(DRIVES)}, got {self.drive!r}")
+        if not isinstance(self.input_model, AbstractModel):
+            raise PPRError(f"input_model must be a kinematic model, Rigid() or Reduced() (or "
+                           f"its name, 'rigid' or 'reduced', where a function takes one), got "
+                           f"{type(self.input_model).__name__} {self.input_model!r}")
         if self.input_model.actuated_index is not None:
             raise PPRError(f"input_model must be a kinematic model (rigid or reduced: its "
                            f"coordinates are the pose), got {self.input_model.name!r}")
@@ -112,7 +116,7 @@ class PathScene(AbstractScene):
 
 
 def experiment_scene(experiment, *, drive: Optional[str] = None,
-                     input_model: Optional[AbstractModel] = None,
+                     input_model: Union[None, str, AbstractModel] = None,
                      name: Optional[str] = None) -> PathScene:
     """The scene that a measured experiment describes: its own commands drive the model along
     its own path, from the state its first samples give.
@@ -131,8 +135,8 @@ def experiment_scene(experiment, *, drive: Optional[str] = None,
     - `experiment`: an `Experiment` (`load_csv`) holding angles or torques.
     - `drive`: `"motion"` (the angles) or `"torque"` (the torques); None: the angles where the
       experiment holds them (MODEL.md section 7), else the torques.
-    - `input_model`: the kinematic model (L0 or L1) whose reach the path is checked against
-      (default L1).
+    - `input_model`: the kinematic model (L0 or L1, or its name) whose reach the path is
+      checked against (default L1).
     - `name`: the scene's name (default the experiment's).
 
     **Returns:** a `PathScene` (run it with `run_scene`, register it with `register_scene`).
@@ -147,6 +151,8 @@ def experiment_scene(experiment, *, drive: Optional[str] = None,
         raise DataError(f"experiment_scene takes an Experiment (load_csv), got "
                         f"{type(experiment).__name__}")
     drive = experiment_drive(experiment, drive)
+    if isinstance(input_model, str):  # a model's name
+        input_model = get_model(input_model)
     ts = np.asarray(experiment.ts, dtype=np.float64)
     ts = ts - ts[0]
     log = experiment.th if drive == "motion" else experiment.tau

@@ -8,7 +8,14 @@ from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
-from ..._errors import DesignError, PPRError, check_number as _check_number
+from ..._errors import (
+    DesignError,
+    PPRError,
+    check_instance,
+    check_int,
+    check_number as _check_number,
+    check_vector,
+)
 from ..._metrics import path_metrics
 from ..._models import get_model
 from ..._names import (
@@ -31,8 +38,8 @@ from .._catalogue import (
 )
 from .._evaluation import equal_links
 from .._sensitivity import explicit_params
-from ._goals import Constraint, as_constraints, as_objective, bound_text
-from ._optimise import FEAS_TOL, Scaled, optimise, screen
+from ._goals import Constraint, as_constraints, as_objective
+from ._optimise import Scaled, optimise, screen
 from ._problem import Problem
 from ._rescore import rescore_l3
 from ._result import Design
@@ -50,10 +57,81 @@ PATH_MARGIN_MIN = {"path_reach_margin": 1e-6, "path_singularity_margin": 1e-6}
 
 def check_number(*args, **kwargs):
     """`_errors.check_number`, its error a `DesignError`."""
-    try:
-        return _check_number(*args, **kwargs)
-    except PPRError as err:
-        raise DesignError(str(err)) from None
+    return _check_number(*args, **kwargs, error=DesignError)
+
+
+def _names_check(check):
+    """`check(value)`, a `PPRError` of the model or scene registries as a `DesignError`."""
+    def run(name, value):
+        try:
+            return check(value)
+        except DesignError:
+            raise
+        except PPRError as err:
+            raise DesignError(f"{name}: {err}") from None
+    return run
+
+
+def _model_or_none(value):
+    if value is not None:
+        get_model(value)
+    return value
+
+
+def _scene_or_none(value):
+    if value is not None:
+        get_scene(value)
+    return value
+
+
+def _model(value):
+    get_model(value)
+    return value
+
+
+#: `design`'s keywords that a specification's [settings] may give, each with its check
+#: (name, value) -> the value normalised, raising a `DesignError` naming it and what is allowed
+#: (before anything is compiled: `check_keywords`)
+KEYWORD_CHECKS = {
+    "stroke": lambda n, v: None if v is None else check_number(n, v, 0.0, math.pi, "rad",
+                                                                open_lo=True),
+    "scene": _names_check(_scene_or_none),
+    "model": _names_check(_model),
+    "torque_model": _names_check(_model_or_none),
+    "frequency_model": _names_check(_model),
+    "optimizer": lambda n, v: _choice(n, v, DESIGN_OPTIMIZERS),
+    "mode": lambda n, v: None if v is None else _choice(n, v, ("fwd", "rev")),
+    "starts": lambda n, v: check_number(n, v, 1, 1000, integer=True),
+    "candidates": lambda n, v: check_number(n, v, 1, 100_000, integer=True),
+    "max_iter": lambda n, v: check_number(n, v, 1, 100_000, integer=True),
+    "grid": lambda n, v: check_number(n, v, 1, 10_000_000, integer=True),
+    "grid_rtol": lambda n, v: check_number(n, v, 0.0, 1.0),
+    "fd_rtol": lambda n, v: None if v is None else check_number(n, v, 0.0, 1.0),
+    "seed": lambda n, v: check_int(n, v, 0, 2**63 - 1, error=DesignError),
+    "pose": lambda n, v: None if v is None else check_vector(
+        n, v, 3, error=DesignError, what="(x, y, phi) (m, m, rad)"),
+    "strip_load": lambda n, v: None if v is None else check_vector(
+        n, v, 3, error=DesignError, what="(fx, fy, m) (N, N, N m)"),
+    "l3_elements": lambda n, v: None if v is None else check_number(n, v, 1, 64,
+                                                                     integer=True),
+}
+
+
+def _choice(name, value, allowed):
+    if not isinstance(value, str) or value not in allowed:
+        raise DesignError(f"{name} must be one of {', '.join(allowed)}, got {value!r}")
+    return value
+
+
+def check_keywords(keywords: dict) -> dict:
+    """`design`'s keywords `keywords` {name: value} checked (`KEYWORD_CHECKS`) and normalised;
+    the names not checked there are refused. A `DesignError` names the keyword, its value and
+    what is allowed."""
+    unknown = sorted(set(keywords) - set(KEYWORD_CHECKS))
+    if unknown:
+        raise DesignError(f"unknown design setting(s) {unknown}; allowed: "
+                          f"{', '.join(KEYWORD_CHECKS)}")
+    return {k: KEYWORD_CHECKS[k](k, v) for k, v in keywords.items()}
 
 
 def design(
@@ -147,16 +225,21 @@ def design(
     names, lo, hi = check_variables(variables)
     obj = as_objective(objective)
     cons = as_constraints(constraints)
-    if optimizer not in DESIGN_OPTIMIZERS:
-        raise DesignError(f"optimizer must be one of {', '.join(DESIGN_OPTIMIZERS)}, got "
-                          f"{optimizer!r}")
-    starts = check_number("starts", starts, 1, 1000, integer=True)
-    candidates = check_number("candidates", candidates, 1, 100_000, integer=True)
-    max_iter = check_number("max_iter", max_iter, 1, 100_000, integer=True)
-    grid = check_number("grid", grid, 1, 10_000_000, integer=True)
-    grid_rtol = check_number("grid_rtol", grid_rtol, 0.0, 1.0)
-    if l3_elements is not None:
-        l3_elements = check_number("l3_elements", l3_elements, 1, 64, integer=True)
+    kw = check_keywords(dict(
+        stroke=stroke, scene=scene, model=model, torque_model=torque_model,
+        frequency_model=frequency_model, optimizer=optimizer, mode=mode, starts=starts,
+        candidates=candidates, max_iter=max_iter, grid=grid, grid_rtol=grid_rtol,
+        fd_rtol=fd_rtol, seed=seed, pose=pose, strip_load=strip_load, l3_elements=l3_elements))
+    stroke, pose, strip_load, mode = kw["stroke"], kw["pose"], kw["strip_load"], kw["mode"]
+    starts, candidates, max_iter, grid = kw["starts"], kw["candidates"], kw["max_iter"], \
+        kw["grid"]
+    grid_rtol, fd_rtol, seed, l3_elements = kw["grid_rtol"], kw["fd_rtol"], kw["seed"], \
+        kw["l3_elements"]
+    if params is not None:
+        check_instance("params", params, RobotParams, error=DesignError, what="a RobotParams")
+    if options is not None:
+        check_instance("options", options, SceneOptions, error=DesignError,
+                       what="a SceneOptions")
 
     # the scene and what it allows
     ctx_scene = ctx_model = ctx_opts = None
@@ -187,22 +270,13 @@ def design(
         if stroke is None:
             raise DesignError("pivot_stress_Pa needs stroke= (the joint rotation, rad, in "
                               "(0, 3.14159])")
-        stroke = check_number("stroke", stroke, 0.0, math.pi, "rad", open_lo=True)
     stroke = 0.0 if stroke is None else float(stroke)
     fmodel = get_model(frequency_model)
-    if pose is not None:
-        pose = np.asarray(pose, dtype=np.float64)
-        if pose.shape != (3,) or not np.all(np.isfinite(pose)):
-            raise DesignError(f"pose must be (x, y, phi) (m, m, rad), three finite numbers, got "
-                              f"{pose.tolist()}")
-        pose = tuple(map(float, pose))
     if any(m in ELASTICA_METRICS for m in metrics):
-        load = np.asarray(strip_load if strip_load is not None else [np.nan], dtype=np.float64)
-        if load.shape != (3,) or not np.all(np.isfinite(load)):
+        if strip_load is None:
             raise DesignError(f"{', '.join(m for m in metrics if m in ELASTICA_METRICS)} need "
                               f"strip_load=(fx, fy, m) (N, N, N m), three finite numbers, got "
-                              f"{strip_load!r}")
-        strip_load = tuple(map(float, load))
+                              f"None")
     else:
         strip_load = None
     if any(m in POSE_METRICS for m in metrics) and fmodel.actuated_index is None:
@@ -213,8 +287,6 @@ def design(
     # the base robot
     if params is None:
         base = ctx_scene.default_params() if ctx_scene is not None else RobotParams()
-    elif not isinstance(params, RobotParams):
-        raise DesignError(f"params must be RobotParams, got {type(params).__name__}")
     else:
         base = params
     if np.ndim(base.a) != 0:
@@ -226,8 +298,6 @@ def design(
     mode_given = mode
     if mode is None:
         mode = "fwd" if p <= k else "rev"
-    elif mode not in ("fwd", "rev"):
-        raise DesignError(f"mode must be 'fwd' or 'rev', got {mode!r}")
 
     ctx = SceneContext(ctx_scene, ctx_model, ctx_opts, fmodel, pose, strip_load)
     sides = [(metrics.index(c.metric), c, side, b) for c in cons for side, b in c.sides()]
@@ -251,11 +321,13 @@ def design(
         bounds=np.array([edges[q][0] for q in q_side], dtype=np.float64),
         upper=np.array([sides[q][2] == "upper" for q in q_side], dtype=bool),
         # the path margins are of order one however small their bound
-        scale=np.array([1.0 if (band[q] or edges[q][0] == 0
-                                or sides[q][1].metric in PATH_METRICS)
-                        else abs(edges[q][0]) for q in q_side], dtype=np.float64),
+        scale=np.array([1.0 if band[q] else _bound_scale(sides[q][1].metric, edges[q][0])
+                        for q in q_side], dtype=np.float64),
         sides=q_side, avoid=np.array([band[q] for q in q_side], dtype=bool),
-        band_hi=np.array([edges[q][1] for q in q_side], dtype=np.float64))
+        band_hi=np.array([edges[q][1] for q in q_side], dtype=np.float64),
+        # each edge judged as the bound it is (`Scaled.violations`): relative to its value
+        edge_scale=np.array([[_bound_scale(sides[q][1].metric, e) for e in edges[q]]
+                             for q in q_side], dtype=np.float64).reshape(-1, 2))
 
     # screen, optimise from each start, keep the best feasible
     u_base = prob.u_of([float(getattr(base, n)) for n in names])
@@ -265,7 +337,7 @@ def design(
     optimise_s = time.perf_counter() - t1
     for r, u0 in zip(runs, U0):
         r["u0"] = u0
-        r["feasible"] = r["max_violation"] <= FEAS_TOL and math.isfinite(r["fun"])
+        r["feasible"] = bool(scaled.feasible(prob.raw_value_and_jacobian(prob.x_of(r["u"]))[0]))
     feasible = [r for r in runs if r["feasible"]]
     best = (min(feasible, key=lambda r: r["fun"]) if feasible
             else min(runs, key=lambda r: (r["max_violation"], r["fun"])))
@@ -273,7 +345,7 @@ def design(
     t2 = time.perf_counter()
     if feasible:
         fd_tol = (SCENE_FD_RTOL if ctx_scene is not None else DESIGN_FD_RTOL) \
-            if fd_rtol is None else check_number("fd_rtol", fd_rtol, 0.0, 1.0)
+            if fd_rtol is None else fd_rtol
         kk = kkt(scaled, best["u"])
         gc = gradient_check(scaled, best["u"], fd_tol)
         gr = grid_check(scaled, best["u"], grid, grid_rtol, seed)
@@ -299,18 +371,19 @@ def design(
         result.timing["l3_s"] = time.perf_counter() - t3
         result.timing["total_s"] = time.perf_counter() - t_start
     if not feasible:
-        worst = max(result.constraints, key=lambda c: c["violation"])
-        how = (f"{worst['violation_abs']:.6g} (that far inside the band, from its nearer edge)"
-               if worst["side"] == "avoid" else
-               f"{worst['violation_abs']:.6g} ({worst['violation']:.3g} of the bound)")
-        err = DesignError(
-            f"the specification cannot be met: constraint {worst['metric']} "
-            f"{bound_text(worst['side'], worst['bound'])} is violated by {how} at the best "
-            f"point found ({', '.join(f'{k} = {v:.6g}' for k, v in result.x.items())}); widen "
-            f"the bounds or relax the constraint")
+        why = result.infeasibility or ("no start reached a point where every metric is "
+                                       "finite (the scene failed)")
+        err = DesignError(f"the specification cannot be met: {why}; widen the bounds or relax "
+                          f"the constraint")
         err.result = result
         raise err
     return result
+
+
+def _bound_scale(metric: str, bound: float) -> float:
+    """What a bound's violation is relative to (`Scaled.scale`, `edge_scale`): |bound|, or 1
+    where the bound is 0 or the metric a path margin (of order one however small its bound)."""
+    return 1.0 if bound == 0 or metric in PATH_METRICS else abs(float(bound))
 
 
 def sampled_constraints(metrics, sides) -> tuple:
@@ -338,7 +411,7 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
     v = prob.values(x)
     v0 = prob.values(prob.x_of(best["u0"]))
     raw = prob.raw_value_and_jacobian(x)[0]
-    c_raw = scaled.constraints_of(raw) if sides else np.zeros(0)
+    viol_rows = scaled.violations(raw) if sides else np.zeros(0)
     dc_lo, dc_hi = scaled.dc_dbounds(raw) if sides else (np.zeros(0), np.zeros(0))
     mu_rows = np.zeros(scaled.rows.size)  # the KKT multipliers (scaled) of every row
     for i, m in kk["constraints"]:
@@ -351,7 +424,7 @@ def _assemble(prob, scaled, obj, sides, best, runs, kk, verification, optimizer,
         # of a sampled metric): their multipliers add up; a band's edges each have their own
         d_lo = float(-scaled.sign * fs * np.sum(mu_rows[mine] * dc_lo[mine])) + 0.0
         n_active = sum(1 for i, _ in kk["constraints"] if mine[i])
-        viol = float(max(0.0, -np.min(c_raw[mine]))) if mine.any() else 0.0
+        viol = float(np.max(viol_rows[mine])) if mine.any() else 0.0
         entry = {"metric": c.metric, "side": side, "bound": b, "value": float(v[row]),
                  "active": bool(n_active), "active_samples": n_active, "multiplier": d_lo,
                  "violation": viol, "violation_abs": viol * float(scaled.scale[mine][0])}

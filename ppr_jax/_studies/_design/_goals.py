@@ -4,10 +4,9 @@ of the catalogue (`_catalogue`)."""
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Optional
 
-from ..._errors import DesignError
+from ..._errors import DesignError, check_bounds, check_real
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,11 +70,15 @@ class Constraint:
         if self.upper is None and self.lower is None and self.avoid is None:
             raise DesignError(f"constraint on {self.metric!r} needs an upper or a lower bound "
                               f"or a band to avoid (avoid=(lo, hi))")
+        if not isinstance(self.metric, str):
+            raise DesignError(f"a constraint's metric must be a metric's name, got "
+                              f"{self.metric!r}")
         for side in ("upper", "lower"):
             v = getattr(self, side)
-            if v is not None and (isinstance(v, (bool, str)) or not math.isfinite(float(v))):
-                raise DesignError(f"constraint on {self.metric!r}: the {side} bound must be a "
-                                  f"finite number, got {v!r}")
+            if v is not None:
+                object.__setattr__(self, side, check_real(
+                    f"constraint on {self.metric!r}: the {side} bound", v, error=DesignError,
+                    kind="a finite number"))
         if self.upper is not None and self.lower is not None and not self.lower < self.upper:
             raise DesignError(f"constraint on {self.metric!r}: lower {self.lower:g} must be "
                               f"below upper {self.upper:g}")
@@ -87,22 +90,7 @@ class Constraint:
                                   f"on {self.metric!r}")
 
     def _band(self, band) -> tuple:
-        where = f"constraint on {self.metric!r}: avoid must be (lo, hi), two finite numbers " \
-                f"with lo < hi"
-        if isinstance(band, (str, bytes, dict)) or not hasattr(band, "__len__") \
-                or len(band) != 2:
-            raise DesignError(f"{where}, got {band!r}")
-        if any(isinstance(v, (bool, str)) for v in band):
-            raise DesignError(f"{where}, got {band!r}")
-        try:
-            lo, hi = (float(v) for v in band)
-        except (TypeError, ValueError):
-            raise DesignError(f"{where}, got {band!r}") from None
-        if not (math.isfinite(lo) and math.isfinite(hi)):
-            raise DesignError(f"{where}, got ({lo:g}, {hi:g})")
-        if not lo < hi:
-            raise DesignError(f"{where}, got lo = {lo:g} >= hi = {hi:g}")
-        return (lo, hi)
+        return check_bounds(f"constraint on {self.metric!r}: avoid", band, error=DesignError)
 
     def sides(self) -> list:
         """[(side, bound)] for the bounds given: 'upper' means metric <= bound, 'lower'
@@ -154,8 +142,15 @@ def as_objective(objective) -> Objective:
 
 def as_constraints(constraints) -> list:
     """`Constraint`s from themselves or dicts {"metric", "upper", "lower", "avoid"}."""
+    if constraints is None:
+        return []
+    if isinstance(constraints, (Constraint, dict)):  # one constraint, not in a list
+        constraints = [constraints]
+    if isinstance(constraints, (str, bytes)) or not hasattr(constraints, "__iter__"):
+        raise DesignError(f"constraints must be a sequence of Constraints or dicts "
+                          f"{{metric, upper, lower, avoid}}, got {constraints!r}")
     out = []
-    for c in constraints or ():
+    for c in constraints:
         if isinstance(c, Constraint):
             out.append(c)
         elif isinstance(c, dict):

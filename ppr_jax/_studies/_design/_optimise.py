@@ -22,9 +22,13 @@ from ..._errors import DesignError
 from ._goals import band_g
 from ._problem import Problem
 
-#: a constraint counts as met where its scaled value c = (bound - metric)/|bound| (upper),
-#: (metric - bound)/|bound| (lower) or (metric - lo)(metric - hi)/(hi - lo)^2 (a band to avoid,
-#: `Constraint`) is at least -FEAS_TOL
+#: a constraint counts as met where its violation (`Scaled.violations`), judged on the metric
+#: against its bound or the band's edges, relative to the bound (1 where the bound is 0, or a
+#: path margin's), is at most FEAS_TOL: metric <= bound + FEAS_TOL |bound| (upper), likewise
+#: for a lower bound, and a band to avoid is met by a metric at or below lo + FEAS_TOL |lo| or
+#: at or above hi - FEAS_TOL |hi|. Never on the band's smooth g: a band of width w makes g's
+#: tolerance FEAS_TOL w in the metric's unit, and a band wide enough to cover every reachable
+#: value (avoid (0, 1e12)) would have every design inside it "feasible"
 FEAS_TOL = 1e-8
 
 
@@ -49,6 +53,7 @@ class Scaled:
     sides: Optional[np.ndarray] = None
     avoid: Optional[np.ndarray] = None
     band_hi: Optional[np.ndarray] = None
+    edge_scale: Optional[np.ndarray] = None
 
     def _band(self):
         """(avoid (q,) bool, hi (q,)): hi the band's upper edge, bound + 1 off the bands."""
@@ -85,6 +90,37 @@ class Scaled:
         if avoid is not None:
             c = np.where(avoid, band_g(m, self.bounds, hi)[0], c)
         return c / self.scale
+
+    def violations(self, values) -> np.ndarray:
+        """How far each constraint row is violated (..., q) at raw values (..., n), >= 0, judged
+        on the metric against its bound or its band's edges (`FEAS_TOL`): (metric - bound)/scale
+        above an upper bound, (bound - metric)/scale below a lower one; inside a band (lo, hi)
+        the lesser of (metric - lo)/scale_lo and (hi - metric)/scale_hi (`edge_scale`, each
+        edge's |value|, 1 where it is 0 or a path margin's). NaN (a failed scene) is inf."""
+        m = values[..., self.rows]
+        v = np.where(self.upper, m - self.bounds, self.bounds - m) / self.scale
+        avoid, hi = self._band()
+        if avoid is not None:
+            s_lo, s_hi = self.edge_scale[:, 0], self.edge_scale[:, 1]
+            inside = np.minimum((m - self.bounds) / s_lo, (hi - m) / s_hi)
+            v = np.where(avoid, inside, v)
+        return np.where(np.isnan(v), np.inf, np.maximum(v, 0.0))
+
+    def feasible(self, values) -> np.ndarray:
+        """The one feasibility judgement of a design (..., ): every constraint row's violation
+        at most `FEAS_TOL` and every raw value finite, at raw values (..., n)."""
+        ok = np.all(np.isfinite(values), axis=-1)
+        if self.rows.size:
+            ok = ok & np.all(self.violations(values) <= FEAS_TOL, axis=-1)
+        return ok
+
+    def violation_of(self, u) -> float:
+        """The largest violation (`violations`) at normalised variables u, 0 without
+        constraints."""
+        if not self.rows.size:
+            return 0.0
+        v, _ = self.problem.raw_value_and_jacobian(self.problem.x_of(u))
+        return float(np.max(self.violations(v)))
 
     def merit(self, values) -> np.ndarray:
         """Scaled objective plus 1e3 times the summed violation (..., ): how starts are ranked;
@@ -173,16 +209,16 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
     **Returns:** {u, fun, max_violation, success, message, nit, nfev, jacobians (the points
     whose values and Jacobian were computed: each evaluation of the problem), history, seconds,
     multipliers} (history: one entry per iteration, {iteration, u, objective (scaled),
-    max_violation (scaled)}; multipliers: scipy's own, where it gives them).
+    max_violation (`Scaled.violations`: on the metrics, relative to each bound)}; multipliers:
+    scipy's own, where it gives them).
     """
     q = scaled.rows.size
     history = []
 
     def record(u):
-        c = scaled.cons(u) if q else np.zeros(0)
         history.append({"iteration": len(history), "u": np.asarray(u, dtype=float).copy(),
                         "objective": float(scaled.fun(u)),
-                        "max_violation": float(max(0.0, -c.min())) if q else 0.0})
+                        "max_violation": scaled.violation_of(u)})
 
     def callback(intermediate_result):
         record(intermediate_result.x)
@@ -209,10 +245,8 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
         raise DesignError(f"optimizer must be 'slsqp' or 'trust-constr', got {method!r}")
     seconds = time.perf_counter() - t0
     u = np.clip(np.asarray(res.x, dtype=np.float64), 0.0, 1.0)
-    c = scaled.cons(u) if q else np.zeros(0)
     mult = getattr(res, "multipliers", None)
-    return {"u": u, "fun": float(scaled.fun(u)),
-            "max_violation": float(max(0.0, -c.min())) if q else 0.0,
+    return {"u": u, "fun": float(scaled.fun(u)), "max_violation": scaled.violation_of(u),
             "success": bool(res.success), "message": str(res.message), "nit": int(res.nit),
             "nfev": int(res.nfev), "history": history,
             "jacobians": scaled.problem.jacobians - jac0, "seconds": seconds,

@@ -157,7 +157,8 @@ def write_design_report(d, path: str, *, command: Optional[str] = None) -> str:
         f", derivatives {esc(str(d.info['mode']))}-mode; "
         + (f"scene {esc(str(d.info['scene']))} (model {esc(str(d.info.get('model')))}); "
            if d.info.get("scene") else "no scene; ")
-        + ("feasible. " if d.feasible else "<span class=bad>infeasible</span>. ")
+        + ("feasible. " if d.feasible else
+           f"<span class=bad>INFEASIBLE: {esc(str(d.infeasibility))}</span>. ")
         + f"{fmt(d.timing.get('total_s'), 3)} s.</p>",
         "<h2>Optimum against start</h2>",
         table(["", "start", "optimum", "lower bound", "upper bound"],

@@ -12,6 +12,7 @@ import numpy as np
 from ..._params import RobotParams
 from ..._params_file import save_params
 from ._goals import bound_text
+from ._optimise import FEAS_TOL
 
 
 @dataclasses.dataclass
@@ -68,13 +69,45 @@ class Design:
 
     @property
     def feasible(self) -> bool:
-        """Whether every constraint holds at the optimum (to 1e-8 of its bound)."""
-        return all(c["violation"] <= 1e-8 for c in self.constraints)
+        """Whether every constraint holds at the optimum: the one judgement of `design`
+        (`_optimise.FEAS_TOL`), on each constraint's metric against its bound or its band's
+        edges, to 1e-8 of the bound (`violation`), never on the optimiser's smooth form."""
+        return all(c["violation"] <= FEAS_TOL for c in self.constraints)
+
+    @property
+    def infeasibility(self) -> Optional[str]:
+        """None for a feasible design; else the worst violated constraint, the metric's value
+        against its bound or band, and by how much, as one sentence (the `DesignError`'s, the
+        report's and the designed robot's file's)."""
+        if self.feasible:
+            return None
+        c = max(self.constraints, key=lambda c: c["violation"])
+        m, v = c["metric"], c["value"]
+        if c["side"] == "avoid":
+            lo, hi = c["bound"]
+            edge = lo if c["edge"] == "lower" else hi
+            how = (f"{m} = {v:.6g} lies inside the band, {c['violation_abs']:.6g} from its "
+                   f"nearer edge {edge:g}")
+        else:
+            how = (f"{m} = {v:.6g} is {'above' if c['side'] == 'upper' else 'below'} it by "
+                   f"{c['violation_abs']:.6g} ({c['violation']:.3g} of the bound)")
+        return (f"constraint {m} {bound_text(c['side'], c['bound'])} is violated at the best "
+                f"point found ({', '.join(f'{k} = {x:.6g}' for k, x in self.x.items())}): "
+                f"{how}")
 
     def to_params_file(self, path: str) -> str:
         """Write the designed robot to a TOML or JSON parameter file (by extension) that
-        `ppr_jax.load_params` and the command line's `--params-file` read. Returns the path."""
-        return save_params(self.params, path)
+        `ppr_jax.load_params` and the command line's `--params-file` read; a TOML file says
+        where it comes from in a comment, and an infeasible design begins with a `WARNING`
+        comment naming the violated constraint (`infeasibility`). Returns the path."""
+        if str(path).lower().endswith(".json"):
+            return save_params(self.params, path)
+        o = self.objective
+        notes = [f"designed by ppr_jax.design: {o['sense']} {o['metric']} = {o['value']:.9g}"]
+        if not self.feasible:
+            notes.insert(0, f"WARNING: INFEASIBLE design, not to be built as it is: "
+                            f"{self.infeasibility}")
+        return save_params(self.params, path, comments=notes)
 
     def to_mjcf(self, path: str, dt: float = 1e-4) -> str:
         """Write the designed robot as an MJCF document (`ppr_jax.to_mjcf`: the L2 robot,
@@ -96,9 +129,11 @@ class Design:
 
     def to_dict(self) -> dict:
         """Everything but `params` and `evaluate`, as JSON-ready values (the designed robot's
-        parameters under "params")."""
+        parameters under "params", `feasible` and `infeasibility` beside them)."""
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                if f.name not in ("params", "evaluate")}
+        out["feasible"] = self.feasible
+        out["infeasibility"] = self.infeasibility
         out["params"] = {f.name: _plain(getattr(self.params, f.name))
                          for f in dataclasses.fields(self.params)
                          if getattr(self.params, f.name) is not None}
@@ -114,7 +149,8 @@ class Design:
     def summary(self) -> str:
         """A few lines: the optimum, the binding constraints, the verification."""
         o = self.objective
-        lines = [f"{o['sense']} {o['metric']}: {o['value']:.9g} (start {o['start_value']:.6g})"]
+        lines = [] if self.feasible else [f"INFEASIBLE: {self.infeasibility}"]
+        lines += [f"{o['sense']} {o['metric']}: {o['value']:.9g} (start {o['start_value']:.6g})"]
         lines += [f"  {k} = {v:.9g}" for k, v in self.x.items()]
         for c in self.constraints:
             tag = "active" if c["active"] else "inactive"

@@ -30,8 +30,12 @@ from __future__ import annotations
 
 import os
 
-from ..._errors import DesignError
-from ._goals import as_constraints
+from ..._errors import DesignError, PPRError
+from ..._params import RobotParams
+from ..._params_file import check_param_values, read_toml
+from ..._scenes import SceneOptions
+from ._goals import as_constraints, as_objective
+from ._variables import check_variables
 
 #: the [settings] keys that are `design`'s keywords
 DESIGN_KEYS = ("stroke", "scene", "model", "torque_model", "frequency_model", "optimizer",
@@ -53,20 +57,15 @@ def load_design_spec(path: str) -> dict:
     ({SceneOptions field: value}), params ({name: value}), params_file (a path or None)}.
     A `DesignError` names the file and what is wrong in it.
     """
-    try:
-        import tomllib
-    except ImportError:  # Python 3.10
-        try:
-            import tomli as tomllib
-        except ImportError:
-            raise DesignError("reading a TOML specification needs Python 3.11 or the tomli "
-                              "package") from None
+    from ._design import check_keywords
+
     where = f"design specification {str(path)!r}"
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        data = read_toml(path)
     except OSError as err:
         raise DesignError(f"{where}: {err.strerror or err}") from None
+    except PPRError as err:
+        raise DesignError(f"{where}: {err}") from None
     except ValueError as err:
         raise DesignError(f"{where} is not valid TOML: {err}") from None
     unknown = sorted(set(data) - set(SECTIONS))
@@ -83,7 +82,9 @@ def load_design_spec(path: str) -> dict:
     cons = data.get("constraints", [])
     if not isinstance(cons, list) or not all(isinstance(c, dict) for c in cons):
         raise DesignError(f"{where}: constraints must be [[constraints]] tables")
-    try:  # their fields checked here, so that the error names the file
+    try:  # every field checked here, so that the error names the file
+        check_variables(variables)
+        as_objective(dict(data["objective"]))
         as_constraints(cons)
     except DesignError as err:
         raise DesignError(f"{where}: {err}") from None
@@ -96,9 +97,25 @@ def load_design_spec(path: str) -> dict:
     if unknown:
         raise DesignError(f"{where}: unknown setting(s) {unknown}; allowed: "
                           f"{', '.join(DESIGN_KEYS + OPTION_KEYS + ('params_file',))}")
+    try:
+        check_keywords(settings)
+    except DesignError as err:
+        raise DesignError(f"{where}: [settings] {err}") from None
+    try:
+        SceneOptions().updated(**options).check()
+    except PPRError as err:
+        raise DesignError(f"{where}: [settings] {err}") from None
     params = data.get("params", {})
     if not isinstance(params, dict):
         raise DesignError(f"{where}: [params] must be a table of name = value")
+    try:  # the kinds and ranges of the values, each alone (the base robot is not known yet)
+        params = check_param_values(params, f"{where}: [params]")
+        for name, value in params.items():
+            RobotParams().replace(**{name: value})
+    except PPRError as err:
+        msg = str(err)
+        raise DesignError(msg if msg.startswith(where) else f"{where}: [params] {msg}") \
+            from None
     return {"variables": variables, "objective": dict(data["objective"]), "constraints": cons,
             "settings": settings, "options": options, "params": params,
             "params_file": params_file}

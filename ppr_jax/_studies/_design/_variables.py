@@ -39,9 +39,9 @@ def check_variables(variables: Mapping) -> tuple[list, np.ndarray, np.ndarray]:
         try:
             a, b = bounds
             a, b = _number(a), _number(b)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise DesignError(f"design variable {name!r} ({meaning}): bounds must be two finite "
-                              f"numbers (lo, hi) in {unit}, got {bounds!r} (physical range "
+                              f"numbers (lo, hi) in {unit}, got {_shown(bounds)} (physical range "
                               f"{rng})") from None
         for side, v in (("lower", a), ("upper", b)):
             if v < plo or v > phi:
@@ -56,8 +56,17 @@ def check_variables(variables: Mapping) -> tuple[list, np.ndarray, np.ndarray]:
     return names, np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
 
 
+def _shown(bounds) -> str:
+    """The bounds as given, a huge integer by its digit count."""
+    if isinstance(bounds, (tuple, list)):
+        return "(" + ", ".join(_shown(b) for b in bounds) + ")"
+    if isinstance(bounds, int) and not isinstance(bounds, bool) and abs(bounds) >= 10**30:
+        return f"an integer of {len(str(abs(bounds)))} digits"
+    return repr(bounds)
+
+
 def _number(v) -> float:
-    if isinstance(v, (bool, str, bytes)):
+    if isinstance(v, (bool, str, bytes)) or v is None:
         raise ValueError
     x = float(v)
     if not math.isfinite(x):

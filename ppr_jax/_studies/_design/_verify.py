@@ -11,7 +11,7 @@ import numpy as np
 from scipy.optimize import nnls
 from scipy.stats import qmc
 
-from ._optimise import FEAS_TOL, Scaled
+from ._optimise import Scaled
 
 #: a constraint (scaled) or a normalised variable within this of its bound counts as active
 ACTIVE_TOL = 1e-7
@@ -138,9 +138,7 @@ def grid_check(scaled: Scaled, u_opt, n_points: int, rtol: float, seed: int = 0)
         kind, per_axis = "sobol", None
     V = prob.batch_raw(prob.x_of(U))
     seconds = time.perf_counter() - t0
-    ok_pts = np.all(np.isfinite(V), axis=1)
-    if scaled.rows.size:
-        ok_pts &= np.all(scaled.constraints_of(V) >= -FEAS_TOL, axis=1)
+    ok_pts = scaled.feasible(V)
     v_opt = prob.values(prob.x_of(u_opt))[0]
     out = {"kind": kind, "points": int(U.shape[0]), "per_axis": per_axis,
            "feasible": int(ok_pts.sum()), "optimum_objective": float(v_opt), "rtol": rtol,

@@ -89,7 +89,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._data import DataError, Experiment
-from ..._errors import IdentificationError, PPRError
+from ..._errors import (
+    IdentificationError,
+    PPRError,
+    check_bounds,
+    check_instance,
+    check_mapping,
+    check_names,
+    check_real,
+)
 from ..._models import get_model
 from ..._params import PARAM_RANGES, RobotParams
 from ..._paths import fit_start
@@ -287,11 +295,7 @@ def identify(
             or not 1 <= starts <= 1000):
         raise IdentificationError(f"starts must be 'auto' or an integer in [1, 1000], got "
                                   f"{starts!r}")
-    nuisance = tuple(nuisance)
-    for item in nuisance:
-        if item not in NUISANCE:
-            raise IdentificationError(f"unknown nuisance {item!r}; allowed: "
-                                      f"{', '.join(NUISANCE)}")
+    nuisance = check_names("nuisance", nuisance, NUISANCE, error=IdentificationError)
     meas = tuple(sorted(({0, 1, 2} if "bias" in nuisance else set())
                         | ({3} if "delay" in nuisance else set())))
     if loss not in LOSSES:
@@ -302,16 +306,35 @@ def identify(
         raise IdentificationError(
             f"max_iter = 0 (no step: the statistics at the initial values) needs solver='lm' "
             f"and one start, got solver={solver!r}, starts={starts!r}")
+    if isinstance(unknowns, str):  # one name, not its letters
+        unknowns = (unknowns,)
+    if not hasattr(unknowns, "__iter__") or isinstance(unknowns, (bytes, dict)):
+        raise IdentificationError(f"unknowns must be a sequence of parameter names, got "
+                                  f"{unknowns!r}; allowed: {', '.join(PARAM_RANGES)}")
     names = tuple(unknowns)
     if not names:
         raise IdentificationError("no unknown given; choose among " + ", ".join(PARAM_RANGES))
     for n in names:
-        if n not in PARAM_RANGES:
+        if not isinstance(n, str) or n not in PARAM_RANGES:
             raise IdentificationError(f"unknown {n!r} is not a float parameter; allowed: "
                                       f"{', '.join(PARAM_RANGES)}")
     if len(set(names)) != len(names):
         raise IdentificationError(f"an unknown is repeated: {list(names)}")
-    fixed = dict(fixed or {})
+    # the dicts' keys and values, their types and counts, before anything else reads them
+    fixed = check_mapping("fixed", fixed, error=IdentificationError, what="{name: value}")
+    initial = check_mapping("initial", initial, error=IdentificationError,
+                            what="{unknown: start value}")
+    initial = {k: check_real(f"initial value of {k!r}", v, error=IdentificationError,
+                             allowed=_range_text(k)) for k, v in initial.items()}
+    bounds = check_mapping("bounds", bounds, error=IdentificationError,
+                           what="{unknown: (lo, hi)}")
+    bounds = {k: check_bounds(f"bounds of {k!r}", v, error=IdentificationError, ordered=False,
+                              unit=PARAM_RANGES[k][2] if k in PARAM_RANGES else "")
+              for k, v in bounds.items()}
+    for what, robot in (("params", params), ("commands", commands)):
+        if robot is not None:
+            check_instance(what, robot, RobotParams, error=IdentificationError,
+                           what="a RobotParams")
     clash = set(fixed) & set(names)
     if clash:
         raise IdentificationError(f"parameter(s) {sorted(clash)} are both unknown and fixed")
@@ -323,7 +346,7 @@ def identify(
     if not ok:
         raise IdentificationError(f"noise must be (position m, phi rad), both > 0 (inf: that "
                                   f"channel is not fitted; not both), got {noise!r}")
-    stray = set(initial or {}) - set(names)
+    stray = set(initial) - set(names)
     if stray:
         raise IdentificationError(f"initial values given for {sorted(stray)}, which are not "
                                   f"unknowns (to hold a parameter at a value, use fixed=)")
@@ -370,16 +393,15 @@ def identify(
     try:
         base = base.replace(**fixed) if fixed else base
         nominal = base
-        base = base.replace(**{k: float(v) for k, v in (initial or {}).items()})
+        base = base.replace(**initial)
     except ValueError as err:
         raise IdentificationError(str(err)) from None
     base = _fill_prb(base, names)
-    bounds = dict(bounds or {})
+    bounds = dict(bounds)
     lo, hi, lg = [], [], []
     for n in names:
         plo, phi_, unit, _ = PARAM_RANGES[n]
-        b = bounds.pop(n, (plo, phi_))
-        b_lo, b_hi = float(b[0]), float(b[1])
+        b_lo, b_hi = bounds.pop(n, (plo, phi_))
         if not (plo <= b_lo < b_hi <= phi_):
             raise IdentificationError(f"bounds of {n!r} must satisfy {plo:g} <= lo < hi <= "
                                       f"{phi_:g} {unit}, got ({b_lo:g}, {b_hi:g})")
@@ -580,6 +602,14 @@ def _held_out(validation, ts, mask, names, n_init):
         raise IdentificationError("validation holds out no sample")
     return held, what
 
+
+
+def _range_text(name: str) -> str:
+    """"allowed range [lo, hi] unit" of a float parameter (empty for another name)."""
+    if name not in PARAM_RANGES:
+        return ""
+    lo, hi, unit, _ = PARAM_RANGES[name]
+    return f"allowed range [{lo:g}, {hi:g}] {unit}".rstrip()
 
 
 def _check_solver_args(loss_scale, max_iter, xtol, ftol, stat_tol, rtol, atol, max_steps,
