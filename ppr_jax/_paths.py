@@ -27,9 +27,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._actuation import AbstractActuation, MotionDriven, PDServo, TorqueDriven
+from ._assembly import check_angle_units
 from ._custom_types import Array, Float
 from ._data import REQUIRED, WORKSPACE_SCALE, check_pose_units, read_columns
-from ._errors import DataError
+from ._errors import CommandLogError, DataError
 from ._labels import label_field
 from ._trajectory import PiecewiseCubic
 
@@ -39,8 +40,9 @@ GAP_FACTOR = 10.0
 #: fewest samples of a loaded path or command log: a cubic has four coefficients, and with
 #: fewer samples the spline's acceleration is set by its boundary condition, not by the data
 MIN_SPLINE_SAMPLES = 4
-#: largest |actuated angle| (rad) of an angle log: beyond two turns it is in degrees (or mrad)
-MAX_ANGLE = 4 * math.pi
+#: a command log may start later or end earlier than its path by this fraction of its median
+#: sample step (`check_log_covers`): the rounding of a recorder's time stamps, not a shortfall
+COVER_TOLERANCE = 0.5
 #: boundary conditions of `Waypoints`
 BOUNDARY = ("clamped", "natural")
 #: the loaders' choices: `BOUNDARY`, or "auto" (`end_condition`)
@@ -511,12 +513,7 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "auto",
                    min_samples=max(min_samples, MIN_SPLINE_SAMPLES),
                    what="angles" if kind == "angles" else "torques")
     if kind == "angles" and check_units:
-        i = int(np.argmax(np.max(np.abs(V), axis=1)))
-        if np.max(np.abs(V[i])) > MAX_ANGLE:
-            raise DataError(f"{_at(source, 'line', lines, ts, i)}: actuated angle "
-                            f"{float(np.max(np.abs(V[i]))):.4g} rad, beyond two turns: probably "
-                            f"degrees read as radians; declare the unit (column 'th_1[deg]', "
-                            f"header '# units: angle=deg', or angle_unit='deg')")
+        check_angle_units(V, lambda i: _at(source, "line", lines, ts, i), DataError)
         step = np.max(np.abs(np.diff(V, axis=0)), axis=1)
         if np.max(step) > math.pi:
             i = int(np.argmax(step > math.pi)) + 1
@@ -554,6 +551,70 @@ def check_same_rate(a, b, *, rtol: float = 0.01) -> float:
                         f"(allowed {rtol:.2%}): resample one onto the other's times before "
                         f"pairing them")
     return da
+
+
+def _span(x):
+    """(first, last) sample time (s) of `x` (its `ts`), or None where it has no concrete sample
+    times (a path given as a formula, or traced)."""
+    ts = getattr(x, "ts", None)
+    if ts is None or _is_traced(ts):
+        return None
+    ts = np.asarray(ts, dtype=np.float64)
+    if ts.ndim != 1 or ts.shape[0] < 2:
+        return None
+    return float(ts[0]), float(ts[-1]), float(np.median(np.diff(ts)))
+
+
+def check_log_covers(path, log, *, t_end: Optional[float] = None,
+                     tolerance: float = COVER_TOLERANCE) -> None:
+    """Refuse a command log that does not cover its path: the one check of a log of actuated
+    angles or torques against the path it drives (every `PathScene` makes it, so the command
+    line's `--angles` and `--torques`, the studies and the API alike).
+
+    Outside its samples a log's spline is extrapolated: commands no controller gave, which
+    drive the model off the path and are reported as the robot's tracking error. So the log
+    must span the path's samples (a path with sample times: `Waypoints`, a loaded file) or,
+    for a path given as a formula (`Line`, `Fourier`, `Circle`), the run's horizon [0, t_end];
+    it may start later or end earlier by at most `tolerance` times its median sample step
+    (half a step by default: the recorder's stamps). A log stamped from another start (0.2 to
+    1.2 s against a path from 0 s) is refused alike. A log longer than the path is accepted.
+
+    **Arguments:**
+
+    - `path`: the nominal path (anything with sample times `ts`, or a time function).
+    - `log`: the command log (`CommandLog`, or anything with sample times `ts`; a time
+      function without samples covers every time and is not checked).
+    - `t_end`: the run's horizon (s), for a path without sample times; None: not checked.
+    - `tolerance`: the allowed shortfall at either end, in median sample steps of the log.
+
+    **Returns:** None. Raises `CommandLogError` (a `DataError`) naming the log, its span, the
+    path's span and the shortfall.
+    """
+    have = _span(log)
+    if have is None:
+        return
+    lo, hi, step = have
+    need = _span(path)
+    if need is not None:
+        t0, t1, what = need[0], need[1], f"the path {getattr(path, 'name', 'path')} spans"
+    elif t_end is not None:
+        t0, t1, what = 0.0, float(t_end), "the run spans"
+    else:
+        return
+    tol = tolerance * step
+    short = []
+    if lo > t0 + tol:
+        short.append(f"it starts {lo - t0:.6g} s after")
+    if hi < t1 - tol:
+        short.append(f"it ends {t1 - hi:.6g} s before")
+    if short:
+        name = getattr(log, "name", "the command log")
+        raise CommandLogError(
+            f"{name}: the command log spans t = {lo:.6g} to {hi:.6g} s but {what} t = "
+            f"{t0:.6g} to {t1:.6g} s: {' and '.join(short)} it (allowed {tolerance:g} sample "
+            f"step, {tol:.3g} s); outside its samples the log would be extrapolated, commands "
+            f"no controller gave: give a log over the whole span (times counted from the "
+            f"path's first), or cut the path (or the horizon) to the log's")
 
 
 #: the first samples of an experiment from which its start is estimated (`fit_start`): those

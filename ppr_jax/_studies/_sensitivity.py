@@ -51,7 +51,7 @@ from .._params import RobotParams
 from .._prb import derived
 from .._programs import cached_program
 from .._robot import Robot
-from .._scenes import SceneOptions, get_scene
+from .._scenes import SceneOptions, check_scene_commands, get_scene
 from .._statics import assemble, static_equilibrium
 from ._jacobian import jacobian_with_values
 from ._sweep import FLOAT_PARAMS, sweep_metrics, traced_metrics
@@ -201,6 +201,7 @@ def _metric_function(scene, params, *, model, torque_model, frequency_model, par
     opts = (SceneOptions() if options is None else options).updated(**option_fields).check()
     options = opts.prepared(model_, scene_.trajectory())
     traj = options.trajectory
+    check_scene_commands(scene_, base, traj, opts.t_end)
     metrics = tuple(default_metrics(traj) if metrics is None else metrics)
     allowed = allowed_metrics(traj)
     for m in metrics:

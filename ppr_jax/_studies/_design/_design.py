@@ -20,7 +20,7 @@ from ..._names import (
     DESIGN_STARTS,
 )
 from ..._params import RobotParams
-from ..._scenes import SceneOptions, get_scene
+from ..._scenes import SceneOptions, check_scene_commands, get_scene
 from .._sensitivity import explicit_params
 from ._catalogue import (
     ELASTICA_METRICS,
@@ -220,6 +220,8 @@ def design(
         raise DesignError("a design starts from one robot, not a batch")
     if any(n in ("gamma", "rho", "K_theta") and getattr(base, n) is None for n in names):
         base = explicit_params(base)
+    if ctx_scene is not None:
+        check_scene_commands(ctx_scene, base, ctx_opts.trajectory, opts.t_end)
     equal = ("l1" not in names and "l3" not in names) and float(base.l1) == float(base.l3)
     k, p = len(metrics), len(names)
     mode_given = mode
