@@ -29,14 +29,18 @@ import numpy as np
 from ._actuation import AbstractActuation, MotionDriven, PDServo, TorqueDriven
 from ._assembly import check_angle_units
 from ._custom_types import Array, Float
-from ._data import REQUIRED, WORKSPACE_SCALE, check_pose_units, read_columns
+from ._data import (
+    GAP_FACTOR,
+    REQUIRED,
+    WORKSPACE_SCALE,
+    check_gaps,
+    check_pose_units,
+    read_columns,
+)
 from ._errors import CommandLogError, DataError
 from ._labels import label_field
 from ._trajectory import PiecewiseCubic
 
-#: a time step longer than GAP_FACTOR times the median step of a loaded file is a gap (samples
-#: lost by the recorder): the spline would bridge it with a curve that no one commanded
-GAP_FACTOR = 10.0
 #: fewest samples of a loaded path or command log: a cubic has four coefficients, and with
 #: fewer samples the spline's acceleration is set by its boundary condition, not by the data
 MIN_SPLINE_SAMPLES = 4
@@ -132,17 +136,8 @@ def _check_samples(source: str, ts, values, *, rows=None, label: str = "sample",
         cause = "the same time as" if dt[i - 1] == 0 else "an earlier time than"
         raise DataError(f"{_at(source, label, rows, ts, i)}: {cause} {label} {int(rows[i - 1])} "
                         f"(t = {float(ts[i - 1]):.6g} s); times must be strictly increasing")
-    if max_gap is not None and n > 2:
-        med = float(np.median(dt))
-        gap = np.flatnonzero(dt > max_gap * med)
-        if gap.size:
-            i = int(gap[0]) + 1
-            raise DataError(
-                f"{_at(source, label, rows, ts, i)}: gap of {float(dt[i - 1]):.6g} s after "
-                f"{label} {int(rows[i - 1])} (t = {float(ts[i - 1]):.6g} s), more than "
-                f"{max_gap:g} times the median time step {med:.6g} s ({gap.size} gap"
-                f"{'s' if gap.size > 1 else ''}): samples are missing; split the file there, "
-                f"or pass max_gap=None if the sampling is meant to be uneven")
+    if max_gap is not None:
+        check_gaps(source, ts, rows, label, max_gap)
 
 
 def _host_times(ts, source: str) -> np.ndarray:
@@ -410,6 +405,40 @@ class CommandLog(eqx.Module):
                        jnp.asarray(Kd, dtype=jnp.float64), feedforward)
 
 
+#: a stray pose (`_check_strays`): one further from the chord of its two neighbours than
+#: STRAY_FACTOR times both the neighbours' own distance and the file's median step, and than
+#: STRAY_FLOOR (m, rad: far above a tracker's noise)
+STRAY_FACTOR = 10.0
+STRAY_FLOOR = (5e-3, 0.05)
+
+
+def _check_strays(source: str, rows, ts, X) -> None:
+    """Raise `DataError` at the first single pose out of line with its path: further from the
+    chord of its two neighbours (at its time) than `STRAY_FACTOR` times the larger of the
+    neighbours' distance and the median step, and than `STRAY_FLOOR`, in position or in
+    rotation. One such pose (a typo, a tracker's glitch) would be splined into the path and
+    found only when the run leaves the chains' reach; a sharp corner or a reversal is no
+    stray (its neighbours, or the median step, are as far apart as it is from them)."""
+    if X.shape[0] < 3:
+        return
+    w = ((ts[1:-1] - ts[:-2]) / (ts[2:] - ts[:-2]))[:, None]
+    chord = (1 - w) * X[:-2] + w * X[2:]
+    for cols, floor, unit, scale in ((slice(0, 2), STRAY_FLOOR[0], "mm", 1e3),
+                                     (slice(2, 3), STRAY_FLOOR[1], "rad", 1.0)):
+        off = np.linalg.norm(X[1:-1, cols] - chord[:, cols], axis=1)
+        span = np.linalg.norm(X[2:, cols] - X[:-2, cols], axis=1)
+        med = float(np.median(np.linalg.norm(np.diff(X[:, cols], axis=0), axis=1)))
+        bad = np.flatnonzero((off > floor) & (off > STRAY_FACTOR * np.maximum(span, med)))
+        if bad.size:
+            i = int(bad[np.argmax(off[bad])]) + 1
+            raise DataError(
+                f"{_at(source, 'line', rows, ts, i)}: a stray pose, {scale * off[i - 1]:.4g} "
+                f"{unit} off the line between its neighbours (lines {int(rows[i - 1])} and "
+                f"{int(rows[i + 1])}), whose own distance is {scale * span[i - 1]:.3g} {unit} "
+                f"and the file's median step {scale * med:.3g} {unit}: a typo or a tracker's "
+                f"glitch; fix or drop the line (check_units=False skips this check)")
+
+
 def _check_poses(source: str, rows, ts, X) -> None:
     """`check_pose_units` on the single poses most out of the workspace's scale and of the
     rotation's range, so that the message names their lines (one stray row in other units
@@ -441,12 +470,13 @@ def load_path(path: str, *, bc: str = "auto", max_gap: Optional[float] = GAP_FAC
     - `min_samples`: fewest rows (at least 4, `MIN_SPLINE_SAMPLES`).
     - `time_unit`, `length_unit`, `angle_unit`: units of undeclared columns (as `load_csv`).
     - `drop_nan`: drop rows with NaN or empty cells instead of raising.
-    - `check_units`: refuse a pose about 30 times off the workspace's scale or |phi| > pi/2.
+    - `check_units`: refuse a pose about 30 times off the workspace's scale or |phi| > pi/2,
+      and a single stray pose out of line with its neighbours (`_check_strays`).
 
     **Returns:** the `Waypoints`, named by the file. Raises `DataError` naming the file, the line
     and the time for: NaN or infinite values, fewer than `min_samples` rows, times not strictly
-    increasing, a gap, a pose far outside the workspace; and whatever `load_csv` refuses
-    (columns, units, numbers, encodings).
+    increasing, a gap, a pose far outside the workspace, a stray pose; and whatever `load_csv`
+    refuses (columns, units, numbers, encodings).
     """
     _check_bc(path, bc)
     table = read_columns(path, required=REQUIRED, time_unit=time_unit, length_unit=length_unit,
@@ -458,6 +488,7 @@ def load_path(path: str, *, bc: str = "auto", max_gap: Optional[float] = GAP_FAC
                    min_samples=max(min_samples, MIN_SPLINE_SAMPLES), what="pose")
     if check_units:
         _check_poses(source, lines, ts, X)
+        _check_strays(source, lines, ts, X)
     return Waypoints(ts, X, _load_bc(bc, ts, X), name=source)
 
 

@@ -7,9 +7,11 @@ the initial guess of the parameters (the kinematic model L1, whose closed-form i
 costs nothing on the host):
 
 - its pose is within the chains' reach (no state of the model reaches it otherwise);
-- motion drive: its actuated angles belong to the pose's assembly mode (the elbow orientation
-  sigma of every chain), and they put the platform (L1's forward kinematics, Newton from the
-  file's pose) within `START_TOLERANCE` of the file's pose;
+- motion drive: its actuated angles, at every sample, belong to the assembly mode of the
+  sample's pose (the elbow orientation sigma of every chain; angles beyond two turns are named
+  as degrees first: `_assembly.check_assembly_mode`, the one check of every angle input), and
+  the first ones put the platform (L1's forward kinematics, Newton from the file's pose) within
+  `START_TOLERANCE` of the file's pose;
 - torque drive: its torques are those that move the platform as its first samples do (L1's
   inverse dynamics at the start's pose, rate and acceleration): the acceleration that the
   difference leaves may move the platform by at most `START_TOLERANCE` within
