@@ -181,6 +181,11 @@ def test_angles_in_degrees_are_called_degrees_not_another_mode(files, no_run):
                                                    r"actuated angle .* beyond two turns: "
                                                    r"probably degrees"):
         scene.check_commands(pj.RobotParams(), traj, 1.0)
+
+
+def test_identification_calls_undeclared_degrees_degrees(no_run):
+    """Identification's start check is the same check: degrees, not 'the other assembly
+    mode'."""
     ts = np.linspace(0.0, 1.0, 101)
     exp = pj.experiment(ts, _poses(ts), th=np.degrees(_angles(ts)), name="deg.csv")
     with pytest.raises(pj.StartError, match=r"deg.csv: sample \d+ .*probably degrees"):
