@@ -159,6 +159,21 @@ def test_angles_of_the_other_assembly_mode_are_refused_before_a_run(files, no_ru
     other.check_commands(params.replace(sigma=1), traj, 1.0)
 
 
+@pytest.mark.parametrize("study", ["sweep", "sensitivity", "design"])
+def test_the_studies_refuse_angles_of_the_other_mode(files, no_run, study):
+    """The API's studies make the scenes' check of their commands before compiling."""
+    path, logs = files
+    scene = pj.PathScene(pj.load_path(path), drive="motion",
+                         command_log=pj.load_commands(logs["chain2"]))
+    opts = pj.SceneOptions(t_end=1.0, n_out=11)
+    run = {"sweep": lambda: pj.sweep(scene, vary={"t": [0.2e-3, 0.4e-3]}, options=opts),
+           "sensitivity": lambda: pj.sensitivity(scene, parameters=["t"], options=opts),
+           "design": lambda: pj.design({"t": (0.2e-3, 0.6e-3)}, "position_error_max_m",
+                                       scene=scene, options=opts)}[study]
+    with pytest.raises(pj.AssemblyModeError, match=r"chain2.csv: sample at t = 0 s: .*th_2"):
+        run()
+
+
 def test_an_experiment_in_the_other_mode_is_refused_by_the_scene_it_makes(no_run):
     """`experiment_scene` of a file whose angles belong to the other mode: `solve_scene`
     refuses it (the API's path from a measured experiment to a run)."""
