@@ -33,7 +33,8 @@ _EXPORTS = {
     ),
     "._mjcf": ("to_mjcf",),
     "._models.beam": ("Beam", "solve_strip", "strip_constants"),
-    "._errors": ("PPRError", "RESULTS", "RepairWarning", "SimulationError"),
+    "._errors": ("PPRError", "RESULTS", "RepairWarning", "SimulationError", "CommandLogError"),
+    "._assembly": ("AssemblyModeError", "check_assembly_mode"),
     "._geometry": ("home_pose",),
     "._kinematics": (
         "IKResult", "inverse_kinematics", "forward_kinematics", "forward_kinematics_path",
@@ -43,7 +44,7 @@ _EXPORTS = {
     "._trajectory": ("Circle", "Hold", "Interpolated", "derivatives"),
     "._paths": (
         "Line", "Waypoints", "Fourier", "CommandLog", "load_path", "load_commands",
-        "end_condition", "check_same_rate", "StartPath", "fit_start",
+        "end_condition", "check_same_rate", "check_log_covers", "StartPath", "fit_start",
     ),
     "._actuation": (
         "AbstractActuation", "TorqueDriven", "MotionDriven", "PDServo", "InverseDynamicsTorque",
@@ -120,6 +121,11 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         RESULTS as RESULTS,
         RepairWarning as RepairWarning,
         SimulationError as SimulationError,
+        CommandLogError as CommandLogError,
+    )
+    from ._assembly import (
+        AssemblyModeError as AssemblyModeError,
+        check_assembly_mode as check_assembly_mode,
     )
     from ._geometry import home_pose as home_pose
     from ._kinematics import (
@@ -151,6 +157,7 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         load_commands as load_commands,
         end_condition as end_condition,
         check_same_rate as check_same_rate,
+        check_log_covers as check_log_covers,
         StartPath as StartPath,
         fit_start as fit_start,
     )

@@ -58,6 +58,12 @@ ALIASES = {"t": "time"}
 WORKSPACE_SCALE = 0.9
 #: fewest samples an experiment may have
 MIN_SAMPLES = 5
+#: a time step longer than GAP_FACTOR times the median step of a file is a gap (samples lost by
+#: the recorder): a spline (or a fit's simulation) would bridge it with motion no one measured
+GAP_FACTOR = 10.0
+#: the longest median sample step (s) of a tracker file: a tracker records at 1 Hz or faster, and
+#: a file sampled more slowly is in milliseconds read as seconds (100 Hz reads as 0.1 Hz)
+MAX_MEDIAN_STEP = 1.0
 #: largest tracker file read (bytes): 512 MiB, some 5 million rows of ten columns
 MAX_FILE_BYTES = 512 * 2**20
 #: longest line read (characters): a row of ten numbers is under 300
@@ -94,11 +100,13 @@ def _where(source, lines):
 
 def experiment(ts, X, th=None, tau=None, *, name: str = "experiment",
                min_samples: int = MIN_SAMPLES, lines: Optional[Sequence[int]] = None,
-               check_units: bool = True) -> Experiment:
+               check_units: bool = True, max_gap: Optional[float] = None) -> Experiment:
     """Validate arrays in SI units and build an `Experiment` (see `load_csv` for the checks).
 
     ts (n,) s; X (n, 3) m, m, rad; th, tau (n, 3) rad, N m or None. `lines` gives the row labels
-    used in messages (file lines; default: 1-based sample index)."""
+    used in messages (file lines; default: 1-based sample index). `max_gap`: refuse a time step
+    longer than this many median steps (`check_gaps`; `load_csv` passes `GAP_FACTOR`); None
+    (the default for arrays): uneven sampling is accepted."""
     ts = np.asarray(ts, dtype=np.float64)
     X = np.asarray(X, dtype=np.float64)
     n = ts.shape[0] if ts.ndim == 1 else -1
@@ -131,9 +139,49 @@ def experiment(ts, X, th=None, tau=None, *, name: str = "experiment",
     if back.size:
         raise DataError(f"{_where(name, lines[back + 1].tolist())}: time decreases; times must "
                         f"be strictly increasing (sort the file, or split it into experiments)")
+    if max_gap is not None:
+        check_gaps(name, ts, lines, "line", max_gap)
     if check_units:
+        check_time_units(name, ts)
         check_pose_units(name, X)
     return Experiment(ts=ts, X=X, th=extra["th"], tau=extra["tau"], name=name)
+
+
+def check_gaps(source: str, ts, rows, label: str = "line", max_gap: float = GAP_FACTOR) -> None:
+    """Raise `DataError` at the first time step longer than `max_gap` times the median step of
+    times ts (n,) (strictly increasing; n > 2): samples lost by the recorder. The message names
+    the sample (`rows`: its labels, file lines), its time, the gap and how many there are. The
+    one gap check of the path loaders and the tracker files."""
+    ts = np.asarray(ts, dtype=np.float64)
+    rows = np.asarray(rows)
+    if ts.shape[0] <= 2:
+        return
+    dt = np.diff(ts)
+    med = float(np.median(dt))
+    gap = np.flatnonzero(dt > max_gap * med)
+    if gap.size:
+        i = int(gap[0]) + 1
+        raise DataError(
+            f"{source}: {label} {int(rows[i])} (t = {float(ts[i]):.6g} s): gap of "
+            f"{float(dt[i - 1]):.6g} s after {label} {int(rows[i - 1])} (t = "
+            f"{float(ts[i - 1]):.6g} s), more than {max_gap:g} times the median time step "
+            f"{med:.6g} s ({gap.size} gap{'s' if gap.size > 1 else ''}): samples are missing; "
+            f"split the file there, or pass max_gap=None if the sampling is meant to be uneven")
+
+
+def check_time_units(name, ts) -> None:
+    """Raise `DataError` when the times ts (n,) (s) of a tracker file are in the wrong unit: a
+    median sample step above `MAX_MEDIAN_STEP` (1 s), slower than any tracker records, as
+    milliseconds read as seconds give. `name` labels the message."""
+    if np.shape(ts)[0] < 2:
+        return
+    med = float(np.median(np.diff(np.asarray(ts, dtype=np.float64))))
+    if med > MAX_MEDIAN_STEP:
+        raise DataError(
+            f"{name}: the median time step is {med:.4g} s ({1 / med:.3g} Hz), slower than a "
+            f"tracker records (a step of at most {MAX_MEDIAN_STEP:g} s): probably milliseconds "
+            f"read as seconds; declare the unit (column 'time[ms]', header '# units: "
+            f"time=ms', or time_unit='ms' / --time-unit ms)")
 
 
 def check_pose_units(name, X):
@@ -360,7 +408,8 @@ def read_columns(path: str, *, required: Sequence[str] = REQUIRED,
 def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optional[str] = None,
              angle_unit: Optional[str] = None, torque_unit: Optional[str] = None,
              drop_nan: bool = False, min_samples: int = MIN_SAMPLES,
-             name: Optional[str] = None, check_units: bool = True) -> Experiment:
+             name: Optional[str] = None, check_units: bool = True,
+             max_gap: Optional[float] = GAP_FACTOR) -> Experiment:
     """Read a tracker CSV file (format: module docstring) into an `Experiment` in SI units.
 
     Units: column ``name[unit]`` > header ``# units: kind=unit, ...`` > the `*_unit` options > SI;
@@ -368,8 +417,10 @@ def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optiona
     their rows fail with their line numbers, unless `drop_nan` (then they are dropped and listed
     in `Experiment.dropped_lines`). Raises `DataError` for: a missing file, missing or unknown
     columns (the message lists the allowed names), unreadable numbers, fewer than `min_samples`
-    rows, duplicated or decreasing times, poses about 1000 times off the workspace or |phi| >
-    pi/2 (wrong units; `check_units=False` skips this)."""
+    rows, duplicated or decreasing times, a gap (a time step longer than `max_gap` times the
+    median step, `GAP_FACTOR` 10, as the path loaders refuse; None accepts uneven sampling),
+    poses about 1000 times off the workspace, |phi| > pi/2 or a median time step above 1 s
+    (wrong units: mm, degrees or ms read as SI; `check_units=False` skips these)."""
     table = read_columns(path, time_unit=time_unit, length_unit=length_unit,
                          angle_unit=angle_unit, torque_unit=torque_unit, drop_nan=drop_nan)
     source, col, lines = table.source, table.columns, table.lines
@@ -382,7 +433,7 @@ def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optiona
 
     exp = experiment(col["time"], np.column_stack([col["x"], col["y"], col["phi"]]),
                      triple("th"), triple("tau"), name=source, min_samples=min_samples,
-                     lines=lines, check_units=check_units)
+                     lines=lines, check_units=check_units, max_gap=max_gap)
     return Experiment(ts=exp.ts, X=exp.X, th=exp.th, tau=exp.tau, name=name,
                       dropped_lines=table.dropped)
 

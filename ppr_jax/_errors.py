@@ -38,6 +38,13 @@ class DataError(PPRError):
     non-increasing time, NaN rows, too few samples. The message names the file, column and lines."""
 
 
+class CommandLogError(DataError):
+    """A command log (actuated angles or torques) that does not fit the path it drives: its
+    samples do not cover the path's span (or the run's horizon), so the run would follow
+    commands extrapolated beyond them (`check_log_covers`). The message names the log, its span
+    and the path's."""
+
+
 class IdentificationError(PPRError):
     """An identification that cannot run as asked (unknown names, bounds, a failed simulation)."""
 

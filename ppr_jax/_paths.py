@@ -27,20 +27,26 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._actuation import AbstractActuation, MotionDriven, PDServo, TorqueDriven
+from ._assembly import check_angle_units
 from ._custom_types import Array, Float
-from ._data import REQUIRED, WORKSPACE_SCALE, check_pose_units, read_columns
-from ._errors import DataError, check_number
+from ._data import (
+    GAP_FACTOR,
+    REQUIRED,
+    WORKSPACE_SCALE,
+    check_gaps,
+    check_pose_units,
+    read_columns,
+)
+from ._errors import CommandLogError, DataError, check_number
 from ._labels import label_field
 from ._trajectory import PiecewiseCubic
 
-#: a time step longer than GAP_FACTOR times the median step of a loaded file is a gap (samples
-#: lost by the recorder): the spline would bridge it with a curve that no one commanded
-GAP_FACTOR = 10.0
 #: fewest samples of a loaded path or command log: a cubic has four coefficients, and with
 #: fewer samples the spline's acceleration is set by its boundary condition, not by the data
 MIN_SPLINE_SAMPLES = 4
-#: largest |actuated angle| (rad) of an angle log: beyond two turns it is in degrees (or mrad)
-MAX_ANGLE = 4 * math.pi
+#: a command log may start later or end earlier than its path by this fraction of its median
+#: sample step (`check_log_covers`): the rounding of a recorder's time stamps, not a shortfall
+COVER_TOLERANCE = 0.5
 #: boundary conditions of `Waypoints`
 BOUNDARY = ("clamped", "natural")
 #: the loaders' choices: `BOUNDARY`, or "auto" (`end_condition`)
@@ -130,17 +136,8 @@ def _check_samples(source: str, ts, values, *, rows=None, label: str = "sample",
         cause = "the same time as" if dt[i - 1] == 0 else "an earlier time than"
         raise DataError(f"{_at(source, label, rows, ts, i)}: {cause} {label} {int(rows[i - 1])} "
                         f"(t = {float(ts[i - 1]):.6g} s); times must be strictly increasing")
-    if max_gap is not None and n > 2:
-        med = float(np.median(dt))
-        gap = np.flatnonzero(dt > max_gap * med)
-        if gap.size:
-            i = int(gap[0]) + 1
-            raise DataError(
-                f"{_at(source, label, rows, ts, i)}: gap of {float(dt[i - 1]):.6g} s after "
-                f"{label} {int(rows[i - 1])} (t = {float(ts[i - 1]):.6g} s), more than "
-                f"{max_gap:g} times the median time step {med:.6g} s ({gap.size} gap"
-                f"{'s' if gap.size > 1 else ''}): samples are missing; split the file there, "
-                f"or pass max_gap=None if the sampling is meant to be uneven")
+    if max_gap is not None:
+        check_gaps(source, ts, rows, label, max_gap)
 
 
 def _check_load_args(max_gap, min_samples) -> tuple:
@@ -419,6 +416,40 @@ class CommandLog(eqx.Module):
                        jnp.asarray(Kd, dtype=jnp.float64), feedforward)
 
 
+#: a stray pose (`_check_strays`): one further from the chord of its two neighbours than
+#: STRAY_FACTOR times both the neighbours' own distance and the file's median step, and than
+#: STRAY_FLOOR (m, rad: far above a tracker's noise)
+STRAY_FACTOR = 10.0
+STRAY_FLOOR = (5e-3, 0.05)
+
+
+def _check_strays(source: str, rows, ts, X) -> None:
+    """Raise `DataError` at the first single pose out of line with its path: further from the
+    chord of its two neighbours (at its time) than `STRAY_FACTOR` times the larger of the
+    neighbours' distance and the median step, and than `STRAY_FLOOR`, in position or in
+    rotation. One such pose (a typo, a tracker's glitch) would be splined into the path and
+    found only when the run leaves the chains' reach; a sharp corner or a reversal is no
+    stray (its neighbours, or the median step, are as far apart as it is from them)."""
+    if X.shape[0] < 3:
+        return
+    w = ((ts[1:-1] - ts[:-2]) / (ts[2:] - ts[:-2]))[:, None]
+    chord = (1 - w) * X[:-2] + w * X[2:]
+    for cols, floor, unit, scale in ((slice(0, 2), STRAY_FLOOR[0], "mm", 1e3),
+                                     (slice(2, 3), STRAY_FLOOR[1], "rad", 1.0)):
+        off = np.linalg.norm(X[1:-1, cols] - chord[:, cols], axis=1)
+        span = np.linalg.norm(X[2:, cols] - X[:-2, cols], axis=1)
+        med = float(np.median(np.linalg.norm(np.diff(X[:, cols], axis=0), axis=1)))
+        bad = np.flatnonzero((off > floor) & (off > STRAY_FACTOR * np.maximum(span, med)))
+        if bad.size:
+            i = int(bad[np.argmax(off[bad])]) + 1
+            raise DataError(
+                f"{_at(source, 'line', rows, ts, i)}: a stray pose, {scale * off[i - 1]:.4g} "
+                f"{unit} off the line between its neighbours (lines {int(rows[i - 1])} and "
+                f"{int(rows[i + 1])}), whose own distance is {scale * span[i - 1]:.3g} {unit} "
+                f"and the file's median step {scale * med:.3g} {unit}: a typo or a tracker's "
+                f"glitch; fix or drop the line (check_units=False skips this check)")
+
+
 def _check_poses(source: str, rows, ts, X) -> None:
     """`check_pose_units` on the single poses most out of the workspace's scale and of the
     rotation's range, so that the message names their lines (one stray row in other units
@@ -450,12 +481,13 @@ def load_path(path: str, *, bc: str = "auto", max_gap: Optional[float] = GAP_FAC
     - `min_samples`: fewest rows (at least 4, `MIN_SPLINE_SAMPLES`).
     - `time_unit`, `length_unit`, `angle_unit`: units of undeclared columns (as `load_csv`).
     - `drop_nan`: drop rows with NaN or empty cells instead of raising.
-    - `check_units`: refuse a pose about 30 times off the workspace's scale or |phi| > pi/2.
+    - `check_units`: refuse a pose about 30 times off the workspace's scale or |phi| > pi/2,
+      and a single stray pose out of line with its neighbours (`_check_strays`).
 
     **Returns:** the `Waypoints`, named by the file. Raises `DataError` naming the file, the line
     and the time for: NaN or infinite values, fewer than `min_samples` rows, times not strictly
-    increasing, a gap, a pose far outside the workspace; and whatever `load_csv` refuses
-    (columns, units, numbers, encodings).
+    increasing, a gap, a pose far outside the workspace, a stray pose; and whatever `load_csv`
+    refuses (columns, units, numbers, encodings).
     """
     max_gap, min_samples = _check_load_args(max_gap, min_samples)
     _check_bc(path, bc)
@@ -468,6 +500,7 @@ def load_path(path: str, *, bc: str = "auto", max_gap: Optional[float] = GAP_FAC
                    min_samples=max(min_samples, MIN_SPLINE_SAMPLES), what="pose")
     if check_units:
         _check_poses(source, lines, ts, X)
+        _check_strays(source, lines, ts, X)
     return Waypoints(ts, X, _load_bc(bc, ts, X), name=source)
 
 
@@ -524,12 +557,7 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "auto",
                    min_samples=max(min_samples, MIN_SPLINE_SAMPLES),
                    what="angles" if kind == "angles" else "torques")
     if kind == "angles" and check_units:
-        i = int(np.argmax(np.max(np.abs(V), axis=1)))
-        if np.max(np.abs(V[i])) > MAX_ANGLE:
-            raise DataError(f"{_at(source, 'line', lines, ts, i)}: actuated angle "
-                            f"{float(np.max(np.abs(V[i]))):.4g} rad, beyond two turns: probably "
-                            f"degrees read as radians; declare the unit (column 'th_1[deg]', "
-                            f"header '# units: angle=deg', or angle_unit='deg')")
+        check_angle_units(V, lambda i: _at(source, "line", lines, ts, i), DataError)
         step = np.max(np.abs(np.diff(V, axis=0)), axis=1)
         if np.max(step) > math.pi:
             i = int(np.argmax(step > math.pi)) + 1
@@ -575,6 +603,70 @@ def check_same_rate(a, b, *, rtol: float = 0.01) -> float:
                         f"(allowed {rtol:.2%}): resample one onto the other's times before "
                         f"pairing them")
     return da
+
+
+def _span(x):
+    """(first, last) sample time (s) of `x` (its `ts`), or None where it has no concrete sample
+    times (a path given as a formula, or traced)."""
+    ts = getattr(x, "ts", None)
+    if ts is None or _is_traced(ts):
+        return None
+    ts = np.asarray(ts, dtype=np.float64)
+    if ts.ndim != 1 or ts.shape[0] < 2:
+        return None
+    return float(ts[0]), float(ts[-1]), float(np.median(np.diff(ts)))
+
+
+def check_log_covers(path, log, *, t_end: Optional[float] = None,
+                     tolerance: float = COVER_TOLERANCE) -> None:
+    """Refuse a command log that does not cover its path: the one check of a log of actuated
+    angles or torques against the path it drives (every `PathScene` makes it, so the command
+    line's `--angles` and `--torques`, the studies and the API alike).
+
+    Outside its samples a log's spline is extrapolated: commands no controller gave, which
+    drive the model off the path and are reported as the robot's tracking error. So the log
+    must span the path's samples (a path with sample times: `Waypoints`, a loaded file) or,
+    for a path given as a formula (`Line`, `Fourier`, `Circle`), the run's horizon [0, t_end];
+    it may start later or end earlier by at most `tolerance` times its median sample step
+    (half a step by default: the recorder's stamps). A log stamped from another start (0.2 to
+    1.2 s against a path from 0 s) is refused alike. A log longer than the path is accepted.
+
+    **Arguments:**
+
+    - `path`: the nominal path (anything with sample times `ts`, or a time function).
+    - `log`: the command log (`CommandLog`, or anything with sample times `ts`; a time
+      function without samples covers every time and is not checked).
+    - `t_end`: the run's horizon (s), for a path without sample times; None: not checked.
+    - `tolerance`: the allowed shortfall at either end, in median sample steps of the log.
+
+    **Returns:** None. Raises `CommandLogError` (a `DataError`) naming the log, its span, the
+    path's span and the shortfall.
+    """
+    have = _span(log)
+    if have is None:
+        return
+    lo, hi, step = have
+    need = _span(path)
+    if need is not None:
+        t0, t1, what = need[0], need[1], f"the path {getattr(path, 'name', 'path')} spans"
+    elif t_end is not None:
+        t0, t1, what = 0.0, float(t_end), "the run spans"
+    else:
+        return
+    tol = tolerance * step
+    short = []
+    if lo > t0 + tol:
+        short.append(f"it starts {lo - t0:.6g} s after")
+    if hi < t1 - tol:
+        short.append(f"it ends {t1 - hi:.6g} s before")
+    if short:
+        name = getattr(log, "name", "the command log")
+        raise CommandLogError(
+            f"{name}: the command log spans t = {lo:.6g} to {hi:.6g} s but {what} t = "
+            f"{t0:.6g} to {t1:.6g} s: {' and '.join(short)} it (allowed {tolerance:g} sample "
+            f"step, {tol:.3g} s); outside its samples the log would be extrapolated, commands "
+            f"no controller gave: give a log over the whole span (times counted from the "
+            f"path's first), or cut the path (or the horizon) to the log's")
 
 
 #: the first samples of an experiment from which its start is estimated (`fit_start`): those

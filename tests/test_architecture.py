@@ -17,7 +17,7 @@ FLOORS = [
     ("solvers and signals", ["_simulate", "_rosw", "_esdirk", "_statics", "_modes", "_metrics",
                              "_tabulated"]),
     ("actuation and paths", ["_actuation", "_trajectory", "_paths"]),
-    ("dynamics and kinematics", ["_dynamics", "_kinematics", "_paper_eom"]),
+    ("dynamics and kinematics", ["_dynamics", "_kinematics", "_paper_eom", "_assembly"]),
     ("models", ["_models", "_mjcf"]),
     ("chain geometry", ["_geometry", "_linalg"]),
     ("robot and joint", ["_robot", "_prb", "_params", "_params_file", "_prb_table", "_prb_fit",

@@ -52,6 +52,8 @@ CASES = {
     "design": (["--repeats", "1", "--optimizers", "slsqp", "--no-tier2"], ["design.json"]),
     "design_latency": (["--new", str(ROOT), "--closed-form", "--repeats", "1"],
                        ["design_latency.json"]),
+    "engine_ab": (["--checkout", str(ROOT), "--new", str(ROOT), "--quick", "--parts", "run"],
+                  ["engine_ab.json"]),
     "identify_known_truth": (["--seeds", "2", "--t-end", "0.3", "--cases", "gamma-auto"],
                              ["identify_known_truth.json"]),
     "identify_l3": (["--elements", "2", "--t-end", "0.2"], ["identify_l3.json"]),

@@ -218,6 +218,33 @@ def test_degrees_read_as_radians(tmp_path):
         pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
 
 
+def test_milliseconds_read_as_seconds(tmp_path):
+    """100 Hz stamped in ms, undeclared: a median step of 10 "s" is refused before a fit (it
+    once fitted for minutes); declared, the same file reads."""
+    t, x, y, phi = _good_rows()
+    with pytest.raises(DataError, match=r"f.csv: the median time step is 10 s \(0.1 Hz\).*"
+                                        r"probably milliseconds read as seconds"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t * 1e3, x, y, phi])))
+    e = pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t * 1e3, x, y, phi]), "g.csv"),
+                    time_unit="ms")
+    np.testing.assert_allclose(e.ts, t, atol=1e-15)
+
+
+def test_a_gap_is_refused_as_the_path_loaders_refuse_it(tmp_path):
+    """Forty 100 Hz samples missing (0.4 s): refused naming the line after the gap and its time,
+    with the path loaders' message; max_gap=None accepts the uneven file."""
+    t, x, y, phi = _good_rows(40)
+    t[20:] += 0.4
+    text = _table("time,x,y,phi", [t, x, y, phi])
+    with pytest.raises(DataError, match=r"f.csv: line 22 \(t = 0.6 s\): gap of 0.41 s after line "
+                                        r"21 \(t = 0.19 s\), more than 10 times the median"):
+        pj.load_csv(_write(tmp_path, text))
+    path_file = _write(tmp_path, text, "p.csv")
+    with pytest.raises(DataError, match=r"p.csv: line 22 \(t = 0.6 s\): gap of 0.41 s"):
+        pj.load_path(path_file)
+    assert pj.load_csv(_write(tmp_path, text, "h.csv"), max_gap=None).n == 40
+
+
 def test_too_few_samples(tmp_path):
     t, x, y, phi = _good_rows(3)
     with pytest.raises(DataError, match=r"too few samples: 3 \(at least 5"):

@@ -423,6 +423,13 @@ BAD = {
     "rotation beyond pi/2": (
         "path", _edit(5, 3, 120.0),
         r"bad.csv: line 8 \(t = 0\.25 s\): platform rotation \|phi\| reaches 2\.094 rad"),
+    "a stray pose": (
+        "path", _edit(17, 1, _GOOD[17, 1] + 500.0),
+        r"bad.csv: line 20 \(t = 0\.85 s\): a stray pose, 50\d\.?\d* mm off the line between "
+        r"its neighbours \(lines 19 and 21\)"),
+    "a stray rotation": (
+        "path", _edit(30, 3, _GOOD[30, 3] + 20.0),
+        r"bad.csv: line 33 \(t = 1\.5 s\): a stray pose, 0\.3\d* rad off"),
     "angles in degrees read as radians": (
         "angles", lambda r: _edit(12, 2, 150.0)(_angles(r)),
         r"bad.csv: line 15 \(t = 0\.6 s\): actuated angle 150 rad, beyond two turns: probably "

@@ -207,6 +207,17 @@ def scene_from_args(args):
                      name=os.path.splitext(os.path.basename(path))[0])
 
 
+def check_commands_from_args(scene, params, args) -> None:
+    """A `--path` scene's command log against the robot of the options (its span and an angle
+    log's assembly mode: `check_scene_commands`), before anything is compiled or announced: a
+    refusal is the command's one line."""
+    if getattr(args, "path", None) is None:
+        return
+    from .._scenes import check_scene_commands
+
+    check_scene_commands(scene, params, scene.trajectory(), getattr(args, "t_end", None))
+
+
 def check_out_dir(path: str, create: bool = True) -> str:
     """Make sure the output directory can be written before a long run starts (`PPRError`
     naming it). It is created; with `create=False` it is not, and its nearest existing parent is

@@ -16,10 +16,16 @@ from ._common import (
 
 def cmd_sensitivity(args):
     from .._studies import allowed_metrics, sensitivity
-    from ._common import _parse_sets, model_from_args, scene_from_args
+    from ._common import (
+        _parse_sets,
+        check_commands_from_args,
+        model_from_args,
+        scene_from_args,
+    )
 
     scene = scene_from_args(args)
     params = _parse_sets(args.set, scene, getattr(args, "params_file", None))
+    check_commands_from_args(scene, params, args)
     _out_dir(args.out)
     names = None
     if args.params:

@@ -14,6 +14,7 @@ from ._common import (
     _params_dict,
     _parse_sets,
     _write_json,
+    check_commands_from_args,
     check_out_dir,
     model_from_args,
     scene_from_args,
@@ -60,6 +61,8 @@ def cmd_simulate(args):
     # Every argument checked before the first compilation.
     objs = [model_from_args(args, m) for m in models]
     check_scene_args(args.t_end, args.n_out, args.rtol, args.atol, args.max_steps)
+    # a command log's span and assembly mode: one line for the run, not one failure per model
+    check_commands_from_args(scene, params, args)
     derived = _derived_dict(params)
 
     def write():

@@ -101,11 +101,17 @@ def cmd_sweep(args):
 
     from .._scenes import batch_devices
     from .._studies import sweep
-    from ._common import _parse_sets, model_from_args, scene_from_args
+    from ._common import (
+        _parse_sets,
+        check_commands_from_args,
+        model_from_args,
+        scene_from_args,
+    )
 
     vary = parse_vary(args.vary)
     scene = scene_from_args(args)
     params = _parse_sets(args.set, scene, getattr(args, "params_file", None))
+    check_commands_from_args(scene, params, args)
     _out_dir(args.out)
     design, n = ("lhs", args.lhs) if args.lhs is not None else ("grid", None)
     if args.lhs is not None and args.lhs < 1:

@@ -15,7 +15,7 @@ def cmd_synth(args):
     from .._data import write_csv
     from .._scenes import scene_params
     from .._studies import check_synth_args, synthesize
-    from ._common import model_from_args, scene_from_args
+    from ._common import check_commands_from_args, model_from_args, scene_from_args
 
     scene = scene_from_args(args)
     params = scene_params(scene)
@@ -24,6 +24,7 @@ def cmd_synth(args):
 
         params = load_params(args.params_file, params)
     params = params.replace(**_name_values(args.set, "--set"))
+    check_commands_from_args(scene, params, args)
     check_synth_args(args.noise_pos, args.noise_phi, args.rate, args.t_end)
     _log(f"synth: {scene.name} with {args.model}, {args.t_end} s at {args.rate} Hz (compiling, "
          f"then running) ...")

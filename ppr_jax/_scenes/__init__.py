@@ -4,6 +4,7 @@ registry line per scene (`_registry.py`), one batch mapper (`_batch.py`)."""
 from ._base import (
     AbstractScene,
     SceneInput,
+    check_scene_commands,
     kinematic_motion,
     motion_input,
     path_out_of_reach,
@@ -37,7 +38,8 @@ __all__ = [
     "MAX_STEPS", "N_OUT", "RTOL", "T_END",
     "DRIVES", "MEMBER_CHUNK", "PaperCircle", "PathScene", "SCENES", "SceneReport",
     "SceneCall", "SceneInput", "SceneOptions",
-    "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "chunked_vmap",
+    "SceneResult", "ServoCircle", "batch_devices", "check_scene_args",
+    "check_scene_commands", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
     "experiment_drive", "experiment_scene", "kinematic_motion", "map_members", "modes_scene",
     "motion_input", "nominal_torques",

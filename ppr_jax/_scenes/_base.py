@@ -175,6 +175,20 @@ def kinematic_motion(model, robot, angles, X0, ts):
     return X, Xd, tau, codes, fold_flags(det, ts)
 
 
+def check_scene_commands(scene, params, traj: Callable, t_end) -> None:
+    """`scene.check_commands` for concrete parameters (one robot, or the first member of a
+    batch: the checks judge the commands' span and assembly mode, which a batch's members
+    share); nothing where the parameters or the horizon are traced."""
+    from .._errors import is_traced
+
+    if is_traced(params) or is_traced(t_end):
+        return
+    if jnp.ndim(params.a) >= 1:
+        params = jax.tree_util.tree_map(
+            lambda x: x[0] if hasattr(x, "ndim") and x.ndim >= 1 else x, params)
+    scene.check_commands(params, traj, None if t_end is None else float(t_end))
+
+
 class AbstractScene(eqx.Module):
     """A scene of MODEL.md section 6, or your own: a nominal motion and the input realising it.
 
@@ -310,6 +324,19 @@ class AbstractScene(eqx.Module):
         scene holds a start of its own (`PathScene.start_path`: an experiment's first samples,
         smoothed)."""
         return traj
+
+    def check_commands(self, params: RobotParams, traj: Callable, t_end) -> None:
+        """Check the commands the scene is given against the robot and the path, on the host
+        before anything is traced (`check_scene_commands` calls it for every run, sweep,
+        sensitivity and design): none for a scene that computes its input from its path.
+        `PathScene` checks its command log (`check_log_covers`, `check_assembly_mode`).
+
+        **Arguments:**
+
+        - `params`: one concrete robot's `RobotParams`.
+        - `traj`: the nominal path the run follows (the options' or the scene's).
+        - `t_end`: the run's horizon (s), or None.
+        """
 
     def needs_integrator(self, model: AbstractModel) -> bool:
         """False where the scene is forward kinematics and inverse dynamics alone: prescribed

@@ -10,6 +10,7 @@ from .._actuation import MotionDriven, TorqueDriven
 from .._errors import PPRError
 from .._labels import label_field
 from .._models import AbstractModel, Reduced, get_model
+from .._paths import check_log_covers
 from ._base import (
     AbstractScene,
     SceneInput,
@@ -83,6 +84,9 @@ class PathScene(AbstractScene):
         if (kind, self.drive) in (("angles", "torque"), ("torque", "motion")):
             raise PPRError(f"command_log holds {kind} but drive={self.drive!r}: an angle log "
                            f"drives a motion, a torque log a torque drive")
+        # a log that does not cover its path is refused here, before any run (every command
+        # and study builds a `PathScene` where a log meets a path)
+        check_log_covers(self.path, self.command_log)
         if self.start_path is not None and not callable(self.start_path):
             raise PPRError(f"start_path must be a time function t -> (x, y, phi) or None, got "
                            f"{type(self.start_path).__name__}")
@@ -91,6 +95,45 @@ class PathScene(AbstractScene):
 
     def trajectory(self):
         return self.path
+
+    def check_commands(self, params, traj, t_end):
+        """A command log against the path the run follows (`traj`: the scene's, or the
+        options'): its span covers the path's samples, or for a path without samples the
+        horizon [0, t_end] (`check_log_covers`); an angle log's samples within that span belong
+        to the robot's assembly mode at the path's poses (`check_assembly_mode`; angles beyond
+        two turns refused first, as degrees)."""
+        import jax
+        import jax.numpy as jnp
+        import numpy as np
+
+        from .._assembly import check_assembly_mode
+
+        log = self.command_log
+        if log is None:
+            return
+        check_log_covers(traj, log, t_end=t_end)
+        ts = getattr(log, "ts", None)
+        if self.drive != "motion" or ts is None:
+            return
+        ts = np.asarray(ts, dtype=np.float64)
+        span = getattr(traj, "ts", None)
+        lo, hi = ((float(span[0]), float(span[-1])) if span is not None
+                  else (0.0, np.inf if t_end is None else float(t_end)))
+        ts = ts[(ts >= lo) & (ts <= hi)]
+        if ts.size == 0:
+            return
+        t = jnp.asarray(ts)
+
+        def at(fn):
+            # NumPy leaves (a `PiecewiseCubic`'s knots) as JAX arrays, so that vmap can index
+            fn = jax.tree_util.tree_map(
+                lambda x: jnp.asarray(x) if isinstance(x, np.ndarray) else x, fn)
+            return np.asarray(jax.vmap(fn)(t))
+
+        th, X = at(log), at(traj)
+        name = getattr(log, "name", None) or self.name
+        check_assembly_mode(th, X, params,
+                            lambda i: f"{name}: sample at t = {ts[i]:.6g} s")
 
     def start_trajectory(self, traj):
         return traj if self.start_path is None else self.start_path

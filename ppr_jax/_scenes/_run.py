@@ -13,7 +13,7 @@ from .._models import get_model
 from .._params import RobotParams
 from .._programs import cached_program
 from .._robot import Robot
-from ._base import AbstractScene
+from ._base import AbstractScene, check_scene_commands
 from ._batch import batch_devices, map_members
 from ._options import SceneOptions, default_solver, options_from
 from ._registry import get_scene, scene_params
@@ -89,6 +89,8 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
     # the structural choices (equal links, elbow) static, so a batch is branch-free.
     robot = Robot(params)
     opts = options.prepared(model, scene.trajectory())
+    # the commands a scene is given, against the robot and the path run (before any trace)
+    check_scene_commands(scene, params, opts.trajectory, options.t_end)
     batched = jnp.ndim(params.a) == 1
     devices = batch_devices(int(jnp.shape(params.a)[0])) if batched else ()
     fn = _sharded(devices) if devices else (_JIT_BATCH if batched else scene_program)

@@ -47,7 +47,7 @@ from .._names import (  # the table's rows, SI units
 from .._params import RobotParams
 from .._prb import derived
 from .._programs import cached_program
-from .._scenes import SceneOptions, get_scene
+from .._scenes import SceneOptions, check_scene_commands, get_scene
 from ._catalogue import (
     CLUSTER_RTOL as CLUSTER_RTOL,
     SceneContext,
@@ -133,6 +133,7 @@ def _metric_function(scene, params, *, model, torque_model, frequency_model, par
     opts = (SceneOptions() if options is None else options).updated(**option_fields).check()
     options = opts.prepared(model_, scene_.trajectory())
     traj = options.trajectory
+    check_scene_commands(scene_, base, traj, opts.t_end)
     metrics = tuple(default_metrics(traj) if metrics is None else metrics)
     allowed = allowed_metrics(traj)
     for m in metrics:

@@ -44,6 +44,7 @@ from .._scenes import (
     T_END,
     AbstractScene,
     SceneOptions,
+    check_scene_commands,
     get_scene,
     map_members,
 )
@@ -398,6 +399,7 @@ def sweep(
             stacklevel=2)
     options = opts.prepared(model_, scene_.trajectory())
     traj = options.trajectory
+    check_scene_commands(scene_, base, traj, opts.t_end)
     metric_names = sweep_metrics(traj)
     rtol_, atol_ = opts.tolerances(model_)
     info = dict(scene=scene_.name, model=model_.name,

@@ -27,7 +27,7 @@ from ..._names import (
     DESIGN_STARTS,
 )
 from ..._params import RobotParams
-from ..._scenes import SceneOptions, get_scene
+from ..._scenes import SceneOptions, check_scene_commands, get_scene
 from .._catalogue import (
     ELASTICA_METRICS,
     PATH_METRICS,
@@ -293,6 +293,8 @@ def design(
         raise DesignError("a design starts from one robot, not a batch")
     if any(n in ("gamma", "rho", "K_theta") and getattr(base, n) is None for n in names):
         base = explicit_params(base)
+    if ctx_scene is not None:
+        check_scene_commands(ctx_scene, base, ctx_opts.trajectory, opts.t_end)
     equal = equal_links(base, names, local=False)
     k, p = len(metrics), len(names)
     mode_given = mode

@@ -7,9 +7,11 @@ the initial guess of the parameters (the kinematic model L1, whose closed-form i
 costs nothing on the host):
 
 - its pose is within the chains' reach (no state of the model reaches it otherwise);
-- motion drive: its actuated angles belong to the pose's assembly mode (the elbow orientation
-  sigma of every chain), and they put the platform (L1's forward kinematics, Newton from the
-  file's pose) within `START_TOLERANCE` of the file's pose;
+- motion drive: its actuated angles, at every sample, belong to the assembly mode of the
+  sample's pose (the elbow orientation sigma of every chain; angles beyond two turns are named
+  as degrees first: `_assembly.check_assembly_mode`, the one check of every angle input), and
+  the first ones put the platform (L1's forward kinematics, Newton from the file's pose) within
+  `START_TOLERANCE` of the file's pose;
 - torque drive: its torques are those that move the platform as its first samples do (L1's
   inverse dynamics at the start's pose, rate and acceleration): the acceleration that the
   difference leaves may move the platform by at most `START_TOLERANCE` within
@@ -22,10 +24,14 @@ Each refusal is a `StartError` naming the experiment, the sample, the time and t
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from ..._assembly import (
+    HostGeometry as _Geometry,
+    check_assembly_mode,
+    pose_text as _pose,
+    wrap as _wrap,
+)
 from ..._errors import IdentificationError
 
 #: how far (position m, orientation rad) the state that the commands give at the first sample
@@ -36,11 +42,6 @@ START_TOLERANCE = (1e-2, 0.1)
 #: the time (s) over which the acceleration that a torque drive's first torques leave unexplained
 #: may move the platform by at most START_TOLERANCE
 START_HORIZON = 0.1
-#: an actuated angle further than this (rad) from the pose's inverse kinematics, and nearer the
-#: other elbow orientation's, belongs to the other assembly mode
-MODE_TOLERANCE = 0.05
-#: Newton iterations of the host-side forward kinematics / balance
-NEWTON_STEPS = 30
 
 
 class StartError(IdentificationError):
@@ -53,90 +54,6 @@ def _where(exp, i: int = 0) -> str:
     return f"{exp.name}: sample {i + 1} (t = {float(np.asarray(exp.ts)[i]):.6g} s)"
 
 
-def _wrap(a):
-    return (np.asarray(a) + math.pi) % (2 * math.pi) - math.pi
-
-
-class _Geometry:
-    """The robot's chain geometry as NumPy numbers (concrete parameters)."""
-
-    def __init__(self, params):
-        from ..._geometry import base_points
-        from ..._robot import Robot
-
-        robot = Robot(params)
-        self.robot = robot
-        self.A = np.asarray(base_points(robot), dtype=np.float64)
-        self.r1, self.r2, self.r3 = (float(getattr(robot, k)) for k in ("r1", "r2", "r3"))
-        self.delta1 = float(robot.delta1)
-        self.sigma = int(robot.sigma)
-        h = float(robot.params.h)
-        self.rho_E = h / math.sqrt(3.0)
-        self.beta = np.array([7 * math.pi / 6, -math.pi / 6, math.pi / 2])
-
-    def chains(self, X):
-        """(E_i - A_i (3, 2), |E_i - A_i| (3,))."""
-        ang = self.beta + X[2]
-        E = X[:2][None, :] + self.rho_E * np.stack([np.cos(ang), np.sin(ang)], axis=1)
-        d = E - self.A
-        return d, np.linalg.norm(d, axis=1)
-
-    def ik(self, X):
-        """L1's actuated angles at pose X in the robot's elbow orientation and in the other,
-        and the closure cosine c per chain (|c| < 1: within reach). Closed form (MODEL.md
-        section 4; exact for r1 = r3, a guess within a fraction of a millimetre otherwise)."""
-        d, dist = self.chains(X)
-        rbar = 0.5 * (self.r1 + self.r3)
-        c = (dist - self.r2) / (2 * rbar)
-        v = np.arccos(np.clip(c, -1.0, 1.0))
-        u = np.arctan2(d[:, 1], d[:, 0])
-        own = u - self.sigma * v - self.sigma * self.delta1
-        other = u + self.sigma * v + self.sigma * self.delta1
-        return own, other, c
-
-    def reach(self, c, dist):
-        """A description of the chains out of reach, or ''."""
-        rbar = 0.5 * (self.r1 + self.r3)
-        out = []
-        for i in range(3):
-            if c[i] >= 1.0:
-                out.append(f"chain {i + 1}'s platform joint is {1e3 * dist[i]:.4g} mm from its "
-                           f"base joint, {1e3 * (dist[i] - self.r2 - 2 * rbar):.4g} mm beyond "
-                           f"its reach of {1e3 * (self.r2 + 2 * rbar):.4g} mm")
-            elif c[i] <= -1.0:
-                out.append(f"chain {i + 1}'s platform joint is {1e3 * dist[i]:.4g} mm from its "
-                           f"base joint, closer than the chain folds")
-        return "; ".join(out)
-
-    def forward(self, th, X0):
-        """L1's forward kinematics of angles th by Newton from X0: (X, converged)."""
-        X = np.array(X0, dtype=np.float64)
-        for _ in range(NEWTON_STEPS):
-            own, _, c = self.ik(X)
-            if np.any(np.abs(c) >= 1.0):
-                return X, False
-            r = _wrap(own - th)
-            if np.max(np.abs(r)) < 1e-12:
-                return X, True
-            S = self._jacobian(X)
-            try:
-                step = np.linalg.solve(S, r)
-            except np.linalg.LinAlgError:
-                return X, False
-            # a trust region: no step longer than 20 mm or 0.2 rad
-            big = max(np.max(np.abs(step[:2])) / 0.02, abs(step[2]) / 0.2, 1.0)
-            X = X - step / big
-        return X, False
-
-    def _jacobian(self, X, h=1e-7):
-        S = np.empty((3, 3))
-        for j in range(3):
-            dX = np.zeros(3)
-            dX[j] = h
-            S[:, j] = _wrap(self.ik(X + dX)[0] - self.ik(X - dX)[0]) / (2 * h)
-        return S
-
-
 def _distance(X, X0) -> str:
     return (f"{1e3 * float(np.hypot(*(X[:2] - X0[:2]))):.4g} mm and "
             f"{abs(float(X[2] - X0[2])):.3g} rad")
@@ -147,10 +64,6 @@ def _too_far(X, X0, fitted=(True, True)) -> bool:
     orientation; a channel of infinite noise is not fitted, and its data are not checked)."""
     return bool((fitted[0] and not np.hypot(*(X[:2] - X0[:2])) <= START_TOLERANCE[0])
                 or (fitted[1] and not abs(X[2] - X0[2]) <= START_TOLERANCE[1]))
-
-
-def _pose(X) -> str:
-    return f"(x, y, phi) = ({X[0]:.6g} m, {X[1]:.6g} m, {X[2]:.4g} rad)"
 
 
 def _allowed() -> str:
@@ -168,30 +81,24 @@ def check_starts(exps, drive: str, params, starts, fitted=(True, True)) -> None:
     geo = _Geometry(params)
     for exp, start in zip(exps, starts):
         X0 = np.asarray(start[0], dtype=np.float64)
-        own, other, c = geo.ik(X0)
+        own, _, c = geo.ik(X0)
         _, dist = geo.chains(X0)
         far = geo.reach(c, dist)
         if far:
             raise StartError(f"{_where(exp)}: no state of the model reaches the pose "
                              f"{_pose(X0)}: {far}")
         if drive == "motion":
-            _check_angles(exp, geo, X0, own, other, fitted)
+            _check_angles(exp, geo, X0, own, fitted)
         else:
             _check_torques(exp, geo, start, fitted)
 
 
-def _check_angles(exp, geo, X0, own, other, fitted):
+def _check_angles(exp, geo, X0, own, fitted):
+    # the one check of any angle input's units and assembly mode, at every sample
+    check_assembly_mode(exp.th, exp.X, None, lambda i: _where(exp, i), error=StartError,
+                        geometry=geo)
     th = np.asarray(exp.th[0], dtype=np.float64)
-    d_own, d_other = np.abs(_wrap(th - own)), np.abs(_wrap(th - other))
-    for i in range(3):
-        if d_own[i] > MODE_TOLERANCE and d_other[i] < d_own[i]:
-            raise StartError(
-                f"{_where(exp)}: the actuated angle th_{i + 1} = {th[i]:.6g} rad belongs to "
-                f"the other assembly mode of chain {i + 1} (elbow orientation sigma = "
-                f"{-geo.sigma:+d}) than the robot's (sigma = {geo.sigma:+d}) at the pose "
-                f"{_pose(X0)}: {d_own[i]:.4g} rad from the robot's mode ({own[i]:.6g} rad), "
-                f"{d_other[i]:.3g} rad from the other's; set sigma={-geo.sigma} if the robot "
-                f"is assembled that way, or check the angles' zero and sign")
+    d_own = np.abs(_wrap(th - own))
     X, ok = geo.forward(th, X0)
     if not ok:
         raise StartError(
