@@ -49,6 +49,8 @@ IDENTIFY = [
     (dict(fixed={"E": "abc"}), pj.IdentificationError, ["'E'", "'abc'"]),
     (dict(unknowns=5), pj.IdentificationError, ["unknowns", "allowed"]),
     (dict(seed=HUGE), pj.IdentificationError, ["seed", "401 digits"]),
+    (dict(options=pj.SceneOptions(), rtol=1e-8), pj.PPRError, ["identify", "not both"]),
+    (dict(options={"rtol": 1e-8}), pj.PPRError, ["must be a SceneOptions", "dict"]),
 ]
 
 

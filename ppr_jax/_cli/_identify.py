@@ -39,7 +39,7 @@ def _bounds(items):
 def cmd_identify(args):
     from .._data import load_experiments
     from .._params import RobotParams
-    from .._scenes import scene_params
+    from .._scenes import SceneOptions, scene_params
     from .._studies import StartError, identification_figures, identify
     from ._common import model_from_args
 
@@ -76,8 +76,9 @@ def cmd_identify(args):
                        initial=initial, bounds=_bounds(args.bound),
                        noise=(args.noise_pos, args.noise_phi), loss=args.loss,
                        loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
-                       ode_solver=args.solver, rtol=args.rtol, atol=args.atol,
-                       max_steps=args.max_steps, validation=_validation(args.validation),
+                       options=SceneOptions().updated(solver=args.solver, rtol=args.rtol,
+                                                      atol=args.atol, max_steps=args.max_steps),
+                       validation=_validation(args.validation),
                        nuisance=tuple(args.nuisance), starts=_starts(args.starts),
                        force=args.force, program_dir=getattr(args, "program_dir", None))
     except StartError as err:

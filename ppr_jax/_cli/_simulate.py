@@ -50,8 +50,8 @@ def cmd_simulate(args):
         print(f"wrote {args.out}/summary.json")
         return 0
     models = _models(args.model, "rigid,reduced,double1r")
-    options = SceneOptions(t_end=args.t_end, n_out=args.n_out, solver=args.solver,
-                           rtol=args.rtol, atol=args.atol, max_steps=args.max_steps)
+    options = SceneOptions().updated(t_end=args.t_end, n_out=args.n_out, solver=args.solver,
+                                     rtol=args.rtol, atol=args.atol, max_steps=args.max_steps)
     results, failed = [], {}
     traj = scene.trajectory()
     circle = "radial_error_max_m" in path_metrics(traj)

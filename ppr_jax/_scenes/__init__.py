@@ -23,6 +23,7 @@ from ._options import (
     check_scene_args,
     input_panels,
     input_panels_at,
+    options_from,
 )
 from ._paper_circle import PaperCircle
 from ._path_scene import DRIVES, PathScene, experiment_drive, experiment_scene
@@ -38,7 +39,7 @@ __all__ = [
     "MAX_STEPS", "N_OUT", "RTOL", "T_END",
     "DRIVES", "MEMBER_CHUNK", "PaperCircle", "PathScene", "SCENES", "SceneReport",
     "SceneCall", "SceneInput", "SceneOptions",
-    "SceneResult", "ServoCircle", "batch_devices", "check_scene_args",
+    "SceneResult", "ServoCircle", "batch_devices", "check_scene_args", "options_from",
     "check_scene_commands", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
     "experiment_drive", "experiment_scene", "kinematic_motion", "map_members", "modes_scene",

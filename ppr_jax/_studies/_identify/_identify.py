@@ -101,7 +101,13 @@ from ..._errors import (
 from ..._models import get_model
 from ..._params import PARAM_RANGES, RobotParams
 from ..._paths import fit_start
-from ..._scenes import MAX_STEPS, AbstractScene, experiment_drive, get_scene
+from ..._scenes import (
+    AbstractScene,
+    SceneOptions,
+    experiment_drive,
+    get_scene,
+    options_from,
+)
 from ..._simulate import get_solver
 from ._data import _fill_prb, _pack
 from ._fit import (
@@ -155,10 +161,11 @@ def identify(
     xtol: float = 1e-8,
     ftol: float = 1e-10,
     stat_tol: float = 1e-2,
+    options: Optional[SceneOptions] = None,
     ode_solver=None,
     rtol: Optional[float] = None,
     atol: Optional[float] = None,
-    max_steps: int = MAX_STEPS,
+    max_steps: Optional[int] = None,
     n_elements: Optional[int] = None,
     validation=None,
     nuisance: Sequence[str] = (),
@@ -222,9 +229,11 @@ def identify(
         steps along undetermined directions do not count). `max_iter=0` takes no step: the
         result is the statistics (residuals, s, covariance) at the initial values (solver "lm",
         one start), how well given parameters (a table's, a datasheet's) explain the data.
-    - `ode_solver`, `rtol`, `atol`, `max_steps`: the simulation's (default the model's solver
-        and tolerances, `AbstractModel.default_solver`, `default_rtol`, `default_atol`, and the
-        scenes' step budget).
+    - `options`: a `SceneOptions`: its `solver`, `rtol`, `atol` and `max_steps` are the
+        simulation's (default the model's solver and tolerances, `AbstractModel.default_solver`,
+        `default_rtol`, `default_atol`, and the scenes' step budget); the horizon and output
+        times are the experiments' own. `ode_solver`, `rtol`, `atol`, `max_steps`: deprecated
+        spellings of those fields (a `DeprecationWarning`; not together with `options`).
     - `n_elements`: the beam model's element count.
     - `validation`: samples held out of the fit and predicted by it: a fraction in (0, 1),
         the last part of every experiment's time span (by time: the model must extrapolate its
@@ -275,6 +284,9 @@ def identify(
     `DataError` for unusable data (without a scene: data that hold neither angles nor
     torques).
     """
+    opts = options_from(options, "identify", True, solver=ode_solver, rtol=rtol, atol=atol,
+                        max_steps=max_steps)
+    ode_solver, rtol, atol, max_steps = opts.solver, opts.rtol, opts.atol, opts.max_steps
     _check_solver_args(loss_scale, max_iter, xtol, ftol, stat_tol, rtol, atol, max_steps, seed)
     exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
     if not exps:
