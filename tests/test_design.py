@@ -911,3 +911,82 @@ def test_design_on_a_path_from_a_file_equals_the_design_on_its_formula(tmp_path)
     np.testing.assert_allclose(b.objective["value"], a.objective["value"], rtol=1e-6)
     for n in ("t", "w"):
         np.testing.assert_allclose(b.x[n], a.x[n], rtol=1e-6, err_msg=n)
+
+
+def _circle_csv(path, t_end=7.54, n=378):
+    """The servo-circle's nominal circle sampled as a path file (m, rad)."""
+    from ppr_jax._trajectory import Circle
+
+    ts = np.linspace(0.0, t_end, n)
+    X = np.array([np.asarray(Circle()(t)) for t in ts])
+    rows = ["time[s],x[m],y[m],phi[rad]"] + [",".join(repr(float(v)) for v in (t, *x))
+                                              for t, x in zip(ts, X)]
+    path.write_text("\n".join(rows) + "\n")
+    return ts, X
+
+
+SING_SPEC = """
+[variables]
+h = [0.08, 0.2]
+
+[objective]
+maximize = "moving_mass_kg"
+
+[[constraints]]
+metric = "path_singularity_margin"
+lower = 0.05
+
+[settings]
+grid = 200
+
+[params]
+a = 0.6
+l1 = 0.45
+l3 = 0.45
+"""
+
+
+def test_cli_design_on_a_path_file_refuses_before_compiling(tmp_path, capsys):
+    """`ppr-jax design --path`: a specification that names a scene as well, and a command log
+    shorter than the path, are one line and exit 2, before anything compiles."""
+    from ppr_jax._cli import main
+
+    _circle_csv(tmp_path / "circle.csv", t_end=1.0, n=51)
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SING_SPEC.replace("grid = 200", 'grid = 200\nscene = "servo-circle"'))
+    argv = ["design", "--spec", str(spec), "--path", str(tmp_path / "circle.csv"), "--out",
+            str(tmp_path / "o")]
+    assert main(argv) == 2
+    assert "name two scenes" in capsys.readouterr().err
+    spec.write_text(SING_SPEC)
+    ts = np.linspace(0.0, 0.5, 26)
+    th = np.tile([1.3, 3.5, -0.45], (26, 1))
+    (tmp_path / "half.csv").write_text(
+        "time[s],th_1[rad],th_2[rad],th_3[rad]\n"
+        + "".join(",".join(repr(float(v)) for v in (t, *r)) + "\n" for t, r in zip(ts, th)))
+    assert main(argv + ["--angles", str(tmp_path / "half.csv")]) == 2
+    assert "spans t = 0 to 0.5 s" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_cli_design_on_a_path_file(tmp_path):
+    """`ppr-jax design --path circle.csv`: the singularity-margin design of
+    `test_path_through_a_singularity_is_never_the_optimum` along the same circle read from a
+    file, whose optimum the bisection on the margin by hand gives."""
+    _circle_csv(tmp_path / "circle.csv")
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SING_SPEC)
+    from ppr_jax._cli import main
+
+    out = tmp_path / "out"
+    assert main(["design", "--spec", str(spec), "--path", str(tmp_path / "circle.csv"),
+                 "--out", str(out)]) == 0
+    import json
+
+    data = json.loads((out / "design.json").read_text())
+    h = data["x"]["h"]
+    lo, hi = 0.08, 0.137
+    for _ in range(25):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if singular_margin_by_hand(mid) > 0.05 else (lo, mid)
+    assert h == pytest.approx(lo, rel=1e-3)

@@ -15,11 +15,21 @@ def cmd_design(args):
     from .._params import parse_value
     from .._scenes import SceneOptions
     from .._studies import design, load_design_spec
-    from ._common import _parse_sets
+    from ._common import _parse_sets, check_commands_from_args, scene_from_args
 
     spec = load_design_spec(args.spec)
     settings = dict(spec["settings"])
     scene = settings.get("scene")
+    spec_options = dict(spec["options"])
+    if getattr(args, "path", None) is not None:
+        # your own experiment: the scene of --path (and its command log), as `simulate` runs it
+        if scene is not None:
+            raise DesignError(f"{args.spec}: [settings] scene = {scene!r} and --path name two "
+                              f"scenes; give one")
+        args.torque_model = settings.pop("torque_model", None)
+        args.t_end = spec_options.get("t_end")
+        scene = settings["scene"] = scene_from_args(args)
+        spec_options["t_end"] = args.t_end
     path = args.params_file or spec["params_file"]
     base = _parse_sets(None, scene if scene is not None else "modes", path)
     base = base.replace(**spec["params"])
@@ -28,7 +38,9 @@ def cmd_design(args):
         name, _, value = item.partition("=")
         sets[name.strip()] = parse_value(name.strip(), value)
     base = base.replace(**sets)
-    options = SceneOptions().updated(**spec["options"]) if spec["options"] else None
+    if getattr(args, "path", None) is not None:
+        check_commands_from_args(scene, base, args)
+    options = SceneOptions().updated(**spec_options) if spec_options else None
     _out_dir(args.out)
     _log(f"design: {', '.join(spec['variables'])} ... compiling and optimising")
     try:
@@ -62,13 +74,14 @@ def _write(d, args) -> list:
 
 def add_design(sub, parents, fmt):
     d = sub.add_parser(
-        "design", formatter_class=fmt, parents=[parents["params"]],
+        "design", formatter_class=fmt, parents=[parents["params"], parents["files"]],
         help="design with gradients: optimise RobotParams fields against a specification",
         description="Optimise design variables (RobotParams fields with bounds) for an "
                     "objective subject to constraints, read from a TOML specification "
                     "(docs/design.md), verify the optimum, and write design.json, "
                     "report.html, the designed robot's parameter file designed.toml and its "
-                    "MJCF designed.xml. Catalogue: "
+                    "MJCF designed.xml. With --path (and --angles or --torques), the scene is "
+                    "your own experiment, as `simulate --path` runs it. Catalogue: "
                     + ", ".join(DESIGN_METRICS) + ", and a scene's metrics.")
     d.add_argument("--spec", required=True, metavar="SPEC.toml",
                    help="the design specification ([variables], [objective], [[constraints]] "
