@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..._files import write_file
 from ..._params import RobotParams
 from ..._programs import NotExportable, cached_program, export_tracing, program_key
 from .._jacobian import jacobian_with_values
@@ -180,7 +181,7 @@ class Problem:
             if path is not None:
                 try:
                     os.makedirs(self.program_dir, exist_ok=True)
-                    with open(path, "w") as f:
+                    with write_file(path) as f:
                         f.write(json.dumps(sizes.tolist()))
                 except OSError:
                     pass
