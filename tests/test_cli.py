@@ -438,3 +438,54 @@ def test_sigint_ends_a_running_command_with_one_line(tmp_path):
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     assert err.strip().splitlines() == ["ppr-jax: interrupted; kept: nothing written"], err
+
+
+def test_sigint_while_compiling_exits_130_with_one_line(tmp_path):
+    """The issue's reproducer: `simulate --model double1r` interrupted while its program is
+    traced, lowered and compiled, three processes at once, 0.2, 1 and 2 s after each says it
+    compiles: each exits 130 with the one line. Before the command line ended the process at
+    once after its line (`_exit_at_once`), the interpreter's finalisation raced XLA's threads
+    and about one such interrupt in ten (one in 25 on a loaded 2-core machine) died with
+    SIGSEGV after the line."""
+    import signal
+    import subprocess
+    import sys
+    import threading
+    import time
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PPR_JAX_CACHE="0", PYTHONPATH=root)
+    delays = (0.2, 1.0, 2.0)
+    procs, seen = [], [[] for _ in delays]
+    # as from a terminal (`test_sigint_ends_a_running_command_with_one_line`)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        for k in range(len(delays)):
+            procs.append(subprocess.Popen(
+                [sys.executable, "-m", "ppr_jax_cli", "simulate", "--model", "double1r",
+                 "--t-end", "0.1", "--out", str(tmp_path / f"run{k}")],
+                stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=root))
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+    def interrupt(proc, delay, lines):
+        while not lines or ("compiling" not in lines[-1] and lines[-1]):
+            lines.append(proc.stderr.readline())
+        if lines[-1]:
+            time.sleep(delay)
+            proc.send_signal(signal.SIGINT)
+
+    threads = [threading.Thread(target=interrupt, args=a) for a in zip(procs, delays, seen)]
+    try:
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=300)
+        errs = [p.communicate(timeout=300)[1] for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+    for proc, lines, err, delay in zip(procs, seen, errs, delays):
+        assert "compiling" in lines[-1], lines
+        assert proc.returncode == 130, (delay, proc.returncode, err)
+        assert err.strip().splitlines() == ["ppr-jax: interrupted; kept: nothing written"], err
