@@ -17,7 +17,8 @@ def main() -> int:
     except KeyboardInterrupt:  # while importing: nothing ran yet
         print("ppr-jax: interrupted; kept: nothing written", file=sys.stderr)
         return 130
-    return cli_main()
+    # an interrupt ends the process at once after its line (`_exit_at_once`)
+    return cli_main(exit_on_interrupt=True)
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ import numpy as np
 
 from ._custom_types import Array
 from ._errors import DataError
+from ._files import write_file
 from ._labels import label_field
 
 #: unit name -> factor to SI, per kind of quantity
@@ -469,7 +470,7 @@ def write_csv(path: str, exp: Experiment, *, length_unit: str = "mm", angle_unit
     data = np.column_stack(blocks)
     d = os.path.dirname(os.path.abspath(path))
     os.makedirs(d, exist_ok=True)
-    with open(path, "w", newline="") as f:
+    with write_file(path, "w", newline="") as f:
         for c in comments:
             f.write(f"# {c}\n")
         f.write(f"# units: time=s, length={length_unit}, angle={angle_unit}, torque=Nm\n")

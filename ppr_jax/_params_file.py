@@ -9,6 +9,7 @@ import os
 from typing import Optional, Sequence
 
 from ._errors import PPRError
+from ._files import write_file
 from ._params import PARAM_RANGES, RobotParams, settable_names
 
 #: the formats by file extension
@@ -151,6 +152,6 @@ def save_params(params: RobotParams, path: str, *, comments: Sequence[str] = ())
         for k, v in values.items():
             lines.append(f'{k} = "{v}"' if isinstance(v, str) else f"{k} = {v!r}")
         text = "\n".join(lines) + "\n"
-    with open(path, "w", encoding="utf-8") as fh:
+    with write_file(path, "w", encoding="utf-8") as fh:
         fh.write(text)
     return str(path)

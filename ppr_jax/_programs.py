@@ -19,7 +19,10 @@ so a measured path re-read from another file of the same shape loads the same pr
 Each stored file starts with a header holding the sha256 of the serialised program. A file
 whose header or checksum does not match, that does not deserialise, or whose program does not
 compile is named once in a `RepairWarning`, deleted and exported afresh: a damaged store repairs
-itself and never breaks a run.
+itself and never breaks a run. A store that cannot be written (read-only, full) is used as far as
+it goes: a damaged file that cannot be deleted is named as such in its warning (kept, never
+claimed deleted), and the run goes on without it, compiling the stored program where only its
+executable is damaged; a program that cannot be stored runs unstored, traced once.
 
 A program must hold no host callbacks, which `jax.export` cannot store. The scene programs
 report failures as status codes; diffrax adds `eqx.error_if` checks of the output times (which
@@ -58,7 +61,6 @@ import json
 import os
 import pathlib
 import re
-import tempfile
 import types
 import warnings
 from typing import Callable, Optional
@@ -67,6 +69,7 @@ import equinox as eqx
 import jax
 
 from ._errors import RepairWarning
+from ._files import write_file
 from ._labels import LABEL
 
 #: bump when the stored layout changes
@@ -377,11 +380,9 @@ def _store_executable(xpath: str, compiled, exported, n_in: int, n_out: int) -> 
 
 
 def _write(path: str, data: bytes) -> None:
-    """Atomic: a concurrent process sees the whole file or none."""
-    with tempfile.NamedTemporaryFile(dir=os.path.dirname(path), delete=False,
-                                     suffix=".tmp") as f:
+    """Atomic: a concurrent process sees the whole file or none (`write_file`)."""
+    with write_file(path, "wb") as f:
         f.write(data)
-    os.replace(f.name, path)
 
 
 def _first_line(err: BaseException) -> str:
@@ -410,11 +411,22 @@ def _load(payload: bytes, n_in: int, n_out: int, leaves):
         raise _Damaged(f"does not compile ({_first_line(err)})") from err
 
 
-def _repaired(path: str, what: str, err: Exception, how: str) -> None:
+def _repaired(path: str, what: str, err: Exception, how: str, instead: str) -> bool:
+    """Delete the damaged `path` and name it in one `RepairWarning` saying what happened:
+    deleted and `how` afresh, or, where it cannot be deleted (a read-only store), kept and
+    `instead` (the run goes on without it). Returns whether it is gone."""
+    try:
+        os.remove(path)
+    except FileNotFoundError:  # a concurrent process removed it
+        pass
+    except OSError as rm:
+        warnings.warn(f"stored {what} {path} is damaged ({err}) and cannot be deleted (the "
+                      f"store is read-only: {rm.strerror or type(rm).__name__}): {instead}; "
+                      f"delete it to repair the store", RepairWarning, stacklevel=4)
+        return False
     warnings.warn(f"stored {what} {path} is damaged ({err}): deleted and {how} afresh",
                   RepairWarning, stacklevel=4)
-    with contextlib.suppress(FileNotFoundError):  # a concurrent process removed it
-        os.remove(path)
+    return True
 
 
 def load_or_export(fn: Callable, args: tuple, out_template, directory: str, label: str):
@@ -438,23 +450,29 @@ def load_or_export(fn: Callable, args: tuple, out_template, directory: str, labe
                 try:
                     compiled = _load_executable(xpath, n_in, n_out)
                 except _Damaged as err:
-                    _repaired(xpath, "executable", err, "compiled")
+                    _repaired(xpath, "executable", err, "compiled",
+                              "compiled from its stored program")
             if compiled is None:
                 compiled, fresh, exported = _load(payload, n_in, n_out, leaves)
                 if fresh:
                     with contextlib.suppress(OSError):
                         _store_executable(xpath, compiled, exported, n_in, n_out)
         except _Damaged as err:
-            _repaired(path, "program", err, "exported")
+            _repaired(path, "program", err, "exported", "traced and compiled anew")
     if compiled is None:
         exported, how = _export(fn, args, out_template), "exported"
-        os.makedirs(directory, exist_ok=True)
         payload = bytes(exported.serialize())
-        _write(path, _pack(payload))
-        # the executables of the program this one replaces
-        for old in glob.glob(f"{glob.escape(path[:-len('.jaxexport')])}-*.jaxexec"):
-            with contextlib.suppress(OSError):
-                os.remove(old)
+        try:
+            os.makedirs(directory, exist_ok=True)
+            _write(path, _pack(payload))
+        except OSError:
+            # a read-only or full store: the program runs all the same, stored or not
+            pass
+        else:
+            # the executables of the program this one replaces
+            for old in glob.glob(f"{glob.escape(path[:-len('.jaxexport')])}-*.jaxexec"):
+                with contextlib.suppress(OSError):
+                    os.remove(old)
         if len(exported.in_avals) != n_in or len(exported.out_avals) != n_out:
             raise NotExportable(f"exported program {path} does not match this call")
         compiled, fresh = _compile(exported, leaves)

@@ -402,6 +402,32 @@ def test_ctrl_c_swallowed_by_a_library_is_raised_again(tmp_path, capsys, monkeyp
         signal.signal(signal.SIGINT, before)
 
 
+def test_ctrl_c_where_it_cannot_propagate_prints_no_traceback(tmp_path, capsys, monkeypatch):
+    """A KeyboardInterrupt raised where it cannot propagate (JAX's garbage-collection callback,
+    a `__del__`) is one Python prints as "Exception ignored in ..." with a traceback: the
+    command line passes over it (the interrupt comes again where it propagates), so stderr
+    holds the one line alone."""
+    import sys
+
+    from ppr_jax._cli import _torques
+
+    class Interrupted:
+        def __del__(self):
+            raise KeyboardInterrupt
+
+    def interrupted(args):
+        Interrupted()  # collected at once: its KeyboardInterrupt cannot propagate
+        raise KeyboardInterrupt
+
+    # Python's own hook, which prints (pytest's collects them as warnings)
+    monkeypatch.setattr(sys, "unraisablehook", sys.__unraisablehook__)
+    monkeypatch.setattr(_torques, "cmd_torques", interrupted)
+    assert main(["torques", "--out", str(tmp_path / "run")]) == 130
+    assert capsys.readouterr().err.splitlines() == [
+        "ppr-jax: interrupted; kept: nothing written"]
+    assert sys.unraisablehook is sys.__unraisablehook__
+
+
 def test_sigint_ends_a_running_command_with_one_line(tmp_path):
     """The real signal: `ppr-jax identify` in a subprocess, sent SIGINT once it says it is
     compiling: exit 130, the one line, no traceback. The data must pass identification's checks
@@ -438,3 +464,59 @@ def test_sigint_ends_a_running_command_with_one_line(tmp_path):
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     assert err.strip().splitlines() == ["ppr-jax: interrupted; kept: nothing written"], err
+
+
+def test_sigint_while_compiling_exits_130_with_one_line(tmp_path):
+    """The issue's reproducer: `simulate --model double1r` interrupted while its program is
+    traced, lowered and compiled, three processes at once, 0.2, 1 and 2 s after each says it
+    compiles: each exits 130 with the one line, and nothing of the interpreter's finalisation
+    runs after it (`_exit_at_once`). The finalisation raced XLA's threads: the process died
+    with SIGSEGV after its line in 3 of 10 such interrupts on the machine the problem was found
+    on, 1 in about 40 on a loaded 2-core machine. Its own signal, an exit handler the console
+    script is started with, writes a line at every finalisation, and must stay silent."""
+    import signal
+    import subprocess
+    import sys
+    import threading
+    import time
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PPR_JAX_CACHE="0", PYTHONPATH=root)
+    # the console script as `ppr-jax` runs it, with an exit handler registered first
+    probe = ("import atexit, runpy, sys; "
+             "atexit.register(lambda: print('finalised', file=sys.stderr, flush=True)); "
+             "runpy.run_module('ppr_jax_cli', run_name='__main__', alter_sys=True)")
+    delays = (0.2, 1.0, 2.0)
+    procs, seen = [], [[] for _ in delays]
+    # as from a terminal (`test_sigint_ends_a_running_command_with_one_line`)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        for k in range(len(delays)):
+            procs.append(subprocess.Popen(
+                [sys.executable, "-c", probe, "simulate", "--model", "double1r",
+                 "--t-end", "0.1", "--out", str(tmp_path / f"run{k}")],
+                stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=root))
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+    def interrupt(proc, delay, lines):
+        while not lines or ("compiling" not in lines[-1] and lines[-1]):
+            lines.append(proc.stderr.readline())
+        if lines[-1]:
+            time.sleep(delay)
+            proc.send_signal(signal.SIGINT)
+
+    threads = [threading.Thread(target=interrupt, args=a) for a in zip(procs, delays, seen)]
+    try:
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=300)
+        errs = [p.communicate(timeout=300)[1] for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+    for proc, lines, err, delay in zip(procs, seen, errs, delays):
+        assert "compiling" in lines[-1], lines
+        assert proc.returncode == 130, (delay, proc.returncode, err)
+        assert err.strip().splitlines() == ["ppr-jax: interrupted; kept: nothing written"], err

@@ -191,6 +191,71 @@ def test_a_stored_executable_is_loaded_and_a_damaged_one_repaired(tmp_path, dire
         assert new.read_bytes().startswith(_programs.EXEC_MAGIC)
 
 
+def test_a_read_only_store_with_a_damaged_executable(tmp_path, direct, fresh_compiles,
+                                                     monkeypatch):
+    """A store that cannot be written (read-only) holding a damaged executable: every run says
+    so once, without claiming a deletion that did not happen, keeps the file, and runs the
+    stored program (no trace, no full compile) to the usual results. Read-only is simulated
+    (the tests may run as root, whom the permission bits do not stop): deleting and writing in
+    the store fail with EACCES."""
+    import errno
+    import warnings
+
+    d = str(tmp_path / "programs")
+    pj.run_scene("paper-circle", **KW, program_dir=d)  # a fresh compile: executable stored
+    (xpath,) = _executables_in(d)
+    _flip(xpath)
+    damaged = xpath.read_bytes()
+
+    remove = os.remove
+
+    def refuse(path, *a, **k):
+        if not str(path).startswith(d):  # JAX's own files: as usual
+            return remove(path, *a, **k)
+        raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+    def not_traced(*a, **k):
+        raise AssertionError("the program was traced again: the store was not used")
+
+    monkeypatch.setattr(os, "remove", refuse)
+    monkeypatch.setattr(_programs, "_write", refuse)
+    monkeypatch.setattr(_programs, "_export", not_traced)
+    for _ in range(2):
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
+            r = pj.run_scene("paper-circle", **KW, program_dir=d)
+        said = [str(w.message) for w in rec if issubclass(w.category, _programs.RepairWarning)]
+        assert len(said) == 1, said
+        assert str(xpath) in said[0] and "read-only" in said[0], said
+        assert "deleted and" not in said[0], said
+        assert r.timing["program"] == "loaded"
+        _same(r, direct[0.3e-3])
+        assert xpath.read_bytes() == damaged
+
+
+def test_a_program_that_cannot_be_stored_is_traced_once(tmp_path, direct, monkeypatch):
+    """A store that cannot be written (read-only, full): the program exported for it runs all
+    the same, unstored; the scene is traced once, not exported and then compiled again."""
+    import errno
+
+    traces = []
+    export = _programs._export
+
+    def counted(*a, **k):
+        traces.append(1)
+        return export(*a, **k)
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device", path)
+
+    monkeypatch.setattr(_programs, "_export", counted)
+    monkeypatch.setattr(_programs, "_write", full)
+    r = pj.run_scene("paper-circle", **KW, program_dir=str(tmp_path / "programs"))
+    assert r.timing["program"] == "exported" and len(traces) == 1
+    assert _programs_in(tmp_path / "programs") == []
+    _same(r, direct[0.3e-3])
+
+
 def test_no_executable_from_a_persistent_cache_hit(tmp_path, direct, fresh_compiles):
     """An executable read from JAX's persistent cache serialises incompletely (it then fails
     when run): a program whose compilation was a cache hit stores none, and later runs load the

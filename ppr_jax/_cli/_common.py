@@ -257,7 +257,9 @@ def check_out_dir(path: str, create: bool = True) -> str:
 
 
 def _write_json(path, obj):
-    with open(path, "w") as f:
+    from .._files import write_file
+
+    with write_file(path) as f:
         json.dump(obj, f, indent=2)
 
 
@@ -267,7 +269,9 @@ def _out_dir(path):
 
 
 def _write_rows(path, rows, columns):
-    with open(path, "w", newline="") as f:
+    from .._files import write_file
+
+    with write_file(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=columns)
         w.writeheader()
         for r in rows:

@@ -7,6 +7,7 @@ import os
 
 import numpy as np
 
+from .._files import save_figure
 from .._metrics import radial_error
 
 #: a model whose radial error exceeds this (m) is drawn on its own panel
@@ -113,5 +114,5 @@ def scene_figures(results, out_dir: str, center, radius) -> list[str]:
 def _save(fig, out_dir, name):
     path = os.path.join(out_dir, name)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     return path

@@ -8,6 +8,7 @@ import os
 import shlex
 import time
 
+from .._files import write_file
 from .._names import (
     ACTUATIONS,
     ID_SOLVERS,
@@ -95,7 +96,7 @@ def cmd_identify(args):
     os.makedirs(args.out, exist_ok=True)
     summary = fit.to_dict()
     summary["data"] = [os.path.abspath(p) for p in args.data]
-    with open(os.path.join(args.out, "estimates.json"), "w") as f:
+    with write_file(os.path.join(args.out, "estimates.json")) as f:
         json.dump(summary, f, indent=2)
     table = fit.table()
     _write_fitted(os.path.join(args.out, "fitted.csv"), fit)
@@ -105,7 +106,7 @@ def cmd_identify(args):
 
         _log("profile likelihood of " + ", ".join(fit.names) + " ...")
         profiles = [fit.profile(n) for n in fit.names]
-        with open(os.path.join(args.out, "profiles.json"), "w") as f:
+        with write_file(os.path.join(args.out, "profiles.json")) as f:
             json.dump(profiles, f, indent=2)
         figs.append(profile_figure(profiles, os.path.join(args.out, "profiles.png")))
         for pr in profiles:
@@ -114,7 +115,7 @@ def cmd_identify(args):
                      if pr["limited_by_bounds_of"] else "")
             table += (f"\n  profile 95% interval of {pr['name']}: [{ends[0]}, {ends[1]}]"
                       + extra)
-    with open(os.path.join(args.out, "estimates.txt"), "w") as f:
+    with write_file(os.path.join(args.out, "estimates.txt")) as f:
         f.write(table + "\n")
     robot_files = _write_robot(args.out, fit)
     report = fit.report(os.path.join(args.out, "report.html"), figures=figs,
@@ -191,7 +192,7 @@ def _write_robot(out, fit) -> list:
     except PPRError as err:  # no assembled state for this robot: keep the rest of the fit
         print(f"ppr-jax: identified_l2.xml not written: {err}", file=sys.stderr)
         return paths[:1]
-    with open(paths[1], "w", encoding="utf-8") as f:
+    with write_file(paths[1], "w", encoding="utf-8") as f:
         f.write(head + xml)
     return paths
 
@@ -203,7 +204,7 @@ def _write_fitted(path, fit):
 
     held = (np.zeros(np.shape(fit.mask), bool) if fit.held_out is None
             else np.asarray(fit.held_out))
-    with open(path, "w", newline="") as f:
+    with write_file(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["experiment", "time", "x_measured", "y_measured", "phi_measured", "x_fitted",
                     "y_fitted", "phi_fitted", "held_out"])

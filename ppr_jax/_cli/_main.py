@@ -61,24 +61,72 @@ def _runtime_message(err: Exception) -> str:
     return keep[0] if keep else (lines[0] if lines else type(err).__name__)
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, exit_on_interrupt: bool = False) -> int:
     """Run the command line; every user error is one line on stderr and exit status 2. Ctrl-C
     (SIGINT) is one line too, naming what the command had written (`kept_files`), and exit
-    status 130 (128 + SIGINT, the shell's convention)."""
+    status 130 (128 + SIGINT, the shell's convention).
+
+    **Arguments:**
+
+    - `argv`: the arguments (default: `sys.argv[1:]`).
+    - `exit_on_interrupt`: after an interrupt's line, end the process at once with status 130
+      (`os._exit`), as the console script does, instead of returning 130 (`_exit_at_once`).
+
+    **Returns:**
+
+    The exit status."""
     state = {"started": time.time(), "args": None}
     caught = threading.Event()
-    previous = _insist_on_sigint(caught)
+    previous, repeating = _insist_on_sigint(caught)
+    unraisable = sys.unraisablehook
+    sys.unraisablehook = _quiet_interrupts(unraisable)
     try:
         return _main(argv, state)
     except KeyboardInterrupt:
         caught.set()
         print(f"ppr-jax: interrupted; kept: {kept_files(state['args'], state['started'])}",
               file=sys.stderr)
+        if exit_on_interrupt:
+            _exit_at_once(130)
         return 130
     finally:
         caught.set()
+        # the repeats end before the handler is restored: none lands after it
+        for thread in repeating:
+            thread.join()
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
+        sys.unraisablehook = unraisable
+
+
+def _quiet_interrupts(hook):
+    """`sys.unraisablehook` that passes over a KeyboardInterrupt: one raised where it cannot
+    propagate (JAX's garbage-collection callback, a `__del__`, a weakref callback) is printed
+    by Python as "Exception ignored in ..." with its traceback, before the command line's one
+    line. It is raised again within `INTERRUPT_REPEAT_S` (`_insist_on_sigint`), where it can
+    propagate. Anything else goes to `hook`."""
+    def unraisable(info):
+        if not isinstance(info.exc_value, KeyboardInterrupt):
+            hook(info)
+
+    return unraisable
+
+
+def _exit_at_once(status: int) -> None:
+    """End the process with `status` without the interpreter's finalisation. An interrupt can
+    come while XLA's threads still work (a compilation's, an asynchronous computation's); the
+    finalisation (JAX's exit handler destroys the backend, modules and their objects are torn
+    down) then races them, and the process died with SIGSEGV after its line (3 of 10 interrupts
+    during a compilation where it was found; 1 in about 40 on a loaded 2-core machine). Exit
+    handlers (`atexit`) do not run either. Nothing is left to finalise: every file is closed
+    by then (written whole, or its temporary removed: `_files.write_file`), and the standard
+    streams are flushed here."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):  # closed, or replaced by None
+            pass
+    os._exit(status)
 
 
 #: seconds between the repeats of an interrupt not yet caught (`_insist_on_sigint`)
@@ -91,11 +139,13 @@ def _insist_on_sigint(caught: threading.Event):
     bare `except:` clauses (`operator.index` probes of every shape); a KeyboardInterrupt raised
     inside one is swallowed, and the command would run to its end with Ctrl-C ignored. A SIGINT
     ignored by whoever started the process (a shell's background job) stays ignored, as Python
-    leaves it. Returns the SIGINT handler replaced, or None where none is set (ignored, or not
-    the main thread)."""
-    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
-        return None
+    leaves it. Once `caught` is set the handler does nothing: a repeat already on its way, or a
+    second Ctrl-C while the command ends, adds no second interrupt. Returns the SIGINT handler
+    replaced (None where none is set: ignored, or not the main thread) and the list that holds
+    the repeating thread once started, for the caller to join."""
     repeating = []
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        return None, repeating
 
     main = threading.main_thread().ident
 
@@ -105,15 +155,17 @@ def _insist_on_sigint(caught: threading.Event):
             signal.pthread_kill(main, signal.SIGINT)
 
     def on_sigint(signum, frame):
+        if caught.is_set():
+            return
         if not repeating:
             repeating.append(threading.Thread(target=repeat, daemon=True))
             repeating[0].start()
         raise KeyboardInterrupt
 
     try:
-        return signal.signal(signal.SIGINT, on_sigint)
+        return signal.signal(signal.SIGINT, on_sigint), repeating
     except ValueError:  # signal handlers belong to the main thread
-        return None
+        return None, repeating
 
 
 #: kept_files names at most this many files, then counts the rest

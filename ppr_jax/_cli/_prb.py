@@ -7,6 +7,7 @@ import argparse
 import json
 import sys
 
+from .._files import save_figure
 from ._common import (
     _derived_dict,
     _log,
@@ -87,7 +88,7 @@ def _prb_figure(path, tab):
         ax.grid(alpha=0.3)
     axs[0].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     print(f"wrote {path}", file=sys.stderr)
 

@@ -6,6 +6,7 @@ import json
 import math
 import os
 
+from .._files import write_file
 from .._names import KINEMATIC_MODELS, MODEL_NAMES, SCENE_NAMES, SENSITIVITY_METRICS
 from ._common import (
     _log,
@@ -57,7 +58,7 @@ def cmd_sensitivity(args):
     rows = s.rows()
     cols = ["metric", "parameter", "metric_value", "parameter_value", "derivative", "normalized"]
     _write_rows(os.path.join(args.out, "sensitivity.csv"), rows, cols)
-    with open(os.path.join(args.out, "sensitivity.json"), "w") as f:
+    with write_file(os.path.join(args.out, "sensitivity.json")) as f:
         clean = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                   for k, v in r.items()} for r in rows]
         json.dump({"settings": s.info, "mode": s.mode, "timing": s.timing, "values": s.values,

@@ -6,6 +6,7 @@ import csv
 import os
 import time
 
+from .._files import write_file
 from .._names import KINEMATIC_MODELS, MODEL_NAMES, SIMULATE_CHOICES
 from ._common import (
     _derived_dict,
@@ -170,7 +171,7 @@ def _write_csv(path, results, center, R):
             return radial_error(np.asarray(X), center, R, xp=np)
         return np.linalg.norm(np.asarray(X)[:, :2] - np.asarray(r.X_nominal)[:, :2], axis=-1)
 
-    with open(path, "w", newline="") as f:
+    with write_file(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["model", "t", "x", "y", "phi", "e_r" if center is not None else "e_pos",
                     "tau_1", "tau_2", "tau_3", "end_rot_1", "end_rot_2"])

@@ -6,6 +6,7 @@ import json
 import math
 import os
 
+from .._files import save_figure, write_file
 from .._names import KINEMATIC_MODELS, MODEL_NAMES, SCENE_NAMES
 from ._common import _out_dir, _write_rows
 
@@ -54,7 +55,8 @@ def _write_parquet(path, rows, columns) -> bool:
         import pyarrow.parquet as pq
     except ImportError:
         return False
-    pq.write_table(pa.table({c: [r[c] for r in rows] for c in columns}), path)
+    with write_file(path, "wb") as f:
+        pq.write_table(pa.table({c: [r[c] for r in rows] for c in columns}), f)
     return True
 
 
@@ -90,7 +92,7 @@ def sweep_figures(result, out_dir) -> list:
                      f"({len(ok)} ok, {len(result.failed)} failed)", fontsize=9)
         fig.tight_layout()
         p = os.path.join(out_dir, f"metrics_vs_{name}.png")
-        fig.savefig(p, dpi=110)
+        save_figure(fig, p, dpi=110)
         plt.close(fig)
         paths.append(p)
     return paths
@@ -145,7 +147,7 @@ def cmd_sweep(args):
     written.append("failed.csv")
     from .._studies import library_digest
 
-    with open(os.path.join(args.out, "summary.json"), "w") as f:
+    with write_file(os.path.join(args.out, "summary.json")) as f:
         # what the numbers depend on beyond the settings (the chunks' digests hold it too)
         json.dump({"settings": res.info, "library": library_digest(), "timing": res.timing,
                    "n_members": len(res.rows),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import os
 
+from .._files import write_file
 from .._names import KINEMATIC_MODELS
 from ._common import (
     _parse_sets,
@@ -22,7 +23,7 @@ def cmd_torques(args):
     ts, tau = nominal_torques(params, model=args.model, t_end=args.t_end, n_out=args.n_out,
                               program_dir=getattr(args, "program_dir", None))
     path = os.path.join(args.out, "torques.csv")
-    with open(path, "w", newline="") as f:
+    with write_file(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["t", "tau_1", "tau_2", "tau_3"])
         for k in range(len(ts)):

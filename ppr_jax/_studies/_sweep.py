@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import PPRError, RepairWarning, check_number, result_code, result_message
+from .._files import write_file
 from .._kinematics import REACH_TOL, SINGULAR_TOL, ik_solve
 from .._models import get_model
 from .._params import PARAM_RANGES, RobotParams, stack_params
@@ -568,11 +569,10 @@ class _ChunkStore:
         if old is not None and old.get("digest") != self.settings_digest:
             raise PPRError(f"{path} holds the chunks of a different sweep (other settings); "
                            f"use another output directory or remove it")
-        tmp = settings + ".tmp"
-        with open(tmp, "w") as f:
+        # whole or not at all: an interrupted write leaves the old file or none
+        with write_file(settings) as f:
             json.dump({"digest": self.settings_digest, "library": library, "settings": info},
                       f, indent=2)
-        os.replace(tmp, settings)  # atomic: an interrupted write leaves the old file or none
 
     def _file(self, c):
         return os.path.join(self.path, f"chunk_{c:05d}.json")
@@ -611,10 +611,8 @@ class _ChunkStore:
         return None
 
     def save(self, c, idx, rows):
-        tmp = self._file(c) + ".tmp"
         clean = [{k: (None if isinstance(v, float) and not np.isfinite(v) else _plain(v))
                   for k, v in r.items()} for r in rows]
         data = {"digest": self.digest, "checksum": _rows_checksum(clean), "rows": clean}
-        with open(tmp, "w") as f:
+        with write_file(self._file(c)) as f:  # an interrupted write leaves no partial chunk
             json.dump(data, f)
-        os.replace(tmp, self._file(c))  # atomic: an interrupted write leaves no partial chunk

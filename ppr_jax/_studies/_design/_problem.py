@@ -22,6 +22,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ..._files import write_file
 from ..._params import RobotParams
 from ..._programs import NotExportable, cached_program, export_tracing, program_key
 from .._catalogue import SAMPLED_METRICS, SceneContext, metric_values
@@ -166,7 +167,7 @@ class Problem:
             if path is not None:
                 try:
                     os.makedirs(self.program_dir, exist_ok=True)
-                    with open(path, "w") as f:
+                    with write_file(path) as f:
                         f.write(json.dumps(sizes.tolist()))
                 except OSError:
                     pass

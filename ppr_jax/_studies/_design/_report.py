@@ -11,6 +11,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..._files import write_file
 from .._html import figure, fmt, page, pyplot, table
 
 
@@ -197,6 +198,6 @@ def write_design_report(d, path: str, *, command: Optional[str] = None) -> str:
               table(["metric", "value"], [[k, fmt(v)] for k, v in d.metrics.items()])]
     footer = [f"<p>Versions: <code>{esc(dependency_versions())}</code></p>",
               f"<p>Command: <code>{esc(command)}</code></p>" if command else ""]
-    with open(path, "w", encoding="utf-8") as f:
+    with write_file(path, "w", encoding="utf-8") as f:
         f.write(page(f"ppr_jax design: {o['sense']} {o['metric']}", parts, footer))
     return path

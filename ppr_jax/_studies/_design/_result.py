@@ -9,6 +9,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from ..._files import write_file
 from ..._params import RobotParams
 from ..._params_file import save_params
 from ._goals import bound_text
@@ -115,7 +116,7 @@ class Design:
         path."""
         from ..._mjcf import to_mjcf
 
-        with open(path, "w", encoding="utf-8") as fh:
+        with write_file(path, "w", encoding="utf-8") as fh:
             fh.write(to_mjcf(self.params, dt=dt))
         return str(path)
 
@@ -141,7 +142,7 @@ class Design:
 
     def save(self, path: str) -> str:
         """Write `to_dict()` as JSON. Returns the path."""
-        with open(path, "w", encoding="utf-8") as fh:
+        with write_file(path, "w", encoding="utf-8") as fh:
             json.dump(self.to_dict(), fh, indent=2)
             fh.write("\n")
         return str(path)

@@ -7,6 +7,7 @@ import os
 
 import numpy as np
 
+from ..._files import save_figure
 from .._html import pyplot as _pyplot
 
 
@@ -83,7 +84,7 @@ def _held(fit, k):
 
 def _save(fig, out_dir, name):
     path = os.path.join(out_dir, name)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     _pyplot().close(fig)
     return path
 
@@ -111,6 +112,6 @@ def profile_figure(profiles: list, path: str) -> str:
         ax.set_ylabel("(S - S_min) / s^2")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path

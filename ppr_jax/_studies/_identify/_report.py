@@ -13,6 +13,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from ..._files import write_file
 from .._html import fmt as _g, image as _image, page, table as _table
 
 
@@ -143,6 +144,6 @@ def write_report(fit, path: str, *, figures: Sequence[str] = (), data_files: Seq
               _table(["data file", "sha256"], prov) if prov else "",
               f"<p>Versions: <code>{esc(dependency_versions())}</code></p>",
               f"<p>Command: <code>{esc(command)}</code></p>" if command else ""]
-    with open(path, "w", encoding="utf-8") as f:
+    with write_file(path, "w", encoding="utf-8") as f:
         f.write(page(f"ppr_jax identification: {', '.join(fit.names)}", parts))
     return path
