@@ -208,8 +208,20 @@ def check_pose_units(name, X):
     if phimax > math.pi / 2:
         raise DataError(
             f"{name}: platform rotation |phi| reaches {phimax:.4g} rad, beyond what the robot "
-            f"can turn (pi/2): probably degrees read as radians; declare the unit (column "
-            f"'phi[deg]', header '# units: angle=deg', or angle_unit='deg' / --angle-unit deg)")
+            f"can turn (pi/2): {_angle_guess(phimax)} read as radians; declare the unit "
+            f"(column 'phi[deg]' or 'phi[mrad]', header '# units: angle=deg', or "
+            f"angle_unit='deg' / --angle-unit deg)")
+
+
+def _angle_guess(phimax: float) -> str:
+    """What angles reaching `phimax` "radians" probably are: degrees, milliradians, or either
+    (a robot that turns its platform by at most pi/2 = 90 deg = 1571 mrad; the scenes' turn by
+    a few degrees, tens of milliradians)."""
+    deg = phimax <= 90.0
+    mrad = phimax <= 1000.0 * math.pi / 2
+    if deg and mrad:
+        return "probably degrees or milliradians"
+    return "probably milliradians" if mrad else "probably degrees" if deg else "an unknown unit"
 
 
 _HEADER_UNITS = re.compile(r"^\s*#\s*units?\s*:\s*(.*)$", re.IGNORECASE)

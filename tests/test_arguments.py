@@ -204,3 +204,12 @@ def test_a_byte_order_mark_before_toml_is_skipped(tmp_path):
     params_json = tmp_path / "robot.json"
     params_json.write_bytes(b"\xef\xbb\xbf" + b'{"t": 0.0004}')
     assert float(pj.load_params(str(params_json)).t) == 4e-4
+
+
+def test_identify_refuses_the_same_data_twice(exp):
+    """The same experiment given twice (`--data run1.csv --data run1.csv`) would narrow the
+    intervals by sqrt 2 as if the noise were new: refused, naming both, before compiling."""
+    other = pj.experiment(np.asarray(exp.ts), np.asarray(exp.X), tau=np.asarray(exp.tau),
+                          name="copy")
+    with pytest.raises(pj.DataError, match=r"experiments 0 \('home'\) and 1 \('copy'\).*sqrt 2"):
+        pj.identify([exp, other])

@@ -214,7 +214,16 @@ def test_pose_1000_times_too_small(tmp_path):
 
 def test_degrees_read_as_radians(tmp_path):
     t, x, y, phi = _good_rows(phi_scale=180 / math.pi * 5)  # up to 20 deg, read as rad
-    with pytest.raises(DataError, match="probably degrees read as radians"):
+    # 20 could be degrees or milliradians: both named
+    with pytest.raises(DataError, match="probably degrees or milliradians read as radians"):
+        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+
+
+def test_milliradians_read_as_radians(tmp_path):
+    # up to 350 mrad: beyond 90, so not degrees (it was called "probably degrees")
+    t, x, y, phi = _good_rows(phi_scale=1000 * 5)
+    assert 90 < np.max(np.abs(phi)) < 1000 * math.pi / 2
+    with pytest.raises(DataError, match="probably milliradians read as radians"):
         pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
 
 

@@ -968,25 +968,40 @@ def test_cli_design_on_a_path_file_refuses_before_compiling(tmp_path, capsys):
     assert "spans t = 0 to 0.5 s" in capsys.readouterr().err
 
 
+REACH_SPEC = """
+[variables]
+l1 = [0.15, 0.3]
+
+[objective]
+minimize = "moving_mass_kg"
+
+[[constraints]]
+metric = "path_reach_margin"
+lower = 0.05
+
+[settings]
+grid = 100
+"""
+
+
 @pytest.mark.slow
 def test_cli_design_on_a_path_file(tmp_path):
-    """`ppr-jax design --path circle.csv`: the singularity-margin design of
-    `test_path_through_a_singularity_is_never_the_optimum` along the same circle read from a
-    file, whose optimum the bisection on the margin by hand gives."""
-    _circle_csv(tmp_path / "circle.csv")
-    spec = tmp_path / "spec.toml"
-    spec.write_text(SING_SPEC)
+    """`ppr-jax design --path circle.csv`: the lightest drive links that keep servo-circle's
+    circle, read from a file, within reach by a margin; the same design on the registered
+    scene (its exact circle) finds the same links."""
+    import json
+
     from ppr_jax._cli import main
 
+    _circle_csv(tmp_path / "circle.csv")
+    spec = tmp_path / "spec.toml"
+    spec.write_text(REACH_SPEC)
     out = tmp_path / "out"
     assert main(["design", "--spec", str(spec), "--path", str(tmp_path / "circle.csv"),
                  "--out", str(out)]) == 0
-    import json
-
     data = json.loads((out / "design.json").read_text())
-    h = data["x"]["h"]
-    lo, hi = 0.08, 0.137
-    for _ in range(25):
-        mid = (lo + hi) / 2
-        lo, hi = (mid, hi) if singular_margin_by_hand(mid) > 0.05 else (lo, mid)
-    assert h == pytest.approx(lo, rel=1e-3)
+    ref = pj.design({"l1": (0.15, 0.3)}, {"minimize": "moving_mass_kg"},
+                    [pj.Constraint("path_reach_margin", lower=0.05)], scene="servo-circle",
+                    options=pj.SceneOptions(t_end=7.54), grid=100)
+    assert 0.15 < ref.x["l1"] < 0.3
+    assert data["x"]["l1"] == pytest.approx(ref.x["l1"], rel=1e-4)

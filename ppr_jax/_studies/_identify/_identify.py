@@ -295,6 +295,7 @@ def identify(
         if not isinstance(e, Experiment):
             raise DataError(f"experiments must be Experiment objects (load_csv), got "
                             f"{type(e).__name__}")
+    _check_distinct(exps)
     if actuation not in ACTUATIONS:
         raise IdentificationError(f"unknown actuation {actuation!r}; allowed: "
                                   f"{', '.join(ACTUATIONS)}")
@@ -648,3 +649,24 @@ def _check_solver_args(loss_scale, max_iter, xtol, ftol, stat_tol, rtol, atol, m
             check_number(name, value, lo, hi, unit, integer=integer, open_lo=open_lo)
         except PPRError as err:
             raise IdentificationError(str(err)) from None
+
+
+def _check_distinct(exps) -> None:
+    """Refuse an experiment given twice (`DataError` naming both): its residuals would count
+    as independent samples of new noise and narrow every interval by sqrt 2."""
+    import numpy as np
+
+    def key(e):
+        return tuple(None if a is None else np.asarray(a).tobytes()
+                     for a in (e.ts, e.X, e.th, e.tau))
+
+    seen = {}
+    for i, e in enumerate(exps):
+        k = key(e)
+        if k in seen:
+            j = seen[k]
+            raise DataError(f"experiments {j} ({exps[j].name!r}) and {i} ({e.name!r}) hold the "
+                            f"same samples: given twice, they would count as independent "
+                            f"measurements and narrow every interval by sqrt 2; give each "
+                            f"experiment once")
+        seen[k] = i
