@@ -42,12 +42,19 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._errors import PPRError
+
 #: how far before the first output time (and, on a horizon shorter than this, after it) a scene's
 #: input table reaches (s): the quasi-static start differentiates its balance over a stencil of
 #: +-2 `_statics.QS_DT` about t0 and reads the input there, which must be the input's own
 #: values, not the table's extrapolation (a start that depends on the horizon: 49 um and
 #: 0.67 mrad at t_end = 50 ms for L2, 2 % of a 1 s move's tracking error)
 START_MARGIN = 1e-2
+#: Most breakpoints (a path's samples) an input table aligns its panels to: each is a panel of
+#: `PANEL_NODES` evaluations of the input, all in one vectorised call, about 3.4 kB of memory a
+#: node for the inverse dynamics (a path file of 1e6 samples asked XLA for 54 GB after 97 s of
+#: compiling); 50,000 keep it under 3 GB.
+MAX_BREAKS = 50_000
 #: Chebyshev-Lobatto nodes per panel (the panel's polynomial has degree PANEL_NODES - 1).
 PANEL_NODES = 16
 #: Panel length in radians of the nominal motion where the horizon is known: the paper's torques
@@ -207,6 +214,12 @@ def scene_input(fn: Callable, ts, panels: Optional[int] = None, aux: bool = Fals
     panel count). None: equal panels (the circle's)."""
     P = scene_panels(ts.shape[0]) if panels is None else int(panels)
     m = PANEL_NODES
+    if breaks is not None and breaks.shape[0] > MAX_BREAKS:
+        # judged from the static shape, before anything compiles
+        raise PPRError(
+            f"the path has {breaks.shape[0]} samples: its input table would hold a panel of "
+            f"{m} evaluations per sample (about {breaks.shape[0] * m * 3.4e3 / 1e9:.0f} GB); "
+            f"resample the path file to at most {MAX_BREAKS} samples, or split the experiment")
     t0 = jnp.asarray(ts[0], float)
     t1 = jnp.maximum(ts[-1], t0 + START_MARGIN)
     if breaks is not None:

@@ -552,3 +552,22 @@ def test_torque_driven_spline_scene_matches_the_scipy_l2(tmp_path):
     assert np.abs(out["X"][:, 2] - np.asarray(r.X)[:, 2]).max() < 1e-7
     # the robot left the path (L2 is not the torques' L1), so the agreement is not trivial
     assert np.abs(np.asarray(r.X) - np.asarray(r.X_nominal)).max() > 1e-5
+
+
+def test_a_path_too_long_for_its_input_table_is_refused_before_compiling(tmp_path,
+                                                                          monkeypatch):
+    """A path whose input table would hold a panel per sample beyond `MAX_BREAKS` (a file of
+    1e6 samples asked XLA for 54 GB after 97 s of compiling) is refused while tracing, naming
+    its samples and the limit (here with the limit lowered to 10, on 21 samples)."""
+    import ppr_jax._tabulated as tab
+
+    monkeypatch.setattr(tab, "MAX_BREAKS", 10)
+    ts = np.linspace(0.0, 0.2, 21)
+    s = ts / 0.2
+    X = np.stack([0.45 + 0.01 * s, 0.26 + 0.0 * s, 0.0 * s], axis=1)
+    f = tmp_path / "long.csv"
+    f.write_text("time[s],x[m],y[m],phi[rad]\n" + "".join(
+        ",".join(repr(float(v)) for v in (t, *x)) + "\n" for t, x in zip(ts, X)))
+    scene = pj.PathScene(pj.load_path(str(f)), drive="torque")
+    with pytest.raises(pj.PPRError, match="21 samples.*at most 10 samples"):
+        pj.solve_scene(scene, model="rigid", options=pj.SceneOptions(t_end=0.2, n_out=3))
