@@ -104,10 +104,29 @@ def experiment(ts, X, th=None, tau=None, *, name: str = "experiment",
                check_units: bool = True, max_gap: Optional[float] = None) -> Experiment:
     """Validate arrays in SI units and build an `Experiment` (see `load_csv` for the checks).
 
-    ts (n,) s; X (n, 3) m, m, rad; th, tau (n, 3) rad, N m or None. `lines` gives the row labels
-    used in messages (file lines; default: 1-based sample index). `max_gap`: refuse a time step
-    longer than this many median steps (`check_gaps`; `load_csv` passes `GAP_FACTOR`); None
-    (the default for arrays): uneven sampling is accepted."""
+    **Arguments:**
+
+    - `ts`: (n,) sample times (s).
+    - `X`: (n, 3) platform poses (m, m, rad).
+    - `th`, `tau`: (n, 3) actuated angles (rad) and actuator torques (N m), or None (default).
+    - `name`: the experiment's name, used in messages (default "experiment").
+    - `min_samples`: the fewest samples accepted (default 5).
+    - `lines`: the row labels used in messages (file lines); None (default): 1-based sample
+      index.
+    - `check_units`: refuse data that looks like wrong units (default True; as `load_csv`).
+    - `max_gap`: refuse a time step longer than this many median steps (`check_gaps`;
+      `load_csv` passes `GAP_FACTOR`); None (the default for arrays): uneven sampling is
+      accepted.
+
+    **Returns:**
+
+    An `Experiment` holding the arrays as float64.
+
+    **Raises:**
+
+    `DataError` naming the rows for wrong shapes, NaN or infinite values, too few samples,
+    duplicated or decreasing times, a gap, or (with `check_units`) wrong-looking units.
+    """
     ts = np.asarray(ts, dtype=np.float64)
     X = np.asarray(X, dtype=np.float64)
     n = ts.shape[0] if ts.ndim == 1 else -1
@@ -425,15 +444,35 @@ def load_csv(path: str, *, time_unit: Optional[str] = None, length_unit: Optiona
              max_gap: Optional[float] = GAP_FACTOR) -> Experiment:
     """Read a tracker CSV file (format: module docstring) into an `Experiment` in SI units.
 
-    Units: column ``name[unit]`` > header ``# units: kind=unit, ...`` > the `*_unit` options > SI;
-    an option that contradicts a declared unit raises `DataError`. NaN (or empty) cells make
-    their rows fail with their line numbers, unless `drop_nan` (then they are dropped and listed
-    in `Experiment.dropped_lines`). Raises `DataError` for: a missing file, missing or unknown
-    columns (the message lists the allowed names), unreadable numbers, fewer than `min_samples`
-    rows, duplicated or decreasing times, a gap (a time step longer than `max_gap` times the
-    median step, `GAP_FACTOR` 10, as the path loaders refuse; None accepts uneven sampling),
-    poses about 1000 times off the workspace, |phi| > pi/2 or a median time step above 1 s
-    (wrong units: mm, degrees or ms read as SI; `check_units=False` skips these)."""
+    Units: column ``name[unit]`` > header ``# units: kind=unit, ...`` > the `*_unit` options > SI.
+
+    **Arguments:**
+
+    - `path`: the CSV file.
+    - `time_unit`, `length_unit`, `angle_unit`, `torque_unit`: the units of columns that
+      declare none (`UNITS`: s, ms; m, mm; rad, mrad, deg; Nm, Nmm); None (default): SI. An
+      option that contradicts a declared unit raises `DataError`.
+    - `drop_nan`: NaN (or empty) cells make their rows fail with their line numbers, unless
+      `drop_nan` (then they are dropped and listed in `Experiment.dropped_lines`); default
+      False.
+    - `min_samples`: the fewest rows accepted (default 5).
+    - `name`: the experiment's name; None (default): the file's name without extension.
+    - `check_units`: refuse poses about 1000 times off the workspace, |phi| > pi/2 or a median
+      time step above 1 s (wrong units: mm, degrees or ms read as SI); False skips these.
+    - `max_gap`: refuse a gap, a time step longer than `max_gap` times the median step
+      (default `GAP_FACTOR` 10, as the path loaders refuse); None accepts uneven sampling.
+
+    **Returns:**
+
+    An `Experiment` in SI units.
+
+    **Raises:**
+
+    `DataError` for: a missing file, missing or unknown columns (the message lists the allowed
+    names), unreadable numbers, fewer than `min_samples` rows, duplicated or decreasing times,
+    a gap, a unit option contradicting a declared unit, NaN cells without `drop_nan`, or (with
+    `check_units`) wrong-looking units.
+    """
     table = read_columns(path, time_unit=time_unit, length_unit=length_unit,
                          angle_unit=angle_unit, torque_unit=torque_unit, drop_nan=drop_nan)
     source, col, lines = table.source, table.columns, table.lines
@@ -467,7 +506,21 @@ def load_experiments(paths: Sequence[str], **kw) -> list[Experiment]:
 
 def write_csv(path: str, exp: Experiment, *, length_unit: str = "mm", angle_unit: str = "rad",
               comments: Sequence[str] = ()) -> None:
-    """Write an `Experiment` as a tracker file (units in the header comment and column names)."""
+    """Write an `Experiment` as a tracker file (units in the header comment and column names).
+
+    **Arguments:**
+
+    - `path`: the file to write (its directory is created).
+    - `exp`: the `Experiment` (SI units); its angles and torques are written where not None.
+    - `length_unit`: unit of x and y in the file, "m" or "mm" (default "mm").
+    - `angle_unit`: unit of phi and the angles in the file, "rad", "mrad" or "deg" (default
+      "rad"). Torques are written in N m.
+    - `comments`: lines written first as `# ` comments (default none).
+
+    **Returns:**
+
+    None.
+    """
     fl = UNITS["length"][length_unit]
     fa = UNITS["angle"][angle_unit]
     cols = ["time[s]", f"x[{length_unit}]", f"y[{length_unit}]", f"phi[{angle_unit}]"]

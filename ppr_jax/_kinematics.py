@@ -181,8 +181,25 @@ def forward_kinematics(
 
     Newton on th_a(X) = th_a (optimistix, differentiable by the implicit function theorem),
     started at `X_guess` (default home): pass the previous solution to warm-start along a path.
-    The assembly mode found is the one nearest the guess. Raises `PPRError` if Newton does not
-    converge or lands on an unreachable / singular configuration."""
+    The assembly mode found is the one nearest the guess.
+
+    **Arguments:**
+
+    - `robot`: a `Robot` or `RobotParams` (one robot, not a batch).
+    - `th_a`: (3,) actuated angles (rad).
+    - `X_guess`: (3,) starting pose of Newton (m, m, rad); None (default): the home pose.
+    - `model`: `Reduced()` (L1, the default when None) or `Rigid()` (L0).
+    - `rtol`, `atol`: Newton's relative and absolute tolerances (default 1e-13).
+    - `max_steps`: the most Newton steps (default 50).
+
+    **Returns:**
+
+    (3,) platform pose X (m, m, rad).
+
+    **Raises:**
+
+    `PPRError` if Newton does not converge or lands on an unreachable / singular configuration.
+    """
     robot, model, th_a, X_guess = _fk_inputs(robot, th_a, X_guess, model)
     X, result = _fk_jit(model, robot, th_a, X_guess, rtol, atol, max_steps)
     X = raise_if(
@@ -302,7 +319,26 @@ def forward_kinematics_path(
     crosses a singularity or Newton jumped to another branch, which a warm start does not
     otherwise reveal (sample the path more finely if the jump is only too large a step); and no
     fold: angles that pass through a type-II singularity, where the solution turns back in its
-    own assembly mode with det S's sign unchanged (`fold_flags`)."""
+    own assembly mode with det S's sign unchanged (`fold_flags`).
+
+    **Arguments:**
+
+    - `robot`: a `Robot` or `RobotParams` (one robot, not a batch).
+    - `th_a_path`: (m, 3) actuated angles at the m samples (rad).
+    - `X0`: (3,) starting pose of the first Newton solve (m, m, rad); None (default): the home
+      pose.
+    - `model`: `Reduced()` (L1, the default when None) or `Rigid()` (L0).
+    - `rtol`, `atol`: Newton's relative and absolute tolerances (default 1e-13).
+    - `max_steps`: the most Newton steps per sample (default 50).
+
+    **Returns:**
+
+    (m, 3) platform poses X (m, m, rad), one per sample.
+
+    **Raises:**
+
+    `PPRError` naming the failed samples for any of the checks above, or if `th_a_path` is not
+    of shape (m, 3)."""
     robot, model, th_a_path, X0 = _fk_inputs(robot, th_a_path, X0, model, ("th_a_path", "X0"))
     if th_a_path.ndim != 2 or th_a_path.shape[-1] != 3:
         raise PPRError(f"th_a_path must have shape (m, 3), got {th_a_path.shape}")

@@ -35,6 +35,19 @@ OUTPUT_CHUNKS = 5
 
 
 def outputs(model: AbstractModel, robot: Robot, z, zdot) -> Outputs:
+    """The output signals of a solution: pose, joint-end rotations, loop residual and energies.
+
+    **Arguments:**
+
+    - `model`: the model (L0-L3) whose coordinates `z` are.
+    - `robot`: a `Robot` or `RobotParams`.
+    - `z`, `zdot`: (m, n) coordinates and their rates at the m output times.
+
+    **Returns:**
+
+    `Outputs`: X (m, 3) pose (m, m, rad); end_rot (m, 2) rotations of chain 1's compliant-joint
+    ends (rad); residual (m,) max loop-closure residual (m); kinetic, potential (m,) energy (J).
+    """
     robot = as_robot(robot)
 
     def one(z, zd):
@@ -213,5 +226,17 @@ def metric_arrays(out: Outputs, X_nominal, center, radius) -> dict:
 
 
 def metrics(out: Outputs, X_nominal, center, radius) -> dict:
-    """The scene metrics (floats) from `outputs` and the nominal pose samples (m, 3)."""
+    """The scene metrics (floats) from `outputs` and the nominal pose samples (m, 3).
+
+    **Arguments:**
+
+    - `out`: the `Outputs` of one run (no batch axis).
+    - `X_nominal`: (m, 3) nominal pose at the same output times (m, m, rad).
+    - `center`: (2,) centre of the reference circle (m).
+    - `radius`: radius of the reference circle (m).
+
+    **Returns:**
+
+    A dict {metric name: float} (`metric_table`).
+    """
     return {k: float(v) for k, v in metric_arrays(out, X_nominal, center, radius).items()}

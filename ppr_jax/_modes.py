@@ -50,11 +50,29 @@ def modes(
 ) -> Modes:
     """Linear modes of `model` about its static equilibrium near pose X (default home).
 
-    actuators="locked": the actuated angles are held at the L1 inverse-kinematics angles of X
-    (the L0 model's own for L0); L0 and L1 then have no free coordinate and no mode.
-    actuators="free": zero actuator torque, every coordinate free. `program_dir`: a directory
-    of stored programs (`run_scene`'s; the command line's): the program is loaded from there,
-    or exported there on first use; None: compiled in this process.
+    **Arguments:**
+
+    - `model`: a model (L0-L3); `robot`: a `Robot` or `RobotParams`.
+    - `X`: (3,) pose near which the equilibrium is sought (m, m, rad); None (default): home.
+    - `actuators`: "locked" (default): the actuated angles are held at the L1
+      inverse-kinematics angles of X (the L0 model's own for L0); L0 and L1 then have no free
+      coordinate and no mode. "free": zero actuator torque, every coordinate free.
+    - `wrench`: (3,) constant platform load (N, N, N m); None (default): no load.
+    - `program_dir`: a directory of stored programs (`run_scene`'s; the command line's): the
+      program is loaded from there, or exported there on first use; None (default): compiled in
+      this process.
+
+    **Returns:**
+
+    `Modes`: signed natural frequencies (Hz, negative = unstable), growth rates (1/s),
+    eigenvalues (rad^2/s^2), mass-normalized mode shapes, the equilibrium z_eq (n,), the
+    linearization M, K over the free coordinates, and their indices `free`.
+
+    **Raises:**
+
+    `PPRError` for `actuators` other than "locked" or "free", a pose or wrench not of shape
+    (3,), or if the static equilibrium is not found (the load may exceed what the joints hold,
+    or the pose is far from an equilibrium).
     """
     if actuators not in ("locked", "free"):
         raise PPRError(f"actuators must be 'locked' or 'free', got {actuators!r}")

@@ -82,15 +82,35 @@ def static_equilibrium(
     check: bool = True,
     return_failed: bool = False,
 ):
-    """Static equilibrium z* of `model` near `z_guess`.
+    """Static equilibrium z* of `model` near `z_guess` (Newton on the free rows of
+    M z'' + h = Q at zero velocity and acceleration).
 
-    locked=True: the actuated angles stay at their values in `z_guess` and only the other
-    coordinates move (L2: the pose; L0/L1 have none left and `z_guess` is returned).
-    locked=False: every coordinate is free and the actuators apply constant torques `tau`
-    (default 0, "free actuators"). `wrench` (3,) is a constant platform load.
-    Returns (z*, free_index) with free_index the coordinates that were free, and with
-    `return_failed` a traceable bool `failed` as a third element (`check=False` then leaves the
-    check to the caller: no host callback inside a compiled program)."""
+    **Arguments:**
+
+    - `model`: a model (L0-L3); `robot`: a `Robot` or `RobotParams`.
+    - `z_guess`: (n,) starting coordinates of Newton; with `locked`, also the source of the
+      held actuated angles.
+    - `locked`: True: the actuated angles stay at their values in `z_guess` and only the other
+      coordinates move (L2: the pose; L0/L1 have none left and `z_guess` is returned).
+      False: every coordinate is free and the actuators apply constant torques `tau`.
+    - `tau`: (3,) constant actuator torques (N m) when not `locked`; None (default): 0, "free
+      actuators".
+    - `wrench`: (3,) constant platform load (N, N, N m); None (default): no load.
+    - `check`: raise `PPRError` if Newton does not converge (default True). `check=False`
+      leaves the check to the caller (with `return_failed`): no host callback inside a compiled
+      program.
+    - `return_failed`: also return the traceable bool `failed` (default False).
+
+    **Returns:**
+
+    (z*, free_index): z* (n,) the equilibrium coordinates and free_index the tuple of the
+    coordinates that were free; with `return_failed`, (z*, free_index, failed).
+
+    **Raises:**
+
+    `PPRError` (with `check`) if Newton does not converge: the load may exceed what the joints
+    hold, or the guess is far from an equilibrium.
+    """
     robot = as_robot(robot)
     n = model.n_dof
     tau = jnp.zeros(3) if tau is None else jnp.asarray(tau, dtype=jnp.float64)

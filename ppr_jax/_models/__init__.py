@@ -43,12 +43,27 @@ def get_model(
     strip_dynamics: str = "quasi-static",
     strip_loss: float = 0.0,
 ) -> AbstractModel:
-    """A model from its name (see `MODELS`: rigid, reduced, double1r, beam) or an instance;
-    `n_elements` is the number of beam elements per strip of `beam` (default 8) and
-    `strip_dynamics` how its strips move: `quasi-static` (`QuasiStaticBeam`, 9 coordinates, the
-    default) or `full` (`Beam`, 3 + 3N coordinates with the strips' own modes: stiff).
-    `strip_loss` (s, default 0) is the full beam's Kelvin-Voigt retardation time (`Beam`); a
-    positive value with quasi-static strips (which have no strip modes to damp) raises."""
+    """A model from its name (see `MODELS`: rigid, reduced, double1r, beam) or an instance.
+
+    **Arguments:**
+
+    - `model`: a name in `MODELS` or an `AbstractModel` (returned as it is).
+    - `n_elements`: the number of beam elements per strip of `beam` (default 8, from 2 to 256);
+      ignored by the other models.
+    - `strip_dynamics`: how the strips of `beam` move: `quasi-static` (`QuasiStaticBeam`, 9
+      coordinates, the default) or `full` (`Beam`, 3 + 3N coordinates with the strips' own
+      modes: stiff).
+    - `strip_loss`: the full beam's Kelvin-Voigt retardation time (s, default 0; `Beam`).
+
+    **Returns:**
+
+    An `AbstractModel`.
+
+    **Raises:**
+
+    `PPRError` for an unknown name or `strip_dynamics`, `n_elements` out of range, or a positive
+    `strip_loss` with quasi-static strips (which have no strip modes to damp).
+    """
     if isinstance(model, AbstractModel):
         return model
     cls = MODELS.get(str(model))

@@ -22,8 +22,26 @@ def modes_scene(
     program_dir: Optional[str] = None,
 ) -> dict:
     """Scene `modes`: natural frequencies (Hz, signed: negative = unstable) about the static
-    equilibrium near pose X (default home), actuators locked or free, of `params` (default
-    Table 1). `program_dir`: as `modes`'."""
+    equilibrium near pose X, actuators locked or free (`modes`).
+
+    **Arguments:**
+
+    - `params`: a `RobotParams`; None (default): Table 1.
+    - `model`: a model name or instance (default `double1r`, L2).
+    - `actuators`: "locked" (default) or "free", as `modes`.
+    - `X`: (3,) pose near which the equilibrium is sought (m, m, rad); None (default): home.
+    - `program_dir`: a directory of stored programs, as `modes`'.
+
+    **Returns:**
+
+    A dict (JSON-ready): scene, model, actuators, n_free_coordinates, frequencies_hz,
+    unstable_growth_rates_per_s, eigenvalues_rad2_per_s2, equilibrium_z, a note and
+    wall_time_s (s).
+
+    **Raises:**
+
+    `PPRError` as `modes`.
+    """
     model = get_model(model)
     # `modes` is no registered scene: Table 1 (the command line's base for it too)
     params = RobotParams() if params is None else params

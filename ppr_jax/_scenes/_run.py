@@ -159,17 +159,31 @@ def paper_circle(
     adjoint: Optional[diffrax.AbstractAdjoint] = None,
 ) -> SceneResult:
     """Scene `paper-circle` (paper Fig 8-12, `PaperCircle`): torques from `torque_model`'s
-    inverse dynamics along eq 55 (default L1; `rigid` gives the paper's "simplified model"
-    torques), `model` simulated torque-driven from its quasi-static state at t = 0. Default
-    params: Table 1 with t = 0.3 mm. `options`: a `SceneOptions`; or, as a convenience, its
-    fields as keywords (`t_end`, `n_out`, `solver`, `rtol`, `atol`, `max_steps`, `trajectory`,
-    `adjoint`), not both.
+    inverse dynamics along eq 55, `model` simulated torque-driven from its quasi-static state
+    at t = 0. Metrics and timings: `run_scene`.
 
-    Returns a `SceneResult`, with a leading axis for batched `params` (`stack_params`): one
-    compiled vmapped call. A failed member raises `SimulationError` naming it; with
-    `throw=False`, or under a JAX transformation, check `result` instead (as diffrax's `throw`).
-    `adjoint`: diffrax's default (reverse mode, `jax.grad`) or `diffrax.ForwardMode()` for
-    `jax.jvp` / `jax.jacfwd` through the scene. Metrics and timings: `run_scene`."""
+    **Arguments:**
+
+    - `params`: a `RobotParams`, or a batch of them (`stack_params`): one compiled vmapped
+      call; None (default): Table 1 with t = 0.3 mm.
+    - `model`: the simulated model, a name or instance (default `reduced`, L1).
+    - `torque_model`: the model whose inverse dynamics gives the torques (default `reduced`,
+      L1; `rigid` gives the paper's "simplified model" torques).
+    - `options`: a `SceneOptions`; or, as a convenience, its fields as keywords (`t_end`,
+      `n_out`, `solver`, `rtol`, `atol`, `max_steps`, `trajectory`, `adjoint`), not both.
+    - `throw`: raise on a failed member (default True); False, as diffrax's `throw`.
+    - `adjoint`: diffrax's default (reverse mode, `jax.grad`) or `diffrax.ForwardMode()` for
+      `jax.jvp` / `jax.jacfwd` through the scene.
+
+    **Returns:**
+
+    A `SceneResult`, with a leading axis for batched `params`.
+
+    **Raises:**
+
+    `SimulationError` naming a failed member; with `throw=False`, or under a JAX
+    transformation, check `result` instead (as diffrax's `throw`).
+    """
     opts = _options(options, "paper_circle", t_end, n_out, solver, rtol, atol, max_steps,
                     adjoint, trajectory)
     c = prepare("paper-circle", params, model, opts, torque_model)
@@ -193,9 +207,25 @@ def servo_circle(
 ) -> SceneResult:
     """Scene `servo-circle` (paper Fig 17-18, `ServoCircle`): the actuated angles follow L1's
     inverse kinematics of eq 55 exactly (motion-driven); the platform's response of `model`.
-    L0/L1 need no ODE (forward kinematics + inverse dynamics). Default params: Table 1 with
-    t = 0.5 mm. Returns a `SceneResult` (batched like `paper_circle`); `options` (or its fields
-    as keywords), `throw` and `adjoint` as there."""
+    L0/L1 need no ODE (forward kinematics + inverse dynamics).
+
+    **Arguments:**
+
+    - `params`: a `RobotParams`, or a batch of them (`stack_params`), as `paper_circle`; None
+      (default): Table 1 with t = 0.5 mm.
+    - `model`: the simulated model, a name or instance (default `double1r`, L2).
+    - `options`: a `SceneOptions`, or its fields as keywords (`t_end`, `n_out`, `solver`,
+      `rtol`, `atol`, `max_steps`, `trajectory`, `adjoint`), not both, as `paper_circle`.
+    - `throw`, `adjoint`: as `paper_circle`.
+
+    **Returns:**
+
+    A `SceneResult` (batched like `paper_circle`).
+
+    **Raises:**
+
+    `SimulationError` naming a failed member, as `paper_circle`.
+    """
     opts = _options(options, "servo_circle", t_end, n_out, solver, rtol, atol, max_steps,
                     adjoint, trajectory)
     c = prepare("servo-circle", params, model, opts)

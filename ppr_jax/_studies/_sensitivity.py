@@ -189,24 +189,47 @@ def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
                 rtol: Optional[float] = None, atol: Optional[float] = None,
                 max_steps: Optional[int] = None, checkpoints: Optional[int] = None,
                 program_dir: Optional[str] = None) -> Sensitivity:
-    """d(metric)/d(parameter) of `metrics` of `scene` to `parameters` (default every float
-    parameter of `RobotParams`), at `params` (default the scene's).
+    """d(metric)/d(parameter) of `metrics` of `scene` to `parameters`, at `params`.
 
-    `scene`: a registered name or an `AbstractScene` (a `PathScene` on your own path).
-    `metrics`: default `SENSITIVITY_METRICS` on a circle, `PATH_SENSITIVITY_METRICS` on any
-    other path (`allowed_metrics` lists them all). mode 'fwd': `jax.jacfwd` with
-    `diffrax.ForwardMode()` (cost grows with the number of parameters); 'rev': `jax.jacrev`
-    with `diffrax.RecursiveCheckpointAdjoint(checkpoints)` (cost grows with the number of
-    metrics; `checkpoints` None = diffrax's default, about log(steps) memory). The base
-    frequency is that of `frequency_model` (locked actuators, home pose; L1 has no mode).
-    `options`: a `SceneOptions`, its fields also as keywords (replacing the options' where not
-    None), as `sweep`; the default `model` is L2 under L1's torques (the paper's question).
-    The tracking error of a model that follows its own input (`follows_its_input`: L0 or L1
-    under its own torques, L1 in servo-circle) is refused with a `PPRError`: it is the
-    integrator's error. `program_dir`: a directory of stored programs (as `run_scene`'s; the
-    command line's): the metrics' and their derivatives' programs are exported there once and
-    loaded by later processes, which skip tracing them; None: compiled in this process (and
-    kept for later calls of the same setting). Returns `Sensitivity`."""
+    **Arguments:**
+
+    - `scene`: a registered name (default `paper-circle`) or an `AbstractScene` (a `PathScene`
+      on your own path).
+    - `params`: one `RobotParams`; None (default): the scene's.
+    - `mode`: 'fwd' (default): `jax.jacfwd` with `diffrax.ForwardMode()` (cost grows with the
+      number of parameters); 'rev': `jax.jacrev` with
+      `diffrax.RecursiveCheckpointAdjoint(checkpoints)` (cost grows with the number of
+      metrics).
+    - `model`: the simulated model; the default is L2 (`double1r`) under L1's torques (the
+      paper's question).
+    - `torque_model`: for a registered torque-driven scene, the model whose inverse dynamics
+      gives the torques; None: the scene's default.
+    - `frequency_model`: the model whose base frequency is reported (locked actuators, home
+      pose; L1 has no mode); default `double1r`.
+    - `parameters`: names of float parameters of `RobotParams`; None (default): every one.
+    - `metrics`: None (default): `SENSITIVITY_METRICS` on a circle, `PATH_SENSITIVITY_METRICS`
+      on any other path (`allowed_metrics` lists them all).
+    - `options`: a `SceneOptions`; `t_end`, `n_out`, `solver`, `rtol`, `atol`, `max_steps`:
+      its fields also as keywords (replacing the options' where not None), as `sweep`.
+    - `checkpoints`: the checkpoints of mode 'rev'; None (default): diffrax's default, about
+      log(steps) memory.
+    - `program_dir`: a directory of stored programs (as `run_scene`'s; the command line's): the
+      metrics' and their derivatives' programs are exported there once and loaded by later
+      processes, which skip tracing them; None (default): compiled in this process (and kept
+      for later calls of the same setting).
+
+    **Returns:**
+
+    A `Sensitivity`: the values, the Jacobian (k, p) dm/dp and its normalized form (p / m)
+    dm/dp, timings and settings.
+
+    **Raises:**
+
+    `PPRError` for a `mode` other than 'fwd' or 'rev', metrics not finite at these parameters
+    (failed solve), or the tracking error of a model that follows its own input
+    (`follows_its_input`: L0 or L1 under its own torques, L1 in servo-circle): it is the
+    integrator's error.
+    """
     if mode not in ("fwd", "rev"):
         raise PPRError(f"mode must be 'fwd' or 'rev', got {mode!r}")
     f, x0, names, metrics, scene_, opts, (base, ev) = _metric_function(

@@ -78,12 +78,29 @@ def design_members(vary: dict, design: str = "grid", n: Optional[int] = None,
                    seed: int = 0) -> dict:
     """The members of a sweep as {name: (N,) values}.
 
-    `design="grid"`: the Cartesian product of the given values (the first name varies slowest).
-    `design="lhs"`: a Latin hypercube of `n` members, seeded, over [min, max] of each entry of
-    `vary` (a (low, high) pair or the grid values): each parameter's range is cut into `n` equal
-    strata and every stratum holds exactly one member, at a uniform random point in it.
-    `design="list"`: the members as given, member i taking entry i of every list (all of one
-    length), e.g. one process's share of a larger design."""
+    **Arguments:**
+
+    - `vary`: {name: values} of float parameters of `RobotParams` (SI units), each a non-empty
+      1-D list of finite numbers.
+    - `design`: "grid" (default): the Cartesian product of the given values (the first name
+      varies slowest). "lhs": a Latin hypercube of `n` members, seeded, over [min, max] of each
+      entry of `vary` (a (low, high) pair or the grid values): each parameter's range is cut
+      into `n` equal strata and every stratum holds exactly one member, at a uniform random
+      point in it. "list": the members as given, member i taking entry i of every list (all of
+      one length), e.g. one process's share of a larger design.
+    - `n`: the number of members of "lhs" (>= 1); unused otherwise.
+    - `seed`: the seed of "lhs" (`numpy.random.default_rng`, default 0).
+
+    **Returns:**
+
+    A dict {name: (N,) float64 values}, one entry per name of `vary`.
+
+    **Raises:**
+
+    `PPRError` for an empty `vary`, a name that is not a float parameter, values that are not a
+    non-empty 1-D list of finite numbers, lists of different lengths under "list", a missing
+    or non-positive `n` under "lhs", or an unknown `design`.
+    """
     if not vary:
         raise PPRError("a sweep needs at least one parameter to vary")
     for name in vary:
@@ -349,29 +366,52 @@ def sweep(
 ) -> SweepResult:
     """Run `scene` over a design of parameter values and return a `SweepResult` table.
 
-    `scene`: a registered scene's name or an `AbstractScene` (a `PathScene` on your own path
-    and drive). vary: {name: values} of float parameters (`PARAM_RANGES`); `design="grid"`
-    runs their Cartesian product, `design="lhs"` a seeded Latin hypercube of `n` members over
-    each entry's [min, max], `design="list"` the members as listed (`design_members`). Other
-    parameters are `base_params` (default: the scene's). `options`: a `SceneOptions` (default
-    horizon, output times, the model's solver and tolerances); its fields may also be given
-    as keywords (`t_end`, `rtol`, ...), which replace the options' where not None.
-    `torque_model`: for a registered torque-driven scene, the model whose inverse dynamics
-    gives the torques (a scene object carries its own). The default `model` is L2 under L1's
-    torques, as in `sensitivity` (a model that follows its own input tracks the path to the
-    solver's tolerance, and such a sweep warns that its tracking errors are the solver's). The
-    columns are `sweep_metrics` of the scene's path (the radial error for a circle, the
-    tracking error for any path). Members are validated first (`validate_members`; the invalid
-    ones are reported, not run), then run `chunk_size` at a time in one compiled program (the
-    last chunk padded to the same shape).
-    `devices`: a list of devices to split each chunk over (`chunk_size` must be divisible by
-    their number); default one device.
-    `checkpoint_dir`: each finished chunk's rows are written there, and a rerun with the same
-    settings loads them instead of running them again (resume). `progress`: True for a bar on
-    stderr, or a callable `f(done, total)`. `program_dir`: a directory of stored programs (as
-    `run_scene`'s; the command line's): the chunk's program is exported there once and loaded
-    by later processes, which skip tracing it; None: compiled in this process (and kept for
-    later sweeps of the same setting and shapes).
+    Members are validated first (`validate_members`; the invalid ones are reported, not run),
+    then run `chunk_size` at a time in one compiled program (the last chunk padded to the same
+    shape). The columns are `sweep_metrics` of the scene's path (the radial error for a
+    circle, the tracking error for any path).
+
+    **Arguments:**
+
+    - `scene`: a registered scene's name (default `paper-circle`) or an `AbstractScene` (a
+      `PathScene` on your own path and drive).
+    - `base_params`: one `RobotParams` (not a batch) giving the parameters not varied; None
+      (default): the scene's.
+    - `vary`: {name: values} of float parameters (`PARAM_RANGES`, SI units).
+    - `design`, `n`, `seed`: "grid" (default) runs the Cartesian product of the values, "lhs"
+      a Latin hypercube of `n` members over each entry's [min, max], seeded by `seed`
+      (default 0), "list" the members as listed (`design_members`).
+    - `model`: the simulated model, a name or instance. The default is L2 (`double1r`) under
+      L1's torques, as in `sensitivity` (a model that follows its own input tracks the path to
+      the solver's tolerance, and such a sweep warns that its tracking errors are the
+      solver's).
+    - `torque_model`: for a registered torque-driven scene, the model whose inverse dynamics
+      gives the torques (a scene object carries its own); None: the scene's default.
+    - `options`: a `SceneOptions`; None: default horizon, output times, the model's solver and
+      tolerances.
+    - `trajectory`, `t_end`, `n_out`, `solver`, `rtol`, `atol`, `max_steps`: the options'
+      fields as keywords, which replace the options' where not None.
+    - `chunk_size`: members per compiled call (default 64).
+    - `devices`: a list of devices to split each chunk over (`chunk_size` must be divisible by
+      their number); None (default): one device.
+    - `checkpoint_dir`: each finished chunk's rows are written there, and a rerun with the same
+      settings loads them instead of running them again (resume); None (default): none kept.
+    - `progress`: True for a bar on stderr, or a callable `f(done, total)`; False (default):
+      silent.
+    - `program_dir`: a directory of stored programs (as `run_scene`'s; the command line's): the
+      chunk's program is exported there once and loaded by later processes, which skip tracing
+      it; None (default): compiled in this process (and kept for later sweeps of the same
+      setting and shapes).
+
+    **Returns:**
+
+    A `SweepResult`: one row per member (status, reason, varied parameters, metrics), with
+    timings and the sweep's settings.
+
+    **Raises:**
+
+    `PPRError` for a batch as `base_params`, a `chunk_size` out of range or not divisible by
+    the number of `devices`, an invalid design (`design_members`) or invalid options.
     """
     scene_ = get_scene(scene, torque_model)
     base = scene_.default_params() if base_params is None else base_params

@@ -49,15 +49,39 @@ def synthesize(
     program_dir: Optional[str] = None,
     **scene_kw,
 ) -> Experiment:
-    """A tracker-like `Experiment` from a scene: the simulated pose sampled at `rate` (Hz) from
-    t = 0 to `t_end` (s, rounded down to whole samples), with independent Gaussian noise of
-    standard deviation `noise_pos` (m) on x and y and `noise_phi` (rad) on phi, seeded
-    (`numpy.random.default_rng(seed)`). The actuated angles (noise-free: encoders are far finer
-    than a tracker) and the torques (applied, or the reactions of a motion-driven scene) are
-    included. `scene`: a registered name or an `AbstractScene` (a `PathScene` on your own
-    path). `params` defaults to the scene's; `scene_kw`: `torque_model` (a registered
-    torque-driven scene's) and `SceneOptions`' fields (solver, tolerances). `program_dir`: a
-    directory of stored programs (`solve_scene`'s; the command line's), or None."""
+    """A tracker-like `Experiment` from a scene: the simulated pose with independent Gaussian
+    noise, the actuated angles (noise-free: encoders are far finer than a tracker) and the
+    torques (applied, or the reactions of a motion-driven scene).
+
+    **Arguments:**
+
+    - `scene`: a registered name (default `servo-circle`) or an `AbstractScene` (a `PathScene`
+      on your own path).
+    - `model`: the simulated model, a name or instance (default `double1r`, L2).
+    - `params`: one `RobotParams`; None (default): the scene's.
+    - `noise_pos`: standard deviation of the noise on x and y (m, >= 0, default 1e-4).
+    - `noise_phi`: standard deviation of the noise on phi (rad, >= 0, default 1e-3).
+    - `rate`: sampling rate (Hz, > 0, default 100).
+    - `t_end`: the samples run from t = 0 to `t_end` (s, > 0, default 7.54), rounded down to
+      whole samples.
+    - `seed`: the noise's seed (`numpy.random.default_rng(seed)`, default 0).
+    - `name`: the experiment's name (default "synthetic").
+    - `n_elements`: beam elements per strip when `model` is `beam` (`get_model`).
+    - `program_dir`: a directory of stored programs (`solve_scene`'s; the command line's), or
+      None (default): compiled in this process.
+    - `scene_kw`: `torque_model` (a registered torque-driven scene's) and `SceneOptions`'
+      fields (solver, tolerances).
+
+    **Returns:**
+
+    An `Experiment` with ts (n,) s, X (n, 3) m, m, rad, th (n, 3) rad and tau (n, 3) N m.
+
+    **Raises:**
+
+    `DataError` for a non-finite, negative or zero number among `noise_pos`, `noise_phi`,
+    `rate`, `t_end` (noise may be 0), fewer than 2 samples, or an unknown keyword in
+    `scene_kw`.
+    """
     scene_ = get_scene(scene, scene_kw.pop("torque_model", None))
     try:
         options = SceneOptions().updated(**scene_kw)
