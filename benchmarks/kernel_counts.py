@@ -324,9 +324,18 @@ def classify(stack: tuple, rk_error_line: int = 0) -> str:
     return "other_fixed"
 
 
-def attribute(events: list, index: dict, rk_error_line: int = 0) -> dict:
+def _innermost(stack: tuple) -> str:
+    """The innermost frame of the library or diffrax in `stack`: where a kernel comes from."""
+    for path, func, _ in stack:
+        if "ppr_jax" in path or "diffrax" in path:
+            return f"{os.path.basename(path)}:{func}"
+    return "?"
+
+
+def attribute(events: list, index: dict, rk_error_line: int = 0, detail: dict = None) -> dict:
     """{part: [kernel events, profiled ns]} of a trace's events: each kernel's duration plus the
-    idle gap before it on its thread (its launch)."""
+    idle gap before it on its thread (its launch). `detail`, where given, gets {part:
+    Counter(innermost library or diffrax function: kernel events)}."""
     out = {p: [0, 0] for p, _, _ in PARTS if p != "dispatch"}
     by_line = collections.defaultdict(list)
     for e in events:
@@ -338,9 +347,13 @@ def attribute(events: list, index: dict, rk_error_line: int = 0) -> dict:
         prev_end = None
         for name, start, dur, _ in evs:
             if name not in cache:
-                cache[name] = classify(index[name][1] if name in index else (), rk_error_line)
+                stack = index[name][1] if name in index else ()
+                cache[name] = (classify(stack, rk_error_line), _innermost(stack))
+            part, where = cache[name]
+            if detail is not None:
+                detail.setdefault(part, collections.Counter())[where] += 1
             gap = 0 if prev_end is None else max(0, start - prev_end)
-            row = out[cache[name]]
+            row = out[part]
             row[0] += 1
             row[1] += dur + gap
             prev_end = start + dur
@@ -458,7 +471,8 @@ def profile_model(model_name, t_end, n_out, short_t_end, repeats) -> dict:
     text = compiled.as_text()
     index = hlo_index(text)
     events = _trace_events(compiled, (dyn,))
-    parts = attribute(events, index, _rk_error_line())
+    detail: dict = {}
+    parts = attribute(events, index, _rk_error_line(), detail)
     n_kernels = sum(v[0] for v in parts.values())
     traced_ns = sum(v[1] for v in parts.values()) or 1
     row["kernel_events"] = n_kernels
@@ -491,6 +505,8 @@ def profile_model(model_name, t_end, n_out, short_t_end, repeats) -> dict:
             step[name] = {"kernels_per_step": k / steps, "us_per_step": share * work * 1e6 / steps,
                           "share": share}
     row["fixed"], row["step"] = fixed, step
+    # where each part's kernels come from: its most frequent innermost functions
+    row["detail"] = {p: c.most_common(8) for p, c in detail.items()}
     row["attributed_kernels_per_step"] = sum(v["kernels_per_step"] for v in step.values())
     row["attributed_us_per_step"] = sum(v["us_per_step"] for v in step.values())
     try:
