@@ -12,8 +12,9 @@ ahead of time and then
 - timed: the run (minimum of `--repeats` after a warm-up, each ending in `block_until_ready`),
   and the dispatch alone (a compiled function of the same arguments that computes nothing);
 - its kernel events counted in JAX's profiler trace of one run (every event that names an HLO
-  instruction, less the loops and conditionals that contain others), each with its duration
-  plus the idle gap before it on its thread (the launch cost);
+  instruction, less the loops and conditionals that contain others), each with its duration;
+  the traced run's time outside kernels (launches, loop control) is spread evenly over its
+  kernels, the cost of launching one;
 - each event attributed to a part by the Python call stack that XLA keeps for its HLO
   instruction (`stack_frame_id` in the compiled module's text: the frames JAX recorded while
   tracing, no annotation in the library needed, so a checkout of another commit is measured the
@@ -29,8 +30,8 @@ ahead of time and then
   Runge-Kutta stage arithmetic (`rk_stages`), the error estimate and step-size controller
   (`error_controller`), saving at output times (`saving`: interpolation and the store) and the
   loop's status checks and bookkeeping (`loop_status`, with the freeze of a failed member).
-  A part's time is its share of the profiled run's kernel time applied to the unprofiled run
-  less the dispatch;
+  A part's time is its share of the profiled run's time (its kernels' durations and their
+  launches) applied to the unprofiled run less the dispatch;
 - the same program over `--short-t-end` (0.01 s, the same output count and input table: one
   compiled program, the horizon is an argument): the difference of the two runs over the
   difference of their steps is the cost of a step (`us_per_step`, `kernels_per_step`), free of
@@ -111,7 +112,8 @@ PARTS = (
     ("loop_status", "step", "the loop's status checks and bookkeeping"),
 )
 STEP_PARTS = tuple(p for p, kind, _ in PARTS if kind == "step")
-#: innermost-first function names (substrings of the qualified name) -> right-hand-side part
+#: function names (substrings of the qualified name) anywhere in a right-hand side's call stack
+#: -> its part, the first that matches
 RHS_KEYS = (
     (("torque_at", "angles_at", "Chebyshev", "Interpolated", "PiecewiseCubic"), "input_lookup"),
     (("ik_reduced", ".strips", ".clamps", "_strip", "strip_"), "rhs_spring_solve"),
@@ -292,12 +294,14 @@ def classify(stack: tuple, rk_error_line: int = 0) -> str:
                   for p, f, _ in stack)
     if in_loop:
         if has("_vector_field", "ODETerm.vf"):
-            for _, f, _ in stack:
-                if f.startswith("_vector_field"):
-                    return "loop_status" if "<locals>" in f else "rhs_eom"
-                for keys, part in RHS_KEYS:
-                    if any(k in f for k in keys):
-                        return part
+            for p, f, _ in stack:  # the freeze of a failed member, in the vector field itself
+                if "ppr_jax" in p:
+                    if f.startswith("_vector_field.<locals>"):
+                        return "loop_status"
+                    break
+            for keys, part in RHS_KEYS:  # in this order: a solve inside the strips is theirs
+                if has(*keys):
+                    return part
             return "rhs_eom"
         if has("save_ts", "Interpolation", "interpolat", "save"):
             return "saving"
@@ -333,30 +337,29 @@ def _innermost(stack: tuple) -> str:
 
 
 def attribute(events: list, index: dict, rk_error_line: int = 0, detail: dict = None) -> dict:
-    """{part: [kernel events, profiled ns]} of a trace's events: each kernel's duration plus the
-    idle gap before it on its thread (its launch). `detail`, where given, gets {part:
+    """{part: [kernel events, profiled ns]} of a trace's events: each kernel's duration, and the
+    traced run's time outside kernels (from the first kernel's start to the last one's end:
+    launches, loop control) spread evenly over the kernels. `detail`, where given, gets {part:
     Counter(innermost library or diffrax function: kernel events)}."""
     out = {p: [0, 0] for p, _, _ in PARTS if p != "dispatch"}
-    by_line = collections.defaultdict(list)
-    for e in events:
-        if _is_kernel(e[0], index):
-            by_line[e[3]].append(e)
+    kernels = [e for e in events if _is_kernel(e[0], index)]
     cache: dict = {}
-    for evs in by_line.values():
-        evs.sort(key=lambda e: e[1])
-        prev_end = None
-        for name, start, dur, _ in evs:
-            if name not in cache:
-                stack = index[name][1] if name in index else ()
-                cache[name] = (classify(stack, rk_error_line), _innermost(stack))
-            part, where = cache[name]
-            if detail is not None:
-                detail.setdefault(part, collections.Counter())[where] += 1
-            gap = 0 if prev_end is None else max(0, start - prev_end)
-            row = out[part]
-            row[0] += 1
-            row[1] += dur + gap
-            prev_end = start + dur
+    busy = 0
+    for name, _, dur, _ in kernels:
+        if name not in cache:
+            stack = index[name][1] if name in index else ()
+            cache[name] = (classify(stack, rk_error_line), _innermost(stack))
+        part, where = cache[name]
+        if detail is not None:
+            detail.setdefault(part, collections.Counter())[where] += 1
+        out[part][0] += 1
+        out[part][1] += dur
+        busy += dur
+    if kernels:
+        wall = max(e[1] + e[2] for e in kernels) - min(e[1] for e in kernels)
+        launch = max(0.0, wall - busy) / len(kernels)
+        for row in out.values():
+            row[1] += row[0] * launch
     return out
 
 
