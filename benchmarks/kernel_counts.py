@@ -41,9 +41,12 @@ ahead of time and then
 
 `--checkout DIR` measures DIR's library (another commit: `before`) and this tree's (`after`),
 each in a fresh process with `PYTHONPATH` set to its tree, one after the other on the same
-machine, and writes both with their ratios. Kernel counts are the robust figure; times on a
-shared machine are noisy (read differences below 10-20 % as noise). The whole takes about
-2 minutes on a quiet 2-core CPU per tree (most of it compilation).
+machine, and writes both, their ratios and the speed goals met or not (`GOALS`: the run at most
+1/5 of before's for L0-L2 and 1/2 for L3, kernel events a step at most 1/10). Kernel counts are
+the robust figure; times on a shared machine are noisy (read differences below 10-20 % as
+noise). Most of the script's time is compilation: an estimated 1-2 minutes a tree on a quiet
+2-core CPU (XLA compiles L0-L2 in 3-8 s and L3 in about 15 s there), 20 minutes a tree on a
+2-core machine shared with several others.
 
 **Reverse mode's cost** (without `--all-models`, writes `benchmarks/results/kernel_counts.json`):
 the L1 `paper-circle` sensitivity (`benchmarks/sensitivity_cost.py`: 7.54 s, rtol 1e-8, L1 under
@@ -583,6 +586,25 @@ def _ratios(before: dict, after: dict) -> dict:
     return out
 
 
+#: the speed goals this profile measures, after against before: (goal, ratio's key, models, limit)
+GOALS = (
+    ("paper-circle run at most 1/5 of before's", "run_s", ("rigid", "reduced", "double1r"), 0.2),
+    ("paper-circle run at most 1/2 of before's", "run_s", ("beam",), 0.5),
+    ("kernel events a step at most 1/10 of before's", "kernels_per_step", MODELS, 0.1),
+)
+
+
+def goals(ratios: dict) -> list:
+    """[{goal, model, ratio, limit, met}] of `GOALS` from `_ratios` (met None: not measured)."""
+    rows = []
+    for goal, key, models, limit in GOALS:
+        for m in models:
+            v = ratios.get(m, {}).get(key)
+            rows.append({"goal": goal, "model": m, "ratio": v, "limit": limit,
+                         "met": None if v is None else bool(v <= limit)})
+    return rows
+
+
 def _machine() -> dict:
     import datetime
 
@@ -603,6 +625,7 @@ def engine_profile(args) -> None:
         out["before"] = _subprocess_profile(args.checkout, args)
         out["after"] = _subprocess_profile(ROOT, args)
         out["ratios"] = _ratios(out["before"], out["after"])
+        out["goals"] = goals(out["ratios"])
     else:
         out["after"] = profile_tree(args.models, args.repeats, args.short_t_end, args.l3_t_end)
     out["runtime_s"] = time.perf_counter() - t0

@@ -360,6 +360,12 @@ def engine_profile() -> str:
                  for m in models if m in ratios]
         out.append(f"After / before ({label['after']} over {label['before']}):\n\n"
                    + _table(["model", "run", "kernel events", "kernels a step", "a step"], rrows))
+    grows = [[g["goal"], g["model"], "-" if g["ratio"] is None else f"{g['ratio']:.2f}",
+              f"{g['limit']:g}", {True: "met", False: "not met", None: "-"}[g["met"]]]
+             for g in d.get("goals", [])]
+    if grows:
+        out.append("Goals:\n\n" + _table(["goal", "model", "after / before", "limit", ""],
+                                          grows))
 
     def part_table(kind):
         names = [p for p, v in d["parts"].items() if v["kind"] == kind]
