@@ -409,6 +409,8 @@ def engine_profile() -> str:
             "applied to the unprofiled run less its dispatch; the *dispatch* is a compiled "
             "call of the same arguments that computes nothing. Run times: minimum of repeats, "
             f"`{d['command']}` ({d['runtime_s'] / 60:.0f} min).") if models else ""
+    if d.get("note"):
+        text += " " + d["note"]
     out.append(text + " " + _machine(d))
     return "\n\n".join(out)
 
