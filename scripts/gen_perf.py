@@ -300,6 +300,121 @@ def studies() -> str:
     return "\n\n".join(out)
 
 
+#: the engine profile's parts as the docs name them (benchmarks/kernel_counts.py, PARTS)
+ENGINE_PART_NAMES = {
+    "dispatch": "dispatch", "input_table": "input table", "start": "quasi-static start",
+    "solver_start": "solver's start", "outputs": "outputs at the output times",
+    "status_fixed": "status", "other_fixed": "other",
+    "rhs_eom": "RHS: equations of motion", "rhs_mass_solve": "RHS: mass-matrix solve",
+    "rhs_loop_closure": "RHS: loop closure", "rhs_spring_solve": "RHS: spring / strip solve",
+    "input_lookup": "input table lookup", "rk_stages": "Runge-Kutta stages",
+    "error_controller": "error estimate, step-size controller",
+    "saving": "saving at output times", "loop_status": "status checks, loop",
+}
+
+
+def _us(us) -> str:
+    return f"{us / 1e3:.1f} ms" if us >= 1e3 else f"{us:.1f} us"
+
+
+def engine_profile() -> str:
+    """Where a `paper-circle` run's kernels and time go, per model, before and after
+    (benchmarks/kernel_counts.py --all-models, `engine_profile.json`)."""
+    d = _load("engine_profile.json")
+    if d is None:
+        return "*No engine profile results.*"
+    sides = [s for s in ("before", "after") if s in d]
+    label = {s: f"{s} ({(d[s].get('commit') or '?')[:7]})" for s in sides}
+    last = d[sides[-1]]["models"]
+    models = [m for m in MODEL_ORDER if m in last and "error" not in last[m]]
+
+    def row_of(side, m):
+        r = d[side]["models"].get(m)
+        return None if r is None or "error" in r else r
+
+    def both(m, fn):
+        cells = [fn(row_of(s, m)) if row_of(s, m) else "-" for s in sides]
+        return " / ".join(cells)
+
+    head = ["model", "steps", "run", "kernel events", "kernels a step", "a step",
+            "one right-hand side"]
+    rows = []
+    for m in models:
+        rows.append([
+            m, both(m, lambda r: f"{r['steps']:,}"),
+            both(m, lambda r: _ms(r["run_s"])),
+            both(m, lambda r: f"{r['kernel_events']:,}"),
+            both(m, lambda r: f"{r['kernels_per_step']:.0f}" if "kernels_per_step" in r else "-"),
+            both(m, lambda r: f"{r['us_per_step']:.1f} us" if "us_per_step" in r else "-"),
+            both(m, lambda r: (f"{r['rhs']['kernels']} kernels, {r['rhs']['us_per_call']:.1f} us"
+                               if "kernels" in r.get("rhs", {}) else "-")),
+        ])
+    out = []
+    if len(sides) > 1:
+        out.append("Each cell: " + " / ".join(label[s] for s in sides) + ".\n")
+    out.append(_table(head, rows))
+    ratios = d.get("ratios", {})
+    if ratios:
+        rrows = [[m] + [f"{ratios[m][k]:.2f}" if k in ratios[m] else "-"
+                        for k in ("run_s", "kernel_events", "kernels_per_step", "us_per_step")]
+                 for m in models if m in ratios]
+        out.append(f"After / before ({label['after']} over {label['before']}):\n\n"
+                   + _table(["model", "run", "kernel events", "kernels a step", "a step"], rrows))
+    grows = [[g["goal"], g["model"], "-" if g["ratio"] is None else f"{g['ratio']:.2f}",
+              f"{g['limit']:g}", {True: "met", False: "not met", None: "-"}[g["met"]]]
+             for g in d.get("goals", [])]
+    if grows:
+        out.append("Goals:\n\n" + _table(["goal", "model", "after / before", "limit", ""],
+                                          grows))
+
+    def part_table(kind):
+        names = [p for p, v in d["parts"].items() if v["kind"] == kind]
+        prows = []
+        for p in names:
+            cells = []
+            for m in models:
+                vals = []
+                for s in sides:
+                    r = row_of(s, m)
+                    if r is None:
+                        vals.append("-")
+                        continue
+                    v = r[kind].get(p) if kind == "fixed" else r["step"].get(p)
+                    if v is None:
+                        vals.append("-")
+                    elif p == "dispatch":
+                        vals.append(_us(v["us"]))
+                    elif kind == "fixed":
+                        vals.append(f"{v['kernels']:,} k, {_us(v['us'])}")
+                    else:
+                        vals.append(f"{v['kernels_per_step']:.0f} k, {_us(v['us_per_step'])}")
+                cells.append(" / ".join(vals))
+            if any(c.replace("-", "").replace("/", "").strip() for c in cells):
+                prows.append([ENGINE_PART_NAMES.get(p, p)] + cells)
+        return _table(["part"] + models, prows)
+
+    out.append("Once a run (kernel events `k` and time, per run):\n\n" + part_table("fixed"))
+    out.append("In every step of the solver (kernel events `k` and time, per step):\n\n"
+               + part_table("step"))
+    notes = [f"`paper-circle`, the scene's defaults (L1 torques, {last[models[0]]['t_end_s']:g} s, "
+             f"{last[models[0]]['n_out']} output times, each model's default solver and "
+             "tolerances)" if models else "`paper-circle`"]
+    notes += [r["note"] for m in models if (r := last[m]).get("note")]
+    text = ("; ".join(notes) + ". *Kernels a step*, *a step*: the run against the same program "
+            f"over {last[models[0]]['short']['t_end_s']:g} s, their difference over the "
+            "difference of their steps (no attribution). The parts: each kernel event of a "
+            "profiled run attributed to the Python call stack XLA keeps for its instruction, "
+            "its time the part's share of the profiled run (its kernels' durations, the time "
+            "between kernels spread evenly over all of them) "
+            "applied to the unprofiled run less its dispatch; the *dispatch* is a compiled "
+            "call of the same arguments that computes nothing. Run times: minimum of repeats, "
+            f"`{d['command']}` ({d['runtime_s'] / 60:.0f} min).") if models else ""
+    if d.get("note"):
+        text += " " + d["note"]
+    out.append(text + " " + _machine(d))
+    return "\n\n".join(out)
+
+
 def l3() -> str:
     d = _load("l3_validation.json")
     out = []
@@ -577,6 +692,7 @@ def tables() -> dict:
         "batch-gpu": batch("gpu"),
         "mjx": mjx_batch(),
         "studies": studies(),
+        "engine-profile": engine_profile(),
         "l3": l3(),
         "l3-scene": l3_scene(),
         "implicit": implicit(),

@@ -54,3 +54,19 @@ def test_design_latency_sentences_quote_the_benchmark():
             f"had taken {base['second_wall_s']:.1f} s" in text("docs/performance.md"))
     assert new["second_over_first"] < 0.5 * base["second_over_first"]
     assert max(d["x_rel_diff"].values()) < 1e-9
+
+
+def test_engine_profile_section_is_generated_from_the_json():
+    """docs/performance.md's "Where a run's time goes" is `engine_profile.json`'s: every model's
+    steps, run and kernels a step, before and after where both were measured."""
+    assert "<!-- perf:engine-profile -->" in PERF_MD
+    d = json.loads((ROOT / "benchmarks/results/engine_profile.json").read_text())
+    text = _gen_perf().tables()["engine-profile"]
+    sides = [s for s in ("before", "after") if s in d]
+    for m, row in d["after"]["models"].items():
+        if "error" in row:
+            continue
+        rows = [d[s]["models"][m] for s in sides]
+        line = next(ln for ln in text.splitlines() if ln.startswith(f"| {m} |"))
+        assert " / ".join(f"{r['steps']:,}" for r in rows) in line, line
+        assert " / ".join(f"{r['kernels_per_step']:.0f}" for r in rows) in line, line
