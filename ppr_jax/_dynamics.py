@@ -61,6 +61,10 @@ def _eom_terms_jit(model, robot, z, zdot) -> EOM:
     # Jitted although mostly called inside other traces: a scene traces the equations of motion
     # several times (the quasi-static solve's shape probe and loop, the right-hand side), and a
     # cached jaxpr is traced once (tracing is a third of a scene's compilation).
+    fused = model.fused_eom(robot, z, zdot)
+    if fused is not None:
+        kin, M, h, Q, Jth, JX = fused
+        return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=JX, kin=kin)
     return _eom_terms(model, robot, z, zdot, implicit=True)
 
 
@@ -126,7 +130,11 @@ def passive_force(
 
 def generalized_force(eom: EOM, tau_a, wrench) -> Array:
     """Total generalized force Q for actuator torques tau_a (3,) and platform wrench (3,)."""
-    return eom.Q_passive + eom.Jth.T @ tau_a + eom.JX.T @ wrench
+    # Jth^T tau_a + JX^T w as sums of rows, elementwise: no dot kernels on 3 x n matrices
+    Q = eom.Q_passive
+    for k in range(3):
+        Q = Q + eom.Jth[k] * tau_a[k] + eom.JX[k] * wrench[k]
+    return Q
 
 
 def accelerations(eom: EOM, tau_a, wrench) -> Array:

@@ -185,8 +185,10 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
         J = jax.lax.stop_gradient(
             jnp.stack([robot.r1 * de(t1) + h2, h2 + robot.r3 * de(t3)], axis=-1)
         )
-        Jinv = jnp.stack([jnp.stack([J[1, 1], -J[0, 1]]), jnp.stack([-J[1, 0], J[0, 0]])])
-        return th13 - (Jinv @ resid(th13, di)) / (J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
+        # J^-1 r by its adjugate, written out (a 2 x 2 matrix product is a dot kernel of its own)
+        r = resid(th13, di)
+        step = jnp.stack([J[1, 1] * r[0] - J[0, 1] * r[1], J[0, 0] * r[1] - J[1, 0] * r[0]])
+        return th13 - step / (J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
 
     th13 = jnp.stack([th1, th3], axis=-1)
     # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
