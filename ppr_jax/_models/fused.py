@@ -74,6 +74,10 @@ class ChainSpec(NamedTuple):
     actuated: int
 
 
+#: entries per stack in the sums over the chains (`fused_eom`)
+GROUP = 6
+
+
 def _perp(v):
     return (-v[1], v[0])
 
@@ -178,15 +182,9 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
     A_dd = [add(float(spec.Gu[k, 0]) * udd[0] if spec.Gu[k, 0] else None,
                 float(spec.Gu[k, 1]) * udd[1] if spec.Gu[k, 1] else None) for k in range(K)]
 
-    # Rows of the projection: (weight, J (3, n): d(quantity)/dz of each chain, its convective
-    # acceleration or None) for the inertial rows, (J, generalized force) for the springs and
-    # actuators.
-    zero = jnp.zeros(3, dtype=z.dtype)
-
-    def row(J):
-        return jnp.stack([zero if x is None else jnp.broadcast_to(x, (3,)) for x in J], axis=-1)
-
-    inertial, forces = [], []
+    # Bodies: mass matrix and convective terms, per chain
+    M = [[None] * n for _ in range(n)]
+    h = [None] * n
     for body in spec.bodies:
         Jx, Jy = [None] * n, [None] * n
         ax, ay = None, None
@@ -202,32 +200,55 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
             if A_dd[link.k] is not None:
                 ax = ax + link.c * A_dd[link.k] * p_[0]
                 ay = ay + link.c * A_dd[link.k] * p_[1]
-        inertial += [(body.m, row(Jx), ax), (body.m, row(Jy), ay),
-                     (body.I, row(A_z[body.angle]), A_dd[body.angle])]
-    # springs with their damping, and the actuators' viscous friction
+        Ja = A_z[body.angle]
+        for i in range(n):
+            for j in range(i, n):
+                t = _dot([Jx[i], Jy[i]], [Jx[j], Jy[j]])
+                t = body.m * t if t is not None else None
+                if Ja[i] is not None and Ja[j] is not None:
+                    t = add(t, body.I * Ja[i] * Ja[j])
+                M[i][j] = add(M[i][j], t)
+            t = _dot([Jx[i], Jy[i]], [ax, ay])
+            t = body.m * t if t is not None else None
+            if Ja[i] is not None and A_dd[body.angle] is not None:
+                t = add(t, body.I * Ja[i] * A_dd[body.angle])
+            h[i] = add(h[i], t)
+
+    # Springs with their damping, and the actuators' viscous friction
     defl = kin.deflection.reshape(3, -1)
+    Q = [None] * n
     for s, coef in enumerate(spec.springs):
         Jd = [_dot([float(c_) or None for c_ in coef], [A_z[k][j] for k in range(K)])
               for j in range(n)]
-        forces.append((row(Jd), -stiffness * defl[:, s] - damping * _dot(Jd, zd)))
-    Jth = row(A_z[spec.actuated])
-    forces.append((Jth, -robot.c_act * _dot(A_z[spec.actuated], zd)))
+        f = -stiffness * defl[:, s] - damping * _dot(Jd, zd)
+        for j in range(n):
+            if Jd[j] is not None:
+                Q[j] = add(Q[j], Jd[j] * f)
+    Jth = A_z[spec.actuated]
+    fa = -robot.c_act * _dot(Jth, zd)
+    for j in range(n):
+        if Jth[j] is not None:
+            Q[j] = add(Q[j], Jth[j] * fa)
 
-    # Sums over the rows and chains written out as rank-one updates: elementwise arithmetic that
-    # XLA fuses (a stack of the entries and one reduction was one kernel per entry)
-    M = h = Q = None
-    for w, J, acc in inertial:
-        for c in range(3):
-            wJ = w * J[c]
-            M = add(M, wJ[:, None] * J[c][None, :])
-            if acc is not None:
-                h = add(h, wJ * acc[c])
-    for J, f in forces:
-        for c in range(3):
-            Q = add(Q, J[c] * f[c])
+    # The sums over the chains, in groups of `GROUP` entries: XLA's CPU fusion takes a stack of
+    # a few operands into the reduction that consumes it, but computes every operand of a longer
+    # stack as a kernel of its own (one stack of L2's 48 entries: 49 kernels; in groups: 5)
+    zero = jnp.zeros(3, dtype=z.dtype)
+    cols = [M[i][j] for i in range(n) for j in range(i, n)] + h + Q
+    cols = [zero if x is None else jnp.broadcast_to(x, (3,)) for x in cols]
+    S = jnp.concatenate([jnp.sum(jnp.stack(cols[g : g + GROUP]), axis=-1)
+                         for g in range(0, len(cols), GROUP)])
+    iu = np.triu_indices(n)
+    upper = np.zeros((n, n), dtype=int)
+    upper[iu] = np.arange(len(iu[0]))
+    upper = np.maximum(upper, upper.T)  # the symmetric entry's index
+    nm = len(iu[0])
     # the platform: m4 at (x, y), I4 about phi (no convective acceleration in X)
     plat = jnp.stack([robot.m4, robot.m4, robot.I4])
+    M = jnp.stack([jnp.stack([S[int(upper[i, j])] for j in range(n)]) for i in range(n)])
     M = M + jnp.diag(jnp.pad(plat, (0, n - 3)))
+    h, Q = S[nm : nm + n], S[nm + n :]
+    Jth = jnp.stack([x if x is not None else zero for x in Jth], axis=-1)
     JX = jnp.asarray(np.eye(3, n), dtype=z.dtype)
     return M, h, Q, Jth, JX
 
