@@ -19,6 +19,11 @@ and h = J^T (M J' + C J) X'; `tests/test_paper_eom.py` checks it against the pap
 (eqs 30-35, 41, 47). c_s is the viscous damping of each spring, c_a the viscous friction of the
 actuated joints, tau_a (3,) the actuator torques (N m), w (3,) an external platform wrench
 (F_x [N], F_y [N], M_z [N m]). Gravity acts normal to the plane of the robot and does no work.
+
+`eom_terms` takes a model's fused terms where it has them (`AbstractModel.fused_eom`: L0-L2, the
+same projection written out as straight-line arithmetic, `_models/fused.py`) and this generic
+projection otherwise (L3); `_eom_terms` is the generic projection for every model, the reference
+`tests/test_fused_eom.py` compares the fused terms with.
 """
 
 from __future__ import annotations
