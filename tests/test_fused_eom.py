@@ -84,8 +84,17 @@ def _states(model, params, seed):
     return values, tuple(jnp.asarray(a) for a in (z, zd, tau, dv, dz, dzd, ct))
 
 
-@pytest.fixture(scope="module", params=[(m, r) for m in MODELS for r in ROBOTS],
-                ids=lambda p: f"{p[0]}-{p[1]}")
+def _pairs():
+    # The all-terms robot of L0 and L1 is slow-marked to keep the default suite cheap: L2 shares
+    # the double-1R bodies, offsets and springs with L1 and the damping and friction with L0.
+    for m in MODELS:
+        for r in ROBOTS:
+            slow = r != "default" and m != "double1r"
+            yield pytest.param((m, r), id=f"{m}-{r}",
+                               marks=[pytest.mark.slow] if slow else [])
+
+
+@pytest.fixture(scope="module", params=list(_pairs()))
 def pair(request):
     name, robot_name = request.param
     model, params = pj.get_model(name), ROBOTS[robot_name]
