@@ -19,6 +19,11 @@ and h = J^T (M J' + C J) X'; `tests/test_paper_eom.py` checks it against the pap
 (eqs 30-35, 41, 47). c_s is the viscous damping of each spring, c_a the viscous friction of the
 actuated joints, tau_a (3,) the actuator torques (N m), w (3,) an external platform wrench
 (F_x [N], F_y [N], M_z [N m]). Gravity acts normal to the plane of the robot and does no work.
+
+`eom_terms` takes a model's fused terms where it has them (`AbstractModel.fused_eom`: L0-L2, the
+same projection written out as straight-line arithmetic, `_models/fused.py`) and this generic
+projection otherwise (L3); `_eom_terms` is the generic projection for every model, the reference
+`tests/test_fused_eom.py` compares the fused terms with.
 """
 
 from __future__ import annotations
@@ -61,6 +66,10 @@ def _eom_terms_jit(model, robot, z, zdot) -> EOM:
     # Jitted although mostly called inside other traces: a scene traces the equations of motion
     # several times (the quasi-static solve's shape probe and loop, the right-hand side), and a
     # cached jaxpr is traced once (tracing is a third of a scene's compilation).
+    fused = model.fused_eom(robot, z, zdot)
+    if fused is not None:
+        kin, M, h, Q, Jth, JX = fused
+        return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=JX, kin=kin)
     return _eom_terms(model, robot, z, zdot, implicit=True)
 
 
@@ -126,7 +135,11 @@ def passive_force(
 
 def generalized_force(eom: EOM, tau_a, wrench) -> Array:
     """Total generalized force Q for actuator torques tau_a (3,) and platform wrench (3,)."""
-    return eom.Q_passive + eom.Jth.T @ tau_a + eom.JX.T @ wrench
+    # Jth^T tau_a + JX^T w as sums of rows, elementwise: no dot kernels on 3 x n matrices
+    Q = eom.Q_passive
+    for k in range(3):
+        Q = Q + eom.Jth[k] * tau_a[k] + eom.JX[k] * wrench[k]
+    return Q
 
 
 def accelerations(eom: EOM, tau_a, wrench) -> Array:

@@ -173,27 +173,33 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
         th13, _, _ = jax.lax.while_loop(cond, body, (th13, 0, jnp.asarray(jnp.inf)))
         return th13
 
-    def implicit_correction(th13, di):
+    def implicit_correction(t1, t3):
         # At the closed-form root the Newton update is zero, but its derivative is the
         # implicit-function derivative -J^-1 dr: exact also in l1 or l3 alone. J multiplies
         # r = 0, so it is held constant (its derivatives would multiply zero): the correction
         # costs one residual and a 2 x 2 inverse in closed form, which matters because it runs
-        # inside every right-hand side under two nested derivatives.
-        t1, t3 = th13
-        de = lambda a: (lambda v: jnp.stack([-v[1], v[0]]))(e(a))  # noqa: E731
-        h2 = (robot.r2 / 2) * de((t1 + t3) / 2 + c2)
-        J = jax.lax.stop_gradient(
-            jnp.stack([robot.r1 * de(t1) + h2, h2 + robot.r3 * de(t3)], axis=-1)
+        # inside every right-hand side under two nested derivatives. Written out on the three
+        # chains' (3,) arrays, so that XLA fuses it (stacks and 2 x 2 products were a dozen
+        # kernels of each L1 right-hand side).
+        c1, s1, c3, s3 = jnp.cos(t1), jnp.sin(t1), jnp.cos(t3), jnp.sin(t3)
+        t2 = (t1 + t3) / 2 + c2
+        c2_, s2_ = jnp.cos(t2), jnp.sin(t2)
+        rx = robot.r1 * c1 + robot.r2 * c2_ + robot.r3 * c3 - d[:, 0]
+        ry = robot.r1 * s1 + robot.r2 * s2_ + robot.r3 * s3 - d[:, 1]
+        hx, hy = -(robot.r2 / 2) * s2_, (robot.r2 / 2) * c2_
+        # columns d/dt1 = (j00, j10) and d/dt3 = (j01, j11)
+        j00, j10, j01, j11 = jax.lax.stop_gradient(
+            (hx - robot.r1 * s1, hy + robot.r1 * c1, hx - robot.r3 * s3, hy + robot.r3 * c3)
         )
-        Jinv = jnp.stack([jnp.stack([J[1, 1], -J[0, 1]]), jnp.stack([-J[1, 0], J[0, 0]])])
-        return th13 - (Jinv @ resid(th13, di)) / (J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
+        inv_det = 1.0 / (j00 * j11 - j01 * j10)
+        return t1 - (j11 * rx - j01 * ry) * inv_det, t3 - (j00 * ry - j10 * rx) * inv_det
 
-    th13 = jnp.stack([th1, th3], axis=-1)
     # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
     # running Newton for every member.
     if robot.equal_links:
-        th13 = jax.vmap(implicit_correction)(th13, d)
+        th1, th3 = implicit_correction(th1, th3)
     else:
+        th13 = jnp.stack([th1, th3], axis=-1)
         # Converged without derivatives, then N_NEWTON_DIFF differentiable Newton steps: at the
         # root each step is exact to one more order of derivative (the Newton map's own
         # derivative vanishes there), and the equations of motion need second derivatives in X
@@ -205,7 +211,7 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
 
         for _ in range(N_NEWTON_DIFF):
             th13 = jax.vmap(step)(th13, d)
-    th1, th3 = th13[:, 0], th13[:, 1]
+        th1, th3 = th13[:, 0], th13[:, 1]
     th = jnp.stack([th1, (th1 + th3) / 2 + c2, th3], axis=-1)
     return th, margin
 

@@ -199,8 +199,70 @@ def _cholesky_solve(A, b):
     return jnp.stack(x)
 
 
+#: up to this size `solve_spd` inverts by blocks of at most 3 (`_block_factor`), above it
+#: Cholesky
+BLOCK_MAX = 6
+
+
+def _mv(A, v):
+    """A v by columns (elementwise products of slices: no dot kernel for a 3 x 3)."""
+    out = A[:, 0] * v[0]
+    for k in range(1, A.shape[-1]):
+        out = out + A[:, k] * v[k]
+    return out
+
+
+def _mm(A, B):
+    """A B by columns of A (see `_mv`)."""
+    out = A[:, 0:1] * B[0:1, :]
+    for k in range(1, A.shape[-1]):
+        out = out + A[:, k : k + 1] * B[k : k + 1, :]
+    return out
+
+
+def _inverse3(A):
+    """Inverse of a 1 x 1 to 3 x 3 matrix by its adjugate: one division."""
+    n = A.shape[-1]
+    if n == 1:
+        return 1.0 / A
+    if n == 2:
+        adj = jnp.stack([jnp.stack([A[1, 1], -A[0, 1]]), jnp.stack([-A[1, 0], A[0, 0]])])
+        return adj * (1.0 / (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]))
+    c0 = jnp.cross(A[:, 1], A[:, 2])
+    c1 = jnp.cross(A[:, 2], A[:, 0])
+    c2 = jnp.cross(A[:, 0], A[:, 1])
+    det = A[0, 0] * c0[0] + A[1, 0] * c0[1] + A[2, 0] * c0[2]
+    return jnp.stack([c0, c1, c2]) * (1.0 / det)
+
+
+def _block_factor(A):
+    """(A11^-1, X = A11^-1 A12, S^-1) of A = [[A11, A12], [A12^T, A22]] split after row 3, with
+    S = A22 - A12^T X its Schur complement (block LDL^T: no pivoting for a symmetric positive
+    definite A). Two divisions for n <= 6 instead of Cholesky's 2 n square roots and divisions in
+    sequence, each of which XLA's CPU fusion keeps as a kernel boundary (L2's 6 x 6 mass-matrix
+    solve was about 30 kernels)."""
+    n = A.shape[-1]
+    if n <= 3:
+        return _inverse3(A), None, None
+    P = _inverse3(A[:3, :3])
+    X = _mm(P, A[:3, 3:])
+    S = A[3:, 3:] - _mm(A[:3, 3:].T, X)
+    return P, X, _inverse3(S)
+
+
+def _block_solve(F, b):
+    P, X, Si = F
+    if X is None:
+        return _mv(P, b)
+    y1 = _mv(P, b[:3])
+    x2 = _mv(Si, b[3:] - _mv(X.T, b[:3]))
+    return jnp.concatenate([y1 - _mv(X, x2), x2])
+
+
 @jax.custom_jvp
 def _solve_spd(A, b):
+    if A.shape[-1] <= BLOCK_MAX:
+        return _block_solve(_block_factor(A), b)
     return _cholesky_solve(A, b)
 
 
@@ -208,14 +270,20 @@ def _solve_spd(A, b):
 def _solve_spd_jvp(primals, tangents):
     A, b = primals
     dA, db = tangents
+    if A.shape[-1] <= BLOCK_MAX:
+        F = _block_factor(A)
+        x = _block_solve(F, b)
+        return x, _block_solve(F, db - _mv(dA, x))
     x = _cholesky_solve(A, b)
     return x, _cholesky_solve(A, db - dA @ x)
 
 
 @jax.jit
 def solve_spd(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, " n"]:
-    """x with A x = b for a symmetric positive definite A (a mass matrix): Cholesky in plain XLA
-    up to `UNROLL_MAX`, `solve` above that. A matrix that is not positive definite gives NaN."""
+    """x with A x = b for a symmetric positive definite A (a mass matrix): in plain XLA, up to
+    `BLOCK_MAX` by 3 x 3 blocks and their adjugates (`_block_factor`), up to `UNROLL_MAX`
+    Cholesky, `solve` above that. A matrix that is not positive definite gives NaN (Cholesky)
+    or a meaningless x (blocks; a mass matrix always is)."""
     if A.shape[-1] > UNROLL_MAX:
         return solve(A, b)
     return _solve_spd(A, b)

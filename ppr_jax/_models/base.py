@@ -26,6 +26,7 @@ from .._custom_types import Array, Float
 from .._linalg import solve_blocks
 from .._names import ATOL, RTOL  # noqa: F401 (the non-stiff levels' defaults)
 from .._robot import Robot
+from .fused import ChainSpec, fused_eom
 
 
 class Kin(eqx.Module):
@@ -90,6 +91,12 @@ class AbstractModel(eqx.Module):
         the kinematics at z; or None (the default): `_dynamics.py` then takes it from the Jacobian
         of `Kin.deflection`. A model whose deflections are implicit functions of z (the
         quasi-static L3) overrides this with something cheaper than that Jacobian."""
+        return None
+
+    def fused_eom(self, robot: Robot, z, zdot):
+        """(kin, M, h, Q_passive, Jth, JX) of the equations of motion at (z, z') written as
+        straight-line arithmetic (`_models/fused.py`), or None (the default): `_dynamics.py`
+        then takes the generic projection, which stays the reference."""
         return None
 
     @abc.abstractmethod
@@ -168,6 +175,20 @@ class AbstractClosedLoop(AbstractModel):
     def kinematics(self, robot, z):
         u, margin = self.dependent(robot, z)
         return self.kin_at(robot, z, u, margin)
+
+    def chain_spec(self, robot: Robot, z, u) -> Optional[ChainSpec]:
+        """The chains as sums of links (`_models/fused.ChainSpec`) at (z, u), for the fused
+        equations of motion; None (the default) keeps the generic projection."""
+        return None
+
+    def fused_eom(self, robot, z, zdot):
+        u, margin = self.dependent(robot, z)
+        spec = self.chain_spec(robot, z, u)
+        if spec is None:
+            return None
+        kin = self.kin_at(robot, z, u, margin)
+        return (kin, *fused_eom(spec, robot, z, zdot, kin, self.stiffness(robot),
+                                self.damping(robot)))
 
     def motion(self, robot: Robot, z, zdot, convective: bool = True) -> Motion:
         """`Motion` at (z, z') by implicit differentiation of the closures (class docstring)."""

@@ -17,6 +17,7 @@ z.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 from .._geometry import (
     base_points,
@@ -29,6 +30,7 @@ from .._geometry import (
 )
 from .._robot import Robot
 from .base import ATOL, RTOL, AbstractClosedLoop, Kin, rotor_inertia
+from .fused import Body, ChainSpec, Link
 
 
 class AbstractDouble1R(AbstractClosedLoop):
@@ -63,6 +65,24 @@ class AbstractDouble1R(AbstractClosedLoop):
         return Kin(
             X=X, th=th, body_p=p, body_ang=ang, deflection=deflections(robot, th).reshape(-1),
             th_a=th[:, 0] - robot.sigma * robot.delta1, margin=margin,
+        )
+
+    def double1r_spec(self, robot: Robot, th, Gz, Gu) -> ChainSpec:
+        """The `ChainSpec` of the double-1R chains with angles th (3, 3) and their derivatives
+        Gz (3, 3, n), Gu (3, 2) (the subclass's choice of u): the bodies of `chain_bodies`."""
+        sig = robot.sigma
+        return ChainSpec(
+            alpha=[th[:, 0], th[:, 1], th[:, 2]], Gz=Gz, Gu=Gu,
+            closure=(Link(0, robot.r1), Link(1, robot.r2), Link(2, robot.r3)),
+            bodies=(
+                Body((Link(0, robot.l1 / 2, -sig * robot.delta1),), 0, robot.m1,
+                     rotor_inertia(robot)),
+                Body((Link(0, robot.r1), Link(1, robot.r2 / 2)), 1, robot.m2, robot.I2),
+                Body((Link(0, robot.r1), Link(1, robot.r2), Link(2, robot.r3),
+                      Link(2, -robot.l3 / 2, sig * robot.delta3)), 2, robot.m3, robot.I3),
+            ),
+            springs=(np.array([-1.0, 1.0, 0.0]), np.array([0.0, -1.0, 1.0])),
+            actuated=0,
         )
 
     def masses(self, robot):
@@ -113,6 +133,13 @@ class Double1R(AbstractDouble1R):
 
     def kin_at(self, robot, z, u, margin):
         return self.kin_from_angles(robot, z[:3], self._angles(robot, z, u), margin)
+
+    def chain_spec(self, robot, z, u):
+        # th_i1 = th_a,i (+ a fixed offset) is coordinate 3 + i; u = (th_i2, th_i3)
+        Gz = np.zeros((3, 3, 6))
+        Gz[0, np.arange(3), 3 + np.arange(3)] = 1.0
+        Gu = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+        return self.double1r_spec(robot, self._angles(robot, z, u), Gz, Gu)
 
     def coords_from_pose(self, robot, X):
         th, _ = ik_reduced(robot, X)

@@ -10,6 +10,7 @@ X determines every joint angle (inverse kinematics, closed form when r1 = r3). C
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 from .._geometry import ik_reduced, loop_residual
 from .base import ATOL, RTOL
@@ -45,6 +46,11 @@ class Reduced(AbstractDouble1R):
 
     def kin_at(self, robot, z, u, margin):
         return self.kin_from_angles(robot, z, self._angles(robot, u), margin)
+
+    def chain_spec(self, robot, z, u):
+        # th_i2 = (th_i1 + th_i3)/2 + c: the chain angles depend on z through u alone
+        Gu = np.array([[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]])
+        return self.double1r_spec(robot, self._angles(robot, u), np.zeros((3, 3, 3)), Gu)
 
     def coords_from_pose(self, robot, X):
         return X

@@ -10,6 +10,7 @@ connecting link's l3/2 from E_i.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 from .._geometry import (
     base_points,
@@ -20,6 +21,7 @@ from .._geometry import (
     platform_points,
 )
 from .base import ATOL, RTOL, AbstractClosedLoop, Kin, rotor_inertia
+from .fused import Body, ChainSpec, Link
 
 
 class Rigid(AbstractClosedLoop):
@@ -54,6 +56,20 @@ class Rigid(AbstractClosedLoop):
         return Kin(
             X=X, th=th, body_p=p, body_ang=ang, deflection=deflection_rigid(robot, th),
             th_a=th[:, 0], margin=margin,
+        )
+
+    def chain_spec(self, robot, z, u):
+        # p3 = E_i - (l3/2) e(th_i3) written along the chain, E_i = A_i + R1 e(th_i1) + R3 e(th_i3)
+        return ChainSpec(
+            alpha=[u[:, 0], u[:, 1]], Gz=np.zeros((2, 3, 3)), Gu=np.eye(2),
+            closure=(Link(0, robot.R1), Link(1, robot.R3)),
+            bodies=(
+                Body((Link(0, robot.l1 / 2),), 0, robot.m1, rotor_inertia(robot)),
+                Body((Link(0, robot.R1), Link(1, robot.R3 - robot.l3 / 2)), 1, robot.m3,
+                     robot.I3),
+            ),
+            springs=(np.array([-1.0, 1.0]),),
+            actuated=0,
         )
 
     def masses(self, robot):

@@ -1,0 +1,254 @@
+"""Equations of motion of the closed-loop levels (L0-L2) as straight-line arithmetic.
+
+The generic projection (`_dynamics._eom_terms` with `AbstractClosedLoop.motion`) takes its
+Jacobians from JVPs vmapped over the identity, multiplies them in einsums and solves the closures'
+blocks with small matrix products: on a CPU each of those is an XLA kernel of its own, and one L1
+right-hand side was 73 kernels (11 dots) for a few hundred flops. Here the same quantities are
+written out for what the three levels have in common: every chain is a sum of rigid links,
+
+    Phi_i = A_i + sum_k c_k e(alpha_k) - E_i(X) = 0      (2 closure equations per chain),
+
+with link angles alpha_k affine in the independent coordinates z and in two dependent chain
+angles u_i (`ChainSpec`: constant coefficients `Gz`, `Gu`), and every body is such a sum too. Then
+
+    dalpha/dz = Gz + Gu u_z,   u_z = -Phi_u^-1 Phi_z   (Phi_u a 2 x 2 block per chain, Cramer),
+    dp/dz = sum c e_perp(alpha) dalpha/dz,
+    p''_conv = sum c (e_perp(alpha) alpha''_conv - e(alpha) alpha'^2),
+    alpha''_conv = Gu u''_conv,
+    u''_conv = -Phi_u^-1 (-sum c alpha'^2 e(alpha) + rho_E phi'^2 e(psi)),
+
+which is the generic projection's algorithm (implicit differentiation of the closures, Kane's
+form) with every derivative in closed form: elementwise operations on the three chains' (3,)
+arrays, unrolled over the n coordinates, and sums over the chains, which XLA fuses into a few
+kernels. The physics is unchanged; `tests/test_fused_eom.py` compares every term with the generic
+projection, in value and in forward and reverse derivatives.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._geometry import BETA
+from .._robot import Robot
+
+
+class Link(NamedTuple):
+    """c e(alpha_k + offset): a link of length `c` along chain angle `k`, turned by the fixed
+    angle `offset` (None: 0)."""
+
+    k: int
+    c: object
+    offset: object = None
+
+
+class Body(NamedTuple):
+    """A chain's body: COM at A_i + sum of `links`, angle alpha_`angle` + `offset`, mass `m`,
+    central moment of inertia `I` (scalars, the same on the three chains)."""
+
+    links: tuple
+    angle: int
+    m: object
+    I: object
+
+
+class ChainSpec(NamedTuple):
+    """What `fused_eom` needs of a closed-loop level (module docstring).
+
+    `alpha`: the chain angles, a list of (3,) arrays (one entry per chain) at (z, u);
+    `Gz` (K, 3, n) and `Gu` (K, 2) NumPy constants: d alpha_k / dz of chain i (holding u) and
+    d alpha_k / du_i; `closure`: the links of Phi (`Link`s, offsets None) from A_i to E_i;
+    `bodies`: the chains' bodies (the platform, m4 and I4 at X, is added here);
+    `springs`: one (K,) NumPy coefficient vector per spring of a chain (the deflection's
+    Jacobian is coef . d alpha/dz; its value comes from `Kin.deflection`, chain-major);
+    `actuated`: the chain angle whose derivative is the actuated angle's."""
+
+    alpha: list
+    Gz: np.ndarray
+    Gu: np.ndarray
+    closure: tuple
+    bodies: tuple
+    springs: tuple
+    actuated: int
+
+
+#: entries per stack in the sums over the chains (`fused_eom`)
+GROUP = 6
+
+
+def _perp(v):
+    return (-v[1], v[0])
+
+
+def _turned(ev, offset):
+    """e(alpha + offset) from ev = e(alpha) (a pair of (3,) arrays): one sine and cosine of the
+    offset instead of one per chain."""
+    if offset is None:
+        return ev
+    c, s = jnp.cos(offset), jnp.sin(offset)
+    return (c * ev[0] - s * ev[1], s * ev[0] + c * ev[1])
+
+
+def _dot(a, b):
+    """sum_j a_j b_j over Python lists, skipping the structural zeros (None)."""
+    out = None
+    for x, y in zip(a, b):
+        if x is None or y is None:
+            continue
+        out = x * y if out is None else out + x * y
+    return out
+
+
+def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
+    """(M (n, n), h (n,), Q_passive (n,), Jth (3, n), JX (3, n)) of the generic projection
+    (`_dynamics.EOM`) from a `ChainSpec` at (z, z') with `kin` the kinematics at z."""
+    n = z.shape[0]
+    K = len(spec.alpha)
+    zd = [zdot[j] for j in range(n)]
+    ev = [(jnp.cos(a), jnp.sin(a)) for a in spec.alpha]
+    ep = [_perp(v) for v in ev]
+    phi = z[2]
+    # platform joint directions psi_i = beta_i + phi, turned from the constant beta_i
+    eb = (np.cos(BETA), np.sin(BETA))
+    cphi, sphi = jnp.cos(phi), jnp.sin(phi)
+    epsi = (cphi * eb[0] - sphi * eb[1], sphi * eb[0] + cphi * eb[1])
+    rho_E = robot.rho_E
+
+    def gz(k, j):
+        g = spec.Gz[k, :, j]
+        if not g.any():
+            return None
+        return float(g[0]) if np.all(g == g[0]) else jnp.asarray(g)
+
+    # Closure blocks. Phi_u[m] and Phi_z[j] are (x, y) pairs of (3,) arrays (None: zero).
+    def closure_col(coefs):
+        out = None
+        for link, g in zip(spec.closure, coefs):
+            if g is None:
+                continue
+            t = (link.c * g * ep[link.k][0], link.c * g * ep[link.k][1])
+            out = t if out is None else (out[0] + t[0], out[1] + t[1])
+        return out
+
+    Phi_u = [closure_col([float(spec.Gu[link.k, m]) or None for link in spec.closure])
+             for m in range(2)]
+    Phi_z = []
+    for j in range(n):
+        col = closure_col([gz(link.k, j) for link in spec.closure])
+        # minus dE_i/dz_j: E_i = (x, y) + rho_E e(psi_i)
+        if j < 2:
+            one = (-1.0, 0.0) if j == 0 else (0.0, -1.0)
+            col = one if col is None else (col[0] + one[0], col[1] + one[1])
+        elif j == 2:
+            t = (rho_E * epsi[1], -rho_E * epsi[0])  # -rho_E e_perp(psi)
+            col = t if col is None else (col[0] + t[0], col[1] + t[1])
+        Phi_z.append(col)
+    (a, c), (b, d) = Phi_u  # Phi_u = [[a, b], [c, d]] per chain
+    inv_det = 1.0 / (a * d - b * c)
+
+    def solve2(r):
+        """-Phi_u^-1 r for r an (x, y) pair (None: zero)."""
+        if r is None:
+            return (None, None)
+        rx, ry = r
+        return (-(d * rx - b * ry) * inv_det, -(a * ry - c * rx) * inv_det)
+
+    u_z = [solve2(Phi_z[j]) for j in range(n)]  # u_z[j] = (du_0/dz_j, du_1/dz_j)
+
+    def add(x, y):
+        return y if x is None else (x if y is None else x + y)
+
+    # d alpha_k / dz_j (None: zero) and the angular rates alpha_k'
+    A_z = []
+    for k in range(K):
+        row = []
+        for j in range(n):
+            v = gz(k, j)
+            for m in range(2):
+                g = float(spec.Gu[k, m])
+                if g and u_z[j][m] is not None:
+                    v = add(v, g * u_z[j][m] if g != 1.0 else u_z[j][m])
+            row.append(v)
+        A_z.append(row)
+    A_d = [_dot(A_z[k], zd) for k in range(K)]
+    # convective closure term and the dependent angles' convective accelerations
+    conv = (rho_E * zd[2] ** 2 * epsi[0], rho_E * zd[2] ** 2 * epsi[1])
+    for link in spec.closure:
+        w = link.c * A_d[link.k] ** 2
+        conv = (conv[0] - w * ev[link.k][0], conv[1] - w * ev[link.k][1])
+    udd = solve2(conv)
+    A_dd = [add(float(spec.Gu[k, 0]) * udd[0] if spec.Gu[k, 0] else None,
+                float(spec.Gu[k, 1]) * udd[1] if spec.Gu[k, 1] else None) for k in range(K)]
+
+    # Bodies: mass matrix and convective terms, per chain
+    M = [[None] * n for _ in range(n)]
+    h = [None] * n
+    for body in spec.bodies:
+        Jx, Jy = [None] * n, [None] * n
+        ax, ay = None, None
+        for link in body.links:
+            e_ = _turned(ev[link.k], link.offset)
+            p_ = _perp(e_)
+            for j in range(n):
+                if A_z[link.k][j] is not None:
+                    Jx[j] = add(Jx[j], link.c * A_z[link.k][j] * p_[0])
+                    Jy[j] = add(Jy[j], link.c * A_z[link.k][j] * p_[1])
+            w = link.c * A_d[link.k] ** 2
+            ax, ay = add(ax, -w * e_[0]), add(ay, -w * e_[1])
+            if A_dd[link.k] is not None:
+                ax = ax + link.c * A_dd[link.k] * p_[0]
+                ay = ay + link.c * A_dd[link.k] * p_[1]
+        Ja = A_z[body.angle]
+        for i in range(n):
+            for j in range(i, n):
+                t = _dot([Jx[i], Jy[i]], [Jx[j], Jy[j]])
+                t = body.m * t if t is not None else None
+                if Ja[i] is not None and Ja[j] is not None:
+                    t = add(t, body.I * Ja[i] * Ja[j])
+                M[i][j] = add(M[i][j], t)
+            t = _dot([Jx[i], Jy[i]], [ax, ay])
+            t = body.m * t if t is not None else None
+            if Ja[i] is not None and A_dd[body.angle] is not None:
+                t = add(t, body.I * Ja[i] * A_dd[body.angle])
+            h[i] = add(h[i], t)
+
+    # Springs with their damping, and the actuators' viscous friction
+    defl = kin.deflection.reshape(3, -1)
+    Q = [None] * n
+    for s, coef in enumerate(spec.springs):
+        Jd = [_dot([float(c_) or None for c_ in coef], [A_z[k][j] for k in range(K)])
+              for j in range(n)]
+        f = -stiffness * defl[:, s] - damping * _dot(Jd, zd)
+        for j in range(n):
+            if Jd[j] is not None:
+                Q[j] = add(Q[j], Jd[j] * f)
+    Jth = A_z[spec.actuated]
+    fa = -robot.c_act * _dot(Jth, zd)
+    for j in range(n):
+        if Jth[j] is not None:
+            Q[j] = add(Q[j], Jth[j] * fa)
+
+    # The sums over the chains, in groups of `GROUP` entries: XLA's CPU fusion takes a stack of
+    # a few operands into the reduction that consumes it, but computes every operand of a longer
+    # stack as a kernel of its own (one stack of L2's 48 entries: 49 kernels; in groups: 5)
+    zero = jnp.zeros(3, dtype=z.dtype)
+    cols = [M[i][j] for i in range(n) for j in range(i, n)] + h + Q
+    cols = [zero if x is None else jnp.broadcast_to(x, (3,)) for x in cols]
+    S = jnp.concatenate([jnp.sum(jnp.stack(cols[g : g + GROUP]), axis=-1)
+                         for g in range(0, len(cols), GROUP)])
+    iu = np.triu_indices(n)
+    upper = np.zeros((n, n), dtype=int)
+    upper[iu] = np.arange(len(iu[0]))
+    upper = np.maximum(upper, upper.T)  # the symmetric entry's index
+    nm = len(iu[0])
+    # the platform: m4 at (x, y), I4 about phi (no convective acceleration in X)
+    plat = jnp.stack([robot.m4, robot.m4, robot.I4])
+    M = jnp.stack([jnp.stack([S[int(upper[i, j])] for j in range(n)]) for i in range(n)])
+    M = M + jnp.diag(jnp.pad(plat, (0, n - 3)))
+    h, Q = S[nm : nm + n], S[nm + n :]
+    Jth = jnp.stack([x if x is not None else zero for x in Jth], axis=-1)
+    JX = jnp.asarray(np.eye(3, n), dtype=z.dtype)
+    return M, h, Q, Jth, JX
+
