@@ -21,6 +21,7 @@ import optimistix as optx
 from ._actuation import AbstractActuation
 from ._custom_types import Array, Float
 from ._dynamics import eom_terms, generalized_force
+from ._erk import FusedDopri5, FusedDopri8, FusedTsit5
 from ._errors import (
     RESULTS,
     PPRError,
@@ -143,9 +144,9 @@ def _implicit(cls):
 
 #: the solvers by name (the names, in this order, are `_names.SOLVER_NAMES`: the CLI's choices)
 SOLVERS = {
-    "tsit5": diffrax.Tsit5,
-    "dopri5": diffrax.Dopri5,
-    "dopri8": diffrax.Dopri8,
+    "tsit5": FusedTsit5,
+    "dopri5": FusedDopri5,
+    "dopri8": FusedDopri8,
     "kvaerno5": _implicit(diffrax.Kvaerno5),
     "kvaerno3": _implicit(diffrax.Kvaerno3),
     "kvaerno5-kept": KeptKvaerno5,
@@ -303,10 +304,15 @@ def simulate_core(
     robot = as_robot(robot)
     free, _ = split_coordinates(model, actuation)
     f = jnp.array(free)
-    y0 = (z0[f], zdot0[f])
+    nf = len(free)
+    # The state as one flat array (z_f, z_f'): a Runge-Kutta stage's combination of
+    # increments, the error norm and the saved rows are then one array operation each, not
+    # one per leaf of a pytree.
+    y0 = jnp.concatenate([z0[f], zdot0[f]])
 
     def vf(t, y, args):
-        return _vector_field(model, robot, actuation, wrench, skip, t, y)
+        dz, dzd = _vector_field(model, robot, actuation, wrench, skip, t, (y[:nf], y[nf:]))
+        return jnp.concatenate([dz, dzd])
 
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(vf), solver, ts[0], ts[-1], dt0, y0,
@@ -316,7 +322,7 @@ def simulate_core(
     )
     z, zd, tau = jax.vmap(
         lambda t, a, b: _outputs(model, robot, actuation, wrench, t, a, b)
-    )(sol.ts, *sol.ys)
+    )(sol.ts, sol.ys[:, :nf], sol.ys[:, nf:])
     # A status code, not a host callback: invalid (traced) parameters name themselves.
     result = first_failure((params_invalid(robot.params), RESULTS.invalid_parameter),
                            sol.result)
