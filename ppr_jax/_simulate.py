@@ -21,7 +21,6 @@ import optimistix as optx
 from ._actuation import AbstractActuation
 from ._custom_types import Array, Float
 from ._dynamics import eom_terms, generalized_force
-from ._erk import FusedDopri5, FusedDopri8, FusedTsit5
 from ._errors import (
     RESULTS,
     PPRError,
@@ -144,9 +143,9 @@ def _implicit(cls):
 
 #: the solvers by name (the names, in this order, are `_names.SOLVER_NAMES`: the CLI's choices)
 SOLVERS = {
-    "tsit5": FusedTsit5,
-    "dopri5": FusedDopri5,
-    "dopri8": FusedDopri8,
+    "tsit5": diffrax.Tsit5,
+    "dopri5": diffrax.Dopri5,
+    "dopri8": diffrax.Dopri8,
     "kvaerno5": _implicit(diffrax.Kvaerno5),
     "kvaerno3": _implicit(diffrax.Kvaerno3),
     "kvaerno5-kept": KeptKvaerno5,
