@@ -303,10 +303,15 @@ def simulate_core(
     robot = as_robot(robot)
     free, _ = split_coordinates(model, actuation)
     f = jnp.array(free)
-    y0 = (z0[f], zdot0[f])
+    nf = len(free)
+    # The state as one flat array (z_f, z_f'): a Runge-Kutta stage's combination of
+    # increments, the error norm and the saved rows are then one array operation each, not
+    # one per leaf of a pytree.
+    y0 = jnp.concatenate([z0[f], zdot0[f]])
 
     def vf(t, y, args):
-        return _vector_field(model, robot, actuation, wrench, skip, t, y)
+        dz, dzd = _vector_field(model, robot, actuation, wrench, skip, t, (y[:nf], y[nf:]))
+        return jnp.concatenate([dz, dzd])
 
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(vf), solver, ts[0], ts[-1], dt0, y0,
@@ -316,7 +321,7 @@ def simulate_core(
     )
     z, zd, tau = jax.vmap(
         lambda t, a, b: _outputs(model, robot, actuation, wrench, t, a, b)
-    )(sol.ts, *sol.ys)
+    )(sol.ts, sol.ys[:, :nf], sol.ys[:, nf:])
     # A status code, not a host callback: invalid (traced) parameters name themselves.
     result = first_failure((params_invalid(robot.params), RESULTS.invalid_parameter),
                            sol.result)
