@@ -56,8 +56,20 @@ def eom_terms(
     z: Float[Array, " n"],
     zdot: Float[Array, " n"],
 ) -> EOM:
-    """Mass matrix, velocity terms and passive generalized forces at (z, z') (`robot`: a `Robot`
-    or `RobotParams`)."""
+    """Mass matrix, velocity terms and passive generalized forces at (z, z'): the fused terms
+    where the model has them (`AbstractModel.fused_eom`: L0-L2), else the generic projection
+    (module docstring).
+
+    **Arguments:**
+
+    - `model`: a model (L0-L3).
+    - `robot`: a `Robot` or `RobotParams`.
+    - `z`: (n,) the model's coordinates (m, m, rad, then rad).
+    - `zdot`: (n,) their rates.
+
+    **Returns:** an `EOM`: M (n, n), h (n,), Q_passive (n,) (springs, their damping, actuator
+    friction), Jth = d th_a/dz (3, n), JX = dX/dz (3, n) and the kinematics at z.
+    """
     return _eom_terms_jit(model, as_robot(robot), z, zdot)
 
 
@@ -148,7 +160,15 @@ def accelerations(eom: EOM, tau_a, wrench) -> Array:
 
 
 def energy(model: AbstractModel, robot: Robot, z, zdot):
-    """(kinetic, potential) energy (J)."""
+    """The kinetic and potential energy of `model` at (z, z').
+
+    **Arguments:**
+
+    - `model`: a model; `robot`: a `Robot`.
+    - `z`, `zdot`: (n,) the coordinates and their rates.
+
+    **Returns:** (T, U) (J): the bodies' kinetic energy and the springs' potential energy.
+    """
     k, kd = jax.jvp(lambda z: model.kinematics(robot, z), (z,), (zdot,))
     return energy_of(model, robot, k, kd)
 
@@ -186,10 +206,20 @@ def inverse_dynamics(
     Xddot: Float[Array, "3"],
     wrench=None,
 ):
-    """Actuator torques tau_a (3,) (N m) that move a model with z = X (L0, L1) along (X, X', X'').
+    """Actuator torques that move a model with z = X (L0, L1) along (X, X', X'').
 
     Solves S^T tau_a = M X'' + h - Q_passive - w (eq 54 solved for tau_a, S = d th_a/dX, eq 52).
-    Returns (tau_a, eom); the caller checks `eom.kin.margin` and the conditioning of S.
+
+    **Arguments:**
+
+    - `model`: L0 or L1 (coordinates z = X); `robot`: a `Robot`.
+    - `X`, `Xdot`, `Xddot`: (3,) the platform pose (m, m, rad) and its rates.
+    - `wrench`: (3,) an external platform wrench (N, N, N m); None: none.
+
+    **Returns:** (tau_a (3,) (N m), eom): the torques and the `EOM` at X; the caller checks
+    `eom.kin.margin` and the conditioning of S.
+
+    **Raises:** `PPRError` for a model with internal coordinates (L2, L3).
     """
     if model.actuated_index is not None:
         raise PPRError(

@@ -350,16 +350,33 @@ def simulate(
     progress: bool = False,
     adjoint: Optional[diffrax.AbstractAdjoint] = None,
 ) -> Solution:
-    """Integrate `model` under `actuation` from (z0, z0') and save at times `ts` (increasing).
+    """Integrate `model` under `actuation` from (z0, z0') and save at times `ts`.
 
-    `solver`: a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5, kvaerno5-kept, ros34pw2) or a
-    diffrax solver; adaptive steps with a PID controller at (rtol, atol) (`default_controller`:
-    PI for the implicit solvers) unless `stepsize_controller` is given (then `dt0` is the
-    constant step). For a motion-driven model the prescribed coordinates of z0 are ignored
-    (they follow the actuation). On failure raises `SimulationError`; called under a JAX
-    transformation (grad, vmap of the caller) the failure is raised by diffrax inside the trace.
-    `adjoint`: how to differentiate: diffrax's default (reverse mode, recursive checkpointing) or
-    `diffrax.ForwardMode()` for `jax.jvp` / `jax.jacfwd`.
+    **Arguments:**
+
+    - `model`: a model (L0-L3); `robot`: a `Robot` or `RobotParams`.
+    - `actuation`: an `AbstractActuation` (`TorqueDriven`, `MotionDriven`, `PDServo`). For a
+      motion-driven model the prescribed coordinates of z0 are ignored (they follow it).
+    - `z0`, `zdot0`: (n,) the initial coordinates and rates.
+    - `ts`: (m,) strictly increasing output times (s), m >= 2; ts[0] the start.
+    - `solver`: a name (tsit5, dopri5, dopri8, kvaerno3, kvaerno5, kvaerno5-kept, ros34pw2) or a
+      diffrax solver.
+    - `rtol`, `atol`: the adaptive steps' tolerances (a PID controller, `default_controller`:
+      PI for the implicit solvers), each in [0, 1e-2], not both 0.
+    - `dt0`: the first step (s), or the constant step with a constant `stepsize_controller`;
+      None: chosen by diffrax.
+    - `max_steps`: the step budget, in [1, 1e9].
+    - `wrench`: (3,) a constant platform wrench (N, N, N m); None: none.
+    - `stepsize_controller`: a diffrax controller instead of the default one.
+    - `progress`: print diffrax's text progress meter.
+    - `adjoint`: how to differentiate: diffrax's default (reverse mode, recursive
+      checkpointing) or `diffrax.ForwardMode()` for `jax.jvp` / `jax.jacfwd`.
+
+    **Returns:** a `Solution` (ts, z, zdot, tau (m, 3) applied or reaction torques, result,
+    step counts).
+
+    **Raises:** `PPRError` for bad arguments; `SimulationError` on a failed solve (under a JAX
+    transformation, grad or a caller's vmap, diffrax raises inside the trace).
     """
     robot = as_robot(robot)
     ts = check_array("ts", ts)

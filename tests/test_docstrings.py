@@ -7,7 +7,7 @@ import inspect
 import ppr_jax
 
 #: public functions still to be rewritten into the sections (emptied as they are)
-PENDING = {"eom_terms", "energy", "inverse_dynamics", "simulate"}
+PENDING: set = set()
 
 
 def _long_functions():
