@@ -69,6 +69,7 @@ _EXPORTS = {
         "base_frequency", "Identification", "IdentificationError", "StartError", "identify",
         "synthesize",
         "Design", "DesignError", "Objective", "Constraint", "design", "design_metrics",
+        "Compensation", "CompensationError", "compensate",
     ),
     "._prb_table": ("prb_parameters", "prb_table"),
     "._data": (
@@ -219,6 +220,9 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         Constraint as Constraint,
         design as design,
         design_metrics as design_metrics,
+        Compensation as Compensation,
+        CompensationError as CompensationError,
+        compensate as compensate,
     )
     from ._prb_table import prb_parameters as prb_parameters, prb_table as prb_table
     from ._data import (

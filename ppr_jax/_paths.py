@@ -48,7 +48,7 @@ MIN_SPLINE_SAMPLES = 4
 #: sample step (`check_log_covers`): the rounding of a recorder's time stamps, not a shortfall
 COVER_TOLERANCE = 0.5
 #: boundary conditions of `Waypoints`
-BOUNDARY = ("clamped", "natural")
+BOUNDARY = ("clamped", "natural", "not-a-knot")
 #: the loaders' choices: `BOUNDARY`, or "auto" (`end_condition`)
 LOAD_BOUNDARY = ("auto", *BOUNDARY)
 #: `end_condition`: a file moves at an end when its first or last step is more than this
@@ -171,8 +171,12 @@ def _spline_factors(ts: np.ndarray, bc: str):
     a[1:-1], b[1:-1], c[1:-1] = h[1:], 2 * (h[:-1] + h[1:]), h[:-1]
     if bc == "clamped":
         b[0] = b[-1] = 1.0
-    else:  # natural: 2 m0 + m1 = 3 delta0 is y'' = 0 at the first knot, likewise at the last
+    elif bc == "natural":  # 2 m0 + m1 = 3 delta0 is y'' = 0 at the first knot, likewise last
         b[0], c[0], a[-1], b[-1] = 2.0, 1.0, 1.0, 2.0
+    else:  # not-a-knot: the third derivative continuous at the second and the last but one
+        # knot (scipy's CubicSpline's default), its rows kept tridiagonal; needs n >= 3
+        b[0], c[0] = h[1], h[0] + h[1]
+        a[-1], b[-1] = h[-1] + h[-2], h[-2]
     den, cp = np.empty(n), np.empty(n)
     den[0], cp[0] = b[0], c[0] / b[0]
     for i in range(1, n):
@@ -191,8 +195,13 @@ def _spline_coefficients(ts: np.ndarray, ys, bc: str):
     inner = 3.0 * (h[1:] * delta[:-1] + h[:-1] * delta[1:])
     if bc == "clamped":  # zero velocity at both ends
         end0, end1 = jnp.zeros_like(ys[:1]), jnp.zeros_like(ys[:1])
-    else:
+    elif bc == "natural":
         end0, end1 = 3.0 * delta[:1], 3.0 * delta[-1:]
+    else:  # not-a-knot (`_spline_factors`)
+        h0, h1, g0, g1 = h[0], h[1], h[-2], h[-1]
+        end0 = ((h0 + 2.0 * (h0 + h1)) * h1 * delta[0] + h0**2 * delta[1]) / (h0 + h1)
+        end1 = (g1**2 * delta[-2] + (2.0 * (g0 + g1) + g1) * g0 * delta[-1]) / (g0 + g1)
+        end0, end1 = end0[None], end1[None]
     d = jnp.concatenate([end0, inner, end1]) / den[:, None]
 
     def forward(prev, x):
@@ -298,6 +307,11 @@ class Waypoints(eqx.Module):
     at the ends instead, for samples cut out of a motion (a clamped spline would stop the path
     there, within one sample interval). Outside [ts[0], ts[-1]] the path continues with its end
     pose and velocity (a hold when clamped): C1 there, keep simulations inside the samples.
+    `"not-a-knot"`: the third derivative continuous at the second and the last but one sample
+    (scipy's `CubicSpline` default; at least 3 samples), fourth-order accurate up to the ends
+    for samples of a smooth motion, and continued outside by its end pieces (smooth there: a
+    quasi-static start's stencil at the first sample reads the motion's own rates and
+    accelerations); `compensate` writes its command logs for it.
 
     The spline's slopes solve a tridiagonal system factored once on the host from the times;
     the rest is JAX, linear in the poses, so a `Waypoints` built from traced poses is
@@ -308,7 +322,7 @@ class Waypoints(eqx.Module):
 
     - `ts`: sample times (n,) (s), strictly increasing, n >= 2; host values, not traced.
     - `poses`: samples (n, 3) (x, y, phi) (m, m, rad).
-    - `bc`: `"clamped"` or `"natural"`.
+    - `bc`: `"clamped"`, `"natural"` or `"not-a-knot"`.
     - `name`: labels the samples in error messages (a file name for `load_path`).
     """
 
@@ -325,7 +339,8 @@ class Waypoints(eqx.Module):
         if ys.ndim != 2 or ys.shape[0] != ts.shape[0]:
             raise DataError(f"{name}: samples must have shape (n, k) with n = {ts.shape[0]} "
                             f"times, got {ys.shape}")
-        _check_samples(name, ts, None if _is_traced(ys) else np.asarray(ys), min_samples=2)
+        _check_samples(name, ts, None if _is_traced(ys) else np.asarray(ys),
+                       min_samples=3 if bc == "not-a-knot" else 2)
         self.spline = PiecewiseCubic(jnp.asarray(ts), _spline_coefficients(ts, ys, bc))
         self.bc, self.name = bc, name
 
@@ -342,6 +357,8 @@ class Waypoints(eqx.Module):
 
     def __call__(self, t) -> Float[Array, " k"]:
         t = jnp.asarray(t, dtype=jnp.float64)
+        if self.bc == "not-a-knot":  # the end pieces continue: smooth across the ends
+            return self.spline(t)
         ts, c = self.spline.ts, self.spline.c
         h = ts[-1] - ts[-2]
         y1 = ((c[-1, 0] * h + c[-1, 1]) * h + c[-1, 2]) * h + c[-1, 3]
@@ -521,8 +538,10 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "auto",
     - `path`: the CSV file.
     - `kind`: `"angles"` or `"torque"`: which columns to read when the file holds both; None
       takes the one present.
-    - `bc`: the spline's boundary condition (see `Waypoints`): `"auto"` (the default, as
-      `load_path`: natural when the log starts or ends changing), `"clamped"` or `"natural"`.
+    - `bc`: the spline's boundary condition (see `Waypoints`): `"auto"` (the default: the one
+      the file's header declares, `# spline: not-a-knot` as `compensate` writes, else as
+      `load_path`: natural when the log starts or ends changing), `"clamped"`, `"natural"` or
+      `"not-a-knot"`.
     - `max_gap`, `min_samples`, `drop_nan`: as `load_path`.
     - `time_unit`, `angle_unit`, `torque_unit`: units of undeclared columns.
     - `check_units`: refuse angles beyond two turns (degrees read as radians) and a step of more
@@ -564,7 +583,28 @@ def load_commands(path: str, *, kind: Optional[str] = None, bc: str = "auto",
             raise DataError(f"{_at(source, 'line', lines, ts, i)}: an actuated angle jumps by "
                             f"{float(step[i - 1]):.4g} rad from line {int(lines[i - 1])}: wrapped "
                             f"at +-pi? unwrap it (numpy.unwrap) before loading")
+    if bc == "auto" and _declared_spline(path) is not None:
+        bc = _declared_spline(path)
     return CommandLog(Waypoints(ts, V, _load_bc(bc, ts, V), name=source), kind)
+
+
+#: the header comment by which a command log names its spline (`compensate` writes it)
+SPLINE_COMMENT = "# spline:"
+
+
+def _declared_spline(path: str):
+    """The spline a file's header declares (`# spline: not-a-knot`), else None."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            if not line.startswith("#"):
+                return None
+            if line.lower().startswith(SPLINE_COMMENT):
+                name = line[len(SPLINE_COMMENT):].strip()
+                if name not in BOUNDARY:
+                    raise DataError(f"{path}: the header declares spline {name!r}; allowed: "
+                                    f"{', '.join(BOUNDARY)}")
+                return name
+    return None
 
 
 def check_same_rate(a, b, *, rtol: float = 0.01) -> float:

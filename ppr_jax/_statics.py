@@ -508,3 +508,100 @@ def kinematic_state(model: AbstractModel, robot, angles, X_guess, rtol=1e-13, at
     conv = jax.jvp(lambda X: jax.jvp(tha_of_X, (X,), (Xd,))[1], (X,), (Xd,))[1]
     Xdd = solve(S, thdd - conv)
     return X, Xd, Xdd, result_code(res), S
+
+
+#: passes of `inverse_balance`: each balances the unknowns at the previous pass's own rates and
+#: accelerations, and shrinks what is left by (omega_path / omega_zero)^2, omega_zero the
+#: frequency of the inverse's internal (zero) dynamics (about 230 rad/s for Table 1's L2 at
+#: 0.5 mm): on a figure eight at 2 rad/s the changes of passes 1-4 were 6e-4, 1e-7, 1e-9 and
+#: 2e-11 rad. The last change is returned, so a path too fast for the iteration is told.
+INVERSE_PASSES = 4
+
+
+def inverse_balance(model: AbstractModel, robot: RobotLike, path: Callable, t,
+                    wrench=None):
+    """The model's inverse along a prescribed platform path at time t: the coordinates that
+    make the platform follow `path`, and the actuator torques that do it.
+
+    The pose X(t) and its rates are the path's. Every other coordinate (L2: the actuated angles;
+    quasi-static L3: also the connecting links; the full L3: also the strips) follows from the
+    rows of M z'' + h = Q in which no actuator torque appears: with the pose prescribed they
+    are (n - 3) equations in the (n - 3) unknowns. Their rates and accelerations enter those
+    rows: the internal (zero) dynamics of the inverse, oscillatory or unstable (for Table 1's
+    L2, a pair growing at about 76 1/s: the inverse is non-minimum-phase), so they are not
+    integrated; the bounded solution, the slow manifold, is found as the quasi-static start
+    finds its own (`quasi_static_core`): balances on a 5-point stencil of step `QS_DT` about t,
+    `INVERSE_PASSES` passes, each at the previous one's own rates and accelerations (the
+    first at the L1 manifold's). The torques are then the actuated rows. L0 and L1 (z = X)
+    need none of this: their angles are the kinematics' and their torques `inverse_dynamics`.
+
+    **Arguments:**
+
+    - `model`: a model (L0-L3); `robot`: a `Robot` or `RobotParams`.
+    - `path`: the pose path t -> X (3,) (m, m, rad), C2 (differentiated twice).
+    - `t`: the time (s), a scalar (vmap it over times).
+    - `wrench`: (3,) a constant platform wrench (N, N, N m); None: none.
+
+    **Returns:** (z (n,), zdot (n,), th_a (3,) (rad), tau (3,) (N m), change, failed): the
+    state on the path, the actuated angles and torques, the last pass's largest change of the
+    unknowns (rad; the iteration's own error estimate) and a traceable failure flag (no
+    balance, or the chains out of reach).
+    """
+    robot = as_robot(robot)
+    w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
+    t = jnp.asarray(t, dtype=jnp.float64)
+    n = model.n_dof
+
+    def ref(s):
+        return model.coords_from_pose(robot, path(s))
+
+    if model.actuated_index is None:
+        from ._dynamics import inverse_dynamics
+
+        X, Xd, Xdd = derivatives(path, t)
+        tau, eom = inverse_dynamics(model, robot, X, Xd, Xdd, w)
+        failed = ~(jnp.min(eom.kin.margin) > 0) | ~jnp.all(jnp.isfinite(tau))
+        return X, Xd, eom.kin.th_a, tau, jnp.zeros(()), failed
+    act = tuple(model.actuated_index)
+    unknown = tuple(range(3, n))
+    rows = jnp.array(tuple(i for i in range(n) if i not in act))
+    ia = jnp.array(act)
+    ts = t + STENCIL * QS_DT
+    nu = len(unknown)
+
+    def solve_at(s, zu_guess, zud, zudd, own):
+        z_r, zd_r, zdd_r = derivatives(ref, s)
+        zd_b = jnp.where(own, zd_r.at[3:].set(zud), zd_r)
+        zdd_b = jnp.where(own, zdd_r.at[3:].set(zudd), zdd_r)
+
+        def full(zu):
+            z = jnp.concatenate([z_r[:3], zu])
+            eom = eom_terms(model, robot, z, zd_b)
+            r = eom.M @ zdd_b + eom.h - generalized_force(eom, jnp.zeros(3), w)
+            return r[rows], (r[ia], jnp.min(eom.kin.margin), eom.kin.th_a)
+
+        guess = jnp.where(own, zu_guess, z_r[3:])
+        zu, err, result, aux = _fd_newton_solve(full, guess)
+        stalled = result == optx.RESULTS.nonlinear_max_steps_reached
+        bad = ~(err < 1e-10) | ((result != optx.RESULTS.successful) & ~stalled)
+        return zu, bad, aux, z_r, zd_r
+
+    def one_pass(carry, own):
+        zus_prev, zud, zudd = carry
+        out = jax.vmap(solve_at, in_axes=(0, 0, 0, 0, None))(ts, zus_prev, zud, zudd, own)
+        zus = out[0]
+        change = jnp.max(jnp.abs(zus - zus_prev))
+        return (zus, jnp.asarray(D1) @ zus / QS_DT, jnp.asarray(D2) @ zus / QS_DT**2), (out,
+                                                                                    change)
+
+    zero = jnp.zeros((STENCIL.shape[0], nu))
+    (zus, zud, _), (outs, changes) = jax.lax.scan(
+        one_pass, (zero, zero, zero), jnp.array([False] + [True] * (INVERSE_PASSES - 1)))
+    _, bad, (tau, margin, th_a), z_r, zd_r = jax.tree.map(lambda a: a[-1], outs)
+    c = STENCIL.shape[0] // 2
+    z = jnp.concatenate([z_r[c, :3], zus[c]])
+    zd = jnp.concatenate([zd_r[c, :3], zud[c]])
+    # The torques of the last pass balance its own accelerations of the pass before; the
+    # difference is the last change's, below the returned error estimate's effect.
+    failed = jnp.any(bad) | ~jnp.all(margin > 0)
+    return z, zd, th_a[c], tau[c], changes[-1], failed

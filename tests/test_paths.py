@@ -571,3 +571,37 @@ def test_a_path_too_long_for_its_input_table_is_refused_before_compiling(tmp_pat
     scene = pj.PathScene(pj.load_path(str(f)), drive="torque")
     with pytest.raises(pj.PPRError, match="21 samples.*at most 10 samples"):
         pj.solve_scene(scene, model="rigid", options=pj.SceneOptions(t_end=0.2, n_out=3))
+
+
+def test_not_a_knot_spline_is_scipys():
+    """`Waypoints(bc="not-a-knot")` against scipy's `CubicSpline` (its default ends) on uneven
+    samples: values and second derivatives up to the ends, and outside them the end pieces
+    continued (the quasi-static start's stencil reads them)."""
+    from scipy.interpolate import CubicSpline
+
+    ts = np.sort(np.random.default_rng(3).uniform(0.0, 2.0, 12))
+    ys = np.stack([np.sin(ts), np.cos(2 * ts), ts**3], axis=1)
+    w = pj.Waypoints(ts, ys, bc="not-a-knot")
+    cs = CubicSpline(ts, ys, bc_type="not-a-knot", extrapolate=True)
+    tt = np.concatenate([np.linspace(ts[0], ts[-1], 200), [ts[0] - 0.01, ts[-1] + 0.01]])
+    got = np.asarray(jax.vmap(w)(jnp.asarray(tt)))
+    np.testing.assert_allclose(got, cs(tt), rtol=0, atol=1e-13)
+    acc = np.asarray(jax.vmap(lambda t: pj.derivatives(w, t)[2])(jnp.asarray(tt)))
+    np.testing.assert_allclose(acc, cs(tt, 2), rtol=0, atol=1e-10)
+    with pytest.raises(pj.DataError, match="samples"):
+        pj.Waypoints(ts[:2], ys[:2], bc="not-a-knot")
+
+
+def test_command_log_header_declares_its_spline(tmp_path):
+    """A log whose header says `# spline: not-a-knot` (what `compensate` writes) is splined so
+    under bc="auto"; an unknown spline name is refused naming the file."""
+    ts = np.linspace(0.0, 1.0, 21)
+    rows = "\n".join(f"{t:.17g},{np.sin(t):.17g},{np.cos(t):.17g},{t:.17g}" for t in ts)
+    good = tmp_path / "a.csv"
+    good.write_text(f"# spline: not-a-knot\ntime,th_1,th_2,th_3\n{rows}\n")
+    assert pj.load_commands(str(good)).spline.bc == "not-a-knot"
+    assert pj.load_commands(str(good), bc="natural").spline.bc == "natural"
+    bad = tmp_path / "b.csv"
+    bad.write_text(f"# spline: akima\ntime,th_1,th_2,th_3\n{rows}\n")
+    with pytest.raises(pj.DataError, match="b.csv.*akima"):
+        pj.load_commands(str(bad))

@@ -149,9 +149,11 @@ def parent_parsers() -> dict:
     files.add_argument("--torques", default=None, metavar="FILE.csv",
                        help="with --path: the torques a controller applied (time, "
                             "tau_1..tau_3), which drive the model (a torque drive)")
-    files.add_argument("--bc", default="auto", choices=["auto", "clamped", "natural"],
+    files.add_argument("--bc", default="auto", choices=["auto", "clamped", "natural",
+                                                        "not-a-knot"],
                        help="with --path: the splines' ends: clamped (at rest), natural (the "
-                            "samples cut out of a motion), or auto (default): clamped when the "
+                            "samples cut out of a motion), not-a-knot, or auto (default): what "
+                            "the file's header declares (# spline: ...), else clamped when the "
                             "file is at rest at both ends, else natural")
     files.add_argument("--drive", default="torque", choices=["torque", "motion"],
                        help="with --path and no command log: the torque model's inverse-dynamics "

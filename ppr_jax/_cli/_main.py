@@ -19,6 +19,7 @@ from ._common import (
     _log,
     parent_parsers,
 )
+from ._compensate import add_compensate
 from ._design import add_design
 from ._identify import add_identify
 from ._modes import _add_modes
@@ -33,7 +34,7 @@ from ._torques import _add_torques
 #: is one module in this wing with a function `add(sub, parents, fmt)`, and one line here.
 COMMANDS = [
     _add_simulate, _add_torques, _add_modes, _add_prb, _add_prb_table,
-    add_sweep, add_sensitivity, add_identify, add_synth, add_design,
+    add_sweep, add_sensitivity, add_identify, add_synth, add_design, add_compensate,
 ]
 
 

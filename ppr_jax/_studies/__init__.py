@@ -2,6 +2,7 @@
 sensitivities (`_sensitivity`), identification (`_identify/`) and design (`_design/`), each
 through `AbstractScene.run` and the one batch mapper of the scenes wing."""
 
+from ._compensate import Compensation, CompensationError, compensate, error_band
 from ._design import (
                       Constraint,
                       Design,
@@ -53,6 +54,7 @@ from ._sweep import (
 )
 
 __all__ = [
+    "Compensation", "CompensationError", "compensate", "error_band",
     "Constraint", "Design", "DesignError", "Objective", "design", "design_metrics",
     "load_design_spec",
     "ACTUATIONS", "DEFAULT_NOISE", "FLOAT_PARAMS", "INITIAL_STATES", "LOSSES",

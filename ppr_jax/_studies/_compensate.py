@@ -1,0 +1,359 @@
+"""Compensation: the commands that make a compliant robot's platform follow its path.
+
+A robot driven by the angles of its nominal inverse kinematics (or the torques of its nominal
+inverse dynamics) misses the path by what its compliance and inertia bend it: a tenth of a
+millimetre for Table 1's robot at 0.5 mm strips. `compensate` computes the commands that the
+model itself needs to follow the path, replays them through the model's own simulation, and
+reports both runs.
+
+How the commands are found (measured on an L2 figure eight, 2 s at 100 Hz, 0.5 mm strips):
+
+- **Model inversion** (`_statics.inverse_balance`), for every model. The platform pose is
+  prescribed; the other coordinates follow from the equations of motion's rows that carry no
+  actuator torque, and the torques from the others. The inverse's own (zero) dynamics is
+  non-minimum-phase for the L2 robot (a pair of roots growing at about 76 1/s): integrating it
+  diverges, so its bounded solution is found pass by pass on a short stencil, as the quasi-static
+  start does. It costs one vmapped solve over the command times (no simulation), and the model
+  then tracks the path to 1e-7 m (motion drive) and 5e-8 m (torque drive) where the nominal
+  commands miss it by 3e-4 and 8e-5 m.
+- An iteration of corrections through the simulation (u += S e, S the L1 Jacobian) was
+  measured and dropped: the platform's structural modes (13.6 Hz locked) ring through each
+  run, and the correction of the ringing made the next run worse.
+
+Motion drive: the angles are written for a not-a-knot spline (`Waypoints(bc="not-a-knot")`):
+the platform's balance is sensitive to the angles' accelerations (the L2 coupling of platform
+and drive links), and a natural spline's zero acceleration at a moving end put the start 10 um
+off the path. Torque drive is open loop: where the robot with free actuators is unstable
+(`modes(actuators="free")`: the home pose's rotation, about 3.3 1/s for Table 1), any error
+grows as exp(rate t): the result reports the rate and flags a horizon over which it amplifies
+errors a thousandfold.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable, Optional, Union
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import PPRError, check_instance, check_number
+from .._models import AbstractModel, get_model
+from .._modes import modes
+from .._params import RobotParams
+from .._paths import CommandLog, Waypoints
+from .._robot import Robot
+from .._scenes import AbstractScene, PathScene, SceneOptions, run_scene, scene_params
+from .._statics import inverse_balance
+
+#: the drives, and the command log's kind for each
+DRIVES = {"motion": "angles", "torque": "torque"}
+#: default command rate (Hz) for a path with no sample times of its own
+RATE = 100.0
+#: the inverse's own error estimate (the last pass's change, rad) above which it is flagged
+CHANGE_TOL = 1e-8
+#: open-loop amplification exp(rate T) of a torque drive above which the result is flagged
+AMPLIFICATION_TOL = 1e3
+#: the limits `compensate` checks, and their units
+LIMITS = {"angle": "rad", "rate": "rad/s", "torque": "N m"}
+
+
+class CompensationError(PPRError):
+    """The model's inverse has no solution on the path (a chain out of reach, no balance)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Compensation:
+    """What `compensate` found: the commands, and the model driven by them and by the nominal
+    ones.
+
+    - `ts` (n,) command times (s); `commands` (n, 3) the actuated angles (rad) or torques
+      (N m); `kind` `"angles"` or `"torque"`; `drive` `"motion"` or `"torque"`.
+    - `log`: the `CommandLog` that replays them (a not-a-knot spline); `nominal` (n, 3) the
+      nominal commands (L1's inverse kinematics or inverse dynamics) at `ts`.
+    - `before`, `after`: the `SceneReport`s of the model driven by the nominal and the
+      compensated commands.
+    - `error`: {"before", "after"} -> tracking errors (m, rad): `position_max`, `position_rms`,
+      `position_end`, `phi_max`, `phi_rms`, `phi_end`.
+    - `size`: {"before", "after"} -> `max` |command| and `rate_max` |d command/dt| (rad or
+      N m, per s).
+    - `method` (`"inversion"`), `change` the inversion's last change (rad: its error estimate).
+    - `growth_rate` (1/s): the fastest growth of the robot with free actuators at the path's
+      start (torque drive; 0 where stable, None for a motion drive); `amplification`
+      exp(growth_rate T).
+    - `flags`: what the user should know, one sentence each (limits exceeded with their time,
+      an unstable open loop, an inversion that did not settle); empty when all is well.
+    - `band`: with an `Identification`, the predicted tracking error's band (`error_band`).
+    """
+
+    ts: np.ndarray
+    commands: np.ndarray
+    kind: str
+    drive: str
+    model: str
+    log: CommandLog
+    nominal: np.ndarray
+    before: object
+    after: object
+    error: dict
+    size: dict
+    method: str
+    change: float
+    growth_rate: Optional[float]
+    amplification: Optional[float]
+    flags: tuple
+    band: Optional[dict] = None
+
+    @property
+    def improvement(self) -> Optional[float]:
+        """Max position error before over after (None without `verify`)."""
+        if self.error is None:
+            return None
+        return self.error["before"]["position_max"] / max(self.error["after"]["position_max"],
+                                                         1e-300)
+
+    def summary(self) -> dict:
+        """JSON-ready numbers: the errors, sizes, method and flags."""
+        out = {"drive": self.drive, "model": self.model, "kind": self.kind,
+               "method": self.method, "samples": int(self.ts.shape[0]),
+               "t_end_s": float(self.ts[-1]), "inversion_change_rad": self.change,
+               "error": self.error, "commands": self.size, "position_error_before_m":
+               None if self.error is None else self.error["before"]["position_max"],
+               "position_error_after_m":
+               None if self.error is None else self.error["after"]["position_max"],
+               "improvement": self.improvement, "flags": list(self.flags)}
+        if self.growth_rate is not None:
+            out["open_loop_growth_rate_per_s"] = self.growth_rate
+            out["open_loop_amplification"] = self.amplification
+        if self.band is not None:
+            out["band"] = {k: v for k, v in self.band.items() if np.ndim(v) == 0
+                           or isinstance(v, (list, tuple, str))}
+        return out
+
+
+def _tracking(res) -> dict:
+    e = np.asarray(res.X) - np.asarray(res.X_nominal)
+    pos = np.linalg.norm(e[:, :2], axis=1)
+    phi = np.abs(e[:, 2])
+    return {"position_max": float(pos.max()), "position_rms": float(np.sqrt(np.mean(pos**2))),
+            "position_end": float(pos[-1]), "phi_max": float(phi.max()),
+            "phi_rms": float(np.sqrt(np.mean(phi**2))), "phi_end": float(phi[-1])}
+
+
+def _size(ts, u) -> dict:
+    rate = np.diff(u, axis=0) / np.diff(ts)[:, None]
+    return {"max": float(np.abs(u).max()), "rate_max": float(np.abs(rate).max())}
+
+
+def _grid(path, options: SceneOptions, rate: Optional[float]):
+    """Command times: the path's own samples where it has them from t = 0, else `rate` Hz over
+    the options' horizon."""
+    own = getattr(path, "ts", None)
+    if rate is None and own is not None:
+        ts = np.asarray(own, dtype=np.float64)
+        if ts[0] == 0.0:
+            return ts
+    r = RATE if rate is None else check_number("rate", rate, 1e-3, 1e6)
+    t_end = float(options.t_end)
+    return np.linspace(0.0, t_end, int(round(t_end * r)) + 1)
+
+
+def _limit_flags(ts, u, kind, limits) -> list:
+    flags = []
+    checks = {"angle": (u, "angles"), "torque": (u, "torque"),
+              "rate": (np.diff(u, axis=0) / np.diff(ts)[:, None], "angles")}
+    for name, bound in (limits or {}).items():
+        if name not in LIMITS:
+            raise PPRError(f"limits: unknown limit {name!r}; allowed: {', '.join(LIMITS)}")
+        bound = check_number(f"limits[{name!r}]", bound, 0.0, float("inf"))
+        values, applies = checks[name]
+        if applies != kind:
+            continue
+        over = np.nonzero(np.abs(values) > bound)[0]
+        if over.size:
+            k = int(over[0])
+            flags.append(f"{name} limit {bound:g} {LIMITS[name]} exceeded from t = "
+                         f"{ts[k]:.4g} s (max {np.abs(values).max():.4g} {LIMITS[name]})")
+    return flags
+
+
+def compensate(scene: Union[AbstractScene, Callable, str], model: Union[AbstractModel, str],
+               params=None, *, drive: Optional[str] = None,
+               options: Optional[SceneOptions] = None, rate: Optional[float] = None,
+               limits: Optional[dict] = None, band_level: float = 0.95,
+               verify: bool = True) -> Compensation:
+    """The commands that make `model`'s platform follow a path, by model inversion.
+
+    **Arguments:**
+
+    - `scene`: a path t -> (x, y, phi) (a `Waypoints` from `load_path`, `Fourier`, `Line`,
+      ...), a `PathScene` (its path and drive), or `"paper-circle"` / `"servo-circle"`
+      (eq 55 with their drives).
+    - `model`: the model that computes and replays the commands (L0-L3, or its name).
+    - `params`: the robot (`RobotParams`), or an `Identification` (its robot; the result then
+      carries the predicted error's band over the identification's covariance); None: the
+      scene's defaults (Table 1; a path's as `PathScene`'s, 0.3 mm strips, as `simulate
+      --path` takes them).
+    - `drive`: `"motion"` (actuated angles) or `"torque"`; None: the scene's (a path: motion).
+    - `options`: a `SceneOptions` for the two runs (horizon when the path has no samples of
+      its own, tolerances, solver); its `n_out` is replaced by the command times.
+    - `rate`: command rate (Hz); None: the path's own sample times (a `Waypoints` starting at
+      t = 0), else 100 Hz.
+    - `limits`: optional bounds {"angle": rad, "rate": rad/s, "torque": N m} on |commands|:
+      exceeding one is flagged with its first time.
+    - `band_level`: the probability of the band (with an `Identification`).
+    - `verify`: replay the nominal and the compensated commands through the model (the
+      result's `before`, `after`, `error`; the band needs them); False: the inversion only
+      (those fields None), for commands to check elsewhere.
+
+    **Returns:** a `Compensation`. Raises `CompensationError` naming the first time where the
+    inverse has no solution, and the scene's errors for a path out of reach or through a
+    singularity.
+    """
+    from ._identify import Identification
+
+    ident = params if isinstance(params, Identification) else None
+    if isinstance(scene, str):
+        if scene not in ("paper-circle", "servo-circle"):
+            raise PPRError(f"scene: a path, a PathScene, 'paper-circle' or 'servo-circle', got "
+                           f"{scene!r}")
+        from .._trajectory import Circle
+
+        path, scene_drive = Circle(), "torque" if scene == "paper-circle" else "motion"
+        default = scene_params(scene)
+    elif isinstance(scene, PathScene) and scene.command_log is None:
+        path, scene_drive, default = scene.path, scene.drive, scene.default_params()
+    elif callable(scene):
+        path, scene_drive = scene, "motion"
+        default = PathScene(scene, drive="motion").default_params()
+    else:
+        raise PPRError(f"scene: a path, a PathScene, 'paper-circle' or 'servo-circle', got "
+                       f"{type(scene).__name__}")
+    drive = scene_drive if drive is None else drive
+    if drive not in DRIVES:
+        raise PPRError(f"drive must be one of {', '.join(DRIVES)}, got {drive!r}")
+    model = get_model(model) if isinstance(model, str) else model
+    check_instance("model", model, AbstractModel)
+    robot_params = ident.params if ident is not None else (default if params is None
+                                                           else params)
+    check_instance("params", robot_params, RobotParams)
+    options = SceneOptions() if options is None else options
+    ts = _grid(path, options, rate)
+    opts = dataclasses.replace(options, t_end=float(ts[-1]), n_out=int(ts.shape[0]))
+    robot = Robot(robot_params)
+
+    z, zd, th_a, tau, change, failed = (np.asarray(a) for a in
+                                        _invert(model, robot, path, jnp.asarray(ts)))
+    if failed.any() or not np.isfinite(th_a).all() or not np.isfinite(tau).all():
+        k = int(np.nonzero(failed | ~np.isfinite(th_a).all(1) | ~np.isfinite(tau).all(1))[0][0])
+        raise CompensationError(
+            f"compensate: the {model.name} model has no inverse on the path at t = {ts[k]:.4g} s "
+            f"(no balance of the platform on the prescribed pose, or a chain out of reach)")
+    kind = DRIVES[drive]
+    u = th_a if kind == "angles" else tau
+    log = CommandLog(Waypoints(ts, jnp.asarray(u), bc="not-a-knot", name="compensated"),
+                     kind=kind)
+    flags = _limit_flags(ts, u, kind, limits)
+    change = float(np.max(change))
+    if change > CHANGE_TOL:
+        flags.append(f"the inversion had not settled (last change {change:.2g} rad > "
+                     f"{CHANGE_TOL:g}): the path is fast for the inverse's own dynamics")
+    growth = amplification = None
+    if drive == "torque":
+        m = modes(model, robot_params, np.asarray(path(0.0)), actuators="free")
+        growth = max(0.0, float(np.max(np.asarray(m.growth_rate), initial=0.0)))
+        amplification = float(np.exp(min(growth * ts[-1], 700.0)))
+        if amplification > AMPLIFICATION_TOL:
+            flags.append(f"open loop unstable: with free actuators the robot diverges at "
+                         f"{growth:.3g} 1/s, so any error grows {amplification:.3g} times over "
+                         f"{ts[-1]:.3g} s; replay the torques under a servo")
+    common = dict(ts=ts, commands=np.asarray(u), kind=kind, drive=drive, model=model.name,
+                  log=log, method="inversion", change=change, growth_rate=growth,
+                  amplification=amplification)
+    if not verify:
+        return Compensation(nominal=None, before=None, after=None, error=None,
+                            size={"after": _size(ts, u)}, flags=tuple(flags), **common)
+    before = run_scene(PathScene(path, drive=drive, name="nominal"), robot_params, model=model,
+                       options=opts)
+    after = run_scene(PathScene(path, drive=drive, command_log=log, name="compensated"),
+                      robot_params, model=model, options=opts)
+    nominal = np.asarray(before.result.tau if kind == "torque" else _angles(before))
+    error = {"before": _tracking(before.result), "after": _tracking(after.result)}
+    size = {"before": _size(ts, nominal), "after": _size(ts, u)}
+    if not error["after"]["position_max"] < error["before"]["position_max"]:
+        flags.append(f"the compensated commands miss the path by "
+                     f"{error['after']['position_max']:.3g} m, no better than the nominal "
+                     f"{error['before']['position_max']:.3g} m")
+    band = None
+    if ident is not None:
+        band = error_band(ident, model, path, drive, log, opts, after, band_level)
+    return Compensation(nominal=nominal, before=before, after=after, error=error, size=size,
+                        flags=tuple(flags), band=band, **common)
+
+
+@eqx.filter_jit
+def _invert(model, robot, path, ts):
+    """`inverse_balance` at the times ts (n,): one program per model and path structure."""
+    return jax.vmap(lambda t: inverse_balance(model, robot, path, t))(ts)
+
+
+def _angles(report) -> np.ndarray:
+    """The actuated angles (m, 3) of a run: the model's coordinates where they hold them,
+    else the kinematics' (L0/L1)."""
+    res = report.result
+    model = get_model(res.model)
+    if model.actuated_index is not None:
+        return np.asarray(res.z)[:, list(model.actuated_index)]
+    from .._kinematics import inverse_kinematics
+
+    return np.asarray(inverse_kinematics(report.params, jnp.asarray(res.X), model).th_a)
+
+
+def error_band(ident, model, path, drive, log, options, after, level: float = 0.95) -> dict:
+    """The predicted tracking error of the compensated commands over an identification's
+    uncertainty: linearised, e(p) = e(p_hat) + J (p - p_hat) with J the error's Jacobian in the
+    identified parameters (forward mode through the simulation), and a simultaneous band:
+    half-width sqrt(chi2_k(level)) sqrt(J_i C J_i^T) at every output and coordinate holds the
+    whole error of every robot inside the covariance C's `level` ellipsoid (Scheffe's
+    projection), so of a fraction `level` of the robots, as far as the linearisation holds.
+
+    **Arguments:**
+
+    - `ident`: the `Identification` (names, estimate, covariance, params).
+    - `model`, `path`, `drive`, `log`: what `compensate` ran.
+    - `options`: the runs' `SceneOptions`; `after`: the run at the estimate.
+    - `level`: the band's probability.
+
+    **Returns:** {"names", "level", "error" (m, 3) at the estimate, "half_width" (m, 3),
+    "position_bound" (m, the largest |error| the band allows), "jacobian" (m, 3, k)}.
+    """
+    import diffrax
+    from scipy.stats import chi2
+
+    from .._scenes import solve_scene
+    from ._evaluation import Evaluation
+
+    names = tuple(ident.names)
+    x0 = jnp.asarray(np.asarray(ident.estimate, dtype=np.float64))
+    base = ident.params
+    scene = PathScene(path, drive=drive, command_log=log, name="compensated")
+    fwd = dataclasses.replace(options, adjoint=diffrax.ForwardMode())
+    ev = Evaluation(names=names, metrics=(), equal_links=False, samples=(), ctx=None)
+
+    def err(x):
+        res = solve_scene(scene, ev.params(x, base), model=model, options=fwd, throw=False)
+        return res.X - res.X_nominal
+
+    J = np.asarray(jax.jacfwd(err)(x0))  # (m, 3, k)
+    C = np.asarray(ident.covariance, dtype=np.float64)
+    var = np.einsum("mik,kl,mil->mi", J, C, J)
+    half = np.sqrt(chi2.ppf(level, len(names))) * np.sqrt(np.maximum(var, 0.0))
+    e0 = np.asarray(after.result.X) - np.asarray(after.result.X_nominal)
+    bound = float(np.max(np.linalg.norm(np.abs(e0[:, :2]) + half[:, :2], axis=1)))
+    return {"names": list(names), "level": float(level), "error": e0, "half_width": half,
+            "position_bound": bound, "jacobian": J}
+
+
+__all__ = ["Compensation", "CompensationError", "compensate", "error_band", "DRIVES"]
