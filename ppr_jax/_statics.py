@@ -510,7 +510,7 @@ def kinematic_state(model: AbstractModel, robot, angles, X_guess, rtol=1e-13, at
     return X, Xd, Xdd, result_code(res), S
 
 
-#: passes of `inverse_balance`: each balances the unknowns at the previous pass's own rates and
+#: passes of `inverse_path`: each balances the unknowns at the previous pass's own rates and
 #: accelerations, and shrinks what is left by (omega_path / omega_zero)^2, omega_zero the
 #: frequency of the inverse's internal (zero) dynamics (about 230 rad/s for Table 1's L2 at
 #: 0.5 mm): on a figure eight at 2 rad/s the changes of passes 1-4 were 6e-4, 1e-7, 1e-9 and
@@ -518,10 +518,23 @@ def kinematic_state(model: AbstractModel, robot, angles, X_guess, rtol=1e-13, at
 INVERSE_PASSES = 4
 
 
-def inverse_balance(model: AbstractModel, robot: RobotLike, path: Callable, t,
-                    wrench=None):
-    """The model's inverse along a prescribed platform path at time t: the coordinates that
-    make the platform follow `path`, and the actuator torques that do it.
+def _lagrange_weights(ts: np.ndarray, g0: float, h: float, size: int):
+    """(first index (n,), weights (n, 5)) of the quartic through the 5 grid points nearest each
+    time of ts on the grid g0 + k h (k < size): exact (one-hot) at a grid point."""
+    j0 = np.clip(np.rint((ts - g0) / h).astype(int) - 2, 0, size - 5)
+    s = (ts - g0) / h - j0
+    k = np.arange(5.0)
+    w = np.ones((ts.shape[0], 5))
+    for m in range(5):
+        for j in range(5):
+            if j != m:
+                w[:, m] *= (s - k[j]) / (k[m] - k[j])
+    return j0, w
+
+
+def inverse_path(model: AbstractModel, robot: RobotLike, path: Callable, ts, wrench=None):
+    """The model's inverse along a prescribed platform path at the times ts: the coordinates
+    that make the platform follow `path`, and the actuator torques that do it.
 
     The pose X(t) and its rates are the path's. Every other coordinate (L2: the actuated angles;
     quasi-static L3: also the connecting links; the full L3: also the strips) follows from the
@@ -529,27 +542,30 @@ def inverse_balance(model: AbstractModel, robot: RobotLike, path: Callable, t,
     are (n - 3) equations in the (n - 3) unknowns. Their rates and accelerations enter those
     rows: the internal (zero) dynamics of the inverse, oscillatory or unstable (for Table 1's
     L2, a pair growing at about 76 1/s: the inverse is non-minimum-phase), so they are not
-    integrated; the bounded solution, the slow manifold, is found as the quasi-static start
-    finds its own (`quasi_static_core`): balances on a 5-point stencil of step `QS_DT` about t,
-    `INVERSE_PASSES` passes, each at the previous one's own rates and accelerations (the
-    first at the L1 manifold's). The torques are then the actuated rows. L0 and L1 (z = X)
-    need none of this: their angles are the kinematics' and their torques `inverse_dynamics`.
+    integrated. The bounded solution, the slow manifold, is found as the quasi-static start
+    finds its own (`quasi_static_core`): balances on a uniform grid of step `QS_DT` over the
+    times (two steps beyond either end), `INVERSE_PASSES` passes, each at the previous pass's
+    own rates and accelerations (5-point differences; the first pass at the L1 manifold's).
+    The torques are the actuated rows. Values at the times ts are the quartic through the five
+    nearest grid points (exact where ts lies on the grid: a rate of 200 Hz / k from ts[0]).
+    L0 and L1 (z = X) need none of this: their angles are their kinematics' and their torques
+    `inverse_dynamics`.
 
     **Arguments:**
 
     - `model`: a model (L0-L3); `robot`: a `Robot` or `RobotParams`.
     - `path`: the pose path t -> X (3,) (m, m, rad), C2 (differentiated twice).
-    - `t`: the time (s), a scalar (vmap it over times).
+    - `ts`: the times (n,) (s), increasing host values (the grid is static).
     - `wrench`: (3,) a constant platform wrench (N, N, N m); None: none.
 
-    **Returns:** (z (n,), zdot (n,), th_a (3,) (rad), tau (3,) (N m), change, failed): the
-    state on the path, the actuated angles and torques, the last pass's largest change of the
-    unknowns (rad; the iteration's own error estimate) and a traceable failure flag (no
-    balance, or the chains out of reach).
+    **Returns:** (z (n, nd), zdot (n, nd), th_a (n, 3) (rad), tau (n, 3) (N m), change,
+    failed (n,)): the states on the path, the actuated angles and torques, the last pass's
+    largest change of the unknowns (rad; the iteration's own error estimate) and where the
+    inverse failed (no balance, or the chains out of reach).
     """
     robot = as_robot(robot)
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
-    t = jnp.asarray(t, dtype=jnp.float64)
+    ts = np.asarray(ts, dtype=np.float64).reshape(-1)
     n = model.n_dof
 
     def ref(s):
@@ -558,16 +574,26 @@ def inverse_balance(model: AbstractModel, robot: RobotLike, path: Callable, t,
     if model.actuated_index is None:
         from ._dynamics import inverse_dynamics
 
-        X, Xd, Xdd = derivatives(path, t)
-        tau, eom = inverse_dynamics(model, robot, X, Xd, Xdd, w)
-        failed = ~(jnp.min(eom.kin.margin) > 0) | ~jnp.all(jnp.isfinite(tau))
-        return X, Xd, eom.kin.th_a, tau, jnp.zeros(()), failed
+        def one(t):
+            X, Xd, Xdd = derivatives(path, t)
+            tau, eom = inverse_dynamics(model, robot, X, Xd, Xdd, w)
+            bad = ~(jnp.min(eom.kin.margin) > 0) | ~jnp.all(jnp.isfinite(tau))
+            return X, Xd, eom.kin.th_a, tau, bad
+
+        z, zd, th_a, tau, failed = jax.vmap(one)(jnp.asarray(ts))
+        return z, zd, th_a, tau, jnp.zeros(()), failed
     act = tuple(model.actuated_index)
-    unknown = tuple(range(3, n))
     rows = jnp.array(tuple(i for i in range(n) if i not in act))
     ia = jnp.array(act)
-    ts = t + STENCIL * QS_DT
-    nu = len(unknown)
+    size = int(np.ceil((ts[-1] - ts[0]) / QS_DT - 1e-9)) + 5
+    grid = jnp.asarray(ts[0] + QS_DT * (np.arange(size) - 2.0))
+    # 5-point differences on the grid: central inside, one-sided at the two ends of either side
+    rows1 = np.zeros((size, size))
+    rows2 = np.zeros((size, size))
+    for i in range(size):
+        j = min(max(i - 2, 0), size - 5)
+        rows1[i, j:j + 5], rows2[i, j:j + 5] = D1[i - j], D2[i - j]
+    G1, G2 = jnp.asarray(rows1 / QS_DT), jnp.asarray(rows2 / QS_DT**2)
 
     def solve_at(s, zu_guess, zud, zudd, own):
         z_r, zd_r, zdd_r = derivatives(ref, s)
@@ -588,20 +614,26 @@ def inverse_balance(model: AbstractModel, robot: RobotLike, path: Callable, t,
 
     def one_pass(carry, own):
         zus_prev, zud, zudd = carry
-        out = jax.vmap(solve_at, in_axes=(0, 0, 0, 0, None))(ts, zus_prev, zud, zudd, own)
+        out = jax.vmap(solve_at, in_axes=(0, 0, 0, 0, None))(grid, zus_prev, zud, zudd, own)
         zus = out[0]
         change = jnp.max(jnp.abs(zus - zus_prev))
-        return (zus, jnp.asarray(D1) @ zus / QS_DT, jnp.asarray(D2) @ zus / QS_DT**2), (out,
-                                                                                    change)
+        return (zus, G1 @ zus, G2 @ zus), (out, change)
 
-    zero = jnp.zeros((STENCIL.shape[0], nu))
+    zero = jnp.zeros((size, n - 3))
     (zus, zud, _), (outs, changes) = jax.lax.scan(
         one_pass, (zero, zero, zero), jnp.array([False] + [True] * (INVERSE_PASSES - 1)))
     _, bad, (tau, margin, th_a), z_r, zd_r = jax.tree.map(lambda a: a[-1], outs)
-    c = STENCIL.shape[0] // 2
-    z = jnp.concatenate([z_r[c, :3], zus[c]])
-    zd = jnp.concatenate([zd_r[c, :3], zud[c]])
-    # The torques of the last pass balance its own accelerations of the pass before; the
-    # difference is the last change's, below the returned error estimate's effect.
-    failed = jnp.any(bad) | ~jnp.all(margin > 0)
-    return z, zd, th_a[c], tau[c], changes[-1], failed
+    j0, wts = _lagrange_weights(ts, float(ts[0]) - 2 * QS_DT, QS_DT, size)
+    idx = jnp.asarray(j0[:, None] + np.arange(5))
+    wts = jnp.asarray(wts)
+
+    def at_ts(a):
+        return jnp.einsum("nk,nk...->n...", wts, a[idx])
+
+    z = jnp.concatenate([at_ts(z_r[:, :3]), at_ts(zus)], axis=1)
+    zd = jnp.concatenate([at_ts(zd_r[:, :3]), at_ts(zud)], axis=1)
+    # The torques of the last pass balance the accelerations of the pass before: they differ
+    # by the last change's effect, below the returned error estimate's.
+    bad_grid = bad | ~(margin > 0)
+    failed = jnp.any(bad_grid[idx], axis=1)
+    return z, zd, at_ts(th_a), at_ts(tau), changes[-1], failed

@@ -24,6 +24,7 @@ import pytest
 import ppr_jax as pj
 from benchmarks.contenders import scipy_l2
 from ppr_jax._robot import Robot
+from ppr_jax._statics import inverse_path
 
 T_END, RATE = 1.0, 100.0
 TS = np.linspace(0.0, T_END, int(T_END * RATE) + 1)
@@ -56,8 +57,8 @@ def test_scipy_l2_follows_the_compensated_commands(setting, drive):
                          options=pj.SceneOptions(t_end=T_END), verify=False)
     assert comp.ts.shape == TS.shape and comp.change < 1e-8 and comp.flags == ()
     l2, robot = pj.get_model("double1r"), Robot(params)
-    z0, zd0, *_ = pj._statics.inverse_balance(l2, robot, EIGHT, 0.0)
-    start = (np.asarray(z0), np.asarray(zd0))
+    z0, zd0, *_ = inverse_path(l2, robot, EIGHT, np.array([0.0]))
+    start = (np.asarray(z0[0]), np.asarray(zd0[0]))
     if drive == "motion":
         after = _scipy_run(params, start, angles=scipy_l2.AnglesSpline(TS, comp.commands))
         nominal = pj.InverseKinematicsAngles(pj.Reduced(), robot, EIGHT)

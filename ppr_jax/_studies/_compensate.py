@@ -8,7 +8,7 @@ reports both runs.
 
 How the commands are found (measured on an L2 figure eight, 2 s at 100 Hz, 0.5 mm strips):
 
-- **Model inversion** (`_statics.inverse_balance`), for every model. The platform pose is
+- **Model inversion** (`_statics.inverse_path`), for every model. The platform pose is
   prescribed; the other coordinates follow from the equations of motion's rows that carry no
   actuator torque, and the torques from the others. The inverse's own (zero) dynamics is
   non-minimum-phase for the L2 robot (a pair of roots growing at about 76 1/s): integrating it
@@ -46,7 +46,7 @@ from .._params import RobotParams
 from .._paths import CommandLog, Waypoints
 from .._robot import Robot
 from .._scenes import AbstractScene, PathScene, SceneOptions, run_scene, scene_params
-from .._statics import inverse_balance
+from .._statics import inverse_path
 
 #: the drives, and the command log's kind for each
 DRIVES = {"motion": "angles", "torque": "torque"}
@@ -245,7 +245,7 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
     robot = Robot(robot_params)
 
     z, zd, th_a, tau, change, failed = (np.asarray(a) for a in
-                                        _invert(model, robot, path, jnp.asarray(ts)))
+                                        _invert(model, robot, path, ts))
     if failed.any() or not np.isfinite(th_a).all() or not np.isfinite(tau).all():
         k = int(np.nonzero(failed | ~np.isfinite(th_a).all(1) | ~np.isfinite(tau).all(1))[0][0])
         raise CompensationError(
@@ -293,10 +293,19 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
                         flags=tuple(flags), band=band, **common)
 
 
-@eqx.filter_jit
 def _invert(model, robot, path, ts):
-    """`inverse_balance` at the times ts (n,): one program per model and path structure."""
-    return jax.vmap(lambda t: inverse_balance(model, robot, path, t))(ts)
+    """`inverse_path` at the host times ts (n,): one program per model, path structure and
+    grid (the times are static: they fix the grid)."""
+    return _invert_jit(model, robot, path, _Static(tuple(float(t) for t in ts)))
+
+
+class _Static(eqx.Module):
+    ts: tuple = eqx.field(static=True)
+
+
+@eqx.filter_jit
+def _invert_jit(model, robot, path, static):
+    return inverse_path(model, robot, path, np.asarray(static.ts))
 
 
 def _angles(report) -> np.ndarray:

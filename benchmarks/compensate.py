@@ -1,0 +1,98 @@
+"""Compensation's cost and effect: 6 s of a figure eight at 100 Hz (601 command times), L2 at
+0.5 mm strips, both drives (and the quasi-static L3 with `--models`).
+
+For each model and drive, in one fresh process (so "cold" is what a user's first call waits,
+compilation included): `compensate` whole (the inversion, the nominal and the compensated runs),
+then warm: the inversion alone (`_studies._compensate._invert`, minimum of repeats), one forward
+run of the compensated scene (`run_scene`'s run time, minimum of repeats), their ratio (the
+issue's goal: at most 10 forward runs' time), and the tracking error before and after. Writes
+benchmarks/results/compensate.json.
+
+    python benchmarks/compensate.py [--models double1r,beam_qs] [--t-end 6] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+OUT = os.path.join(HERE, "results", "compensate.json")
+
+CHILD = r"""
+import json, sys, time
+t0 = time.perf_counter()
+import jax, jax.numpy as jnp, numpy as np
+import ppr_jax as pj
+from ppr_jax._robot import Robot
+from ppr_jax._studies._compensate import _invert
+
+model, drive, t_end, repeats = sys.argv[1], sys.argv[2], float(sys.argv[3]), int(sys.argv[4])
+path = pj.Fourier(mean=[0.45, 0.15 * np.sqrt(3), 0.0], cos=[[0.0, 0.0, 0.02], [0.0, 0.0, 0.0]],
+                  sin=[[0.08, 0.0, 0.0], [0.0, 0.05, 0.0]], omega=2.0)
+params = pj.scene_params("servo-circle")
+opts = pj.SceneOptions(t_end=t_end)
+c = pj.compensate(path, model, params, drive=drive, options=opts)
+cold = time.perf_counter() - t0
+ts = c.ts
+m, robot = pj.get_model(model), Robot(params)
+inv = []
+for _ in range(repeats):
+    s = time.perf_counter()
+    jax.block_until_ready(_invert(m, robot, path, ts))
+    inv.append(time.perf_counter() - s)
+scene = pj.PathScene(path, drive=drive, command_log=c.log)
+import dataclasses
+o = dataclasses.replace(opts, n_out=int(c.ts.shape[0]))
+rep = pj.run_scene(scene, params, model=model, options=o, repeats=repeats)
+print(json.dumps({"model": model, "drive": drive, "t_end_s": t_end,
+                  "commands": int(c.ts.shape[0]), "cold_s": cold,
+                  "inversion_warm_s": min(inv), "forward_run_s": rep.timing["run_s"],
+                  "inversion_over_forward_run": min(inv) / rep.timing["run_s"],
+                  "steps": int(rep.metrics["num_steps"]),
+                  "error_before": c.error["before"], "error_after": c.error["after"],
+                  "inversion_change_rad": c.change, "flags": list(c.flags)}))
+"""
+
+
+def main(argv=None):
+    from latency import machine
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--models", default="double1r")
+    ap.add_argument("--drives", default="motion,torque")
+    ap.add_argument("--t-end", type=float, default=6.0)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", default=OUT)
+    a = ap.parse_args(argv)
+    rows = []
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    for model in a.models.split(","):
+        for drive in a.drives.split(","):
+            out = subprocess.run([sys.executable, "-c", CHILD, model, drive, str(a.t_end),
+                                  str(a.repeats)], capture_output=True, text=True, env=env,
+                                 check=True)
+            row = json.loads(out.stdout.strip().splitlines()[-1])
+            print(f"{model} {drive}: cold {row['cold_s']:.1f} s, inversion "
+                  f"{row['inversion_warm_s'] * 1e3:.0f} ms = "
+                  f"{row['inversion_over_forward_run']:.1f} forward runs "
+                  f"({row['forward_run_s'] * 1e3:.0f} ms); error "
+                  f"{row['error_before']['position_max']:.3g} -> "
+                  f"{row['error_after']['position_max']:.3g} m", flush=True)
+            rows.append(row)
+    goals = {"inversion_over_forward_run_max": 10.0, "cold_s_max": 180.0}
+    for row in rows:
+        row["met"] = {"inversion_within_10_runs": row["inversion_over_forward_run"] <= 10.0,
+                      "cold_within_3_min": row["cold_s"] <= 180.0}
+    with open(a.out, "w") as f:
+        json.dump({"machine": machine(), "goals": goals, "rows": rows}, f, indent=1)
+    print(f"wrote {a.out}")
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, HERE)
+    main()
