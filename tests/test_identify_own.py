@@ -75,6 +75,12 @@ def test_identifies_gamma_of_independent_data_on_own_path(data_file):
     assert 0.8 < math.sqrt(fit.sigma2) < 1.25, fit.table()
     assert "own measured actuated angles" in fit.actuation and "own path" in fit.actuation
     assert fit.scene == "experiment's own"
+    # the identification compensates a path: its robot, and the band over its covariance
+    # (L1 motion: the kinematics move with gamma; the band's coverage: test_compensate.py)
+    comp = pj.compensate(fourier_path(), "reduced", fit, drive="motion",
+                         options=pj.SceneOptions(t_end=0.5))
+    assert float(comp.before.params.gamma) == float(fit.params.gamma)
+    assert comp.band["names"] == ["gamma"] and comp.band["half_width"].max() > 0
 
 
 def test_cli_identify_without_scene(data_file, tmp_path, capsys):
