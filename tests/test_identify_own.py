@@ -14,15 +14,12 @@ simulation is compiled: the module's guard fails any test that reaches it."""
 import json
 import math
 import os
-import sys
 
 import numpy as np
 import pytest
 
 import ppr_jax as pj
-
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from benchmarks.contenders import known_truth  # noqa: E402
+from benchmarks.contenders import known_truth
 
 T_END, RATE = 1.0, 100.0
 NOISE = (1e-4, 1e-3)  # m, rad: an Optotrak's

@@ -412,10 +412,6 @@ def test_identify_gamma_on_the_line_scene_from_independent_data():
     multipliers) from the library's quasi-static start, with tracker noise. The fit, started at
     the nominal gamma, recovers the truth within two of its reported standard deviations.
     Slow: L2 and its Jacobian compile in a minute or more."""
-    import os
-    import sys
-
-    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     from benchmarks.contenders import known_truth, scipy_l2
 
     base = pj.RobotParams(t=0.5e-3, K_theta=2.5)
