@@ -131,8 +131,9 @@ from ._problem import (
     _residual_and_jacobian,
     _to_z,
 )
-from ._result import Identification, _finish, _preflight, _refusal_message
+from ._result import Identification, _finish
 from ._start import check_scene_start, check_starts
+from ._statistics import _preflight, _refusal_message
 
 #: starts="auto": when the given start does not explain the data, the Latin hypercube holds
 #: AUTO_STARTS - 1 points besides it, and the fit runs from the AUTO_KEEP cheapest of them
