@@ -140,3 +140,40 @@ def suite_program_dir():
 
     d = os.environ.get("PPR_JAX_CACHE_DIR")
     return os.path.join(d, PROGRAM_SUBDIR) if d else None
+
+
+#: a design specification with a closed-form optimum (tier 1 of tests/test_design.py): the
+#: strip pivot's frequency maximised over t, r, w under a stress bound of 100 MPa at a stroke of
+#: 0.3 rad; `[settings]` last, so that a test may append settings
+DESIGN_SPEC = """
+[variables]
+t = [1e-4, 1e-3]
+r = [0.01, 0.04]
+w = [0.01, 0.03]
+
+[objective]
+maximize = "pivot_frequency_hz"
+
+[[constraints]]
+metric = "pivot_stress_Pa"
+upper = 1e8
+
+[settings]
+stroke = 0.3
+"""
+
+
+class SmoothLine(eqx.Module):
+    """The line with a quintic rest-to-rest time law (C2: zero velocity and acceleration at both
+    ends), so its inverse-dynamics torques are continuous at the horizon's ends. The cosine
+    law of `Line` starts with a jump of acceleration: its tabulated torques are refused as an
+    input table too coarse, rightly (`test_a_path_that_is_not_c2_is_refused`). Also the path of
+    the new scene in tests/test_extending.py (its source, copied into the new scene's file)."""
+
+    start: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.40, 0.27, 0.0]))
+    end: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.49, 0.24, 0.03]))
+    duration: float = 1.0
+
+    def __call__(self, t):
+        u = jnp.clip(t / self.duration, 0.0, 1.0)
+        return self.start + u**3 * (10 - 15 * u + 6 * u**2) * (self.end - self.start)

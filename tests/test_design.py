@@ -23,6 +23,7 @@ import pytest
 import ppr_jax as pj
 from ppr_jax._kinematics import _ik_path_jit
 from ppr_jax._models import Reduced
+from tests.helpers import DESIGN_SPEC
 
 E, RHO_M, L3, B_R, T_R, THETA_C = 71.0e9, 2780.0, 0.366, 0.023, 0.010, 1.88
 SIGMA_A, STROKE = 100e6, 0.3
@@ -200,23 +201,8 @@ def test_infeasible_specification_names_the_constraint():
     assert "not run" in best.summary() and not best.feasible
 
 
-SPEC = f"""
-[variables]
-t = [1e-4, 1e-3]
-r = [0.01, 0.04]
-w = [0.01, 0.03]
-
-[objective]
-maximize = "pivot_frequency_hz"
-
-[[constraints]]
-metric = "pivot_stress_Pa"
-upper = {SIGMA_A!r}
-
-[settings]
-stroke = {STROKE!r}
-grid = 1000
-"""
+#: tier 1 (`tier1_closed_form`: SIGMA_A and STROKE) with a verification grid of 1000 points
+SPEC = DESIGN_SPEC + "grid = 1000\n"
 
 
 def design_cli(tmp_path, spec_text):
@@ -235,15 +221,7 @@ def design_cli(tmp_path, spec_text):
 def test_cli_design_writes_the_report_and_the_designed_robot(tmp_path, capsys):
     """`ppr-jax design --spec` on tier 1: design.json holds the closed-form optimum, and the
     designed robot's file, read as --params-file reads it, reproduces the objective."""
-    import json
-
-    from ppr_jax._cli import main
-
-    spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC)
-    out = tmp_path / "out"
-    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 0
-    data = json.loads((out / "design.json").read_text())
+    data, out = design_cli(tmp_path, SPEC)
     *_, f = tier1_closed_form()
     assert data["objective"]["value"] == pytest.approx(f, rel=1e-6)
     assert data["verification"]["ok"] and data["verification"]["grid"]["points"] == 1000
