@@ -1,6 +1,8 @@
 """Shared test helpers: tree comparison, finite-difference directional derivatives and compiled
 forms of the library's eager functions."""
 
+import pathlib
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -142,25 +144,11 @@ def suite_program_dir():
     return os.path.join(d, PROGRAM_SUBDIR) if d else None
 
 
-#: a design specification with a closed-form optimum (tier 1 of tests/test_design.py): the
-#: strip pivot's frequency maximised over t, r, w under a stress bound of 100 MPa at a stroke of
-#: 0.3 rad; `[settings]` last, so that a test may append settings
-DESIGN_SPEC = """
-[variables]
-t = [1e-4, 1e-3]
-r = [0.01, 0.04]
-w = [0.01, 0.03]
-
-[objective]
-maximize = "pivot_frequency_hz"
-
-[[constraints]]
-metric = "pivot_stress_Pa"
-upper = 1e8
-
-[settings]
-stroke = 0.3
-"""
+#: the tests' data files: design specifications (TOML)
+DATA = pathlib.Path(__file__).resolve().parent / "data"
+#: a design specification with a closed-form optimum (tier 1 of tests/test_design.py):
+#: tests/data/design_tier1.toml
+DESIGN_SPEC = (DATA / "design_tier1.toml").read_text()
 
 
 class SmoothLine(eqx.Module):

@@ -18,7 +18,8 @@ MuJoCo MJX (the `bench` extra), which the test environment lacks: it is skipped 
 `mujoco.mjx` cannot be imported. `benchmarks/contenders/` is a package of modules, not scripts
 (MuJoCo's and scipy's L2, the known-truth data; checked by `tests/test_mujoco.py` and
 `tests/test_scipy_l2.py`): it has no script of its own, is copied with the rest and runs inside
-`identify_known_truth.py`, `identify_own.py` and `start_sensitivity.py`.
+`identify_known_truth.py`, `identify_own.py` and `start_sensitivity.py`. `_common.py` (what
+several scripts share) is not a script either: it runs inside the scripts that import it.
 
 No number is checked (tiny settings measure nothing): only that each script runs and writes
 its file. The scripts inherit the suite's environment (its fast XLA compile flags and persistent
@@ -40,7 +41,7 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 BENCHMARKS = ROOT / "benchmarks"
-SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("*.py") if p.stem != "__init__")
+SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("*.py") if not p.stem.startswith("_"))
 
 #: per script: its tiny arguments, and the files (under the copy's `results/`) it must write
 CASES = {

@@ -140,27 +140,17 @@ def test_shipped_example_file_loads():
 # ---------------------------------------------------------------------------------------------
 
 
-def test_missing_column(tmp_path):
-    t, x, y, _ = _good_rows()
-    _refused(tmp_path, "time,x,y", [t, x, y],
-             r"missing column\(s\) phi.*required: time, x, y, phi")
-
-
-def test_misnamed_column_lists_allowed_names(tmp_path):
+@pytest.mark.parametrize("header, match", [
+    ("time,x,y", r"missing column\(s\) phi.*required: time, x, y, phi"),
+    ("time,x,y,theta", r"unknown column 'theta'.*allowed names: time, x, y, phi"),
+    ("time,x,y,phi,th_1", "th_1, th_2, th_3 come as a set"),
+    ("time,x[inch],y,phi", r"unknown length unit 'inch'.*allowed: m, mm"),
+], ids=["missing column", "misnamed column", "incomplete angle set", "unknown unit"])
+def test_bad_header_names_the_column(tmp_path, header, match):
+    """A column missing, misnamed, incomplete or in an unknown unit: the error names it and
+    what is allowed (the columns as many as the header names: time, x, y, phi, then th_1)."""
     t, x, y, phi = _good_rows()
-    _refused(tmp_path, "time,x,y,theta", [t, x, y, phi],
-             r"unknown column 'theta'.*allowed names: time, x, y, phi")
-
-
-def test_incomplete_angle_set(tmp_path):
-    t, x, y, phi = _good_rows()
-    _refused(tmp_path, "time,x,y,phi,th_1", [t, x, y, phi, t], "th_1, th_2, th_3 come as a set")
-
-
-def test_unknown_unit(tmp_path):
-    t, x, y, phi = _good_rows()
-    _refused(tmp_path, "time,x[inch],y,phi", [t, x, y, phi],
-             r"unknown length unit 'inch'.*allowed: m, mm")
+    _refused(tmp_path, header, [t, x, y, phi, t][:header.count(",") + 1], match)
 
 
 def test_unit_option_contradicting_file(tmp_path):

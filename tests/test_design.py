@@ -23,7 +23,7 @@ import pytest
 import ppr_jax as pj
 from ppr_jax._kinematics import _ik_path_jit
 from ppr_jax._models import Reduced
-from tests.helpers import DESIGN_SPEC
+from tests.helpers import DATA, DESIGN_SPEC
 
 E, RHO_M, L3, B_R, T_R, THETA_C = 71.0e9, 2780.0, 0.366, 0.023, 0.010, 1.88
 SIGMA_A, STROKE = 100e6, 0.3
@@ -903,25 +903,7 @@ def _circle_csv(path, t_end=7.54, n=378):
     return ts, X
 
 
-SING_SPEC = """
-[variables]
-h = [0.08, 0.2]
-
-[objective]
-maximize = "moving_mass_kg"
-
-[[constraints]]
-metric = "path_singularity_margin"
-lower = 0.05
-
-[settings]
-grid = 200
-
-[params]
-a = 0.6
-l1 = 0.45
-l3 = 0.45
-"""
+SING_SPEC = (DATA / "design_path_singularity.toml").read_text()
 
 
 def test_cli_design_on_a_path_file_refuses_before_compiling(tmp_path, capsys):
@@ -946,20 +928,7 @@ def test_cli_design_on_a_path_file_refuses_before_compiling(tmp_path, capsys):
     assert "spans t = 0 to 0.5 s" in capsys.readouterr().err
 
 
-REACH_SPEC = """
-[variables]
-l1 = [0.15, 0.3]
-
-[objective]
-minimize = "moving_mass_kg"
-
-[[constraints]]
-metric = "path_reach_margin"
-lower = 0.05
-
-[settings]
-grid = 100
-"""
+REACH_SPEC = (DATA / "design_path_reach.toml").read_text()
 
 
 @pytest.mark.slow
