@@ -32,7 +32,6 @@ Writes benchmarks/results/implicit_l2.json.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -41,6 +40,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import load_json, save_json, upsert
 
 import ppr_jax as pj
 from ppr_jax._scenes import SceneOptions, prepare
@@ -52,22 +52,11 @@ JSON = OUT / "implicit_l2.json"
 
 
 def load():
-    if JSON.exists():
-        return json.loads(JSON.read_text())
-    return {"rows": [], "references": []}
+    return load_json(JSON, {"rows": [], "references": []})
 
 
 def save(db):
-    OUT.mkdir(parents=True, exist_ok=True)
-    JSON.write_text(json.dumps(db, indent=1))
-
-
-def upsert(rows, row, keys):
-    for i, r in enumerate(rows):
-        if all(r.get(k) == row.get(k) for k in keys):
-            rows[i] = row
-            return
-    rows.append(row)
+    save_json(JSON, db)
 
 
 def run_library(params, t_end, solver, rtol, atol, repeats):

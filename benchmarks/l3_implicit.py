@@ -37,12 +37,12 @@ Writes benchmarks/results/l3_implicit.json and .png (--plot-only redraws the fig
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
 
 import diffrax
 import numpy as np
 import optimistix as optx
+from _common import label_axes, load_json, parse_or_plot, save_figure, save_json, upsert
 
 import ppr_jax as pj
 
@@ -59,22 +59,11 @@ def solver_of(name: str, root: str):
 
 
 def load():
-    if JSON.exists():
-        return json.loads(JSON.read_text())
-    return {"references": [], "quasi_static": [], "runs": []}
+    return load_json(JSON, {"references": [], "quasi_static": [], "runs": []})
 
 
 def save(db):
-    OUT.mkdir(parents=True, exist_ok=True)
-    JSON.write_text(json.dumps(db, indent=1))
-
-
-def upsert(rows, row, keys):
-    for i, r in enumerate(rows):
-        if all(r.get(k) == row.get(k) for k in keys):
-            rows[i] = row
-            return
-    rows.append(row)
+    save_json(JSON, db)
 
 
 def run(params, model, t_end, n_out, solver, rtol, atol, max_steps):
@@ -109,11 +98,8 @@ def main():
                     help="also run Tsit5 at the reference tolerance and compare")
     ap.add_argument("--no-quasi-static", action="store_true")
     ap.add_argument("--max-steps", type=int, default=4_000_000)
-    ap.add_argument("--plot-only", action="store_true")
-    args = ap.parse_args()
-    db = load()
-    if args.plot_only:
-        plot(db)
+    args, db = parse_or_plot(ap, load, plot)
+    if args is None:
         return
     params = pj.scene_params("paper-circle")
     T, n_out = args.t_end, args.n_out
@@ -204,14 +190,9 @@ def plot(db):
             for r in rr:
                 ax.annotate(f"{r['rtol']:.0e}", (r["run_s"], max(r["error_m"], 1e-14)),
                             fontsize=6, alpha=0.7)
-        ax.set_xlabel("run time (s, after compilation)")
-        ax.set_ylabel("max platform position error (m)")
-        ax.set_title(f"full L3, N = {N}, paper-circle")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    OUT.mkdir(parents=True, exist_ok=True)
-    fig.savefig(PNG, dpi=120)
+        label_axes(ax, "run time (s, after compilation)", "max platform position error (m)",
+                   f"full L3, N = {N}, paper-circle", legend_size=7)
+    save_figure(fig, PNG)
 
 
 if __name__ == "__main__":

@@ -30,8 +30,9 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from _common import parse_or_plot, upsert  # noqa: E402
+
 import ppr_jax as pj  # noqa: E402
-from benchmarks.l3_implicit import upsert  # noqa: E402
 from benchmarks.l3_validation import METRICS  # noqa: E402
 from benchmarks.run import machine  # noqa: E402
 
@@ -62,11 +63,8 @@ def main():
     ap.add_argument("--solvers", default="ros34pw2,kvaerno5")
     ap.add_argument("--rtols", default="1e-4")
     ap.add_argument("--max-steps", type=int, default=400_000)
-    ap.add_argument("--plot-only", action="store_true")
-    args = ap.parse_args()
-    db = load()
-    if args.plot_only:
-        plot(db)
+    args, db = parse_or_plot(ap, load, plot)
+    if args is None:
         return
     db["machine"] = machine(False)
     scene = args.scene

@@ -44,6 +44,8 @@ from mujoco import mjx
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
+from _common import label_axes, save_figure  # noqa: E402
+
 import ppr_jax as pj  # noqa: E402
 from benchmarks.contenders import library, mujoco_l2  # noqa: E402
 
@@ -132,14 +134,9 @@ def plot(res: dict, path: str) -> None:
         err = max(r["member0_position_error_m"] for r in rows)
         ax.loglog([r["batch"] for r in rows], [r["trajectories_per_s"] for r in rows], "o-",
                   label=f"{key} (error {err:.1e} m)")
-    ax.set_xlabel("batch size (robots)")
-    ax.set_ylabel("trajectories per second")
-    ax.set_title(f"L2 paper-circle, {res['t_end_s']:g} s, {res['backend']} ({res['cpus']} cores)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    label_axes(ax, "batch size (robots)", "trajectories per second",
+               f"L2 paper-circle, {res['t_end_s']:g} s, {res['backend']} ({res['cpus']} cores)")
+    save_figure(fig, path)
 
 
 def main():

@@ -87,9 +87,10 @@ class PDServo(AbstractActuation):
         return tau
 
 
-class InverseDynamicsTorque(eqx.Module):
-    """tau_a(t) of `model` (L0 or L1) moving its platform along `trajectory` (eq 54 solved for
-    the torques); evaluated exactly at any t."""
+class _AlongPath(eqx.Module):
+    """A time function of `model` moving its platform along `trajectory`: its value at t, and
+    with it the largest loop-closure residual (m) of the inverse kinematics there
+    (`with_residual`), from which the scenes check the nominal path's reach."""
 
     model: AbstractModel
     robot: Robot
@@ -100,6 +101,15 @@ class InverseDynamicsTorque(eqx.Module):
 
     def __call__(self, t):
         return self.with_residual(t)[0]
+
+    @abc.abstractmethod
+    def with_residual(self, t):
+        """(the value at t, the largest loop-closure residual (m) of the inverse kinematics)."""
+
+
+class InverseDynamicsTorque(_AlongPath):
+    """tau_a(t) of `model` (L0 or L1) moving its platform along `trajectory` (eq 54 solved for
+    the torques); evaluated exactly at any t."""
 
     def with_residual(self, t):
         """(tau_a (3,), the largest loop-closure residual (m) of the inverse kinematics at t):
@@ -109,18 +119,8 @@ class InverseDynamicsTorque(eqx.Module):
         return tau, _max_residual(self.model, self.robot, eom.kin)
 
 
-class InverseKinematicsAngles(eqx.Module):
+class InverseKinematicsAngles(_AlongPath):
     """Actuated angles th_i1(t) of `model`'s inverse kinematics along `trajectory`."""
-
-    model: AbstractModel
-    robot: Robot
-    trajectory: Callable
-
-    def __init__(self, model: AbstractModel, robot: RobotLike, trajectory: Callable):
-        self.model, self.robot, self.trajectory = model, as_robot(robot), trajectory
-
-    def __call__(self, t):
-        return self.with_residual(t)[0]
 
     def with_residual(self, t):
         """(th_a (3,), the largest loop-closure residual (m) of the inverse kinematics at t)."""

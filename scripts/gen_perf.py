@@ -35,6 +35,12 @@ def _table(header, rows) -> str:
     return "\n".join(out)
 
 
+def _section(title: str, script: str, text: str, header, rows) -> str:
+    """A study's paragraph: its title, the benchmark script that measured it, `text`, then the
+    table of `rows` under `header`."""
+    return f"**{title}** (`benchmarks/{script}`): {text}\n\n" + _table(header, rows)
+
+
 def _ms(s) -> str:
     return f"{1e3 * s:.1f} ms" if s < 1 else f"{s:.2f} s"
 
@@ -258,34 +264,35 @@ def studies() -> str:
         rows = [[k.replace("_", " "), f"{v['per_member_ms']:.2f} ms",
                  f"{v['trajectories_per_s']:.0f}", f"{v['first_call_s']:.1f} s"]
                 for k, v in s["rows"].items()]
-        out.append(f"**Sharded sweep** (`benchmarks/sweep_sharding.py`): {s['members']} "
-                   f"`{s['model']}` paper-circle robots, rtol {s['rtol']:g}, over {s['devices']} "
-                   f"host devices: {s['speedup']:.2f}x; the two agree to "
-                   f"{s['max_abs_difference_m']:.1e} m.\n\n"
-                   + _table(["run", "per robot", "trajectories/s", "first call"], rows))
+        out.append(_section(
+            "Sharded sweep", "sweep_sharding.py",
+            f"{s['members']} `{s['model']}` paper-circle robots, rtol {s['rtol']:g}, over "
+            f"{s['devices']} host devices: {s['speedup']:.2f}x; the two agree to "
+            f"{s['max_abs_difference_m']:.1e} m.",
+            ["run", "per robot", "trajectories/s", "first call"], rows))
     c = _load("sensitivity_cost.json")
     if c is not None:
         rows = [[k.replace("_", " "), _ms(v["run_s"]), f"{v['ratio_to_forward_run']:.1f}",
                  f"{v['compile_s']:.1f} s", f"{v['memory']['temp_bytes'] / 1e6:.2f} MB"]
                 for k, v in c["rows"].items()]
-        out.append(f"**Sensitivity cost** (`benchmarks/sensitivity_cost.py`): `{c['model']}` "
-                   f"paper-circle under the `{c['torque_model']}` torques, rtol {c['rtol']:g}; "
-                   f"the scalar is `{c['scalar']}` of all {c['n_parameters']} parameters.\n\n"
-                   + _table(["program", "run", "/ forward run", "compile", "XLA temp memory"],
-                            rows))
+        out.append(_section(
+            "Sensitivity cost", "sensitivity_cost.py",
+            f"`{c['model']}` paper-circle under the `{c['torque_model']}` torques, rtol "
+            f"{c['rtol']:g}; the scalar is `{c['scalar']}` of all {c['n_parameters']} "
+            f"parameters.",
+            ["program", "run", "/ forward run", "compile", "XLA temp memory"], rows))
     k = _load("kernel_counts.json")
     if k is not None:
         p = k["programs"]
         rows = [[name, f"{v['kernels']}", f"{v['kernels_per_forward']:.1f}",
                  f"{v['pad_fusions']}", f"{v['us_per_call']:.1f} us"]
                 for name, v in k["rhs"].items()]
-        out.append(f"**Kernel counts** (`benchmarks/kernel_counts.py`): a forward run launches "
-                   f"{p['forward_run']['kernel_events']:,} XLA CPU kernels, its `grad` "
-                   f"{p['grad']['kernel_events']:,} ({p['grad']['kernels_per_forward']:.1f}x, "
-                   f"against {p['grad']['time_per_forward']:.1f}x the time). One right-hand "
-                   f"side:\n\n"
-                   + _table(["pass", "kernels", "/ forward", "zero-padding fusions", "time"],
-                            rows))
+        out.append(_section(
+            "Kernel counts", "kernel_counts.py",
+            f"a forward run launches {p['forward_run']['kernel_events']:,} XLA CPU kernels, its "
+            f"`grad` {p['grad']['kernel_events']:,} ({p['grad']['kernels_per_forward']:.1f}x, "
+            f"against {p['grad']['time_per_forward']:.1f}x the time). One right-hand side:",
+            ["pass", "kernels", "/ forward", "zero-padding fusions", "time"], rows))
     t = _load("identify_time.json")
     if t is not None:
         f1, f2 = t["first_fit"], t["second_fit_after_compile"]

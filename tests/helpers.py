@@ -1,6 +1,8 @@
 """Shared test helpers: tree comparison, finite-difference directional derivatives and compiled
 forms of the library's eager functions."""
 
+import pathlib
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -140,3 +142,26 @@ def suite_program_dir():
 
     d = os.environ.get("PPR_JAX_CACHE_DIR")
     return os.path.join(d, PROGRAM_SUBDIR) if d else None
+
+
+#: the tests' data files: design specifications (TOML)
+DATA = pathlib.Path(__file__).resolve().parent / "data"
+#: a design specification with a closed-form optimum (tier 1 of tests/test_design.py):
+#: tests/data/design_tier1.toml
+DESIGN_SPEC = (DATA / "design_tier1.toml").read_text()
+
+
+class SmoothLine(eqx.Module):
+    """The line with a quintic rest-to-rest time law (C2: zero velocity and acceleration at both
+    ends), so its inverse-dynamics torques are continuous at the horizon's ends. The cosine
+    law of `Line` starts with a jump of acceleration: its tabulated torques are refused as an
+    input table too coarse, rightly (`test_a_path_that_is_not_c2_is_refused`). Also the path of
+    the new scene in tests/test_extending.py (its source, copied into the new scene's file)."""
+
+    start: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.40, 0.27, 0.0]))
+    end: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.49, 0.24, 0.03]))
+    duration: float = 1.0
+
+    def __call__(self, t):
+        u = jnp.clip(t / self.duration, 0.0, 1.0)
+        return self.start + u**3 * (10 - 15 * u + 6 * u**2) * (self.end - self.start)

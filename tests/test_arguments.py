@@ -9,6 +9,7 @@ import pytest
 import ppr_jax as pj
 from ppr_jax._cli import main
 from ppr_jax._studies import load_design_spec
+from tests.helpers import DESIGN_SPEC
 
 BOUNDS = {"t": (1e-4, 1e-3), "r": (0.01, 0.04), "w": (0.01, 0.03)}
 HUGE = 10**400
@@ -144,21 +145,7 @@ def test_paths_and_scenes_arguments(tmp_path, exp):
 
 # --- a design specification: the file and the key named -----------------------------------
 
-SPEC = """
-[variables]
-t = [1e-4, 1e-3]
-r = [0.01, 0.04]
-
-[objective]
-maximize = "pivot_frequency_hz"
-
-[[constraints]]
-metric = "pivot_stress_Pa"
-upper = 1e8
-
-[settings]
-stroke = 0.3
-"""
+SPEC = DESIGN_SPEC
 
 
 @pytest.mark.parametrize("old, new, words", [

@@ -4,10 +4,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import raises_in_compiled_code
 
 import ppr_jax as pj
 from ppr_jax._errors import raise_if
+from tests.helpers import raises_in_compiled_code
 
 
 def test_vmapped_scene_equals_python_loop(params, paper_circle_L1):

@@ -9,12 +9,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import coords_from_pose, energies, outputs
 
 import ppr_jax as pj
 from ppr_jax._geometry import BETA, base_points, e
 from ppr_jax._models.beam import Beam, solve_strip, strip_constants
 from ppr_jax.elastica import solve_cantilever
+from tests.helpers import coords_from_pose, energies, outputs
 
 # ---------------------------------------------------------------------------------------------
 # Geometry and kinematics

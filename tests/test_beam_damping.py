@@ -11,13 +11,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import coords_from_pose, energies, outputs
 
 import ppr_jax as pj
 from ppr_jax._dynamics import passive_force
 from ppr_jax._errors import PPRError
 from ppr_jax._models import get_model
 from ppr_jax._models.beam import Beam
+from tests.helpers import coords_from_pose, energies, outputs
 
 N = 4
 TAU = 1e-5  # s: damping ratio 0.075 for the first strip mode at N = 8, 0.12 for the top one here

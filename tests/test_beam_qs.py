@@ -9,11 +9,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import coords_from_pose, energies, fd_jvp, outputs
 
 import ppr_jax as pj
 from ppr_jax._models import strip
 from ppr_jax._models.strip import kkt_residual, solve_kkt, strip_equilibrium
+from tests.helpers import coords_from_pose, energies, fd_jvp, outputs
 
 WRENCH = jnp.array([0.4, -0.3, 0.004])  # N, N, N m
 

@@ -18,7 +18,8 @@ MuJoCo MJX (the `bench` extra), which the test environment lacks: it is skipped 
 `mujoco.mjx` cannot be imported. `benchmarks/contenders/` is a package of modules, not scripts
 (MuJoCo's and scipy's L2, the known-truth data; checked by `tests/test_mujoco.py` and
 `tests/test_scipy_l2.py`): it has no script of its own, is copied with the rest and runs inside
-`identify_known_truth.py`, `identify_own.py` and `start_sensitivity.py`.
+`identify_known_truth.py`, `identify_own.py` and `start_sensitivity.py`. `_common.py` (what
+several scripts share) is not a script either: it runs inside the scripts that import it.
 
 No number is checked (tiny settings measure nothing): only that each script runs and writes
 its file. The scripts inherit the suite's environment (its fast XLA compile flags and persistent
@@ -40,7 +41,7 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 BENCHMARKS = ROOT / "benchmarks"
-SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("*.py") if p.stem != "__init__")
+SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("*.py") if not p.stem.startswith("_"))
 
 #: per script: its tiny arguments, and the files (under the copy's `results/`) it must write
 CASES = {
@@ -102,8 +103,12 @@ def _snapshot(results: pathlib.Path) -> dict:
             for p in results.rglob("*") if p.is_file()}
 
 
-def _run(cmd, cwd):
+def _run(cmd, cwd, pythonpath=()):
+    """Runs `cmd` in `cwd` in the suite's environment, with `pythonpath` ahead of its path."""
     env = dict(os.environ, MPLBACKEND="Agg", PPR_JAX_CACHE="0", PYTHONDONTWRITEBYTECODE="1")
+    if pythonpath:
+        env["PYTHONPATH"] = os.pathsep.join(
+            [*map(str, pythonpath), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     env.pop("PYTEST_XDIST_WORKER", None)
     proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, (
@@ -145,7 +150,6 @@ def test_benchmark_runs(script, bench_copy):
 
 _PLOTS = """
 import json, pathlib, sys
-sys.path.insert(0, sys.argv[1])
 from benchmarks import plots
 out = pathlib.Path(sys.argv[1]) / "benchmarks" / "results" / "cpu"
 for part, draw in (("work_precision", plots.work_precision), ("contenders", plots.contenders),
@@ -156,7 +160,9 @@ for part, draw in (("work_precision", plots.work_precision), ("contenders", plot
 
 def _plots(bench_copy, before):
     """plots.py: every figure of the suite redrawn from the copy's published CPU JSON."""
-    _run([sys.executable, "-c", _PLOTS, str(bench_copy.parent)], cwd=bench_copy.parent)
+    # the copy's benchmarks/ as the package `benchmarks`, through the path, not the script
+    _run([sys.executable, "-c", _PLOTS, str(bench_copy.parent)], cwd=bench_copy.parent,
+         pythonpath=[bench_copy.parent])
     pngs = ["cpu/work_precision_paper-circle.png", "cpu/work_precision_servo-circle.png",
             "cpu/contenders.png", "cpu/batch_scaling.png"]
     written = _written(before, _snapshot(bench_copy / "results"), pngs)

@@ -245,13 +245,20 @@ def test_simulate_writes_summary_csv_and_figures(tmp_path, capsys, paper_circle_
     assert "Scene paper-circle" in capsys.readouterr().out
 
 
-def test_prb_table_kappa0_and_figure(tmp_path, capsys):
+def _prb_kappa0_figure(command, tmp_path, capsys):
+    """`command --kappa0 0 --json --figure`: the straight strip's gamma and K_theta (the PRB
+    table's 0.85 and 2.65) and a figure written: (the captured output, the JSON, the figure)."""
     png = tmp_path / "prb.png"
-    assert main(["prb-table", "--kappa0", "0", "--json", "--figure", str(png)]) == 0
+    assert main([command, "--kappa0", "0", "--json", "--figure", str(png)]) == 0
     cap = capsys.readouterr()
     out = json.loads(cap.out)
     assert abs(out["gamma"] - 0.85) < 0.02 and abs(out["K_theta"] - 2.65) < 0.1
     assert png.stat().st_size > 0
+    return cap, out, png
+
+
+def test_prb_table_kappa0_and_figure(tmp_path, capsys):
+    cap, _, _ = _prb_kappa0_figure("prb-table", tmp_path, capsys)
     assert "deprecated" not in cap.err
     assert main(["prb-table", "--kappa0", "2.5"]) == 2
     assert "[0.0, 2.0]" in capsys.readouterr().err
@@ -259,12 +266,7 @@ def test_prb_table_kappa0_and_figure(tmp_path, capsys):
 
 def test_prb_kappa0_and_figure(tmp_path, capsys):
     """The old spelling `prb --kappa0/--figure` still works: a notice, then prb-table's output."""
-    png = tmp_path / "prb.png"
-    assert main(["prb", "--kappa0", "0", "--json", "--figure", str(png)]) == 0
-    cap = capsys.readouterr()
-    out = json.loads(cap.out)
-    assert abs(out["gamma"] - 0.85) < 0.02 and abs(out["K_theta"] - 2.65) < 0.1
-    assert png.stat().st_size > 0
+    cap, out, png = _prb_kappa0_figure("prb", tmp_path, capsys)
     notice = [line for line in cap.err.splitlines() if "deprecated" in line]
     assert len(notice) == 1 and "prb-table" in notice[0]
     assert main(["prb-table", "--kappa0", "0", "--json"]) == 0

@@ -29,6 +29,13 @@ def _table(header, cols):
     return "\n".join(lines) + "\n"
 
 
+def _refused(tmp_path, header, cols, match, **kwargs):
+    """`load_csv` of the table `header`, `cols` (written to tmp_path) refuses it: a `DataError`
+    matching `match`."""
+    with pytest.raises(DataError, match=match):
+        pj.load_csv(_write(tmp_path, _table(header, cols)), **kwargs)
+
+
 def test_si_file_reads_back_exactly(tmp_path):
     t, x, y, phi = _good_rows()
     e = pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
@@ -133,50 +140,36 @@ def test_shipped_example_file_loads():
 # ---------------------------------------------------------------------------------------------
 
 
-def test_missing_column(tmp_path):
-    t, x, y, _ = _good_rows()
-    with pytest.raises(DataError, match=r"missing column\(s\) phi.*required: time, x, y, phi"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y", [t, x, y])))
-
-
-def test_misnamed_column_lists_allowed_names(tmp_path):
+@pytest.mark.parametrize("header, match", [
+    ("time,x,y", r"missing column\(s\) phi.*required: time, x, y, phi"),
+    ("time,x,y,theta", r"unknown column 'theta'.*allowed names: time, x, y, phi"),
+    ("time,x,y,phi,th_1", "th_1, th_2, th_3 come as a set"),
+    ("time,x[inch],y,phi", r"unknown length unit 'inch'.*allowed: m, mm"),
+], ids=["missing column", "misnamed column", "incomplete angle set", "unknown unit"])
+def test_bad_header_names_the_column(tmp_path, header, match):
+    """A column missing, misnamed, incomplete or in an unknown unit: the error names it and
+    what is allowed (the columns as many as the header names: time, x, y, phi, then th_1)."""
     t, x, y, phi = _good_rows()
-    with pytest.raises(DataError, match=r"unknown column 'theta'.*allowed names: time, x, y, phi"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y,theta", [t, x, y, phi])))
-
-
-def test_incomplete_angle_set(tmp_path):
-    t, x, y, phi = _good_rows()
-    with pytest.raises(DataError, match="th_1, th_2, th_3 come as a set"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y,phi,th_1", [t, x, y, phi, t])))
-
-
-def test_unknown_unit(tmp_path):
-    t, x, y, phi = _good_rows()
-    with pytest.raises(DataError, match=r"unknown length unit 'inch'.*allowed: m, mm"):
-        pj.load_csv(_write(tmp_path, _table("time,x[inch],y,phi", [t, x, y, phi])))
+    _refused(tmp_path, header, [t, x, y, phi, t][:header.count(",") + 1], match)
 
 
 def test_unit_option_contradicting_file(tmp_path):
     t, x, y, phi = _good_rows()
-    with pytest.raises(DataError, match="declared in 'mm' by the file but 'm' was given"):
-        pj.load_csv(_write(tmp_path, _table("time,x[mm],y[mm],phi", [t, x * 1e3, y * 1e3, phi])),
-                    length_unit="m")
+    _refused(tmp_path, "time,x[mm],y[mm],phi", [t, x * 1e3, y * 1e3, phi],
+             "declared in 'mm' by the file but 'm' was given", length_unit="m")
 
 
 def test_duplicated_time(tmp_path):
     t, x, y, phi = _good_rows()
     t[4] = t[3]
     # header is line 1, sample k (0-based) is line k + 2: the duplicate is line 6
-    with pytest.raises(DataError, match=r"line 6: duplicated time"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+    _refused(tmp_path, "time,x,y,phi", [t, x, y, phi], r"line 6: duplicated time")
 
 
 def test_decreasing_time(tmp_path):
     t, x, y, phi = _good_rows()
     t[5] = t[2]
-    with pytest.raises(DataError, match=r"line 7: time decreases"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+    _refused(tmp_path, "time,x,y,phi", [t, x, y, phi], r"line 7: time decreases")
 
 
 def test_nan_rows_reported_with_lines_and_dropped_only_if_asked(tmp_path):
@@ -202,29 +195,26 @@ def test_unreadable_number(tmp_path):
 
 def test_millimetres_read_as_metres(tmp_path):
     t, x, y, phi = _good_rows(scale=1e3)
-    with pytest.raises(DataError, match="probably millimetres read as metres"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+    _refused(tmp_path, "time,x,y,phi", [t, x, y, phi], "probably millimetres read as metres")
 
 
 def test_pose_1000_times_too_small(tmp_path):
     t, x, y, phi = _good_rows(scale=1e-3)
-    with pytest.raises(DataError, match="probably wrong units"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+    _refused(tmp_path, "time,x,y,phi", [t, x, y, phi], "probably wrong units")
 
 
 def test_degrees_read_as_radians(tmp_path):
     t, x, y, phi = _good_rows(phi_scale=180 / math.pi * 5)  # up to 20 deg, read as rad
     # 20 could be degrees or milliradians: both named
-    with pytest.raises(DataError, match="probably degrees or milliradians read as radians"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+    _refused(tmp_path, "time,x,y,phi", [t, x, y, phi],
+             "probably degrees or milliradians read as radians")
 
 
 def test_milliradians_read_as_radians(tmp_path):
     # up to 350 mrad: beyond 90, so not degrees (it was called "probably degrees")
     t, x, y, phi = _good_rows(phi_scale=1000 * 5)
     assert 90 < np.max(np.abs(phi)) < 1000 * math.pi / 2
-    with pytest.raises(DataError, match="probably milliradians read as radians"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+    _refused(tmp_path, "time,x,y,phi", [t, x, y, phi], "probably milliradians read as radians")
 
 
 def test_milliseconds_read_as_seconds(tmp_path):
@@ -256,8 +246,7 @@ def test_a_gap_is_refused_as_the_path_loaders_refuse_it(tmp_path):
 
 def test_too_few_samples(tmp_path):
     t, x, y, phi = _good_rows(3)
-    with pytest.raises(DataError, match=r"too few samples: 3 \(at least 5"):
-        pj.load_csv(_write(tmp_path, _table("time,x,y,phi", [t, x, y, phi])))
+    _refused(tmp_path, "time,x,y,phi", [t, x, y, phi], r"too few samples: 3 \(at least 5")
 
 
 def test_missing_file_and_empty_file(tmp_path):

@@ -23,6 +23,7 @@ import pytest
 import ppr_jax as pj
 from ppr_jax._kinematics import _ik_path_jit
 from ppr_jax._models import Reduced
+from tests.helpers import DATA, DESIGN_SPEC
 
 E, RHO_M, L3, B_R, T_R, THETA_C = 71.0e9, 2780.0, 0.366, 0.023, 0.010, 1.88
 SIGMA_A, STROKE = 100e6, 0.3
@@ -200,23 +201,8 @@ def test_infeasible_specification_names_the_constraint():
     assert "not run" in best.summary() and not best.feasible
 
 
-SPEC = f"""
-[variables]
-t = [1e-4, 1e-3]
-r = [0.01, 0.04]
-w = [0.01, 0.03]
-
-[objective]
-maximize = "pivot_frequency_hz"
-
-[[constraints]]
-metric = "pivot_stress_Pa"
-upper = {SIGMA_A!r}
-
-[settings]
-stroke = {STROKE!r}
-grid = 1000
-"""
+#: tier 1 (`tier1_closed_form`: SIGMA_A and STROKE) with a verification grid of 1000 points
+SPEC = DESIGN_SPEC + "grid = 1000\n"
 
 
 def design_cli(tmp_path, spec_text):
@@ -235,15 +221,7 @@ def design_cli(tmp_path, spec_text):
 def test_cli_design_writes_the_report_and_the_designed_robot(tmp_path, capsys):
     """`ppr-jax design --spec` on tier 1: design.json holds the closed-form optimum, and the
     designed robot's file, read as --params-file reads it, reproduces the objective."""
-    import json
-
-    from ppr_jax._cli import main
-
-    spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC)
-    out = tmp_path / "out"
-    assert main(["design", "--spec", str(spec), "--out", str(out)]) == 0
-    data = json.loads((out / "design.json").read_text())
+    data, out = design_cli(tmp_path, SPEC)
     *_, f = tier1_closed_form()
     assert data["objective"]["value"] == pytest.approx(f, rel=1e-6)
     assert data["verification"]["ok"] and data["verification"]["grid"]["points"] == 1000
@@ -925,25 +903,7 @@ def _circle_csv(path, t_end=7.54, n=378):
     return ts, X
 
 
-SING_SPEC = """
-[variables]
-h = [0.08, 0.2]
-
-[objective]
-maximize = "moving_mass_kg"
-
-[[constraints]]
-metric = "path_singularity_margin"
-lower = 0.05
-
-[settings]
-grid = 200
-
-[params]
-a = 0.6
-l1 = 0.45
-l3 = 0.45
-"""
+SING_SPEC = (DATA / "design_path_singularity.toml").read_text()
 
 
 def test_cli_design_on_a_path_file_refuses_before_compiling(tmp_path, capsys):
@@ -968,20 +928,7 @@ def test_cli_design_on_a_path_file_refuses_before_compiling(tmp_path, capsys):
     assert "spans t = 0 to 0.5 s" in capsys.readouterr().err
 
 
-REACH_SPEC = """
-[variables]
-l1 = [0.15, 0.3]
-
-[objective]
-minimize = "moving_mass_kg"
-
-[[constraints]]
-metric = "path_reach_margin"
-lower = 0.05
-
-[settings]
-grid = 100
-"""
+REACH_SPEC = (DATA / "design_path_reach.toml").read_text()
 
 
 @pytest.mark.slow

@@ -10,10 +10,10 @@ import textwrap
 
 import numpy as np
 import pytest
-from helpers import env_with_devices
 
 import ppr_jax as pj
 from ppr_jax._devices import cpu_flags
+from tests.helpers import env_with_devices
 
 SHORT = dict(t_end=0.3, n_out=31, rtol=1e-8, atol=1e-10)
 

@@ -2,9 +2,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import rotate_pose, rotate_vel
 
 import ppr_jax as pj
+from tests.helpers import rotate_pose, rotate_vel
 
 TS = jnp.linspace(0.0, 1.5, 151)
 

@@ -11,9 +11,9 @@ import jax
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-from helpers import eqx_raise_mode, raises_in_compiled_code  # noqa: E402
 
 from ppr_jax import PPRError, elastica  # noqa: E402
+from tests.helpers import eqx_raise_mode, raises_in_compiled_code  # noqa: E402
 
 L, EI = 1.7, 2.3  # deliberately not 1: checks the nondimensionalization
 

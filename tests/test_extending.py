@@ -14,6 +14,7 @@ compiling (one fresh process, about 10 s); the runs through `run_scene`, sweeps,
 the command line compile several programs each (a minute or more per recipe on 2 cores) and
 are slow tests."""
 
+import inspect
 import os
 import pathlib
 import re
@@ -23,6 +24,8 @@ import sys
 import textwrap
 
 import pytest
+
+from tests.helpers import SmoothLine
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PAGE = (ROOT / "docs" / "extending.md").read_text()
@@ -49,7 +52,8 @@ def _model_file(pkg: pathlib.Path) -> str:
 
 
 #: the new scene: a straight line with a quintic time law, torque-driven by L1's inverse
-#: dynamics, as a file of its own with a final subclass of `AbstractScene`
+#: dynamics, as a file of its own with a final subclass of `AbstractScene`; the line is
+#: tests/helpers.py's `SmoothLine` (its source)
 SCENE_FILE = '''
 """A scene on a straight line: added as docs/extending.md says."""
 
@@ -63,15 +67,7 @@ from .._models import AbstractModel, Reduced
 from ._base import AbstractScene, torque_input
 
 
-class SmoothLine(eqx.Module):
-    start: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.40, 0.27, 0.0]))
-    end: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.49, 0.24, 0.03]))
-    duration: float = 1.0
-
-    def __call__(self, t):
-        u = jnp.clip(t / self.duration, 0.0, 1.0)
-        return self.start + u**3 * (10 - 15 * u + 6 * u**2) * (self.end - self.start)
-
+''' + inspect.getsource(SmoothLine) + '''
 
 class LineScene(AbstractScene):
     """Torques of L1's inverse dynamics along the line."""

@@ -653,10 +653,6 @@ def test_recovers_truth_from_data_of_an_independent_formulation(truth):
     parameters (what the default did before) cannot be explained (s about 20: residuals of
     0.1 mm against 5 um of noise) and say so: the check can fail. Same shapes and unknowns as
     the module's fits: the compiled Jacobian is reused."""
-    import os
-    import sys
-
-    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     from benchmarks.contenders import known_truth
 
     robot = truth.replace(K_theta=1.15 * float(truth.K_theta))
@@ -694,10 +690,6 @@ def test_tracker_bias_and_delay_estimated_as_nuisance(truth):
     explains the data to the noise and recovers the bias, the delay and t^3 K_theta within
     3 standard deviations each; without it the same data cannot be explained (s >> 1). The
     fit without nuisances has the module's shapes (the compiled Jacobian is reused)."""
-    import os
-    import sys
-
-    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     from benchmarks.contenders import known_truth
 
     robot = truth.replace(K_theta=1.15 * float(truth.K_theta))

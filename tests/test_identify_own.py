@@ -14,15 +14,12 @@ simulation is compiled: the module's guard fails any test that reaches it."""
 import json
 import math
 import os
-import sys
 
 import numpy as np
 import pytest
 
 import ppr_jax as pj
-
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from benchmarks.contenders import known_truth  # noqa: E402
+from benchmarks.contenders import known_truth
 
 T_END, RATE = 1.0, 100.0
 NOISE = (1e-4, 1e-3)  # m, rad: an Optotrak's
@@ -113,6 +110,13 @@ def _identify(exp, **kw):
                        noise=NOISE, **kw)
 
 
+def _refused_start(exp, match, **kw):
+    """`_identify(exp, **kw)` refused before anything is compiled: a `StartError` matching
+    `match`."""
+    with pytest.raises(pj.StartError, match=match):
+        _identify(exp, **kw)
+
+
 def test_refuses_angles_that_put_the_platform_elsewhere(data_file, no_compile):
     """The poses 40 mm off the angles' (another tracker frame): refused naming the file, the
     sample, the time and the distance."""
@@ -140,10 +144,9 @@ def test_refuses_angles_of_another_assembly_mode(data_file, no_compile):
         own, other, _ = geo.ik(np.asarray(exp.X[i]))
         th[i, 1] = other[1] + (th[i, 1] - own[1])
     bad = pj.experiment(exp.ts, exp.X, th=th, name=exp.name)
-    with pytest.raises(pj.StartError, match=r"sample 1 \(t = 0 s\): the actuated angle th_2 = "
-                       r".* belongs to the other assembly mode of chain 2 \(elbow orientation "
-                       r"sigma = \+1\)"):
-        _identify(bad)
+    _refused_start(bad, r"sample 1 \(t = 0 s\): the actuated angle th_2 = "
+                   r".* belongs to the other assembly mode of chain 2 \(elbow orientation "
+                   r"sigma = \+1\)")
 
 
 def test_refuses_a_pose_out_of_reach(data_file, no_compile):
@@ -151,17 +154,15 @@ def test_refuses_a_pose_out_of_reach(data_file, no_compile):
     X = np.asarray(exp.X).copy()
     X[:, 1] += 0.5
     bad = pj.experiment(exp.ts, X, th=exp.th, name=exp.name)
-    with pytest.raises(pj.StartError, match=r"sample 1 .*no state of the model reaches the "
-                       r"pose .* mm beyond its reach"):
-        _identify(bad)
+    _refused_start(bad, r"sample 1 .*no state of the model reaches the "
+                   r"pose .* mm beyond its reach")
 
 
 def test_refuses_a_paper_scene_that_starts_elsewhere(data_file, no_compile):
     """The issue's case: naming the servo-circle scene for a file on another path."""
     _, exp = data_file
-    with pytest.raises(pj.StartError, match=r"sample 1 \(t = 0 s\): the file's first pose .* "
-                       r"is [\d.]+ mm and .* from where the servo-circle scene starts"):
-        _identify(exp, scene="servo-circle")
+    _refused_start(exp, r"sample 1 \(t = 0 s\): the file's first pose .* is [\d.]+ mm and .* "
+                   r"from where the servo-circle scene starts", scene="servo-circle")
 
 
 def test_refuses_torques_that_cannot_hold_the_first_pose(no_compile):
@@ -181,10 +182,9 @@ def test_refuses_torques_that_cannot_hold_the_first_pose(no_compile):
     good = pj.experiment(ts, X, tau=tau, name="torques.csv")
     check_starts([good], "torque", params, [pj.fit_start(ts, X)])
     bad = pj.experiment(ts, X, tau=tau + np.array([0.5, 0.0, 0.0]), name="torques.csv")
-    with pytest.raises(pj.StartError, match=r"torques.csv: sample 1 \(t = 0 s\): the torques "
-                       r".* are not what moves the platform as the first samples do .* "
-                       r"[\d.]+ mm and [\d.]+ rad away from the file's first pose"):
-        _identify(bad)
+    _refused_start(bad, r"torques.csv: sample 1 \(t = 0 s\): the torques "
+                   r".* are not what moves the platform as the first samples do .* "
+                   r"[\d.]+ mm and [\d.]+ rad away from the file's first pose")
 
 
 def test_refuses_data_without_commands_and_commanded_without_scene(data_file, no_compile):

@@ -8,11 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
-from helpers import suite_program_dir
 
 import ppr_jax as pj
 from ppr_jax._scenes._solver_choice import choose_solver
 from ppr_jax._simulate import StageChord, default_controller, get_solver
+from tests.helpers import suite_program_dir
 
 
 class _Recorder(diffrax.PIDController):

@@ -12,8 +12,6 @@ from a 1 ms grid) and the initial state:
   inverse kinematics, the old behaviour, is 0.08 mm off balance and rings at the joint modes).
 """
 
-import os
-import sys
 
 import jax
 import jax.numpy as jnp
@@ -21,9 +19,7 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from benchmarks.contenders import scipy_l2  # noqa: E402
+from benchmarks.contenders import scipy_l2
 
 T_END = 0.5  # s
 N_OUT = 251

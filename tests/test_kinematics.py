@@ -4,11 +4,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import fd_jvp, rotate_pose
 
 import ppr_jax as pj
 from ppr_jax import _geometry as K
 from ppr_jax._paper_eom import paper_jacobian
+from tests.helpers import fd_jvp, rotate_pose
 
 POSES = [
     [0.45, 0.2598076, 0.0],

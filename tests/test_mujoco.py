@@ -8,9 +8,6 @@ closed state (which checks every mass, inertia, centre of mass and spring at onc
 `paper-circle` window against the library's L2 run.
 """
 
-import os
-import sys
-
 import jax
 import numpy as np
 import pytest
@@ -18,9 +15,8 @@ import pytest
 pytest.importorskip("mujoco")
 import mujoco  # noqa: E402
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import ppr_jax as pj  # noqa: E402
-from benchmarks.contenders import mujoco_l2  # noqa: E402
+from benchmarks.contenders import mujoco_l2
 
 GEOMETRIES = ["centerline", "strip"]
 

@@ -5,11 +5,11 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import coords_from_pose
 
 import ppr_jax as pj
 from ppr_jax._dynamics import lagrangian_eom
 from ppr_jax._paper_eom import paper_constants, paper_workspace_eom
+from tests.helpers import coords_from_pose
 
 STATES = [
     ([0.45, 0.2598, 0.0], [0.05, -0.08, 0.3]),

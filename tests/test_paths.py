@@ -237,12 +237,8 @@ def test_inverse_kinematics_along_a_non_circular_path(robot, name):
     # the round trip through a second formulation, with no program to compile: forward
     # kinematics by scipy's root finder on the NumPy L1's closed-form inverse kinematics
     # (benchmarks/contenders/scipy_l2.py), from the workspace centre, gives the poses back
-    import os
-    import sys
-
     import scipy.optimize
 
-    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     from benchmarks.contenders import scipy_l2
 
     model = scipy_l2.L2Model(robot.params, None)
@@ -527,10 +523,6 @@ def test_torque_driven_spline_scene_matches_the_scipy_l2(tmp_path):
     absolute coordinates and Lagrange multipliers) driven by the exact inverse-dynamics torques
     (not the library's table) from the library's initial state: the platform paths agree to
     the integration error. Slow: L2 compiles in 20-30 s."""
-    import os
-    import sys
-
-    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     from benchmarks.contenders import library, scipy_l2
 
     path = pj.load_path(_eight_file(tmp_path), bc="natural")

@@ -10,13 +10,13 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import scipy.interpolate  # noqa: E402
-from helpers import raises_in_compiled_code  # noqa: E402
 
 from ppr_jax import (
     PPRError,  # noqa: E402
     _prb_fit as prb,  # noqa: E402
     _prb_table as tab,  # noqa: E402
 )
+from tests.helpers import raises_in_compiled_code  # noqa: E402
 
 
 @pytest.fixture(scope="session")

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
+from tests.helpers import SmoothLine
 
 
 class Line(eqx.Module):
@@ -141,21 +142,6 @@ def test_an_invalid_parameter_inside_a_program_is_named():
 # ---------------------------------------------------------------------------------------------
 # PathScene: the scene object on a path nobody here chose, through every study
 # ---------------------------------------------------------------------------------------------
-
-class SmoothLine(eqx.Module):
-    """The line with a quintic rest-to-rest time law (C2: zero velocity and acceleration at both
-    ends), so its inverse-dynamics torques are continuous at the horizon's ends. The cosine
-    law of `Line` starts with a jump of acceleration: its tabulated torques are refused as an
-    input table too coarse, rightly (`test_a_path_that_is_not_c2_is_refused`)."""
-
-    start: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.40, 0.27, 0.0]))
-    end: jax.Array = eqx.field(default_factory=lambda: jnp.array([0.49, 0.24, 0.03]))
-    duration: float = 1.0
-
-    def __call__(self, t):
-        u = jnp.clip(t / self.duration, 0.0, 1.0)
-        return self.start + u**3 * (10 - 15 * u + 6 * u**2) * (self.end - self.start)
-
 
 def _smooth_closed_form(ts):
     line = SmoothLine()
@@ -412,10 +398,6 @@ def test_identify_gamma_on_the_line_scene_from_independent_data():
     multipliers) from the library's quasi-static start, with tracker noise. The fit, started at
     the nominal gamma, recovers the truth within two of its reported standard deviations.
     Slow: L2 and its Jacobian compile in a minute or more."""
-    import os
-    import sys
-
-    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     from benchmarks.contenders import known_truth, scipy_l2
 
     base = pj.RobotParams(t=0.5e-3, K_theta=2.5)

@@ -13,16 +13,12 @@ at its 1 ms output grid and splined by the contender (spline error ~1e-14 N m), 
 contender's separate tabulation its JAX compilation; the initial state is the library's first
 state. A short window (0.4 s) keeps the test cheap: the library's L2 scene compiles in 20-30 s."""
 
-import os
-import sys
 
 import numpy as np
 import pytest
 
 import ppr_jax as pj
-
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from benchmarks.contenders import scipy_l2  # noqa: E402
+from benchmarks.contenders import scipy_l2
 
 T_END = 0.4  # s
 N_OUT = 401  # every 1 ms: the torque table's grid

@@ -23,16 +23,12 @@ What the two formulations share is data: the parameters, the path, and L1's inve
 torques along it (the scenes' input; the library tabulates them, the reference splines exact
 values on a 1 ms grid)."""
 
-import os
-import sys
 
 import numpy as np
 import pytest
 
 import ppr_jax as pj
-
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from benchmarks.contenders import library, scipy_l2  # noqa: E402
+from benchmarks.contenders import library, scipy_l2
 
 CIRCLE_METRICS = ("radial_error_max_m", "radial_error_min_m", "radial_error_mean_m",
                   "end_rotation_diff_max_deg")

@@ -15,11 +15,11 @@ import textwrap
 
 import numpy as np
 import pytest
-from helpers import env_with_devices
 
 import ppr_jax as pj
 from ppr_jax._cli import main
 from ppr_jax._studies import METRICS, design_members
+from tests.helpers import env_with_devices
 
 KW = dict(model="reduced", torque_model="rigid", t_end=0.5, n_out=11)
 #: the thickest strip needs 38 steps over 0.5 s, the others 16-28

@@ -1,8 +1,9 @@
 """Design with gradients: design variables with bounds (`_variables`), the objective and
 constraints (`_goals`) on the metrics of one catalogue (`_catalogue`), the compiled problem
 (`_problem`), the constrained optimiser and the starts' screening (`_optimise`), the
-verification of the optimum (`_verify`), the result (`_result`), the entry point
-(`_design`) and the specification file of the command line (`_spec`)."""
+verification of the optimum (`_verify`), the result (`_result`), the entry point (`_design`)
+and its argument checks (`_arguments`), and the specification file of the command line
+(`_spec`)."""
 
 from ..._errors import DesignError
 from .._catalogue import (

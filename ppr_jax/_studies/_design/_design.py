@@ -2,20 +2,12 @@
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
-from ..._errors import (
-    DesignError,
-    PPRError,
-    check_instance,
-    check_int,
-    check_number as _check_number,
-    check_vector,
-)
+from ..._errors import DesignError
 from ..._metrics import path_metrics
 from ..._models import get_model
 from ..._names import (
@@ -23,7 +15,6 @@ from ..._names import (
     DESIGN_FD_RTOL,
     DESIGN_GRID,
     DESIGN_GRID_RTOL,
-    DESIGN_OPTIMIZERS,
     DESIGN_STARTS,
 )
 from ..._params import RobotParams
@@ -38,12 +29,12 @@ from .._catalogue import (
 )
 from .._evaluation import equal_links
 from .._sensitivity import explicit_params
-from ._goals import Constraint, as_constraints, as_objective
+from ._arguments import check_arguments
+from ._goals import Constraint
 from ._optimise import Scaled, optimise, screen
 from ._problem import Problem
 from ._rescore import rescore_l3
 from ._result import Design
-from ._variables import check_variables
 from ._verify import gradient_check, grid_check, kkt
 
 #: the KKT residual (relative) below which the optimum counts as a stationary point
@@ -53,85 +44,6 @@ SCENE_FD_RTOL = 1e-3
 #: the least path margins a design on a scene always keeps (`_kinematics.REACH_TOL` and
 #: `SINGULAR_TOL`'s roles): a path out of reach or through a type-II singularity is infeasible
 PATH_MARGIN_MIN = {"path_reach_margin": 1e-6, "path_singularity_margin": 1e-6}
-
-
-def check_number(*args, **kwargs):
-    """`_errors.check_number`, its error a `DesignError`."""
-    return _check_number(*args, **kwargs, error=DesignError)
-
-
-def _names_check(check):
-    """`check(value)`, a `PPRError` of the model or scene registries as a `DesignError`."""
-    def run(name, value):
-        try:
-            return check(value)
-        except DesignError:
-            raise
-        except PPRError as err:
-            raise DesignError(f"{name}: {err}") from None
-    return run
-
-
-def _model_or_none(value):
-    if value is not None:
-        get_model(value)
-    return value
-
-
-def _scene_or_none(value):
-    if value is not None:
-        get_scene(value)
-    return value
-
-
-def _model(value):
-    get_model(value)
-    return value
-
-
-#: `design`'s keywords that a specification's [settings] may give, each with its check
-#: (name, value) -> the value normalised, raising a `DesignError` naming it and what is allowed
-#: (before anything is compiled: `check_keywords`)
-KEYWORD_CHECKS = {
-    "stroke": lambda n, v: None if v is None else check_number(n, v, 0.0, math.pi, "rad",
-                                                                open_lo=True),
-    "scene": _names_check(_scene_or_none),
-    "model": _names_check(_model),
-    "torque_model": _names_check(_model_or_none),
-    "frequency_model": _names_check(_model),
-    "optimizer": lambda n, v: _choice(n, v, DESIGN_OPTIMIZERS),
-    "mode": lambda n, v: None if v is None else _choice(n, v, ("fwd", "rev")),
-    "starts": lambda n, v: check_number(n, v, 1, 1000, integer=True),
-    "candidates": lambda n, v: check_number(n, v, 1, 100_000, integer=True),
-    "max_iter": lambda n, v: check_number(n, v, 1, 100_000, integer=True),
-    "grid": lambda n, v: check_number(n, v, 1, 10_000_000, integer=True),
-    "grid_rtol": lambda n, v: check_number(n, v, 0.0, 1.0),
-    "fd_rtol": lambda n, v: None if v is None else check_number(n, v, 0.0, 1.0),
-    "seed": lambda n, v: check_int(n, v, 0, 2**63 - 1, error=DesignError),
-    "pose": lambda n, v: None if v is None else check_vector(
-        n, v, 3, error=DesignError, what="(x, y, phi) (m, m, rad)"),
-    "strip_load": lambda n, v: None if v is None else check_vector(
-        n, v, 3, error=DesignError, what="(fx, fy, m) (N, N, N m)"),
-    "l3_elements": lambda n, v: None if v is None else check_number(n, v, 1, 64,
-                                                                     integer=True),
-}
-
-
-def _choice(name, value, allowed):
-    if not isinstance(value, str) or value not in allowed:
-        raise DesignError(f"{name} must be one of {', '.join(allowed)}, got {value!r}")
-    return value
-
-
-def check_keywords(keywords: dict) -> dict:
-    """`design`'s keywords `keywords` {name: value} checked (`KEYWORD_CHECKS`) and normalised;
-    the names not checked there are refused. A `DesignError` names the keyword, its value and
-    what is allowed."""
-    unknown = sorted(set(keywords) - set(KEYWORD_CHECKS))
-    if unknown:
-        raise DesignError(f"unknown design setting(s) {unknown}; allowed: "
-                          f"{', '.join(KEYWORD_CHECKS)}")
-    return {k: KEYWORD_CHECKS[k](k, v) for k, v in keywords.items()}
 
 
 def design(
@@ -222,24 +134,18 @@ def design(
     much it is violated at the best point found; `err.result` is that `Design`).
     """
     t_start = time.perf_counter()
-    names, lo, hi = check_variables(variables)
-    obj = as_objective(objective)
-    cons = as_constraints(constraints)
-    kw = check_keywords(dict(
-        stroke=stroke, scene=scene, model=model, torque_model=torque_model,
-        frequency_model=frequency_model, optimizer=optimizer, mode=mode, starts=starts,
-        candidates=candidates, max_iter=max_iter, grid=grid, grid_rtol=grid_rtol,
-        fd_rtol=fd_rtol, seed=seed, pose=pose, strip_load=strip_load, l3_elements=l3_elements))
+    names, lo, hi, obj, cons, kw = check_arguments(
+        variables, objective, constraints, params, options, dict(
+            stroke=stroke, scene=scene, model=model, torque_model=torque_model,
+            frequency_model=frequency_model, optimizer=optimizer, mode=mode, starts=starts,
+            candidates=candidates, max_iter=max_iter, grid=grid, grid_rtol=grid_rtol,
+            fd_rtol=fd_rtol, seed=seed, pose=pose, strip_load=strip_load,
+            l3_elements=l3_elements))
     stroke, pose, strip_load, mode = kw["stroke"], kw["pose"], kw["strip_load"], kw["mode"]
     starts, candidates, max_iter, grid = kw["starts"], kw["candidates"], kw["max_iter"], \
         kw["grid"]
     grid_rtol, fd_rtol, seed, l3_elements = kw["grid_rtol"], kw["fd_rtol"], kw["seed"], \
         kw["l3_elements"]
-    if params is not None:
-        check_instance("params", params, RobotParams, error=DesignError, what="a RobotParams")
-    if options is not None:
-        check_instance("options", options, SceneOptions, error=DesignError,
-                       what="a SceneOptions")
 
     # the scene and what it allows
     ctx_scene = ctx_model = ctx_opts = None

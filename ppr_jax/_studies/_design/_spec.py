@@ -57,7 +57,7 @@ def load_design_spec(path: str) -> dict:
     ({SceneOptions field: value}), params ({name: value}), params_file (a path or None)}.
     A `DesignError` names the file and what is wrong in it.
     """
-    from ._design import check_keywords
+    from ._arguments import check_keywords
 
     where = f"design specification {str(path)!r}"
     try:

@@ -1,6 +1,7 @@
 """Identification (MODEL.md section 7): the problem (`_problem`), the experiments' arrays
-(`_data`), the fits (`_fit`), the result (`_result`), the entry point (`_identify`), synthetic
-experiments (`_synthesize`) and figures (`_plots`)."""
+(`_data`), the fits (`_fit`), the result (`_result`) and its statistics (`_statistics`), the
+entry point (`_identify`) and its argument checks (`_arguments`), synthetic experiments
+(`_synthesize`) and figures (`_plots`)."""
 
 from ..._errors import IdentificationError
 from ._identify import identify
