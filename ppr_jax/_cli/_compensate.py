@@ -92,7 +92,8 @@ def cmd_compensate(args):
     _log(f"compensate: {args.model}, {args.drive or 'the scene'}'s drive (compiling the "
          f"inverse and two runs) ...")
     comp = compensate(target, model_from_args(args, args.model), params, drive=args.drive,
-                      options=options, rate=args.rate, limits=limits or None)
+                      options=options, rate=args.rate, limits=limits or None,
+                      method=args.method)
     log = write_log(os.path.join(args.out, FILES[comp.kind]), comp)
     summary = dict(comp.summary(), path_file=args.path, scene=args.scene,
                    params=_params_dict(params), command_log=os.path.basename(log))
@@ -135,6 +136,9 @@ def add_compensate(sub, parents, fmt):
                    help="command rate (Hz); default: the path file's own samples, else 100")
     c.add_argument("--t-end", type=float, default=None,
                    help="horizon (s) for --scene (default 7.54); a path runs to its last time")
+    c.add_argument("--method", default="inversion", choices=["inversion", "optimise"],
+                   help="inversion (the model's inverse), or optimise: Levenberg-Marquardt on a "
+                        "smooth correction of it through the simulation (docs: Compensation)")
     c.add_argument("--max-angle", type=float, default=None, metavar="RAD",
                    help="flag angles beyond this (motion drive)")
     c.add_argument("--max-rate", type=float, default=None, metavar="RAD/S",

@@ -1,0 +1,142 @@
+"""Compensation by optimisation: Levenberg-Marquardt on a smooth correction of the commands,
+through the differentiable simulation.
+
+The commands are u(t) = u0(t) + B(t) c: u0 the start (the inversion's commands, or the nominal
+ones where the inversion has no solution), B the not-a-knot cubic spline basis on `knots` evenly
+spaced knots (so the correction is smooth and has knots x 3 unknowns c), sampled at the command
+times and splined again as the command log is. The residuals are the replayed tracking error
+at the output times (x, y in m; phi weighted by `PHI_SCALE` m/rad) and, with a rate bound, the
+rates' excess over it (weighted by `RATE_WEIGHT`). The Jacobian is forward mode through the
+scene's solve (diffrax's `ForwardMode`), knots x 3 tangents.
+
+What it is for: what the inversion leaves (the replay's start and the command spline's
+interpolation, 3e-5 m for L0 on a path of cubic samples), commands under a rate bound, and any
+model or path where the inversion does not hold. What it is not for: an open-loop torque drive
+over a horizon where the robot's instability amplifies errors (a replay flagged so): its
+Jacobian is then as ill-conditioned as the amplification.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Optional
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import result_code
+from .._paths import CommandLog, Waypoints
+from .._scenes import PathScene, SceneOptions, solve_scene
+
+#: m per rad: the orientation error's weight against the position error's
+PHI_SCALE = 0.1
+#: weight of a rate's excess over its bound (m per rad/s, or per N m/s)
+RATE_WEIGHT = 10.0
+
+
+class _Fit(eqx.Module):
+    """The residuals of a correction c (knots, 3): static structure, array inputs."""
+
+    path: object
+    u0: jnp.ndarray
+    basis: jnp.ndarray
+    ts: tuple = eqx.field(static=True)
+    drive: str = eqx.field(static=True)
+    kind: str = eqx.field(static=True)
+    model: object
+    options: SceneOptions
+    rate_bound: Optional[float] = eqx.field(static=True, default=None)
+
+    def commands(self, c):
+        return self.u0 + self.basis @ c
+
+    def log(self, c) -> CommandLog:
+        return CommandLog(Waypoints(np.asarray(self.ts), self.commands(c), bc="not-a-knot",
+                                    name="compensated"), kind=self.kind)
+
+    def residuals(self, c, params):
+        scene = PathScene(self.path, drive=self.drive, command_log=self.log(c),
+                          name="compensated")
+        res = solve_scene(scene, params, model=self.model, options=self.options, throw=False)
+        e = res.X - res.X_nominal
+        r = [e[:, :2].ravel(), PHI_SCALE * e[:, 2]]
+        if self.rate_bound is not None:
+            u = self.commands(c)
+            rate = jnp.diff(u, axis=0) / jnp.diff(jnp.asarray(self.ts))[:, None]
+            r.append(RATE_WEIGHT * jax.nn.relu(jnp.abs(rate) - self.rate_bound).ravel())
+        return jnp.concatenate(r), result_code(res.result)
+
+
+@eqx.filter_jit
+def _values(fit, c, params):
+    return fit.residuals(c, params)
+
+
+@eqx.filter_jit
+def _jacobian(fit, c, params):
+    return jax.jacfwd(lambda c: fit.residuals(c, params)[0])(c)
+
+
+def fit_commands(path, drive: str, kind: str, model, params, options: SceneOptions, ts, u0,
+                 *, knots: int = 12, rate_bound: Optional[float] = None, max_iter: int = 8,
+                 rtol: float = 1e-3) -> dict:
+    """Levenberg-Marquardt on the smooth correction of commands u0 (module docstring).
+
+    **Arguments:**
+
+    - `path`, `drive`, `kind`, `model`, `params`: the path, the drive and its log's kind, the
+      model and robot the commands are replayed through.
+    - `options`: the replay's `SceneOptions` (its output times the command times).
+    - `ts` (n,), `u0` (n, 3): command times (s) and the start commands.
+    - `knots`: knots of the correction's spline (at least 3); 3 x knots unknowns.
+    - `rate_bound`: a bound on |du/dt| (rad/s or N m/s), or None.
+    - `max_iter`: Levenberg-Marquardt iterations (each a forward-mode Jacobian, knots x 3
+      tangents); `rtol`: stop when an accepted step lowers the cost by less than this fraction.
+
+    **Returns:** {"commands" (n, 3), "log", "cost_start", "cost", "iterations", "converged",
+    "history" (costs)}; cost = sum of squared residuals (m^2).
+    """
+    ts = np.asarray(ts, dtype=np.float64)
+    tk = np.linspace(ts[0], ts[-1], int(knots))
+    basis = np.asarray(jax.vmap(Waypoints(tk, np.eye(int(knots)), bc="not-a-knot"))(
+        jnp.asarray(ts)))
+    fwd = dataclasses.replace(options, adjoint=diffrax.ForwardMode())
+    fit = _Fit(path=path, u0=jnp.asarray(u0), basis=jnp.asarray(basis),
+               ts=tuple(float(t) for t in ts), drive=drive, kind=kind, model=model,
+               options=fwd, rate_bound=rate_bound)
+    c = jnp.zeros((int(knots), 3))
+    r, code = _values(fit, c, params)
+    cost = float(jnp.sum(r**2)) if int(code) == 0 else float("inf")
+    history, lam, converged, it = [cost], 1e-3, False, 0
+    for it in range(1, max_iter + 1):
+        J = np.asarray(_jacobian(fit, c, params)).reshape(r.shape[0], -1)
+        g, A = J.T @ np.asarray(r), J.T @ J
+        d = np.diag(A).copy() + 1e-300
+        accepted = False
+        for _ in range(8):  # raise the damping until a step lowers the cost
+            step = -np.linalg.solve(A + lam * np.diag(d), g)
+            c_new = c + jnp.asarray(step.reshape(c.shape))
+            r_new, code = _values(fit, c_new, params)
+            new = float(jnp.sum(r_new**2)) if int(code) == 0 else float("inf")
+            if new < cost:
+                accepted, lam = True, max(lam / 3.0, 1e-9)
+                break
+            lam *= 10.0
+        if not accepted:
+            converged = True  # no step lowers the cost: a minimum to the damping's resolution
+            break
+        gain = (cost - new) / cost
+        c, r, cost = c_new, r_new, new
+        history.append(cost)
+        if gain < rtol:
+            converged = True
+            break
+    return {"commands": np.asarray(fit.commands(c)), "log": fit.log(c),
+            "cost_start": history[0], "cost": cost, "iterations": it,
+            "converged": converged, "history": history}
+
+
+__all__ = ["fit_commands", "PHI_SCALE", "RATE_WEIGHT"]
