@@ -681,6 +681,31 @@ def identify_own() -> str:
             "before the runs.")
 
 
+def compensate() -> str:
+    """Compensation's cost and effect: a figure eight, cold and warm, against a forward run
+    (benchmarks/compensate.py)."""
+    d = _load("compensate.json")
+    if d is None:
+        return ""
+    rows = []
+    for r in d["rows"]:
+        b, a = r["error_before"], r["error_after"]
+        rows.append([f"{r['model']}, {r['drive']}", f"{b['position_max'] * 1e3:.3g} mm",
+                     f"{a['position_max'] * 1e3:.2g} mm",
+                     f"{b['phi_max'] * 1e3:.3g} / {a['phi_max'] * 1e3:.2g} mrad",
+                     _ms(r["inversion_warm_s"]), _ms(r["forward_run_s"]),
+                     f"{r['inversion_over_forward_run']:.1f}", f"{r['cold_s']:.0f} s"])
+    r0 = d["rows"][0]
+    return (_table(["model, drive", "miss, nominal commands", "compensated", "phi: nominal / "
+                    "compensated", "inversion (warm)", "one forward run", "inversion / run",
+                    "first call, whole (cold)"], rows)
+            + f"\n\n{r0['t_end_s']:g} s of a figure eight (2 rad/s, the orientation moving too) "
+            f"at {r0['commands']} command times, Table 1's robot with 0.5 mm strips; the "
+            "inversion alone, warm, against one forward run of the compensated commands; the "
+            "first call in a fresh process: the inversion, the nominal and the compensated "
+            "runs, compilation included. " + _machine(d))
+
+
 def headline() -> dict:
     """The contenders' matched times, which the README's headline table quotes (to check it)."""
     d = _load("cpu", "contenders.json")
@@ -708,6 +733,7 @@ def tables() -> dict:
         "start-sensitivity": start_sensitivity(),
         "path-cost": path_cost(),
         "identify-own": identify_own(),
+        "compensate": compensate(),
     }
 
 
