@@ -40,6 +40,22 @@ def equal_links(base: RobotParams, names, local: bool) -> bool:
     return same if local else same and "l1" not in names and "l3" not in names
 
 
+def params_at(base: RobotParams, names, x) -> RobotParams:
+    """`base` with its fields `names` (p,) replaced by the values x (p,) (traced or not): the
+    one conversion of a parameter vector to a robot's parameters, of every study.
+
+    **Arguments:**
+
+    - `base`: the `RobotParams` whose other fields stay.
+    - `names`: the fields replaced, in x's order.
+    - `x`: (p,) their values (SI).
+
+    **Returns:** the `RobotParams`.
+    """
+    return eqx.tree_at(lambda q: [getattr(q, n) for n in names], base,
+                       [x[i] for i in range(len(names))])
+
+
 class Evaluation(eqx.Module):
     """The catalogue's `metrics` of a robot whose fields `names` take the values x.
 
@@ -56,8 +72,7 @@ class Evaluation(eqx.Module):
 
     def params(self, x, base: RobotParams) -> RobotParams:
         """`base` with the fields `names` replaced by x (p,) (traced or not)."""
-        return eqx.tree_at(lambda q: [getattr(q, n) for n in self.names], base,
-                           [x[i] for i in range(len(self.names))])
+        return params_at(base, self.names, x)
 
     def robot(self, x, base: RobotParams) -> Robot:
         """The `Robot` at x (p,), with the evaluation's structural choice."""
@@ -85,4 +100,4 @@ class Evaluation(eqx.Module):
         return jnp.concatenate(self.blocks(x, base, stroke, adjoint))
 
 
-__all__ = ["Evaluation", "equal_links"]
+__all__ = ["Evaluation", "equal_links", "params_at"]
