@@ -2,6 +2,7 @@
 sensitivities (`_sensitivity`), identification (`_identify/`) and design (`_design/`), each
 through `AbstractScene.run` and the one batch mapper of the scenes wing."""
 
+from ._catalogue import CATALOGUE, DESIGN_METRICS, Metric
 from ._design import (
                       Constraint,
                       Design,
@@ -41,27 +42,25 @@ from ._sensitivity import (
 from ._sweep import (
                         FLOAT_PARAMS,
                         METRICS,
-                        ROBOT_METRICS,
                         SweepResult,
                         design_members,
                         library_digest,
                         shard_batch,
                         sweep,
                         sweep_metrics,
-                        traced_metrics,
                         validate_members,
 )
 
 __all__ = [
+    "CATALOGUE", "DESIGN_METRICS", "Metric",
     "Constraint", "Design", "DesignError", "Objective", "design", "design_metrics",
     "load_design_spec",
     "ACTUATIONS", "DEFAULT_NOISE", "FLOAT_PARAMS", "INITIAL_STATES", "LOSSES",
-    "METRICS", "PATH_SENSITIVITY_METRICS", "POOR_FIT_SCALE", "ROBOT_METRICS",
+    "METRICS", "PATH_SENSITIVITY_METRICS", "POOR_FIT_SCALE",
     "SENSITIVITY_METRICS", "SOLVERS", "StartError", "allowed_metrics", "default_metrics",
     "Identification", "IdentificationError", "Sensitivity", "SweepResult", "base_frequency",
     "check_synth_args", "design_members", "identification_figures", "profile_figure",
     "explicit_params", "identify", "library_digest",
     "metric_function", "sensitivity", "shard_batch", "sweep", "sweep_metrics", "synthesize",
-    "traced_metrics",
     "validate_members",
 ]

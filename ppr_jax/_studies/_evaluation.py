@@ -61,7 +61,7 @@ class Evaluation(eqx.Module):
 
     `names` (p,) fields of `RobotParams`; `metrics` (k,) catalogue names; `equal_links` the
     robot's static choice (`equal_links` above); `samples` the metrics of
-    `_catalogue.SAMPLED_METRICS` given as their samples; `ctx` the scene, its models and
+    `_catalogue.sampled_metrics` given as their samples; `ctx` the scene, its models and
     options (`SceneContext`)."""
 
     names: tuple = eqx.field(static=True)

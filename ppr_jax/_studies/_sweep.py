@@ -6,11 +6,12 @@ parameter values. The members are validated first (parameter ranges, reach and s
 the whole nominal path) and the invalid ones are reported with their reason, not run. The valid
 ones run in chunks of a fixed size: the last chunk is padded with copies of its first member, so
 every chunk has the same static shape and the program compiles once. Inside the program each
-member's trajectory is reduced to a handful of scalars (`traced_metrics`), so only small arrays
-come back to the host. A member whose solver fails (diffrax result code), whose metrics are not
-finite, or whose loop-closure residual exceeds `RESIDUAL_TOL` is reported as failed with the reason;
-the others are kept. A chunk that raises as a whole (an `eqx.error_if` inside the program) is
-retried member by member, so one bad member never discards its neighbours.
+member's trajectory is reduced to a handful of scalars (the catalogue's `sweep_metrics`), so
+only small arrays come back to the host. A member whose solver fails (diffrax result code),
+whose metrics are not finite, or whose loop-closure residual exceeds `RESIDUAL_TOL` is reported
+as failed with the reason; the others are kept. A chunk that raises as a whole (an
+`eqx.error_if` inside the program) is retried member by member, so one bad member never
+discards its neighbours.
 
 Structural choices are decided outside the trace: the members are grouped by `equal_links`
 (l1 == l3: the closed-form inverse kinematics; otherwise Newton), each group runs its own
@@ -52,9 +53,10 @@ from .._scenes import (
 from .._simulate import default_controller
 from ._catalogue import (
     METRICS as METRICS,
-    ROBOT_METRICS as ROBOT_METRICS,
+    Inputs,
+    SceneContext,
+    evaluate,
     sweep_metrics as sweep_metrics,
-    traced_metrics as traced_metrics,
 )
 from ._evaluation import equal_links
 
@@ -205,17 +207,19 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
 # ---------------------------------------------------------------------------------------------
 
 
-def _member(robot_dyn, robot_static, scene, model, options, rtol, atol):
-    """One member's (metrics, result code, steps) at tolerances (rtol, atol)."""
+def _member(robot_dyn, robot_static, scene, model, options, rtol, atol, names):
+    """One member's ({metric: value} of the catalogue's `names`, result code, steps) at
+    tolerances (rtol, atol)."""
     robot = eqx.combine(robot_dyn, robot_static)
     opts = eqx.tree_at(lambda o: o.controller, options,
                        default_controller(options.solver, rtol, atol))
     res = scene.run(model, robot, opts)
-    return traced_metrics(res, opts.trajectory), result_code(res.result), res.num_steps
+    values = evaluate(names, Inputs(robot, SceneContext(scene, model, opts, None), result=res))
+    return dict(zip(names, (v[0] for v in values))), result_code(res.result), res.num_steps
 
 
 @eqx.filter_jit
-def _chunk_program(robot, scene, model, options, rtol, atol, devices):
+def _chunk_program(robot, scene, model, options, rtol, atol, devices, names):
     """A chunk's ({metric: (B,)}, result codes (B,), num_steps (B,)) for the batched `robot`.
 
     `options`: prepared `SceneOptions` (their tolerances replaced by the program's inputs
@@ -224,7 +228,7 @@ def _chunk_program(robot, scene, model, options, rtol, atol, devices):
     synchronise across devices. Every array of the arguments is an input, so one program serves
     any values of the same shapes; the command line keeps it in its program store."""
     dyn, static = eqx.partition(robot, eqx.is_array)
-    return map_members(_member, devices)(dyn, static, scene, model, options, rtol, atol)
+    return map_members(_member, devices)(dyn, static, scene, model, options, rtol, atol, names)
 
 
 def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
@@ -492,7 +496,7 @@ def sweep(
     def run(equal, idx):
         members_p = [plist[i] for i in idx] + [plist[idx[0]]] * (chunk_size - len(idx))
         args = (Robot(stack_params(members_p), equal_links=equal), scene_, model_, options,
-                *tol, dev)
+                *tol, dev, metric_names)
         # one compilation per group (equal links or not) and shape, kept for later chunks
         fn = cached_program(_chunk_program, args, template, program_dir, label)
         out, codes, steps = fn(*args)
