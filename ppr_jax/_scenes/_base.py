@@ -28,7 +28,7 @@ from .._actuation import (
 from .._custom_types import Array
 from .._dynamics import inverse_dynamics
 from .._errors import RESIDUAL_TOL, RESULTS, first_failure
-from .._kinematics import det3, fold_flags, path_singular
+from .._kinematics import det3, fold_flags, path_margins
 from .._metrics import outputs
 from .._models import AbstractModel
 from .._params import RobotParams, params_invalid
@@ -89,24 +89,19 @@ def tabulated(fn, ts, panels: int):
 
 def path_out_of_reach(ref_model, robot, traj, ts):
     """The nominal path is out of reach at some output time for `ref_model` (L0 or L1), whose
-    inverse kinematics gives the input."""
-
-    def resid(t):
-        k = ref_model.kinematics(robot, ref_model.coords_from_pose(robot, traj(t)))
-        return jnp.max(jnp.linalg.norm(ref_model.loop_residual(robot, k), axis=-1))
-
-    return ~(jnp.max(jax.vmap(resid)(ts)) <= RESIDUAL_TOL)
+    inverse kinematics gives the input (`PathMargins.out_of_reach` of `path_margins`)."""
+    return jnp.any(path_margins(ref_model, robot, jax.vmap(traj)(ts)).out_of_reach())
 
 
 def path_singular_at(ref_model, robot, traj, ts):
     """The nominal path meets a type-II singularity of `ref_model` (L0 or L1, whose inverse
     dynamics or kinematics gives the input) over [ts[0], ts[-1]]: det S changes sign between
-    two output times, or S is singular at one (`path_singular`). There the inverse-dynamics
+    two output times, or S is singular at one (`PathMargins.singular`). There the inverse-dynamics
     torques are unbounded, and the input table would only be judged too coarse. The output
     times suffice (det S is continuous: a crossing changes its sign) unless the path crosses
     twice within one output interval; four samples per output time cost 4.2 ms a run against
     1.0 ms (755 output times, 2-core CPU), on every paper-circle run."""
-    return jnp.any(path_singular(ref_model, robot, jax.vmap(traj)(ts)))
+    return jnp.any(path_margins(ref_model, robot, jax.vmap(traj)(ts)).singular())
 
 
 def torque_input(input_model, robot, traj, ts, panels: int) -> SceneInput:

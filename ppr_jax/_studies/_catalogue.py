@@ -91,7 +91,7 @@ import jax.numpy as jnp
 from .._dynamics import eom_terms, generalized_force
 from .._errors import RESULTS, PPRError
 from .._geometry import home_pose
-from .._kinematics import det3
+from .._kinematics import path_margins as kinematic_margins
 from .._metrics import is_circle, metric_table
 from .._modes import reduced_eigh
 from .._names import (  # the sensitivity table's default rows, SI units
@@ -233,20 +233,11 @@ def path_margins(ref_model, robot: Robot, X):
 
 def path_margin_samples(ref_model, robot: Robot, X):
     """The margins of `path_margins` before their minimum: (reach (m, 3) per sample and chain,
-    singularity (m,) per sample)."""
-
-    def one(x):
-        k = ref_model.kinematics(robot, ref_model.coords_from_pose(robot, x))
-        S = jax.jacfwd(lambda xx: ref_model.kinematics(
-            robot, ref_model.coords_from_pose(robot, xx)).th_a)(x)
-        return k.margin, S
-
-    reach, S = jax.vmap(one)(jnp.concatenate([home_pose(robot)[None], X]))
-    r1 = jnp.asarray(robot.r1, dtype=S.dtype)
-    Sn = S * jnp.stack([r1, r1, jnp.ones_like(r1)])[None, None, :]
-    rel = det3(Sn) / jnp.prod(jnp.linalg.norm(Sn, axis=-2), axis=-1)
-    sign = jax.lax.stop_gradient(jnp.where(rel[0] < 0, -1.0, 1.0))
-    return reach[1:], sign * rel[1:]
+    singularity (m,) per sample): `_kinematics.path_margins` of the home pose and X, the
+    relative det S signed by its value at home."""
+    m = kinematic_margins(ref_model, robot, jnp.concatenate([home_pose(robot)[None], X]))
+    sign = jax.lax.stop_gradient(jnp.where(m.det[0] < 0, -1.0, 1.0))
+    return m.reach[1:], sign * m.det[1:]
 
 
 def compliance(model, robot: Robot, X=None):

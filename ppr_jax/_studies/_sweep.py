@@ -37,7 +37,7 @@ import numpy as np
 
 from .._errors import PPRError, RepairWarning, check_number, result_code, result_message
 from .._files import write_file
-from .._kinematics import REACH_TOL, SINGULAR_TOL, ik_solve
+from .._kinematics import SINGULAR_TOL, path_margins
 from .._models import get_model
 from .._params import PARAM_RANGES, RobotParams, stack_params
 from .._programs import cached_program
@@ -143,12 +143,11 @@ N_PATH_CHECK = 64
 
 
 def _path_check(model, robot, Xs):
-    def one(X):
-        r = ik_solve(model, robot, X)
-        return jnp.min(r.margin), r.singularity
-
-    margin, sing = jax.vmap(one)(Xs)
-    return jnp.min(margin), jnp.min(sing)
+    """(out of reach, least reach margin, singular, least |relative det S|) of the path Xs
+    (`_kinematics.path_margins`, the scenes' check)."""
+    m = path_margins(model, robot, Xs)
+    return (jnp.any(m.out_of_reach()), jnp.min(m.reach), jnp.any(m.singular()),
+            jnp.min(jnp.abs(m.det)))
 
 
 _path_check_batch = eqx.filter_jit(eqx.filter_vmap(_path_check, in_axes=(None, 0, None)))
@@ -162,7 +161,8 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
     run). Checks: parameter ranges (`RobotParams`); every chain closes with margin and the
     actuation is not singular at `N_PATH_CHECK` samples of the nominal path over [0, t_end]
     (default the scene's own path), with the kinematics of the scene's `input_model`, which
-    gives the input."""
+    gives the input (`_kinematics.path_margins`: the scenes' own check of reach and type-II
+    singularities)."""
     names = list(members)
     N = len(members[names[0]])
     plist, reasons = [], []
@@ -182,22 +182,22 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
     Xs = jax.vmap(traj)(jnp.linspace(0.0, t_end, N_PATH_CHECK))
     kin = scene_.input_model
     # One vmapped call for all valid members, in fixed-size pieces (a few compiles at most).
-    margins, sings = [], []
+    parts = []
     for lo in range(0, len(ok), 256):
         idx = ok[lo:lo + 256]
         batch = stack_params([plist[i] for i in idx])
-        m, s = _path_check_batch(kin, Robot(batch, equal_links=False), Xs)
-        margins.append(np.asarray(m))
-        sings.append(np.asarray(s))
-    margin, sing = np.concatenate(margins), np.concatenate(sings)
+        parts.append([np.asarray(v) for v in
+                      _path_check_batch(kin, Robot(batch, equal_links=False), Xs)])
+    out, margin, singular, det = (np.concatenate(v) for v in zip(*parts))
     for j, i in enumerate(ok):
-        if not np.isfinite(margin[j]) or margin[j] <= REACH_TOL:
+        if out[j] or not np.isfinite(margin[j]):
             reasons[i] = ("unreachable path: a chain cannot close along the nominal path "
                           f"(min closure margin {margin[j]:.3g})")
             plist[i] = None
-        elif not np.isfinite(sing[j]) or sing[j] < SINGULAR_TOL:
-            reasons[i] = ("singular configuration along the nominal path (inverse condition "
-                          f"number of S {sing[j]:.3g} < {SINGULAR_TOL:g})")
+        elif singular[j] or not np.isfinite(det[j]):
+            reasons[i] = ("singular configuration along the nominal path (least relative det S "
+                          f"{det[j]:.3g}, below {SINGULAR_TOL:g} or changing sign: the path "
+                          f"meets or crosses a type-II singularity)")
             plist[i] = None
     return plist, reasons
 
