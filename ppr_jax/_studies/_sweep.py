@@ -158,11 +158,12 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
     """Build each member's `RobotParams` and check it before any solve.
 
     Returns (params list with None for invalid members, reasons list: '' or why the member cannot
-    run). Checks: parameter ranges (`RobotParams`); every chain closes with margin and the
-    actuation is not singular at `N_PATH_CHECK` samples of the nominal path over [0, t_end]
-    (default the scene's own path), with the kinematics of the scene's `input_model`, which
-    gives the input (`_kinematics.path_margins`: the scenes' own check of reach and type-II
-    singularities)."""
+    run). Checks: parameter ranges (`RobotParams`); the scene's commands (a command log) fit
+    the member (`AbstractScene.check_members`: an angle log's assembly mode); every chain
+    closes with margin and the actuation is not singular at `N_PATH_CHECK` samples of the
+    nominal path over [0, t_end] (default the scene's own path), with the kinematics of the
+    scene's `input_model`, which gives the input (`_kinematics.path_margins`: the scenes' own
+    check of reach and type-II singularities)."""
     names = list(members)
     N = len(members[names[0]])
     plist, reasons = [], []
@@ -179,6 +180,15 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
         return plist, reasons
     scene_ = get_scene(scene, torque_model)
     traj = scene_.trajectory() if trajectory is None else trajectory
+    # the commands the scene is given, against each member (an angle log's assembly mode is
+    # each member's own: its geometry decides it)
+    for i, err in zip(ok, scene_.check_members([plist[i] for i in ok], traj, t_end)):
+        if err is not None:
+            reasons[i] = f"commands: {err}"
+            plist[i] = None
+    ok = [i for i in ok if plist[i] is not None]
+    if not ok:
+        return plist, reasons
     Xs = jax.vmap(traj)(jnp.linspace(0.0, t_end, N_PATH_CHECK))
     kin = scene_.input_model
     # One vmapped call for all valid members, in fixed-size pieces (a few compiles at most).
