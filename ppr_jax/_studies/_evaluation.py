@@ -3,8 +3,9 @@
 A sensitivity differentiates it, a design optimises it (and screens and verifies it in
 batches): both evaluate an `Evaluation`, the variables' names, the catalogue's metrics and the
 scene they run (`_catalogue.SceneContext`), at parameter values x (p,) that replace those fields
-of a base robot. The structural choice of the robot (`Robot`'s `equal_links`: the closed-form
-inverse kinematics where l1 == l3) is decided once, in Python, by `equal_links`.
+of a base robot; a sweep maps its scene run and metrics over its members, whole robots of a
+batch (`Evaluation.run`). The structural choice of the robot (`Robot`'s `equal_links`: the
+closed-form inverse kinematics where l1 == l3) is decided once, in Python, by `equal_links`.
 
 An `Evaluation` is a pytree: its names are static (they key the compiled programs), the
 context's arrays (the scene's path, the options' tolerances) are inputs, so one compiled (or
@@ -13,12 +14,15 @@ stored) program serves any of their values.
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._errors import result_code
 from .._params import RobotParams
 from .._robot import Robot
-from ._catalogue import SceneContext, metric_blocks
+from ._catalogue import Inputs, SceneContext, evaluate, metric_blocks
 
 
 def equal_links(base: RobotParams, names, local: bool) -> bool:
@@ -94,6 +98,25 @@ class Evaluation(eqx.Module):
         stroke = jnp.zeros(()) if stroke is None else stroke
         return metric_blocks(self.metrics, self.params(x, base), self.ctx, stroke, adjoint,
                              self.equal_links, self.samples)
+
+    def run(self, robot: Robot, options=None) -> tuple:
+        """The context's scene run for `robot` and the metrics `metrics` of its result: what a
+        sweep maps over its members (each a whole robot of the batch).
+
+        **Arguments:**
+
+        - `robot`: a `Robot` (one member; traced leaves allowed).
+        - `options`: `SceneOptions` that replace the context's (a sweep's, its tolerances the
+          program's inputs); None: the context's.
+
+        **Returns:** ({metric: value} (NaN where the run failed), the run's result code
+        (`_errors.result_code`), its number of steps).
+        """
+        ctx = self.ctx if options is None else dataclasses.replace(self.ctx, options=options)
+        res = ctx.scene.run(ctx.model, robot, ctx.options)
+        values = evaluate(self.metrics, Inputs(robot, ctx, result=res), self.samples)
+        return (dict(zip(self.metrics, (v[0] for v in values))), result_code(res.result),
+                res.num_steps)
 
     def values(self, x, base: RobotParams, stroke=None, adjoint=None):
         """`blocks` concatenated: (k,), or longer where `samples` asks for samples."""

@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import PPRError, RepairWarning, check_number, result_code, result_message
+from .._errors import PPRError, RepairWarning, check_number, result_message
 from .._files import write_file
 from .._kinematics import SINGULAR_TOL, path_margins
 from .._models import get_model
@@ -53,12 +53,10 @@ from .._scenes import (
 from .._simulate import default_controller
 from ._catalogue import (
     METRICS as METRICS,
-    Inputs,
     SceneContext,
-    evaluate,
     sweep_metrics as sweep_metrics,
 )
-from ._evaluation import equal_links
+from ._evaluation import Evaluation, equal_links
 
 #: a member whose max loop-closure residual (m) at the output times exceeds this has failed
 RESIDUAL_TOL = 1e-9
@@ -217,28 +215,27 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
 # ---------------------------------------------------------------------------------------------
 
 
-def _member(robot_dyn, robot_static, scene, model, options, rtol, atol, names):
-    """One member's ({metric: value} of the catalogue's `names`, result code, steps) at
-    tolerances (rtol, atol)."""
-    robot = eqx.combine(robot_dyn, robot_static)
+def _member(robot_dyn, robot_static, ev: Evaluation, rtol, atol):
+    """One member's ({metric: value}, result code, steps) at tolerances (rtol, atol):
+    `Evaluation.run`."""
+    options = ev.ctx.options
     opts = eqx.tree_at(lambda o: o.controller, options,
                        default_controller(options.solver, rtol, atol))
-    res = scene.run(model, robot, opts)
-    values = evaluate(names, Inputs(robot, SceneContext(scene, model, opts, None), result=res))
-    return dict(zip(names, (v[0] for v in values))), result_code(res.result), res.num_steps
+    return ev.run(eqx.combine(robot_dyn, robot_static), opts)
 
 
 @eqx.filter_jit
-def _chunk_program(robot, scene, model, options, rtol, atol, devices, names):
+def _chunk_program(robot, ev, rtol, atol, devices):
     """A chunk's ({metric: (B,)}, result codes (B,), num_steps (B,)) for the batched `robot`.
 
-    `options`: prepared `SceneOptions` (their tolerances replaced by the program's inputs
-    `rtol`, `atol`). Members are mapped as the scenes' batches are (`map_members`: vmapped
-    chunks, split over `devices` by `shard_map` when there are several): adaptive steps never
-    synchronise across devices. Every array of the arguments is an input, so one program serves
-    any values of the same shapes; the command line keeps it in its program store."""
+    `ev`: the sweep's `Evaluation` (its context's prepared `SceneOptions`, their tolerances
+    replaced by the program's inputs `rtol`, `atol`). Members are mapped as the scenes' batches
+    are (`map_members`: vmapped chunks, split over `devices` by `shard_map` when there are
+    several): adaptive steps never synchronise across devices. Every array of the arguments is
+    an input, so one program serves any values of the same shapes; the command line keeps it in
+    its program store."""
     dyn, static = eqx.partition(robot, eqx.is_array)
-    return map_members(_member, devices)(dyn, static, scene, model, options, rtol, atol, names)
+    return map_members(_member, devices)(dyn, static, ev, rtol, atol)
 
 
 def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
@@ -505,8 +502,9 @@ def sweep(
 
     def run(equal, idx):
         members_p = [plist[i] for i in idx] + [plist[idx[0]]] * (chunk_size - len(idx))
-        args = (Robot(stack_params(members_p), equal_links=equal), scene_, model_, options,
-                *tol, dev, metric_names)
+        ev = Evaluation(names=tuple(names), metrics=tuple(metric_names), equal_links=equal,
+                        samples=(), ctx=SceneContext(scene_, model_, options, None))
+        args = (Robot(stack_params(members_p), equal_links=equal), ev, *tol, dev)
         # one compilation per group (equal links or not) and shape, kept for later chunks
         fn = cached_program(_chunk_program, args, template, program_dir, label)
         out, codes, steps = fn(*args)
