@@ -182,7 +182,7 @@ def tier3() -> dict:
     >= 0.1 and the path in reach; verified on 10,000 Sobol designs in one batched call and
     re-scored with L3. No closed form: the grid and the finite differences are the check.
     The stress and torque peaks and the path margins reach the optimiser as one constraint per
-    output time and spring, actuator or chain (`SAMPLED_METRICS`). Passed: feasible, verified
+    output time and spring, actuator or chain (`sampled_metrics`). Passed: feasible, verified
     (KKT residual, finite differences, the Sobol sample within 1 %) with at most
     `T3_MAX_JACOBIANS` evaluations per start; the L3 re-score is reported, not required."""
     import jax.numpy as jnp

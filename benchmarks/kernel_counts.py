@@ -323,7 +323,7 @@ def classify(stack: tuple, rk_error_line: int = 0) -> str:
     if has("quasi_static", "_open_at"):
         return "start"
     if has("commands", "torque_input", "motion_input", "tabulated", "scene_input",
-           "path_singular", "path_out_of_reach"):
+           "path_singular", "path_out_of_reach", "path_margins"):
         return "input_table"
     if has("first_failure", "params_invalid", "_any", "check_result"):
         return "status_fixed"

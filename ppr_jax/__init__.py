@@ -22,7 +22,7 @@ else:
 
 #: module -> the public names it gives, in the order of the floors they come from
 _EXPORTS = {
-    "._names": ("PARAM_RANGES", "STRIP_DYNAMICS", "DESIGN_METRICS"),
+    "._names": ("PARAM_RANGES", "STRIP_DYNAMICS"),
     "._params": ("RobotParams", "stack_params", "unstack_params"),
     "._params_file": ("load_params", "save_params"),
     "._prb": ("Derived", "derived"),
@@ -70,6 +70,7 @@ _EXPORTS = {
         "synthesize",
         "Design", "DesignError", "Objective", "Constraint", "design", "design_metrics",
         "Compensation", "CompensationError", "compensate",
+        "DESIGN_METRICS", "CATALOGUE", "Metric",
     ),
     "._prb_table": ("prb_parameters", "prb_table"),
     "._data": (
@@ -87,7 +88,6 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
     from ._names import (
         PARAM_RANGES as PARAM_RANGES,
         STRIP_DYNAMICS as STRIP_DYNAMICS,
-        DESIGN_METRICS as DESIGN_METRICS,
     )
     from ._params import (
         RobotParams as RobotParams,
@@ -223,6 +223,9 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         Compensation as Compensation,
         CompensationError as CompensationError,
         compensate as compensate,
+        DESIGN_METRICS as DESIGN_METRICS,
+        CATALOGUE as CATALOGUE,
+        Metric as Metric,
     )
     from ._prb_table import prb_parameters as prb_parameters, prb_table as prb_table
     from ._data import (

@@ -12,7 +12,7 @@ import numpy as np
 import optimistix as optx
 
 from ._custom_types import Array, Float
-from ._errors import PPRError, check_array, raise_if, result_code
+from ._errors import RESIDUAL_TOL, PPRError, check_array, raise_if, result_code
 from ._geometry import home_pose, singularity_measure
 from ._linalg import SmallLU
 from ._models import AbstractModel, Reduced
@@ -262,30 +262,79 @@ def fold_flags(det, ts=None):
     return flags.at[1:-1].set(flags[1:-1] | bwd)
 
 
-def path_singular(model: AbstractModel, robot: RobotLike, X) -> Array:
-    """(m,) bool: the samples of a pose path X (m, 3) (m, m, rad) at which `model`'s (L0 or L1)
-    S = d th_a / dX is singular (its relative determinant |det| / prod of its column norms,
-    translations scaled by r1, below `SINGULAR_TOL`), or at which det S has changed sign since
-    the sample before: the path crossed a type-II singularity between the two (det S is
-    continuous in the pose). A pose out of reach (NaN) is not flagged here. Two crossings
-    between one pair of samples cancel: sample finely. Traceable.
+class PathMargins(eqx.Module):
+    """How far a pose path stays from the edges of a kinematic model's workspace (L0 or L1:
+    the model whose inverse kinematics or dynamics drives a scene), at each of its m samples:
+    the one reach and singularity check of a path (`path_margins`), which the scenes, sweeps,
+    designs and identification's data check read, each with its own tolerance and message.
 
-    Only S is formed (one forward-mode Jacobian of the actuated angles) and only plain XLA
-    operations follow: it runs on every paper-circle input (thousands of samples), where
-    `ik_solve`'s chain-angle Jacobian and its SVD (a batched LAPACK call) cost 8 ms a run."""
+    `reach`: (m, 3) each chain's reach margin 1 - |cos| of its closure angle (<= `REACH_TOL`:
+    out of reach; negative beyond it). `residual`: (m,) the largest loop-closure residual (m)
+    of the chains the inverse kinematics closed. `det`: (m,) the relative determinant of
+    S = d th_a/dX (translations scaled by r1): det S over the product of its column norms, 0
+    singular, +-1 isotropic, signed (a type-II singularity crossed between two samples flips
+    it). `th_a`: (m, 3) the actuated angles (rad)."""
+
+    reach: Array
+    residual: Array
+    det: Array
+    th_a: Array
+
+    def out_of_reach(self) -> Array:
+        """(m,) bool: a chain cannot close at the sample (its reach margin at most
+        `REACH_TOL`, or the inverse kinematics leaves a loop-closure residual above
+        `RESIDUAL_TOL`)."""
+        return jnp.any(self.reach <= REACH_TOL, axis=-1) | ~(self.residual <= RESIDUAL_TOL)
+
+    def singular(self) -> Array:
+        """(m,) bool: S is singular at the sample (|det| below `SINGULAR_TOL`), or det S has
+        changed sign since the sample before: the path crossed a type-II singularity between
+        the two (det S is continuous in the pose). A pose out of reach (NaN) is not flagged
+        here. Two crossings between one pair of samples cancel: sample finely."""
+        sign = jnp.sign(self.det)
+        crossed = jnp.concatenate([jnp.zeros(1, bool), sign[1:] * sign[:-1] < 0])
+        return crossed | (jnp.abs(self.det) < SINGULAR_TOL)
+
+
+def path_margins(model: AbstractModel, robot: RobotLike, X) -> PathMargins:
+    """The reach and singularity margins (`PathMargins`) of `model` (L0 or L1) along the pose
+    path X (m, 3) (m, m, rad). Traceable; what a caller does not read is not computed in its
+    compiled program.
+
+    Only S is differentiated (one forward-mode Jacobian of the actuated angles) and only plain
+    XLA operations follow: it runs on every paper-circle input (thousands of samples), where
+    `ik_solve`'s chain-angle Jacobian and its SVD (a batched LAPACK call) cost 8 ms a run.
+
+    **Arguments:**
+
+    - `model`: a model whose coordinates are the pose (`Rigid`, `Reduced`).
+    - `robot`: a `Robot` or `RobotParams` (traced leaves allowed).
+    - `X`: (m, 3) the poses.
+
+    **Returns:** the `PathMargins`.
+    """
     robot = as_robot(robot)
 
-    def th_a(x):
-        return model.kinematics(robot, model.coords_from_pose(robot, x)).th_a
+    def kin(x):
+        return model.kinematics(robot, model.coords_from_pose(robot, x))
 
-    S = jax.vmap(jax.jacfwd(th_a))(X)
+    def closure(x):
+        k = kin(x)
+        return k.margin, jnp.max(jnp.linalg.norm(model.loop_residual(robot, k), axis=-1)), k.th_a
+
+    reach, residual, th_a = jax.vmap(closure)(X)
+    S = jax.vmap(jax.jacfwd(lambda x: kin(x).th_a))(X)
     r1 = jnp.asarray(robot.r1, dtype=S.dtype)
     Sn = S * jnp.stack([r1, r1, jnp.ones_like(r1)])[None, None, :]
-    det = det3(Sn)
-    ratio = jnp.abs(det) / jnp.prod(jnp.linalg.norm(Sn, axis=-2), axis=-1)
-    sign = jnp.sign(det)
-    crossed = jnp.concatenate([jnp.zeros(1, bool), sign[1:] * sign[:-1] < 0])
-    return crossed | (ratio < SINGULAR_TOL)
+    det = det3(Sn) / jnp.prod(jnp.linalg.norm(Sn, axis=-2), axis=-1)
+    return PathMargins(reach=reach, residual=residual, det=det, th_a=th_a)
+
+
+def path_singular(model: AbstractModel, robot: RobotLike, X) -> Array:
+    """(m,) bool: the samples of a pose path X (m, 3) (m, m, rad) at which `model`'s (L0 or L1)
+    S = d th_a / dX is singular or has changed sign since the sample before
+    (`PathMargins.singular` of `path_margins`). Traceable."""
+    return path_margins(model, robot, X).singular()
 
 
 def _fk_path(model, robot, th_a_path, X0, rtol, atol, max_steps):

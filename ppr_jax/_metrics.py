@@ -103,34 +103,11 @@ def _min(x, axis, xp):
     return _extreme(x, axis, xp, False)
 
 
-def _is_circle(trajectory) -> bool:
+def is_circle(trajectory) -> bool:
+    """Whether `trajectory` is a circle: a `center` and a `radius` (its radial error is
+    defined)."""
     return (getattr(trajectory, "center", None) is not None
             and getattr(trajectory, "radius", None) is not None)
-
-
-#: the radial error's metrics: for a circular path alone (`Circle`: a `center` and `radius`)
-CIRCLE_METRICS = (
-    "radial_error_max_m",
-    "radial_error_min_m",
-    "radial_error_mean_m",
-    "radial_error_max_relative_percent",
-)
-#: the tracking error against the commanded pose, for any path: position (m) and orientation
-#: (rad), the largest, the RMS over the output times and at the last one
-TRACKING_METRICS = (
-    "position_error_max_m",
-    "position_error_rms_m",
-    "position_error_end_m",
-    "phi_error_max_rad",
-    "phi_error_rms_rad",
-    "phi_error_end_rad",
-)
-
-
-def path_metrics(trajectory) -> tuple:
-    """The metrics of `metric_table` that measure how far the platform leaves `trajectory`:
-    `CIRCLE_METRICS` for a circle, then `TRACKING_METRICS` (any path)."""
-    return (CIRCLE_METRICS if _is_circle(trajectory) else ()) + TRACKING_METRICS
 
 
 def metric_table(res, trajectory, xp=jnp) -> dict:
@@ -144,8 +121,8 @@ def metric_table(res, trajectory, xp=jnp) -> dict:
     - `res`: a `SceneResult` (or anything with its signals: X, X_nominal, end_rot, residual,
       kinetic, potential, and optionally tau), with any leading batch axes; time is the axis
       after them.
-    - `trajectory`: the nominal path; the radial-error metrics (`CIRCLE_METRICS`) need a
-      circle (`center`, `radius`), the others hold for any path (`TRACKING_METRICS`).
+    - `trajectory`: the nominal path; the radial-error metrics need a circle (`is_circle`:
+      a `center` and a `radius`), the others hold for any path.
     - `xp`: the array namespace (`jax.numpy` or `numpy`).
 
     **Returns:** {name: array over the batch axes}, SI unless the name says otherwise
@@ -158,7 +135,7 @@ def metric_table(res, trajectory, xp=jnp) -> dict:
     """
     X, Xn = xp.asarray(res.X), xp.asarray(res.X_nominal)
     out = {}
-    if _is_circle(trajectory):
+    if is_circle(trajectory):
         # in xp's arrays (numpy on the host: no XLA program per operation)
         radius = xp.asarray(trajectory.radius)
         er = radial_error(X, trajectory.center, radius, xp)

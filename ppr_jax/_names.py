@@ -117,36 +117,6 @@ INITIAL_STATES = {"scene": 0, "pose": 3, "pose-velocity": 6}
 
 # -- design (`_studies._design`) -----------------------------------------------------------
 
-#: the design catalogue's own metrics (SI units; the scene metrics of `allowed_metrics` join
-#: them on any scene): name -> what it measures
-DESIGN_METRICS: dict[str, str] = {
-    "pivot_frequency_hz": "first natural frequency of one strip pivot (K0 = E I/L) carrying the "
-                          "connecting link, the drive link held (Hz)",
-    "pivot_stress_Pa": "the strip's peak bending stress at the joint rotation `stroke` under a "
-                       "pure moment, E t stroke/(2 L) (Pa)",
-    "base_frequency_hz": "the robot's first natural frequency, actuators locked, at home "
-                         "(frequency_model) (Hz)",
-    "moving_mass_kg": "mass of every moving body: three drive links, strips and connecting "
-                      "links, and the platform (kg)",
-    "strip_stress_peak_Pa": "the strips' peak bending stress over the scene, from each spring's "
-                            "moment K d over the strip's section modulus w t^2/6 (Pa)",
-    "torque_rms_Nm": "the actuator torques' RMS over the scene's output times and the three "
-                     "actuators (N m)",
-    "path_reach_margin": "the least reach margin (1 - |cos| of a chain's closure angle) of the "
-                         "scene's input model along its nominal path (-; <= 0: out of reach)",
-    "path_singularity_margin": "the least relative det S along the scene's nominal path, signed "
-                               "so that it is positive at the home pose (-; <= 0: the path "
-                               "meets or crosses a type-II singularity)",
-    "strip_tip_rotation_rad": "one strip (length r theta_c, rest curvature 1/r) clamped at one end "
-                              "under the end load `strip_load` (fx, fy, m): its tip's rotation "
-                              "from rest, by the elastica (rad)",
-    "strip_elastica_stress_Pa": "that strip's peak bending stress, max |M(s)| 6/(w t^2) along it, "
-                                "by the elastica (Pa)",
-    "compliance_xy_m_per_N": "the platform's largest translational compliance under a force, "
-                             "actuators locked, at the pose `pose` (frequency_model) (m/N)",
-    "compliance_phi_rad_per_Nm": "the platform's rotational compliance under a moment, actuators "
-                                 "locked, at the pose `pose` (frequency_model) (rad/(N m))",
-}
 #: the constrained optimisers of a design (scipy.optimize.minimize's methods)
 DESIGN_OPTIMIZERS = ("slsqp", "trust-constr")
 #: a design's defaults: starts run by the optimiser, candidates screened for them, points of

@@ -174,6 +174,38 @@ def test_the_studies_refuse_angles_of_the_other_mode(files, no_run, study):
         run()
 
 
+#: a base side at which the default robot's own angles along `_poses` belong to chain 3's other
+#: assembly mode (the poses still in reach)
+A_OTHER = 0.45
+
+
+def test_each_member_of_a_batch_is_judged_in_its_own_mode(files, no_run):
+    """The assembly mode is each robot's: the full log's angles are the default robot's own,
+    and for a member with the base side `A_OTHER` chain 3's other mode's (the host inverse
+    kinematics of both elbows says so, independently of the check). A batch whose first member
+    fits is refused naming the member that does not; a sweep's validation refuses that member
+    alone, with the reason."""
+    path, logs = files
+    traj = pj.load_path(path)
+    scene = pj.PathScene(traj, drive="motion", command_log=pj.load_commands(logs["full"]))
+    p0, p1 = pj.RobotParams(), pj.RobotParams().replace(a=A_OTHER)
+    ts = np.linspace(0.0, 1.0, 101)
+    own, other, c = HostGeometry(p1).ik(_poses(ts))
+    th = _angles(ts)
+    assert np.all(np.abs(c) < 1)  # in reach
+    assert np.all(np.abs(th[:, 2] - other[:, 2]) < np.abs(th[:, 2] - own[:, 2]))
+    opts = pj.SceneOptions(t_end=1.0, n_out=11)
+    with pytest.raises(pj.AssemblyModeError, match=r"batch member 1: full.csv: sample at t = 0 "
+                                                   r"s: .*th_3 .* other assembly mode of chain 3"):
+        pj.run_scene(scene, pj.stack_params([p0, p1]), model="reduced", options=opts)
+    from ppr_jax._studies import validate_members
+
+    plist, reasons = validate_members(scene, p0, {"a": [float(p0.a), A_OTHER]},
+                                      trajectory=traj, t_end=1.0)
+    assert reasons[0] == "" and plist[0] is not None
+    assert plist[1] is None and "other assembly mode of chain 3" in reasons[1], reasons
+
+
 def test_an_experiment_in_the_other_mode_is_refused_by_the_scene_it_makes(no_run):
     """`experiment_scene` of a file whose angles belong to the other mode: `solve_scene`
     refuses it (the API's path from a measured experiment to a run)."""

@@ -362,3 +362,18 @@ def test_damaged_sweep_settings_are_rewritten_and_chunks_still_checked(tmp_path,
     assert json.loads(settings.read_text()) == good  # the old file, whole
     with pytest.raises(pj.PPRError, match="different sweep"):
         _sweep._ChunkStore(str(d), dict(info, scene="servo-circle"))
+
+
+def test_a_member_whose_path_crosses_a_singularity_is_refused_before_running():
+    """The sweep's validation is the scenes' check of a path (`_kinematics.path_margins`): on
+    servo-circle with a = 0.6 m, l1 = l3 = 0.45 m, the path of the platform side h = 0.15 m
+    crosses a type-II singularity of L1 (det S changes sign between two samples, none of them
+    singular: tests/test_design.py re-derives the crossing from `inverse_kinematics`' S), and
+    that member is refused with the reason, h = 0.1 m kept. Host-side: no scene is run."""
+    from ppr_jax._studies import validate_members
+
+    base = pj.scene_params("servo-circle").replace(a=0.6, l1=0.45, l3=0.45)
+    plist, reasons = validate_members("servo-circle", base, {"h": [0.1, 0.15]}, t_end=7.54)
+    assert reasons[0] == "" and plist[0] is not None
+    assert plist[1] is None and reasons[1].startswith(
+        "singular configuration along the nominal path"), reasons

@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import sys
 
-from .._names import DESIGN_METRICS
 from ._common import _log, _out_dir
 
 
@@ -81,8 +80,8 @@ def add_design(sub, parents, fmt):
                     "(docs/design.md), verify the optimum, and write design.json, "
                     "report.html, the designed robot's parameter file designed.toml and its "
                     "MJCF designed.xml. With --path (and --angles or --torques), the scene is "
-                    "your own experiment, as `simulate --path` runs it. Catalogue: "
-                    + ", ".join(DESIGN_METRICS) + ", and a scene's metrics.")
+                    "your own experiment, as `simulate --path` runs it. The metrics: "
+                    "ppr_jax.CATALOGUE (docs/design.md, 'The catalogue').")
     d.add_argument("--spec", required=True, metavar="SPEC.toml",
                    help="the design specification ([variables], [objective], [[constraints]] "
                         "with upper, lower or avoid = [lo, hi], [settings], [params])")

@@ -40,7 +40,7 @@ def cmd_sensitivity(args):
     for n in names or []:
         if n not in FLOAT_PARAMS:
             raise ValueError(f"unknown parameter {n!r}; allowed: {', '.join(FLOAT_PARAMS)}")
-    allowed = allowed_metrics(scene.trajectory())
+    allowed = allowed_metrics(scene.trajectory(), "sensitivity")
     for m in metrics or ():
         if m not in allowed:
             raise ValueError(f"unknown metric {m!r}; allowed: {', '.join(allowed)}")

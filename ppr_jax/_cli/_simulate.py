@@ -26,7 +26,7 @@ def cmd_simulate(args):
     import numpy as np
 
     from .._errors import PPRError
-    from .._metrics import path_metrics
+    from .._metrics import is_circle
     from .._scenes import SceneOptions, check_scene_args, modes_scene, run_scene, scene_names
     from ._figures import scene_figures
 
@@ -55,7 +55,7 @@ def cmd_simulate(args):
                                      rtol=args.rtol, atol=args.atol, max_steps=args.max_steps)
     results, failed = [], {}
     traj = scene.trajectory()
-    circle = "radial_error_max_m" in path_metrics(traj)
+    circle = is_circle(traj)
     # the nominal circle as host numbers: the CSV and figures are numpy post-processing
     center, radius = ((np.asarray(traj.center), float(traj.radius)) if circle
                       else (None, None))

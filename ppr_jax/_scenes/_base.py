@@ -27,8 +27,8 @@ from .._actuation import (
 )
 from .._custom_types import Array
 from .._dynamics import inverse_dynamics
-from .._errors import RESIDUAL_TOL, RESULTS, first_failure
-from .._kinematics import det3, fold_flags, path_singular
+from .._errors import RESIDUAL_TOL, RESULTS, PPRError, first_failure
+from .._kinematics import det3, fold_flags, path_margins
 from .._metrics import outputs
 from .._models import AbstractModel
 from .._params import RobotParams, params_invalid
@@ -89,24 +89,19 @@ def tabulated(fn, ts, panels: int):
 
 def path_out_of_reach(ref_model, robot, traj, ts):
     """The nominal path is out of reach at some output time for `ref_model` (L0 or L1), whose
-    inverse kinematics gives the input."""
-
-    def resid(t):
-        k = ref_model.kinematics(robot, ref_model.coords_from_pose(robot, traj(t)))
-        return jnp.max(jnp.linalg.norm(ref_model.loop_residual(robot, k), axis=-1))
-
-    return ~(jnp.max(jax.vmap(resid)(ts)) <= RESIDUAL_TOL)
+    inverse kinematics gives the input (`PathMargins.out_of_reach` of `path_margins`)."""
+    return jnp.any(path_margins(ref_model, robot, jax.vmap(traj)(ts)).out_of_reach())
 
 
 def path_singular_at(ref_model, robot, traj, ts):
     """The nominal path meets a type-II singularity of `ref_model` (L0 or L1, whose inverse
     dynamics or kinematics gives the input) over [ts[0], ts[-1]]: det S changes sign between
-    two output times, or S is singular at one (`path_singular`). There the inverse-dynamics
+    two output times, or S is singular at one (`PathMargins.singular`). There the inverse-dynamics
     torques are unbounded, and the input table would only be judged too coarse. The output
     times suffice (det S is continuous: a crossing changes its sign) unless the path crosses
     twice within one output interval; four samples per output time cost 4.2 ms a run against
     1.0 ms (755 output times, 2-core CPU), on every paper-circle run."""
-    return jnp.any(path_singular(ref_model, robot, jax.vmap(traj)(ts)))
+    return jnp.any(path_margins(ref_model, robot, jax.vmap(traj)(ts)).singular())
 
 
 def torque_input(input_model, robot, traj, ts, panels: int) -> SceneInput:
@@ -176,17 +171,22 @@ def kinematic_motion(model, robot, angles, X0, ts):
 
 
 def check_scene_commands(scene, params, traj: Callable, t_end) -> None:
-    """`scene.check_commands` for concrete parameters (one robot, or the first member of a
-    batch: the checks judge the commands' span and assembly mode, which a batch's members
-    share); nothing where the parameters or the horizon are traced."""
+    """`scene.check_commands` for concrete parameters: one robot, or every member of a batch
+    (`AbstractScene.check_members`: the members' geometry may differ, and with it the assembly
+    mode an angle log's samples belong to), the error naming the member; nothing where the
+    parameters or the horizon are traced."""
     from .._errors import is_traced
+    from .._params import unstack_params
 
     if is_traced(params) or is_traced(t_end):
         return
+    t_end = None if t_end is None else float(t_end)
     if jnp.ndim(params.a) >= 1:
-        params = jax.tree_util.tree_map(
-            lambda x: x[0] if hasattr(x, "ndim") and x.ndim >= 1 else x, params)
-    scene.check_commands(params, traj, None if t_end is None else float(t_end))
+        for i, err in enumerate(scene.check_members(unstack_params(params), traj, t_end)):
+            if err is not None:
+                raise type(err)(f"batch member {i}: {err}") from None
+        return
+    scene.check_commands(params, traj, t_end)
 
 
 class AbstractScene(eqx.Module):
@@ -337,6 +337,29 @@ class AbstractScene(eqx.Module):
         - `traj`: the nominal path the run follows (the options' or the scene's).
         - `t_end`: the run's horizon (s), or None.
         """
+
+    def check_members(self, members, traj: Callable, t_end) -> list:
+        """`check_commands` of each robot of a batch, judged one by one (their geometry decides
+        the assembly mode an angle log's samples belong to): a sweep refuses the members whose
+        commands do not fit them, `check_scene_commands` names the first. A check that does
+        not depend on the robot (a log's span) raises at once.
+
+        **Arguments:**
+
+        - `members`: a list of concrete `RobotParams`.
+        - `traj`, `t_end`: as `check_commands`'.
+
+        **Returns:** a list, one entry per member: None, or the `PPRError` refusing its
+        commands.
+        """
+        out = []
+        for params in members:
+            try:
+                self.check_commands(params, traj, t_end)
+                out.append(None)
+            except PPRError as err:
+                out.append(err)
+        return out
 
     def needs_integrator(self, model: AbstractModel) -> bool:
         """False where the scene is forward kinematics and inverse dynamics alone: prescribed

@@ -102,26 +102,35 @@ class PathScene(AbstractScene):
         horizon [0, t_end] (`check_log_covers`); an angle log's samples within that span belong
         to the robot's assembly mode at the path's poses (`check_assembly_mode`; angles beyond
         two turns refused first, as degrees)."""
+        (err,) = self.check_members([params], traj, t_end)
+        if err is not None:
+            raise err
+
+    def check_members(self, members, traj, t_end):
+        """`check_commands` of each robot of `members` (`AbstractScene.check_members`): the
+        log's span checked once (it raises), its samples and the path's poses evaluated once,
+        their assembly mode judged for each robot."""
         import jax
         import jax.numpy as jnp
         import numpy as np
 
-        from .._assembly import check_assembly_mode
+        from .._assembly import AssemblyModeError, check_assembly_mode
 
+        none = [None] * len(members)
         log = self.command_log
         if log is None:
-            return
+            return none
         check_log_covers(traj, log, t_end=t_end)
         ts = getattr(log, "ts", None)
         if self.drive != "motion" or ts is None:
-            return
+            return none
         ts = np.asarray(ts, dtype=np.float64)
         span = getattr(traj, "ts", None)
         lo, hi = ((float(span[0]), float(span[-1])) if span is not None
                   else (0.0, np.inf if t_end is None else float(t_end)))
         ts = ts[(ts >= lo) & (ts <= hi)]
         if ts.size == 0:
-            return
+            return none
         t = jnp.asarray(ts)
 
         def at(fn):
@@ -132,8 +141,15 @@ class PathScene(AbstractScene):
 
         th, X = at(log), at(traj)
         name = getattr(log, "name", None) or self.name
-        check_assembly_mode(th, X, params,
-                            lambda i: f"{name}: sample at t = {ts[i]:.6g} s")
+        out = []
+        for params in members:
+            try:
+                check_assembly_mode(th, X, params,
+                                    lambda i: f"{name}: sample at t = {ts[i]:.6g} s")
+                out.append(None)
+            except AssemblyModeError as err:
+                out.append(err)
+        return out
 
     def start_trajectory(self, traj):
         return traj if self.start_path is None else self.start_path

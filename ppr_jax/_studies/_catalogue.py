@@ -1,8 +1,11 @@
-"""The metric catalogue of every study: each metric a sweep, a sensitivity or a design may name,
-as a traced, differentiable function of the parameters (`metric_blocks`, one entry per metric),
-and which metrics a scene allows (`sweep_metrics`, `allowed_metrics`, `design_metrics`).
+"""The metric catalogue of every study (`CATALOGUE`): each metric a sweep, a sensitivity or a
+design may name, one entry each (`Metric`: its unit and meaning, and a traced, differentiable
+function of the robot, the scene's result and the context, `Inputs`), and the one function that
+says which metrics a scene allows a study (`allowed_metrics`; `sweep_metrics`, `design_metrics`
+are its two other studies' views). `metric_blocks` evaluates any of them at a robot.
 
-The scene metrics are the columns of `_metrics.metric_table` of a run (`traced_metrics`).
+The metrics of a scene's run in its reports too are the columns of `_metrics.metric_table`
+(an entry without a `value` reads that column).
 
 Closed forms (no scene): `pivot_frequency_hz`, `pivot_stress_Pa`, `moving_mass_kg`. The robot's
 first locked natural frequency `base_frequency_hz` (`ppr_jax.modes`' linearisation, differentiated
@@ -78,7 +81,8 @@ derivative is that of their mean.
 from __future__ import annotations
 
 import dataclasses
-from typing import Optional, Sequence
+import functools
+from typing import Callable, Optional
 
 import equinox as eqx
 import jax
@@ -87,11 +91,10 @@ import jax.numpy as jnp
 from .._dynamics import eom_terms, generalized_force
 from .._errors import RESULTS, PPRError
 from .._geometry import home_pose
-from .._kinematics import det3
-from .._metrics import CIRCLE_METRICS, TRACKING_METRICS, metric_table, path_metrics
+from .._kinematics import path_margins as kinematic_margins
+from .._metrics import is_circle, metric_table
 from .._modes import reduced_eigh
-from .._names import (  # the tables' rows, SI units
-    DESIGN_METRICS,
+from .._names import (  # the sensitivity table's default rows, SI units
     PATH_SENSITIVITY_METRICS,
     SENSITIVITY_METRICS,
 )
@@ -99,54 +102,8 @@ from .._prb import Derived
 from .._robot import Robot
 from .._statics import assemble, static_equilibrium
 
-#: the per-member metrics computed inside the program besides the path's (`sweep_metrics`)
-ROBOT_METRICS = (
-    "end_rotation_diff_max_deg",
-    "end_rotation_diff_min_deg",
-    "end_rotation_diff_mean_deg",
-    "torque_peak_Nm",
-    "constraint_residual_max_m",
-)
-
-
-def sweep_metrics(trajectory) -> tuple:
-    """The per-member metrics of a sweep along `trajectory`: how far the platform leaves it
-    (`_metrics.path_metrics`: the radial error for a circle, the tracking error for any path)
-    and `ROBOT_METRICS`."""
-    return path_metrics(trajectory) + ROBOT_METRICS
-
-
-#: the metrics of a sweep of the circle scenes (the columns of their tables)
-METRICS = CIRCLE_METRICS + TRACKING_METRICS + ROBOT_METRICS
-
-
-def traced_metrics(res, trajectory, names: Optional[Sequence[str]] = None) -> dict:
-    """The metrics `names` (default `sweep_metrics(trajectory)`) of one member's
-    `SceneResult` as traced scalars (jit-, vmap- and grad-able): the program-side columns of
-    `metric_table`."""
-    table = metric_table(res, trajectory)
-    names = sweep_metrics(trajectory) if names is None else names
-    missing = [k for k in names if k not in table]
-    if missing:
-        raise PPRError(f"metric {missing[0]!r} does not apply to this scene's path; allowed: "
-                       f"{', '.join(table)}")
-    return {k: table[k] for k in names}
-
-
 #: eigenvalues within this relative distance of the lowest are one (repeated) cluster
 CLUSTER_RTOL = 1e-6
-
-
-def default_metrics(trajectory) -> tuple:
-    """The sensitivity table's default metrics along `trajectory`: `SENSITIVITY_METRICS` on a
-    circle, `PATH_SENSITIVITY_METRICS` on any other path."""
-    return (SENSITIVITY_METRICS if "radial_error_max_m" in path_metrics(trajectory)
-            else PATH_SENSITIVITY_METRICS)
-
-
-def allowed_metrics(trajectory) -> tuple:
-    """Every metric a sensitivity may ask for along `trajectory`."""
-    return sweep_metrics(trajectory) + ("base_frequency_hz",)
 
 
 def locked_stiffness(model, robot: Robot, X=None):
@@ -204,36 +161,6 @@ def base_frequency(model, robot: Robot, X=None):
     lam1 = jnp.sum(w * lam) / jnp.sum(w)
     f = jnp.sign(lam1) * jnp.sqrt(jnp.abs(lam1)) / (2 * jnp.pi)
     return jnp.where(failed, jnp.nan, f)
-
-
-#: the catalogue's metrics that need no scene and no model of the robot (closed forms, and one
-#: strip's elastica)
-CLOSED_FORM_METRICS = ("pivot_frequency_hz", "pivot_stress_Pa", "moving_mass_kg",
-                       "strip_tip_rotation_rad", "strip_elastica_stress_Pa")
-#: the catalogue's metrics of one strip's elastica (they need `strip_load`)
-ELASTICA_METRICS = ("strip_tip_rotation_rad", "strip_elastica_stress_Pa")
-#: the catalogue's metrics at the robot's rest or a pose (no scene), through frequency_model
-POSE_METRICS = ("base_frequency_hz", "compliance_xy_m_per_N", "compliance_phi_rad_per_Nm")
-#: the catalogue's metrics that need the scene's run (besides the scene's own metrics)
-SCENE_OWN_METRICS = ("strip_stress_peak_Pa", "torque_rms_Nm")
-#: the catalogue's metrics of the scene's nominal path alone (a scene, not its run)
-PATH_METRICS = ("path_reach_margin", "path_singularity_margin")
-#: the metrics that are an extreme ('max' or 'min') over samples (output times, springs,
-#: actuators, chains): a bound on the extreme's side (metric <= b for a max) is the same bound on
-#: every sample, which the optimiser is given instead (`metric_values(samples=...)`): each
-#: sample is smooth where the extreme has a kink at a tie between two samples
-SAMPLED_METRICS = {"strip_stress_peak_Pa": "max", "torque_peak_Nm": "max",
-                   "path_reach_margin": "min", "path_singularity_margin": "min"}
-
-
-def design_metrics(trajectory=None) -> tuple:
-    """Every metric a design may name: the catalogue's own (`DESIGN_METRICS`) and, along a
-    scene's `trajectory`, the scene metrics of `allowed_metrics` and `SCENE_OWN_METRICS`
-    (without a trajectory: the metrics that need no scene)."""
-    own = tuple(DESIGN_METRICS)
-    if trajectory is None:
-        return tuple(m for m in own if m not in SCENE_OWN_METRICS + PATH_METRICS)
-    return own + tuple(m for m in allowed_metrics(trajectory) if m not in own)
 
 
 def pivot_frequency(params, dv: Derived):
@@ -306,20 +233,11 @@ def path_margins(ref_model, robot: Robot, X):
 
 def path_margin_samples(ref_model, robot: Robot, X):
     """The margins of `path_margins` before their minimum: (reach (m, 3) per sample and chain,
-    singularity (m,) per sample)."""
-
-    def one(x):
-        k = ref_model.kinematics(robot, ref_model.coords_from_pose(robot, x))
-        S = jax.jacfwd(lambda xx: ref_model.kinematics(
-            robot, ref_model.coords_from_pose(robot, xx)).th_a)(x)
-        return k.margin, S
-
-    reach, S = jax.vmap(one)(jnp.concatenate([home_pose(robot)[None], X]))
-    r1 = jnp.asarray(robot.r1, dtype=S.dtype)
-    Sn = S * jnp.stack([r1, r1, jnp.ones_like(r1)])[None, None, :]
-    rel = det3(Sn) / jnp.prod(jnp.linalg.norm(Sn, axis=-2), axis=-1)
-    sign = jax.lax.stop_gradient(jnp.where(rel[0] < 0, -1.0, 1.0))
-    return reach[1:], sign * rel[1:]
+    singularity (m,) per sample): `_kinematics.path_margins` of the home pose and X, the
+    relative det S signed by its value at home."""
+    m = kinematic_margins(ref_model, robot, jnp.concatenate([home_pose(robot)[None], X]))
+    sign = jax.lax.stop_gradient(jnp.where(m.det[0] < 0, -1.0, 1.0))
+    return m.reach[1:], sign * m.det[1:]
 
 
 def compliance(model, robot: Robot, X=None):
@@ -355,6 +273,287 @@ class SceneContext(eqx.Module):
     strip_load: Optional[tuple] = None
 
 
+
+
+class Inputs:
+    """What the catalogue's metrics of one robot are computed from: the robot, the
+    `SceneContext`, the stroke and the adjoint, and what they give (the scene's run, its
+    `metric_table`, the path's margins, ...), each computed once, on first use, so that metrics
+    sharing a quantity share its trace. A metric's `Metric.value` reads its attributes.
+
+    **Arguments:**
+
+    - `robot`: the `Robot` (traced leaves allowed).
+    - `ctx`: the `SceneContext`.
+    - `stroke`: the joint rotation (rad) of `pivot_stress_Pa` (None: 0).
+    - `adjoint`: diffrax's adjoint for the scene's solve (`ForwardMode` under `jax.jacfwd`).
+    - `result`: the scene's `SceneResult` where it is run already (a sweep's member); None:
+      run on first use.
+    """
+
+    def __init__(self, robot: Robot, ctx: SceneContext, stroke=None, adjoint=None,
+                 result=None):
+        self.robot, self.ctx, self.adjoint = robot, ctx, adjoint
+        self.stroke = jnp.zeros(()) if stroke is None else stroke
+        if result is not None:
+            self.result = result
+
+    @property
+    def params(self):
+        return self.robot.params
+
+    @functools.cached_property
+    def dv(self) -> Derived:
+        return self.robot.dv
+
+    @functools.cached_property
+    def options(self):
+        """The scene's `SceneOptions`, with the adjoint where one is given."""
+        opts = self.ctx.options
+        return opts if self.adjoint is None else dataclasses.replace(opts, adjoint=self.adjoint)
+
+    @functools.cached_property
+    def result(self):
+        """The scene's `SceneResult` for the robot."""
+        return self.ctx.scene.run(self.ctx.model, self.robot, self.options)
+
+    @functools.cached_property
+    def table(self) -> dict:
+        """`_metrics.metric_table` of the run, traced."""
+        return metric_table(self.result, self.options.trajectory)
+
+    @functools.cached_property
+    def path(self) -> tuple:
+        """`path_margin_samples` of the scene's input model at its nominal poses at the output
+        times: (reach (m, 3), singularity (m,))."""
+        opts = self.ctx.options
+        X = jax.vmap(opts.trajectory)(opts.times())
+        return path_margin_samples(self.ctx.scene.input_model, self.robot, X)
+
+    @functools.cached_property
+    def stresses(self):
+        """`strip_stresses` over the run: (m, ns) (Pa)."""
+        return strip_stresses(self.ctx.model, self.robot, self.result.z)
+
+    @functools.cached_property
+    def elastica(self) -> tuple:
+        """`strip_elastica` under the context's `strip_load`."""
+        return strip_elastica(self.params, self.dv, self.ctx.strip_load)
+
+    @functools.cached_property
+    def compliance(self) -> tuple:
+        """`compliance` of the context's frequency model at its pose (None: home)."""
+        pose = self.ctx.pose
+        X = None if pose is None else jnp.asarray(pose, dtype=jnp.float64)
+        return compliance(self.ctx.frequency_model, self.robot, X)
+
+
+#: what a metric is computed from (`Metric.needs`), in the order an evaluation traces them:
+#: the scene's nominal path (not its run), the scene's run, the robot's parameters alone (a
+#: closed form, or one strip's elastica), the robot at rest or a pose through the context's
+#: `frequency_model`
+NEEDS = ("path", "run", "robot", "pose")
+#: the studies that evaluate the catalogue (`Metric.studies`)
+STUDIES = ("sweep", "sensitivity", "design")
+
+
+@dataclasses.dataclass(frozen=True)
+class Metric:
+    """One entry of the catalogue (`CATALOGUE`): a traced, differentiable function of the
+    robot, the scene's result and the context (`Inputs`), and what it is.
+
+    **Arguments:**
+
+    - `unit`: its SI unit ("-" for a dimensionless one).
+    - `description`: what it measures, in a line.
+    - `value`: `Inputs` -> the value, a traced scalar; None: the scene's `metric_table` column
+      of the entry's name (a metric of `run_scene`'s reports too).
+    - `needs`: what it is computed from (`NEEDS`); "path" and "run" need a scene.
+    - `studies`: the studies that offer it (`STUDIES`): a sweep's columns, a sensitivity's
+      metrics, a design's objective and constraints.
+    - `circle`: it needs a circular path (`_metrics.is_circle`: a `center` and a `radius`).
+    - `tracking`: it measures how far the platform leaves the path: of a model that follows
+      its own input, the solver's error (`AbstractScene.follows_its_input`), refused there.
+    - `samples`: `Inputs` -> the samples (any shape) whose `extreme` the value is, for a
+      design that bounds each sample; None: not sampled.
+    - `extreme`: "max" or "min", the samples' reduction (with `samples`).
+    - `requires`: the design's keywords it needs (`stroke`, `strip_load`).
+    """
+
+    unit: str
+    description: str
+    value: Optional[Callable] = None
+    needs: str = "run"
+    studies: tuple = STUDIES
+    circle: bool = False
+    tracking: bool = False
+    samples: Optional[Callable] = None
+    extreme: Optional[str] = None
+    requires: tuple = ()
+
+
+def _circle(what):
+    return Metric("m", what, circle=True, tracking=True)
+
+
+#: The metric catalogue: name -> `Metric`, in the order the studies list them (`allowed_metrics`).
+#: A new metric is one entry here; every study, the command line and `allowed_metrics` follow.
+CATALOGUE: dict[str, Metric] = {
+    # the radial error e_r = |(x, y) - c| - R of a circle (`metric_table`)
+    "radial_error_max_m": _circle("the largest radial error e_r over the output times"),
+    "radial_error_min_m": _circle("the least radial error e_r over the output times"),
+    "radial_error_mean_m": _circle("the mean radial error e_r over the output times"),
+    "radial_error_max_relative_percent": Metric(
+        "%", "the largest |e_r| over the output times, relative to the radius", circle=True,
+        tracking=True),
+    # the tracking error against the nominal pose, on any path (`metric_table`)
+    "position_error_max_m": Metric("m", "the largest position error against the nominal pose",
+                                   tracking=True),
+    "position_error_rms_m": Metric("m", "the position error's RMS over the output times",
+                                   tracking=True),
+    "position_error_end_m": Metric("m", "the position error at the last output time",
+                                   tracking=True),
+    "phi_error_max_rad": Metric("rad", "the largest orientation error against the nominal pose",
+                                tracking=True),
+    "phi_error_rms_rad": Metric("rad", "the orientation error's RMS over the output times",
+                                tracking=True),
+    "phi_error_end_rad": Metric("rad", "the orientation error at the last output time",
+                                tracking=True),
+    # the robot's response (`metric_table`)
+    "end_rotation_diff_max_deg": Metric(
+        "deg", "the largest difference of chain 1's two compliant-joint end rotations"),
+    "end_rotation_diff_min_deg": Metric(
+        "deg", "the least difference of chain 1's two compliant-joint end rotations"),
+    "end_rotation_diff_mean_deg": Metric(
+        "deg", "the mean difference of chain 1's two compliant-joint end rotations"),
+    "torque_peak_Nm": Metric(
+        "N m", "the actuator torques' peak max |tau| over the output times and the actuators",
+        samples=lambda i: jnp.abs(i.result.tau), extreme="max"),
+    "constraint_residual_max_m": Metric("m", "the largest loop-closure residual of the run"),
+    "base_frequency_hz": Metric(
+        "Hz", "the robot's first natural frequency, actuators locked, at home (frequency_model)",
+        lambda i: base_frequency(i.ctx.frequency_model, i.robot), needs="pose",
+        studies=("sensitivity", "design")),
+    "pivot_frequency_hz": Metric(
+        "Hz", "first natural frequency of one strip pivot (K0 = E I/L) carrying the connecting "
+              "link, the drive link held",
+        lambda i: pivot_frequency(i.params, i.dv), needs="robot", studies=("design",)),
+    "pivot_stress_Pa": Metric(
+        "Pa", "the strip's peak bending stress at the joint rotation `stroke` under a pure "
+              "moment, E t stroke/(2 L)",
+        lambda i: pivot_stress(i.params, i.dv, i.stroke), needs="robot", studies=("design",),
+        requires=("stroke",)),
+    "moving_mass_kg": Metric(
+        "kg", "mass of every moving body: three drive links, strips and connecting links, and "
+              "the platform",
+        lambda i: moving_mass(i.dv), needs="robot", studies=("design",)),
+    "strip_stress_peak_Pa": Metric(
+        "Pa", "the strips' peak bending stress over the scene, from each spring's moment K d "
+              "over the strip's section modulus w t^2/6",
+        lambda i: jnp.max(i.stresses), studies=("design",), samples=lambda i: i.stresses,
+        extreme="max"),
+    "torque_rms_Nm": Metric(
+        "N m", "the actuator torques' RMS over the scene's output times and the three actuators",
+        lambda i: torque_rms(i.result.tau), studies=("design",)),
+    "path_reach_margin": Metric(
+        "-", "the least reach margin (1 - |cos| of a chain's closure angle) of the scene's "
+             "input model along its nominal path (<= 0: out of reach)",
+        lambda i: jnp.min(i.path[0]), needs="path", studies=("design",),
+        samples=lambda i: i.path[0], extreme="min"),
+    "path_singularity_margin": Metric(
+        "-", "the least relative det S along the scene's nominal path, signed so that it is "
+             "positive at the home pose (<= 0: the path meets or crosses a type-II singularity)",
+        lambda i: jnp.min(i.path[1]), needs="path", studies=("design",),
+        samples=lambda i: i.path[1], extreme="min"),
+    "strip_tip_rotation_rad": Metric(
+        "rad", "one strip (length r theta_c, rest curvature 1/r) clamped at one end under the "
+               "end load `strip_load` (fx, fy, m): its tip's rotation from rest, by the elastica",
+        lambda i: i.elastica[0], needs="robot", studies=("design",), requires=("strip_load",)),
+    "strip_elastica_stress_Pa": Metric(
+        "Pa", "that strip's peak bending stress, max |M(s)| 6/(w t^2) along it, by the "
+              "elastica",
+        lambda i: i.elastica[1], needs="robot", studies=("design",), requires=("strip_load",)),
+    "compliance_xy_m_per_N": Metric(
+        "m/N", "the platform's largest translational compliance under a force, actuators "
+               "locked, at the pose `pose` (frequency_model)",
+        lambda i: i.compliance[0], needs="pose", studies=("design",)),
+    "compliance_phi_rad_per_Nm": Metric(
+        "rad/(N m)", "the platform's rotational compliance under a moment, actuators locked, at "
+                     "the pose `pose` (frequency_model)",
+        lambda i: i.compliance[1], needs="pose", studies=("design",)),
+}
+
+
+def allowed_metrics(trajectory=None, study: str = "sensitivity") -> tuple:
+    """The metrics of the catalogue that `study` may compute along a scene's path: the one
+    list every study and the command line read.
+
+    **Arguments:**
+
+    - `trajectory`: the scene's nominal path (a circle allows the radial errors); None: no
+      scene, the metrics that need none (`Metric.needs` "robot" or "pose").
+    - `study`: "sweep" (its columns), "sensitivity" or "design" (`Metric.studies`).
+
+    **Returns:** the names, in the catalogue's order.
+
+    **Raises:** `PPRError` for an unknown study.
+    """
+    if study not in STUDIES:
+        raise PPRError(f"unknown study {study!r}; allowed: {', '.join(STUDIES)}")
+    circle = trajectory is not None and is_circle(trajectory)
+    return tuple(n for n, m in CATALOGUE.items()
+                 if study in m.studies and (circle or not m.circle)
+                 and (trajectory is not None or m.needs not in ("path", "run")))
+
+
+def names_where(**fields) -> tuple:
+    """The catalogue's names whose `Metric` fields have the values given
+    (`names_where(needs="pose")`); a value that is a tuple matches any of its members."""
+    def match(m):
+        return all(getattr(m, k) in v if isinstance(v, tuple) else getattr(m, k) == v
+                   for k, v in fields.items())
+    return tuple(n for n, m in CATALOGUE.items() if match(m))
+
+
+#: the columns of a sweep on a circle (on another path, those of `sweep_metrics`)
+METRICS = tuple(n for n, m in CATALOGUE.items() if "sweep" in m.studies)
+#: every metric a design may name: name -> what it measures (unit), as the catalogue has them
+DESIGN_METRICS = {n: f"{m.description} ({m.unit})" for n, m in CATALOGUE.items()
+                  if "design" in m.studies}
+
+
+def sampled_metrics() -> dict:
+    """{name: "max" or "min"} of the catalogue's metrics that are an extreme over samples
+    (output times, springs, actuators, chains): a bound on the extreme's side (metric <= b for
+    a max) is the same bound on every sample, which a design gives the optimiser instead
+    (`metric_values(samples=...)`): each sample is smooth where the extreme has a kink at a tie
+    between two samples."""
+    return {n: m.extreme for n, m in CATALOGUE.items() if m.samples is not None}
+
+
+def sweep_metrics(trajectory) -> tuple:
+    """The columns of a sweep along `trajectory`: `allowed_metrics(trajectory, "sweep")`."""
+    return allowed_metrics(trajectory, "sweep")
+
+
+def design_metrics(trajectory=None) -> tuple:
+    """Every metric a design may name along a scene's `trajectory` (None: without a scene,
+    the metrics that need none): `allowed_metrics(trajectory, "design")`."""
+    return allowed_metrics(trajectory, "design")
+
+
+def default_metrics(trajectory) -> tuple:
+    """The sensitivity table's default metrics along `trajectory`: `SENSITIVITY_METRICS` on a
+    circle, `PATH_SENSITIVITY_METRICS` on any other path."""
+    return SENSITIVITY_METRICS if is_circle(trajectory) else PATH_SENSITIVITY_METRICS
+
+
+def tracking_metrics(names) -> list:
+    """The metrics of `names` that measure how far the platform leaves the path
+    (`Metric.tracking`)."""
+    return [n for n in names if n in CATALOGUE and CATALOGUE[n].tracking]
+
+
 def metric_values(names, params, ctx: SceneContext, stroke, adjoint=None, equal_links=True,
                   samples=()):
     """The metrics `names` (tuple) at `params` as one traced array: (k,), or longer where
@@ -370,61 +569,47 @@ def metric_blocks(names, params, ctx: SceneContext, stroke, adjoint=None, equal_
 
     **Arguments:**
 
-    - `names`: catalogue names (`design_metrics`).
+    - `names`: catalogue names (`allowed_metrics`).
     - `params`: `RobotParams` (traced leaves allowed).
     - `ctx`: `SceneContext`.
     - `stroke`: the joint rotation (rad) of `pivot_stress_Pa`.
     - `adjoint`: diffrax's adjoint for the scene's solve (`ForwardMode` under `jax.jacfwd`).
     - `equal_links`: `Robot`'s static choice of the closed-form inverse kinematics (l1 == l3).
-    - `samples`: names of `SAMPLED_METRICS` given as their samples (the values whose max or min
-      they are, flattened) instead of that extreme.
+    - `samples`: names of `sampled_metrics` given as their samples (the values whose max or
+      min they are, flattened) instead of that extreme.
 
     **Returns:** a list of the values in SI units, each metric's in `names`' order (one entry,
     or its samples); NaN for every scene metric where the scene failed.
     """
-    robot = Robot(params, equal_links=equal_links)
-    dv = robot.dv
+    inputs = Inputs(Robot(params, equal_links=equal_links), ctx, stroke, adjoint)
+    return evaluate(names, inputs, samples)
+
+
+def evaluate(names, inputs: Inputs, samples=()) -> list:
+    """The catalogue's metrics `names` from `inputs` (`metric_blocks`, whose list it returns):
+    the path's first, then the run's (all of them NaN where the run failed), then the others.
+
+    **Raises:** `PPRError` for a name not in the catalogue.
+    """
+    missing = [n for n in names if n not in CATALOGUE]
+    if missing:
+        raise PPRError(f"unknown metric {missing[0]!r}; allowed: {', '.join(CATALOGUE)}")
     out = {}
-    scene_names = [n for n in names
-                   if n not in CLOSED_FORM_METRICS + POSE_METRICS + PATH_METRICS]
-    if any(n in PATH_METRICS for n in names):
-        opts = ctx.options
-        X = jax.vmap(opts.trajectory)(opts.times())
-        reach, sing = path_margin_samples(ctx.scene.input_model, robot, X)
-        out["path_reach_margin"] = reach if "path_reach_margin" in samples else jnp.min(reach)
-        out["path_singularity_margin"] = (sing if "path_singularity_margin" in samples
-                                          else jnp.min(sing))
-    if scene_names:
-        opts = ctx.options if adjoint is None else dataclasses.replace(ctx.options,
-                                                                       adjoint=adjoint)
-        res = ctx.scene.run(ctx.model, robot, opts)
-        table = [n for n in scene_names if n not in SCENE_OWN_METRICS]
-        if table:
-            out.update(traced_metrics(res, opts.trajectory, table))
-        if "torque_peak_Nm" in samples:
-            out["torque_peak_Nm"] = jnp.abs(res.tau)
-        if "strip_stress_peak_Pa" in scene_names:
-            sig = strip_stresses(ctx.model, robot, res.z)
-            out["strip_stress_peak_Pa"] = sig if "strip_stress_peak_Pa" in samples \
-                else jnp.max(sig)
-        if "torque_rms_Nm" in scene_names:
-            out["torque_rms_Nm"] = torque_rms(res.tau)
-        bad = res.result != RESULTS.successful
+
+    def compute(group):
+        for n in names:
+            m = CATALOGUE[n]
+            if m.needs in group:
+                fn = m.samples if n in samples else m.value
+                if fn is None and n not in inputs.table:
+                    raise PPRError(f"metric {n!r} does not apply to this scene's path; allowed: "
+                                   f"{', '.join(k for k in inputs.table if k in CATALOGUE)}")
+                out[n] = inputs.table[n] if fn is None else fn(inputs)
+
+    compute(("path",))
+    compute(("run",))
+    if any(CATALOGUE[n].needs == "run" for n in names):
+        bad = inputs.result.result != RESULTS.successful
         out = {k: jnp.where(bad, jnp.nan, v) for k, v in out.items()}
-    for n in names:
-        if n == "pivot_frequency_hz":
-            out[n] = pivot_frequency(params, dv)
-        elif n == "pivot_stress_Pa":
-            out[n] = pivot_stress(params, dv, stroke)
-        elif n == "moving_mass_kg":
-            out[n] = moving_mass(dv)
-        elif n == "base_frequency_hz":
-            out[n] = base_frequency(ctx.frequency_model, robot)
-    if any(n in ELASTICA_METRICS for n in names):
-        rot, sig = strip_elastica(params, dv, ctx.strip_load)
-        out.update(strip_tip_rotation_rad=rot, strip_elastica_stress_Pa=sig)
-    if any(n.startswith("compliance_") for n in names):
-        X = None if ctx.pose is None else jnp.asarray(ctx.pose, dtype=jnp.float64)
-        cxy, cphi = compliance(ctx.frequency_model, robot, X)
-        out.update(compliance_xy_m_per_N=cxy, compliance_phi_rad_per_Nm=cphi)
+    compute(("robot", "pose"))
     return [jnp.ravel(jnp.asarray(out[n], dtype=jnp.float64)) for n in names]

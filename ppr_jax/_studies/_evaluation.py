@@ -3,8 +3,9 @@
 A sensitivity differentiates it, a design optimises it (and screens and verifies it in
 batches): both evaluate an `Evaluation`, the variables' names, the catalogue's metrics and the
 scene they run (`_catalogue.SceneContext`), at parameter values x (p,) that replace those fields
-of a base robot. The structural choice of the robot (`Robot`'s `equal_links`: the closed-form
-inverse kinematics where l1 == l3) is decided once, in Python, by `equal_links`.
+of a base robot; a sweep maps its scene run and metrics over its members, whole robots of a
+batch (`Evaluation.run`). The structural choice of the robot (`Robot`'s `equal_links`: the
+closed-form inverse kinematics where l1 == l3) is decided once, in Python, by `equal_links`.
 
 An `Evaluation` is a pytree: its names are static (they key the compiled programs), the
 context's arrays (the scene's path, the options' tolerances) are inputs, so one compiled (or
@@ -13,12 +14,15 @@ stored) program serves any of their values.
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._errors import result_code
 from .._params import RobotParams
 from .._robot import Robot
-from ._catalogue import SceneContext, metric_blocks
+from ._catalogue import Inputs, SceneContext, evaluate, metric_blocks
 
 
 def equal_links(base: RobotParams, names, local: bool) -> bool:
@@ -40,12 +44,28 @@ def equal_links(base: RobotParams, names, local: bool) -> bool:
     return same if local else same and "l1" not in names and "l3" not in names
 
 
+def params_at(base: RobotParams, names, x) -> RobotParams:
+    """`base` with its fields `names` (p,) replaced by the values x (p,) (traced or not): the
+    one conversion of a parameter vector to a robot's parameters, of every study.
+
+    **Arguments:**
+
+    - `base`: the `RobotParams` whose other fields stay.
+    - `names`: the fields replaced, in x's order.
+    - `x`: (p,) their values (SI).
+
+    **Returns:** the `RobotParams`.
+    """
+    return eqx.tree_at(lambda q: [getattr(q, n) for n in names], base,
+                       [x[i] for i in range(len(names))])
+
+
 class Evaluation(eqx.Module):
     """The catalogue's `metrics` of a robot whose fields `names` take the values x.
 
     `names` (p,) fields of `RobotParams`; `metrics` (k,) catalogue names; `equal_links` the
     robot's static choice (`equal_links` above); `samples` the metrics of
-    `_catalogue.SAMPLED_METRICS` given as their samples; `ctx` the scene, its models and
+    `_catalogue.sampled_metrics` given as their samples; `ctx` the scene, its models and
     options (`SceneContext`)."""
 
     names: tuple = eqx.field(static=True)
@@ -56,8 +76,7 @@ class Evaluation(eqx.Module):
 
     def params(self, x, base: RobotParams) -> RobotParams:
         """`base` with the fields `names` replaced by x (p,) (traced or not)."""
-        return eqx.tree_at(lambda q: [getattr(q, n) for n in self.names], base,
-                           [x[i] for i in range(len(self.names))])
+        return params_at(base, self.names, x)
 
     def robot(self, x, base: RobotParams) -> Robot:
         """The `Robot` at x (p,), with the evaluation's structural choice."""
@@ -80,9 +99,28 @@ class Evaluation(eqx.Module):
         return metric_blocks(self.metrics, self.params(x, base), self.ctx, stroke, adjoint,
                              self.equal_links, self.samples)
 
+    def run(self, robot: Robot, options=None) -> tuple:
+        """The context's scene run for `robot` and the metrics `metrics` of its result: what a
+        sweep maps over its members (each a whole robot of the batch).
+
+        **Arguments:**
+
+        - `robot`: a `Robot` (one member; traced leaves allowed).
+        - `options`: `SceneOptions` that replace the context's (a sweep's, its tolerances the
+          program's inputs); None: the context's.
+
+        **Returns:** ({metric: value} (NaN where the run failed), the run's result code
+        (`_errors.result_code`), its number of steps).
+        """
+        ctx = self.ctx if options is None else dataclasses.replace(self.ctx, options=options)
+        res = ctx.scene.run(ctx.model, robot, ctx.options)
+        values = evaluate(self.metrics, Inputs(robot, ctx, result=res), self.samples)
+        return (dict(zip(self.metrics, (v[0] for v in values))), result_code(res.result),
+                res.num_steps)
+
     def values(self, x, base: RobotParams, stroke=None, adjoint=None):
         """`blocks` concatenated: (k,), or longer where `samples` asks for samples."""
         return jnp.concatenate(self.blocks(x, base, stroke, adjoint))
 
 
-__all__ = ["Evaluation", "equal_links"]
+__all__ = ["Evaluation", "equal_links", "params_at"]

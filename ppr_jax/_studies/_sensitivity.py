@@ -38,7 +38,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import PPRError
-from .._metrics import path_metrics
 from .._models import get_model
 from .._names import (  # the table's rows, SI units
     PATH_SENSITIVITY_METRICS as PATH_SENSITIVITY_METRICS,
@@ -55,6 +54,7 @@ from ._catalogue import (
     base_frequency as base_frequency,
     default_metrics as default_metrics,
     locked_stiffness as locked_stiffness,
+    tracking_metrics,
 )
 from ._evaluation import Evaluation, equal_links
 from ._jacobian import jacobian_with_values
@@ -135,14 +135,14 @@ def _metric_function(scene, params, *, model, torque_model, frequency_model, par
     traj = options.trajectory
     check_scene_commands(scene_, base, traj, opts.t_end)
     metrics = tuple(default_metrics(traj) if metrics is None else metrics)
-    allowed = allowed_metrics(traj)
+    allowed = allowed_metrics(traj, "sensitivity")
     for m in metrics:
         if m not in allowed:
             raise PPRError(f"unknown metric {m!r} for the scene's path; allowed: "
                            f"{', '.join(allowed)}")
     x0 = jnp.array([float(getattr(base, n)) for n in names])
     follows = scene_.follows_its_input(model_)
-    tracking = [m for m in metrics if m in path_metrics(traj)]
+    tracking = tracking_metrics(metrics)
     if follows and tracking:
         raise PPRError(
             f"{', '.join(tracking)} of model {model_.name!r} in {scene_.name!r} measure the "

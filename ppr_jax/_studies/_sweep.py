@@ -6,11 +6,12 @@ parameter values. The members are validated first (parameter ranges, reach and s
 the whole nominal path) and the invalid ones are reported with their reason, not run. The valid
 ones run in chunks of a fixed size: the last chunk is padded with copies of its first member, so
 every chunk has the same static shape and the program compiles once. Inside the program each
-member's trajectory is reduced to a handful of scalars (`traced_metrics`), so only small arrays
-come back to the host. A member whose solver fails (diffrax result code), whose metrics are not
-finite, or whose loop-closure residual exceeds `RESIDUAL_TOL` is reported as failed with the reason;
-the others are kept. A chunk that raises as a whole (an `eqx.error_if` inside the program) is
-retried member by member, so one bad member never discards its neighbours.
+member's trajectory is reduced to a handful of scalars (the catalogue's `sweep_metrics`), so
+only small arrays come back to the host. A member whose solver fails (diffrax result code),
+whose metrics are not finite, or whose loop-closure residual exceeds `RESIDUAL_TOL` is reported
+as failed with the reason; the others are kept. A chunk that raises as a whole (an
+`eqx.error_if` inside the program) is retried member by member, so one bad member never
+discards its neighbours.
 
 Structural choices are decided outside the trace: the members are grouped by `equal_links`
 (l1 == l3: the closed-form inverse kinematics; otherwise Newton), each group runs its own
@@ -34,9 +35,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import PPRError, RepairWarning, check_number, result_code, result_message
+from .._errors import PPRError, RepairWarning, check_number, result_message
 from .._files import write_file
-from .._kinematics import REACH_TOL, SINGULAR_TOL, ik_solve
+from .._kinematics import SINGULAR_TOL, path_margins
 from .._models import get_model
 from .._params import PARAM_RANGES, RobotParams, stack_params
 from .._programs import cached_program
@@ -52,11 +53,10 @@ from .._scenes import (
 from .._simulate import default_controller
 from ._catalogue import (
     METRICS as METRICS,
-    ROBOT_METRICS as ROBOT_METRICS,
+    SceneContext,
     sweep_metrics as sweep_metrics,
-    traced_metrics as traced_metrics,
 )
-from ._evaluation import equal_links
+from ._evaluation import Evaluation, equal_links
 
 #: a member whose max loop-closure residual (m) at the output times exceeds this has failed
 RESIDUAL_TOL = 1e-9
@@ -141,12 +141,11 @@ N_PATH_CHECK = 64
 
 
 def _path_check(model, robot, Xs):
-    def one(X):
-        r = ik_solve(model, robot, X)
-        return jnp.min(r.margin), r.singularity
-
-    margin, sing = jax.vmap(one)(Xs)
-    return jnp.min(margin), jnp.min(sing)
+    """(out of reach, least reach margin, singular, least |relative det S|) of the path Xs
+    (`_kinematics.path_margins`, the scenes' check)."""
+    m = path_margins(model, robot, Xs)
+    return (jnp.any(m.out_of_reach()), jnp.min(m.reach), jnp.any(m.singular()),
+            jnp.min(jnp.abs(m.det)))
 
 
 _path_check_batch = eqx.filter_jit(eqx.filter_vmap(_path_check, in_axes=(None, 0, None)))
@@ -157,10 +156,12 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
     """Build each member's `RobotParams` and check it before any solve.
 
     Returns (params list with None for invalid members, reasons list: '' or why the member cannot
-    run). Checks: parameter ranges (`RobotParams`); every chain closes with margin and the
-    actuation is not singular at `N_PATH_CHECK` samples of the nominal path over [0, t_end]
-    (default the scene's own path), with the kinematics of the scene's `input_model`, which
-    gives the input."""
+    run). Checks: parameter ranges (`RobotParams`); the scene's commands (a command log) fit
+    the member (`AbstractScene.check_members`: an angle log's assembly mode); every chain
+    closes with margin and the actuation is not singular at `N_PATH_CHECK` samples of the
+    nominal path over [0, t_end] (default the scene's own path), with the kinematics of the
+    scene's `input_model`, which gives the input (`_kinematics.path_margins`: the scenes' own
+    check of reach and type-II singularities)."""
     names = list(members)
     N = len(members[names[0]])
     plist, reasons = [], []
@@ -177,25 +178,34 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
         return plist, reasons
     scene_ = get_scene(scene, torque_model)
     traj = scene_.trajectory() if trajectory is None else trajectory
+    # the commands the scene is given, against each member (an angle log's assembly mode is
+    # each member's own: its geometry decides it)
+    for i, err in zip(ok, scene_.check_members([plist[i] for i in ok], traj, t_end)):
+        if err is not None:
+            reasons[i] = f"commands: {err}"
+            plist[i] = None
+    ok = [i for i in ok if plist[i] is not None]
+    if not ok:
+        return plist, reasons
     Xs = jax.vmap(traj)(jnp.linspace(0.0, t_end, N_PATH_CHECK))
     kin = scene_.input_model
     # One vmapped call for all valid members, in fixed-size pieces (a few compiles at most).
-    margins, sings = [], []
+    parts = []
     for lo in range(0, len(ok), 256):
         idx = ok[lo:lo + 256]
         batch = stack_params([plist[i] for i in idx])
-        m, s = _path_check_batch(kin, Robot(batch, equal_links=False), Xs)
-        margins.append(np.asarray(m))
-        sings.append(np.asarray(s))
-    margin, sing = np.concatenate(margins), np.concatenate(sings)
+        parts.append([np.asarray(v) for v in
+                      _path_check_batch(kin, Robot(batch, equal_links=False), Xs)])
+    out, margin, singular, det = (np.concatenate(v) for v in zip(*parts))
     for j, i in enumerate(ok):
-        if not np.isfinite(margin[j]) or margin[j] <= REACH_TOL:
+        if out[j] or not np.isfinite(margin[j]):
             reasons[i] = ("unreachable path: a chain cannot close along the nominal path "
                           f"(min closure margin {margin[j]:.3g})")
             plist[i] = None
-        elif not np.isfinite(sing[j]) or sing[j] < SINGULAR_TOL:
-            reasons[i] = ("singular configuration along the nominal path (inverse condition "
-                          f"number of S {sing[j]:.3g} < {SINGULAR_TOL:g})")
+        elif singular[j] or not np.isfinite(det[j]):
+            reasons[i] = ("singular configuration along the nominal path (least relative det S "
+                          f"{det[j]:.3g}, below {SINGULAR_TOL:g} or changing sign: the path "
+                          f"meets or crosses a type-II singularity)")
             plist[i] = None
     return plist, reasons
 
@@ -205,26 +215,27 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
 # ---------------------------------------------------------------------------------------------
 
 
-def _member(robot_dyn, robot_static, scene, model, options, rtol, atol):
-    """One member's (metrics, result code, steps) at tolerances (rtol, atol)."""
-    robot = eqx.combine(robot_dyn, robot_static)
+def _member(robot_dyn, robot_static, ev: Evaluation, rtol, atol):
+    """One member's ({metric: value}, result code, steps) at tolerances (rtol, atol):
+    `Evaluation.run`."""
+    options = ev.ctx.options
     opts = eqx.tree_at(lambda o: o.controller, options,
                        default_controller(options.solver, rtol, atol))
-    res = scene.run(model, robot, opts)
-    return traced_metrics(res, opts.trajectory), result_code(res.result), res.num_steps
+    return ev.run(eqx.combine(robot_dyn, robot_static), opts)
 
 
 @eqx.filter_jit
-def _chunk_program(robot, scene, model, options, rtol, atol, devices):
+def _chunk_program(robot, ev, rtol, atol, devices):
     """A chunk's ({metric: (B,)}, result codes (B,), num_steps (B,)) for the batched `robot`.
 
-    `options`: prepared `SceneOptions` (their tolerances replaced by the program's inputs
-    `rtol`, `atol`). Members are mapped as the scenes' batches are (`map_members`: vmapped
-    chunks, split over `devices` by `shard_map` when there are several): adaptive steps never
-    synchronise across devices. Every array of the arguments is an input, so one program serves
-    any values of the same shapes; the command line keeps it in its program store."""
+    `ev`: the sweep's `Evaluation` (its context's prepared `SceneOptions`, their tolerances
+    replaced by the program's inputs `rtol`, `atol`). Members are mapped as the scenes' batches
+    are (`map_members`: vmapped chunks, split over `devices` by `shard_map` when there are
+    several): adaptive steps never synchronise across devices. Every array of the arguments is
+    an input, so one program serves any values of the same shapes; the command line keeps it in
+    its program store."""
     dyn, static = eqx.partition(robot, eqx.is_array)
-    return map_members(_member, devices)(dyn, static, scene, model, options, rtol, atol)
+    return map_members(_member, devices)(dyn, static, ev, rtol, atol)
 
 
 def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
@@ -491,8 +502,9 @@ def sweep(
 
     def run(equal, idx):
         members_p = [plist[i] for i in idx] + [plist[idx[0]]] * (chunk_size - len(idx))
-        args = (Robot(stack_params(members_p), equal_links=equal), scene_, model_, options,
-                *tol, dev)
+        ev = Evaluation(names=tuple(names), metrics=tuple(metric_names), equal_links=equal,
+                        samples=(), ctx=SceneContext(scene_, model_, options, None))
+        args = (Robot(stack_params(members_p), equal_links=equal), ev, *tol, dev)
         # one compilation per group (equal links or not) and shape, kept for later chunks
         fn = cached_program(_chunk_program, args, template, program_dir, label)
         out, codes, steps = fn(*args)

@@ -7,7 +7,6 @@ and its argument checks (`_arguments`), and the specification file of the comman
 
 from ..._errors import DesignError
 from .._catalogue import (
-                         CLOSED_FORM_METRICS,
                          compliance,
                          design_metrics,
                          moving_mass,
@@ -24,7 +23,7 @@ from ._result import Design
 from ._spec import load_design_spec
 from ._variables import check_variables
 
-__all__ = ["CLOSED_FORM_METRICS", "Constraint", "Design", "DesignError", "Objective",
+__all__ = ["Constraint", "Design", "DesignError", "Objective",
            "check_variables", "compliance", "design", "design_metrics", "load_design_spec",
            "moving_mass", "path_margins", "pivot_frequency", "pivot_stress", "strip_elastica",
            "strip_stress_peak", "torque_rms"]

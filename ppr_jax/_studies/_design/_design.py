@@ -7,8 +7,9 @@ from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
-from ..._errors import DesignError
-from ..._metrics import path_metrics
+from ..._errors import (
+    DesignError,
+)
 from ..._models import get_model
 from ..._names import (
     DESIGN_CANDIDATES,
@@ -20,12 +21,11 @@ from ..._names import (
 from ..._params import RobotParams
 from ..._scenes import SceneOptions, check_scene_commands, get_scene
 from .._catalogue import (
-    ELASTICA_METRICS,
-    PATH_METRICS,
-    POSE_METRICS,
-    SAMPLED_METRICS,
+    CATALOGUE,
     SceneContext,
-    design_metrics,
+    allowed_metrics,
+    sampled_metrics,
+    tracking_metrics,
 )
 from .._evaluation import equal_links
 from .._sensitivity import explicit_params
@@ -82,7 +82,7 @@ def design(
     Jacobian (`jax.jacfwd` where there are no more variables than rows: the metrics, each
     sample of a peak constrained per sample a row; `jax.jacrev` otherwise), in variables
     normalised to [0, 1] and with the objective and constraints scaled to order one. A peak or
-    margin over samples (`SAMPLED_METRICS`: stress, torque, path margins) bounded on its
+    margin over samples (`sampled_metrics`: stress, torque, path margins) bounded on its
     extreme's side is one constraint per sample, each smooth where the extreme has kinks at
     ties (`sampled_constraints`). A band to avoid, whose feasible set lies on both of its sides,
     has the best candidate of each side among the starts (`pick_starts`). The best feasible
@@ -154,7 +154,7 @@ def design(
         ctx_model = get_model(model)
         opts = (SceneOptions() if options is None else options).check()
         ctx_opts = opts.prepared(ctx_model, ctx_scene.trajectory())
-    allowed = design_metrics(None if ctx_opts is None else ctx_opts.trajectory)
+    allowed = allowed_metrics(None if ctx_opts is None else ctx_opts.trajectory, "design")
     if ctx_scene is not None:
         given = {c.metric for c in cons}
         cons = cons + [Constraint(m, lower=b) for m, b in PATH_MARGIN_MIN.items()
@@ -166,27 +166,28 @@ def design(
             raise DesignError(f"unknown design metric {m!r}; allowed: {', '.join(allowed)}{more}")
     if ctx_scene is not None:
         # its tracking error only: its torques, stresses and energies are the robot's
-        scene_metrics = [m for m in metrics if m in path_metrics(ctx_opts.trajectory)]
+        scene_metrics = tracking_metrics(metrics)
         follows = ctx_scene.follows_its_input(ctx_model)
         if follows and scene_metrics:
             raise DesignError(f"{', '.join(scene_metrics)} of model {ctx_model.name!r} in "
                               f"{ctx_scene.name!r} measure the integrator's error, not the robot:"
                               f" {follows}. Design with another model (double1r or beam)")
-    if "pivot_stress_Pa" in metrics:
-        if stroke is None:
-            raise DesignError("pivot_stress_Pa needs stroke= (the joint rotation, rad, in "
-                              "(0, 3.14159])")
+    needing = {k: [m for m in metrics if k in CATALOGUE[m].requires]
+               for k in ("stroke", "strip_load")}
+    if needing["stroke"] and stroke is None:
+        raise DesignError(f"{', '.join(needing['stroke'])} needs stroke= (the joint rotation, "
+                          f"rad, in (0, 3.14159])")
     stroke = 0.0 if stroke is None else float(stroke)
     fmodel = get_model(frequency_model)
-    if any(m in ELASTICA_METRICS for m in metrics):
+    if needing["strip_load"]:
         if strip_load is None:
-            raise DesignError(f"{', '.join(m for m in metrics if m in ELASTICA_METRICS)} need "
-                              f"strip_load=(fx, fy, m) (N, N, N m), three finite numbers, got "
-                              f"None")
+            raise DesignError(f"{', '.join(needing['strip_load'])} need strip_load=(fx, fy, m) "
+                              f"(N, N, N m), three finite numbers, got None")
     else:
         strip_load = None
-    if any(m in POSE_METRICS for m in metrics) and fmodel.actuated_index is None:
-        raise DesignError(f"{', '.join(m for m in metrics if m in POSE_METRICS)} need a "
+    pose_metrics = [m for m in metrics if CATALOGUE[m].needs == "pose"]
+    if pose_metrics and fmodel.actuated_index is None:
+        raise DesignError(f"{', '.join(pose_metrics)} need a "
                           f"frequency_model with free coordinates when the actuators are locked "
                           f"(double1r or beam), got {fmodel.name!r}")
 
@@ -291,18 +292,18 @@ def design(
 def _bound_scale(metric: str, bound: float) -> float:
     """What a bound's violation is relative to (`Scaled.scale`, `edge_scale`): |bound|, or 1
     where the bound is 0 or the metric a path margin (of order one however small its bound)."""
-    return 1.0 if bound == 0 or metric in PATH_METRICS else abs(float(bound))
+    return 1.0 if bound == 0 or CATALOGUE[metric].needs == "path" else abs(float(bound))
 
 
 def sampled_constraints(metrics, sides) -> tuple:
-    """The constrained metrics of `SAMPLED_METRICS` given to the optimiser as their samples:
+    """The constrained metrics of `sampled_metrics` given to the optimiser as their samples:
     those whose every bound is on their extreme's side (an upper bound on a max, a lower bound
     on a min: then it holds on the extreme if and only if it holds on every sample), except the
     objective's metric (`metrics[0]`). A band to avoid on such a metric is on neither side: the
     metric stays its extreme, one value, the band's constraint on it."""
     out = []
     for m in dict.fromkeys(metrics[1:]):
-        kind = SAMPLED_METRICS.get(m)
+        kind = sampled_metrics().get(m)
         mine = [side for _, c, side, _ in sides if c.metric == m]
         if m != metrics[0] and kind and mine and all(
                 side == ("upper" if kind == "max" else "lower") for side in mine):

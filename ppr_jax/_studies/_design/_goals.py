@@ -57,7 +57,7 @@ class Constraint:
     candidate of each side of every band is among the starts where `starts` allows) and keeps
     the best feasible optimum. Each edge has its own multiplier, d(optimum)/d lo and
     d(optimum)/d hi (at most one non-zero). On a peak or margin over samples
-    (`SAMPLED_METRICS`) the band applies to the extreme itself (one constraint, a subgradient
+    (`sampled_metrics`) the band applies to the extreme itself (one constraint, a subgradient
     where samples tie), not to every sample.
     """
 

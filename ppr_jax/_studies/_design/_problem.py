@@ -25,7 +25,7 @@ import numpy as np
 from ..._files import write_file
 from ..._params import RobotParams
 from ..._programs import NotExportable, cached_program, export_tracing, program_key
-from .._catalogue import SAMPLED_METRICS, SceneContext, metric_values
+from .._catalogue import SceneContext, metric_values, sampled_metrics
 from .._evaluation import Evaluation
 from .._jacobian import jacobian_with_values
 
@@ -89,7 +89,7 @@ class Problem:
     evaluated (the objective's first); `base` the `RobotParams` the variables replace fields of;
     `stroke` (rad); `ctx` the `SceneContext`; `mode` 'fwd' (`jax.jacfwd`, one tangent per
     variable) or 'rev' (`jax.jacrev`, one cotangent per metric). `samples` names the metrics
-    of `SAMPLED_METRICS` evaluated as their samples (the programs' raw values: each such metric
+    of `sampled_metrics` evaluated as their samples (the programs' raw values: each such metric
     a block of rows, every other metric one row; `sizes` (k,) the rows of each); the metrics
     (k,) are the raw values reduced (`reduce`: each block's max or min). `evaluations` counts
     the points evaluated (with and without the Jacobian). `program_dir`: a directory of stored
@@ -184,13 +184,13 @@ class Problem:
 
     def reduce(self, R, J=None):
         """The metrics (..., k) of raw values R (..., n): each sampled block's max or min (its
-        `SAMPLED_METRICS` kind; NaN where any sample is); with a raw Jacobian J (n, p) of one
+        `sampled_metrics` kind; NaN where any sample is); with a raw Jacobian J (n, p) of one
         point, also the metrics' Jacobian (k, p): the extreme sample's row."""
         R = np.asarray(R)
         vals, rows = [], []
         for m, idx in zip(self.metrics, self.blocks):
             block = R[..., idx]
-            kind = SAMPLED_METRICS.get(m) if m in self.samples else None
+            kind = sampled_metrics().get(m) if m in self.samples else None
             if kind is None:
                 vals.append(block[..., 0])
                 rows.append(idx[0])

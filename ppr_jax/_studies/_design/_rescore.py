@@ -32,7 +32,7 @@ import numpy as np
 
 from ..._prb_table import prb_table
 from ..._programs import cached_program
-from .._catalogue import CLOSED_FORM_METRICS, PATH_METRICS, SceneContext
+from .._catalogue import CATALOGUE, SceneContext
 from .._evaluation import Evaluation
 from ._problem import metrics_program, program_label
 
@@ -56,8 +56,9 @@ def metric_band(name: str, e: float) -> float:
 
 
 def model_dependent(names) -> list:
-    """The metrics of `names` that depend on the model (not closed forms, not path margins)."""
-    return [n for n in names if n not in CLOSED_FORM_METRICS + PATH_METRICS]
+    """The metrics of `names` that depend on the model (not closed forms, not path margins):
+    those of the catalogue that need the scene's run or a pose of `frequency_model`."""
+    return [n for n in names if CATALOGUE[n].needs in ("run", "pose")]
 
 
 def rescore_l3(names, params, ctx: SceneContext, stroke: float, prb_values: dict, objective,

@@ -33,7 +33,7 @@ class Design:
       ('lower' or 'upper': the side of the band the value lies on) and `multipliers`
       {lower: d(optimum)/d lo, upper: d(optimum)/d hi}; its `multiplier` is its `edge`'s,
       `violation_abs` the distance to the nearer edge inside the band. A peak over samples
-      (`SAMPLED_METRICS`, bounded on its extreme's side) is one constraint per sample for the
+      (`sampled_metrics`, bounded on its extreme's side) is one constraint per sample for the
       optimiser: `active_samples` counts those on the bound, `multiplier` is their sum.
     - `active_bounds`: [{variable, side, bound, multiplier}] the variables' bounds the optimum
       lies on, the multiplier d(optimal objective)/d(bound) likewise.

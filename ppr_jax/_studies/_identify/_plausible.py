@@ -10,12 +10,12 @@ from __future__ import annotations
 import math
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..._data import DataError
-from ..._geometry import ik_reduced
+from ..._kinematics import path_margins
+from ..._models import Reduced
 
 #: actuated angles (rad) further than this from the nominal robot's inverse kinematics of the
 #: measured pose are not this robot's (the joints' deflections under load are some 10 mrad)
@@ -23,9 +23,10 @@ ANGLE_TOL = 0.3
 #: torques (N m) above this many times the joint springs' stiffness K (N m/rad) would bend a
 #: joint by this many radians: no flexure joint turns that far (measured data: |tau| / K ~ 1)
 TORQUE_RATIO = 100.0
-#: a pose out of the nominal robot's reach by more than this margin (1 - |cos| of the chain's
-#: elbow) is not this robot's
-REACH_TOL = 0.1
+#: a pose out of the nominal robot's reach by more than this (its reach margin 1 - |cos| of
+#: the chain's elbow below -REACH_SLACK: `_kinematics.PathMargins.reach`) is not this robot's;
+#: measured poses a little beyond the nominal reach are noise or the joints' deflection
+REACH_SLACK = 0.1
 #: units an angle column is commonly mistaken in: (name, unit as declared, factor to SI)
 _ANGLE_FACTORS = (("degrees", "deg", math.pi / 180.0), ("mrad", "mrad", 1e-3))
 #: samples of each experiment checked (spread over its duration)
@@ -38,10 +39,11 @@ def _wrap(x):
 
 @eqx.filter_jit
 def _ik_samples(robot, X):
-    """`ik_reduced` of poses X (k, 3) (m, m, rad), one compiled program for the samples of an
-    experiment. Returns the chain angles th_i1 (k, 3) (rad) and the reach margins (k, 3)."""
-    th, m = jax.vmap(ik_reduced, in_axes=(None, 0))(robot, X)
-    return th[..., 0], m
+    """L1's reach check (`path_margins`) of the measured poses X (k, 3) (m, m, rad), one
+    compiled program for the samples of an experiment. Returns the actuated angles th_i1
+    (k, 3) (rad) and the reach margins (k, 3)."""
+    margins = path_margins(Reduced(), robot, X)
+    return margins.th_a, margins.reach
 
 
 def check_plausible(experiments, params, scene: str, *, angles: bool, torques: bool) -> None:
@@ -60,7 +62,7 @@ def check_plausible(experiments, params, scene: str, *, angles: bool, torques: b
         idx = np.unique(np.linspace(0, len(ts) - 1, _SAMPLES).round().astype(int))
         th_ik, margin = (np.asarray(v) for v in _ik_samples(robot, jnp.asarray(X[idx])))
         worst = np.unravel_index(np.argmin(margin), margin.shape)
-        if margin[worst] < -REACH_TOL:
+        if margin[worst] < -REACH_SLACK:
             i, c = idx[worst[0]], worst[1] + 1
             raise DataError(
                 f"{e.name}: the measured pose at time {ts[i]:.6g} s (x = {X[i, 0] * 1e3:.4g} mm, "

@@ -28,6 +28,7 @@ from ..._paths import StartPath
 from ..._robot import Robot
 from ..._scenes import PathScene, SceneOptions, input_panels_at
 from ..._trajectory import Interpolated, PiecewiseCubic
+from .._evaluation import params_at
 
 #: the least-squares solvers (`identify(solver=...)`, the CLI's --method)
 SOLVERS = ID_SOLVERS
@@ -140,8 +141,7 @@ def _dp_dz(prob: _Problem, z):
 
 
 def _params_at(prob: _Problem, p):
-    return eqx.tree_at(lambda q: tuple(getattr(q, n) for n in prob.names), prob.base,
-                       tuple(p[i] for i in range(len(prob.names))))
+    return params_at(prob.base, prob.names, p)
 
 
 def _offsets(prob: _Problem, z):
