@@ -706,6 +706,24 @@ def compensate() -> str:
             "runs, compilation included. " + _machine(d))
 
 
+def compensate_headline() -> str:
+    """The README's compensation cell, from benchmarks/results/compensate.json (L2, motion then
+    torque drive)."""
+    d = _load("compensate.json")
+    r = {row["drive"]: row for row in d["rows"] if row["model"] == "double1r"}
+    m, t = r["motion"], r["torque"]
+
+    def mm(x):
+        return f"{x * 1e3:.2g}"
+
+    return (f"miss {mm(m['error_before']['position_max'])} / "
+            f"{mm(t['error_before']['position_max'])} mm -> "
+            f"{mm(m['error_after']['position_max'])} / {mm(t['error_after']['position_max'])} mm;"
+            f" inversion {m['inversion_over_forward_run']:.1f} / "
+            f"{t['inversion_over_forward_run']:.1f} forward runs' time (warm), first call "
+            f"{m['cold_s']:.0f} / {t['cold_s']:.0f} s")
+
+
 def headline() -> dict:
     """The contenders' matched times, which the README's headline table quotes (to check it)."""
     d = _load("cpu", "contenders.json")

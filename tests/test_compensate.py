@@ -158,3 +158,20 @@ def test_optimisation_refines_the_inversion(eight_csv):
                limited.flags), limited.flags
     with pytest.raises(pj.PPRError, match="method must be one of inversion, optimise"):
         pj.compensate(path, "rigid", None, method="newton")
+
+
+def test_readme_row_is_the_benchmarks():
+    """README's compensation row is what benchmarks/results/compensate.json holds
+    (`scripts/gen_perf.compensate_headline`), not numbers copied by hand."""
+    import importlib.util
+    import pathlib
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("gen_perf", root / "scripts" / "gen_perf.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    row = [ln for ln in (root / "README.md").read_text().splitlines()
+           if ln.startswith("| compensation, L2")]
+    assert len(row) == 1 and gen.compensate_headline() in row[0], gen.compensate_headline()
+    assert "<!-- perf:compensate -->" in (root / "docs" / "compensation.md").read_text()
+    assert gen.tables()["compensate"].count("\n| double1r") == 2
