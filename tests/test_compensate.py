@@ -175,3 +175,13 @@ def test_readme_row_is_the_benchmarks():
     assert len(row) == 1 and gen.compensate_headline() in row[0], gen.compensate_headline()
     assert "<!-- perf:compensate -->" in (root / "docs" / "compensation.md").read_text()
     assert gen.tables()["compensate"].count("\n| double1r") == 2
+
+
+def test_a_path_out_of_reach_is_named():
+    """A figure eight moved 0.4 m off the workspace: refused naming the first time where the
+    model has no inverse, before any simulation."""
+    far = pj.Fourier(mean=[0.85, 0.15 * np.sqrt(3), 0.0], cos=EIGHT.cos, sin=EIGHT.sin,
+                     omega=2.0)
+    with pytest.raises(pj.CompensationError, match=r"rigid model has no inverse on the path "
+                                                   r"at t = 0 s"):
+        pj.compensate(far, "rigid", None, drive="torque", options=pj.SceneOptions(t_end=T_END))
