@@ -696,6 +696,12 @@ def compensate() -> str:
                      _ms(r["inversion_warm_s"]), _ms(r["forward_run_s"]),
                      f"{r['inversion_over_forward_run']:.1f}", f"{r['cold_s']:.0f} s"])
     r0 = d["rows"][0]
+    opt = [f"{r['model']}, {r['drive']}: first call {r['optimise']['first_s']:.0f} s, warm "
+           f"{r['optimise']['warm_s']:.1f} s ({r['optimise']['iterations']} iterations, cost "
+           f"{r['optimise']['cost_start_m2']:.2g} -> {r['optimise']['cost_m2']:.2g} m^2)"
+           for r in d["rows"] if r.get("optimise")]
+    tail = (" `method=\"optimise\"` (12 knots, at most 4 iterations, from the inversion's "
+            "commands, no replays): " + "; ".join(opt) + ".") if opt else ""
     return (_table(["model, drive", "miss, nominal commands", "compensated", "phi: nominal / "
                     "compensated", "inversion (warm)", "one forward run", "inversion / run",
                     "first call, whole (cold)"], rows)
@@ -703,7 +709,7 @@ def compensate() -> str:
             f"at {r0['commands']} command times, Table 1's robot with 0.5 mm strips; the "
             "inversion alone, warm, against one forward run of the compensated commands; the "
             "first call in a fresh process: the inversion, the nominal and the compensated "
-            "runs, compilation included. " + _machine(d))
+            "runs, compilation included." + tail + " " + _machine(d))
 
 
 def compensate_headline() -> str:
