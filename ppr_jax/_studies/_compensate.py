@@ -430,17 +430,17 @@ def error_band(ident, model, path, drive, log, options, after, level: float = 0.
     from scipy.stats import chi2
 
     from .._scenes import solve_scene
-    from ._evaluation import Evaluation
+    from ._evaluation import params_at
 
     names = tuple(ident.names)
     x0 = jnp.asarray(np.asarray(ident.estimate, dtype=np.float64))
     base = ident.params
     scene = PathScene(path, drive=drive, command_log=log, name="compensated")
     fwd = dataclasses.replace(options, adjoint=diffrax.ForwardMode())
-    ev = Evaluation(names=names, metrics=(), equal_links=False, samples=(), ctx=None)
 
     def err(x):
-        res = solve_scene(scene, ev.params(x, base), model=model, options=fwd, throw=False)
+        res = solve_scene(scene, params_at(base, names, x), model=model, options=fwd,
+                          throw=False)
         return res.X - res.X_nominal
 
     J = np.asarray(jax.jacfwd(err)(x0))  # (m, 3, k)
