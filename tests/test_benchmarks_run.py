@@ -45,6 +45,8 @@ SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("*.py") if not p.stem.startswit
 
 #: per script: its tiny arguments, and the files (under the copy's `results/`) it must write
 CASES = {
+    "compensate": (["--models", "rigid", "--drives", "torque", "--t-end", "0.2", "--repeats",
+                    "1", "--optimise"], ["compensate.json"]),
     "beam_convergence": (["--max-n", "4"], ["beam_convergence.json"]),
     "beam_stiffness": (["--n", "2", "--t-end", "0.005", "--rtols", "1e-4", "--solvers", "tsit5"],
                        ["beam_stiffness.json"]),
