@@ -185,3 +185,18 @@ def test_a_path_out_of_reach_is_named():
     with pytest.raises(pj.CompensationError, match=r"rigid model has no inverse on the path "
                                                    r"at t = 0 s"):
         pj.compensate(far, "rigid", None, drive="torque", options=pj.SceneOptions(t_end=T_END))
+
+
+def test_refusals_name_the_argument():
+    """Before any compilation: a batch of robots, a scene that replays a log, an unknown
+    drive, command times that do not start at 0."""
+    p = pj.scene_params("servo-circle")
+    with pytest.raises(pj.PPRError, match="params: one robot, not a batch of 2"):
+        pj.compensate(EIGHT, "rigid", pj.stack_params([p, p]))
+    log = pj.CommandLog(pj.Waypoints(TS, np.zeros((TS.shape[0], 3)), bc="natural"), "torque")
+    with pytest.raises(pj.PPRError, match="replays a command log"):
+        pj.compensate(pj.PathScene(EIGHT, command_log=log), "rigid", p)
+    with pytest.raises(pj.PPRError, match="drive must be one of motion, torque"):
+        pj.compensate(EIGHT, "rigid", p, drive="servo")
+    with pytest.raises(pj.PPRError, match="times must be at least 4"):
+        pj.compensate(EIGHT, "rigid", p, times=[0.1, 0.2, 0.3, 0.4])

@@ -254,7 +254,10 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
 
         path, scene_drive = Circle(), "torque" if scene == "paper-circle" else "motion"
         default = scene_params(scene)
-    elif isinstance(scene, PathScene) and scene.command_log is None:
+    elif isinstance(scene, PathScene):
+        if scene.command_log is not None:
+            raise PPRError("scene: a PathScene that replays a command log; compensate computes "
+                           "the commands itself: pass its path (scene.path)")
         path, scene_drive, default = scene.path, scene.drive, scene.default_params()
     elif callable(scene):
         path, scene_drive = scene, "motion"
@@ -270,6 +273,9 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
     robot_params = ident.params if ident is not None else (default if params is None
                                                            else params)
     check_instance("params", robot_params, RobotParams)
+    if np.ndim(robot_params.t) != 0:
+        raise PPRError(f"params: one robot, not a batch of {np.shape(robot_params.t)[0]} "
+                       f"(compensate one robot at a time: each has its own commands)")
     options = SceneOptions() if options is None else options
     ts = _grid(path, options, rate, times)
     opts = dataclasses.replace(options, t_end=float(ts[-1]), n_out=int(ts.shape[0]))
