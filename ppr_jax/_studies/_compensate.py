@@ -146,13 +146,13 @@ class Compensation:
         return out
 
 
-def _tracking(res) -> dict:
-    e = np.asarray(res.X) - np.asarray(res.X_nominal)
-    pos = np.linalg.norm(e[:, :2], axis=1)
-    phi = np.abs(e[:, 2])
-    return {"position_max": float(pos.max()), "position_rms": float(np.sqrt(np.mean(pos**2))),
-            "position_end": float(pos[-1]), "phi_max": float(phi.max()),
-            "phi_rms": float(np.sqrt(np.mean(phi**2))), "phi_end": float(phi[-1])}
+def _tracking(report) -> dict:
+    """The tracking errors of a run, as the metric table computes them for every path scene
+    (`position_error_*_m`, `phi_error_*_rad`), under `Compensation.error`'s names."""
+    m = report.metrics
+    return {f"{q}_{k}": float(m[f"{q}_error_{k}_{u}"]) for q, u in (("position", "m"),
+                                                                     ("phi", "rad"))
+            for k in ("max", "rms", "end")}
 
 
 def _size(ts, u) -> dict:
@@ -338,7 +338,7 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
     after = run_scene(PathScene(path, drive=drive, command_log=log, name="compensated"),
                       robot_params, model=model, options=opts)
     nominal = np.asarray(before.result.tau if kind == "torque" else _angles(before))
-    error = {"before": _tracking(before.result), "after": _tracking(after.result)}
+    error = {"before": _tracking(before), "after": _tracking(after)}
     size = {"before": _size(ts, nominal), "after": _size(ts, u)}
     # (L0/L1 under their own nominal commands follow to rounding either way: no flag)
     if error["after"]["position_max"] > max(error["before"]["position_max"], 1e-12):
