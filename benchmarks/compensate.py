@@ -11,7 +11,9 @@ benchmarks/results/compensate.json.
     python benchmarks/compensate.py [--models double1r,beam] [--t-end 6] [--repeats 3] [--optimise]
 
 With `--optimise`, `method="optimise"` (Levenberg-Marquardt from the inversion's commands, 12
-knots, 4 iterations, no replays) is timed too: its first call and a warm second one.
+knots, 4 iterations, no replays, its default Jacobian by differences) is timed too: its first
+call and a warm second one; and one Jacobian of the 36 unknowns each way, warm: by differences
+(one vmapped batch of 37 replays) and by forward mode, with their largest difference.
 """
 
 from __future__ import annotations
@@ -64,7 +66,31 @@ if method == "optimise":
                        verify=False, max_iter=4)
     opt = {"first_s": first, "warm_s": time.perf_counter() - s, "iterations": co.fit["iterations"],
            "cost_start_m2": co.fit["cost_start"], "cost_m2": co.fit["cost"],
-           "knots": 12, "max_iter": 4}
+           "knots": 12, "max_iter": 4, "jacobian": "differences"}
+    # one Jacobian each way at the inversion's commands, warm (minimum of 2 after a first call)
+    from ppr_jax._studies import _compensate_fit as F
+    import diffrax
+    tk = np.linspace(ts[0], ts[-1], 12)
+    basis = jax.vmap(pj.Waypoints(tk, np.eye(12), bc="not-a-knot"))(jnp.asarray(ts))
+    u0 = c.commands
+    fit = F._Fit(path=path, u0=jnp.asarray(u0), basis=basis, ts=tuple(float(t) for t in ts),
+                 drive=drive, kind=c.kind, model=m,
+                 options=dataclasses.replace(o, adjoint=diffrax.ForwardMode()))
+    z = jnp.zeros((12, 3))
+    h = F.FD_STEP * float(np.max(np.abs(u0)))
+    jac = {}
+    for how, fn in (("differences", lambda: F._differences(fit, z, params, h)[0]),
+                    ("forward", lambda: F._jacobian(fit, z, params))):
+        jax.block_until_ready(fn())
+        w = []
+        for _ in range(2):
+            s = time.perf_counter()
+            J = jax.block_until_ready(fn())
+            w.append(time.perf_counter() - s)
+        jac[how] = (min(w), np.asarray(J).reshape(-1, 36) if how == "forward" else np.asarray(J))
+    opt["jacobian_s"] = {k: v[0] for k, v in jac.items()}
+    Jd, Jf = jac["differences"][1], jac["forward"][1]
+    opt["jacobian_rel_diff"] = float(np.abs(Jd - Jf).max() / np.abs(Jf).max())
 print(json.dumps({"model": model, "drive": drive, "t_end_s": t_end, "optimise": opt,
                   "commands": int(c.ts.shape[0]), "cold_s": cold,
                   "inversion_warm_s": min(inv), "forward_run_s": rep.timing["run_s"],

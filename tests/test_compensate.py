@@ -158,6 +158,41 @@ def test_optimisation_refines_the_inversion(eight_csv):
                limited.flags), limited.flags
     with pytest.raises(pj.PPRError, match="method must be one of inversion, optimise"):
         pj.compensate(path, "rigid", None, method="newton")
+    for kw, match in (({"knots": 2}, r"knots = 2 is out of its allowed range \[3, "),
+                      ({"max_iter": 0}, r"max_iter = 0 is out of its allowed range \[1, "),
+                      ({"jacobian": "reverse"}, "jacobian must be one of differences, forward")):
+        with pytest.raises(pj.PPRError, match=match):
+            pj.compensate(path, "rigid", None, method="optimise", **kw)
+
+
+def test_jacobian_by_differences_is_forward_modes(eight_csv):
+    """The optimisation's default Jacobian, forward differences of one vmapped batch of replays,
+    is forward mode's through the solve (L0, the torque drive, 12 knots: 36 columns) to 1e-5
+    relative."""
+
+    import diffrax
+
+    from ppr_jax._studies import _compensate_fit as F
+
+    path = pj.load_path(str(eight_csv))
+    inv = pj.compensate(path, "rigid", None, drive="torque", verify=False)
+    ts, knots = inv.ts, 12
+    basis = jax.vmap(pj.Waypoints(np.linspace(ts[0], ts[-1], knots), np.eye(knots),
+                                  bc="not-a-knot"))(jnp.asarray(ts))
+    opts = pj.SceneOptions(t_end=float(ts[-1]), n_out=int(ts.shape[0]),
+                           adjoint=diffrax.ForwardMode())
+    fit = F._Fit(path=path, u0=jnp.asarray(inv.commands), basis=basis,
+                 ts=tuple(float(t) for t in ts), drive="torque", kind="torque",
+                 model=pj.get_model("rigid"), options=opts)
+    params = pj.PathScene(path, drive="torque").default_params()
+    c = jnp.zeros((knots, 3))
+    h = F.FD_STEP * float(np.abs(inv.commands).max())
+    Jd, code = F._differences(fit, c, params, h)
+    Jf = np.asarray(F._jacobian(fit, c, params)).reshape(Jd.shape)
+    assert int(code) == 0
+    assert np.abs(np.asarray(Jd) - Jf).max() < 1e-5 * np.abs(Jf).max()
+    # and it is not trivially so: the columns differ from one another
+    assert np.abs(Jf[:, 0] - Jf[:, 1]).max() > 0.1 * np.abs(Jf).max()
 
 
 def test_readme_row_is_the_benchmarks():

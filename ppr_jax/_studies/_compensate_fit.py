@@ -7,7 +7,16 @@ spaced knots (so the correction is smooth and has knots x 3 unknowns c), sampled
 times and splined again as the command log is. The residuals are the replayed tracking error
 at the output times (x, y in m; phi weighted by `PHI_SCALE` m/rad) and, with a rate bound, the
 rates' excess over it (weighted by `RATE_WEIGHT`). The Jacobian is forward mode through the
-scene's solve (diffrax's `ForwardMode`), knots x 3 tangents.
+scene's solve (diffrax's `ForwardMode`), knots x 3 tangents (`jacobian="forward"`), or by
+forward differences of one vmapped batch of knots x 3 + 1 replays (`jacobian="differences"`, the
+default). Measured on an L2 figure eight (1 s, 101 commands, 36 unknowns, 2 cores): the batch
+took 1.05 s and the forward-mode Jacobian 8.6 s, and they agree to 2.6e-6 relative. Forward
+mode costs about 4 primal runs a tangent there (XLA's CPU fusion recomputes the tangents'
+shared terms of the fused equations of motion inside each sum's kernel), a batched replay a
+fraction of one: the batch shares each step's kernels and vectorises its arithmetic. The
+difference step `FD_STEP` x max |u0| (1e-6 rad for angles of order 1) keeps the columns' error
+(truncation, and the members' own adaptive steps) near 1e-6 relative; Levenberg-Marquardt
+needs no more. A batch with a failed member falls back to forward mode.
 
 What it is for: what the inversion leaves (the replay's start and the command spline's
 interpolation, 3e-5 m for L0 on a path of cubic samples), commands under a rate bound, and any
@@ -27,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import result_code
+from .._errors import PPRError, result_code
 from .._paths import CommandLog, Waypoints
 from .._scenes import PathScene, SceneOptions, solve_scene
 
@@ -35,6 +44,10 @@ from .._scenes import PathScene, SceneOptions, solve_scene
 PHI_SCALE = 0.1
 #: weight of a rate's excess over its bound (m per rad/s, or per N m/s)
 RATE_WEIGHT = 10.0
+#: forward differences' step, relative to the largest start command
+FD_STEP = 1e-6
+#: how the Jacobian is computed (`fit_commands`' `jacobian`)
+JACOBIANS = ("differences", "forward")
 
 
 class _Fit(eqx.Module):
@@ -80,9 +93,27 @@ def _jacobian(fit, c, params):
     return jax.jacfwd(lambda c: fit.residuals(c, params)[0])(c)
 
 
+@eqx.filter_jit
+def _differences(fit, c, params, h):
+    """Forward differences (m, p) of the residuals in each of c's p entries, by step h, from one
+    vmapped batch of p + 1 replays; and the batch's worst status code."""
+    p = c.size
+    cs = c[None] + jnp.concatenate([jnp.zeros((1, p)), h * jnp.eye(p)]).reshape(p + 1, *c.shape)
+    r, code = jax.vmap(lambda ci: fit.residuals(ci, params))(cs)
+    return ((r[1:] - r[:1]) / h).T, jnp.max(code)
+
+
+def _jacobian_of(fit, c, params, how: str, h: float, m: int) -> np.ndarray:
+    if how == "differences":
+        J, code = _differences(fit, c, params, h)
+        if int(code) == 0:
+            return np.asarray(J)
+    return np.asarray(_jacobian(fit, c, params)).reshape(m, -1)
+
+
 def fit_commands(path, drive: str, kind: str, model, params, options: SceneOptions, ts, u0,
                  *, knots: int = 12, rate_bound: Optional[float] = None, max_iter: int = 8,
-                 rtol: float = 1e-3) -> dict:
+                 rtol: float = 1e-3, jacobian: str = "differences") -> dict:
     """Levenberg-Marquardt on the smooth correction of commands u0 (module docstring).
 
     **Arguments:**
@@ -95,6 +126,8 @@ def fit_commands(path, drive: str, kind: str, model, params, options: SceneOptio
     - `rate_bound`: a bound on |du/dt| (rad/s or N m/s), or None.
     - `max_iter`: Levenberg-Marquardt iterations (each a forward-mode Jacobian, knots x 3
       tangents); `rtol`: stop when an accepted step lowers the cost by less than this fraction.
+    - `jacobian`: `"differences"` (one batch of replays, the default) or `"forward"` (forward
+      mode through the solve): module docstring.
 
     **Returns:** {"commands" (n, 3), "log", "cost_start", "cost", "iterations", "converged",
     "history" (costs)}; cost = sum of squared residuals (m^2).
@@ -107,12 +140,15 @@ def fit_commands(path, drive: str, kind: str, model, params, options: SceneOptio
     fit = _Fit(path=path, u0=jnp.asarray(u0), basis=jnp.asarray(basis),
                ts=tuple(float(t) for t in ts), drive=drive, kind=kind, model=model,
                options=fwd, rate_bound=rate_bound)
+    if jacobian not in JACOBIANS:
+        raise PPRError(f"jacobian must be one of {', '.join(JACOBIANS)}, got {jacobian!r}")
+    h = FD_STEP * max(float(np.max(np.abs(u0))), 1e-12)
     c = jnp.zeros((int(knots), 3))
     r, code = _values(fit, c, params)
     cost = float(jnp.sum(r**2)) if int(code) == 0 else float("inf")
     history, lam, converged, it = [cost], 1e-3, False, 0
     for it in range(1, max_iter + 1):
-        J = np.asarray(_jacobian(fit, c, params)).reshape(r.shape[0], -1)
+        J = _jacobian_of(fit, c, params, jacobian, h, r.shape[0])
         g, A = J.T @ np.asarray(r), J.T @ J
         d = np.diag(A).copy() + 1e-300
         accepted = False
@@ -139,4 +175,4 @@ def fit_commands(path, drive: str, kind: str, model, params, options: SceneOptio
             "converged": converged, "history": history}
 
 
-__all__ = ["fit_commands", "PHI_SCALE", "RATE_WEIGHT"]
+__all__ = ["fit_commands", "FD_STEP", "JACOBIANS", "PHI_SCALE", "RATE_WEIGHT"]
