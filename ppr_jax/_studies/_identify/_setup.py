@@ -12,8 +12,8 @@ import numpy as np
 
 from ..._data import DataError
 from ..._paths import fit_start
-from ..._robot import equal_links_of
 from ..._simulate import get_solver
+from .._evaluation import equal_links
 from ._arguments import (
     check_choices,
     check_commands,
@@ -156,7 +156,7 @@ def _problem(base, cmd, unknowns, data, c, fit, options, mdl, solver, extra, exp
         th=None if th is None else jnp.asarray(th),
         rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64),
         names=names, log=tuple(lg), model=mdl, scene=c["label"],
-        equal_links=equal_links_of(base) and "l1" not in names and "l3" not in names,
+        equal_links=equal_links(base, names, local=False),
         solver=solver, max_steps=int(options.max_steps),
         loss=jnp.asarray(LOSSES.index(fit.loss)),
         loss_scale=jnp.asarray(float(fit.loss_scale), dtype=jnp.float64),
