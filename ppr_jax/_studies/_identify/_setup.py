@@ -68,7 +68,7 @@ def prepare(experiments, unknowns, call: dict, fit, options, n_elements) -> Prep
 
     A `Prepared`.
     """
-    c = dict(call)
+    c = call
     check_solver_args(fit.loss_scale, fit.max_iter, fit.xtol, fit.ftol, fit.stat_tol,
                       options.rtol, options.atol, options.max_steps, fit.seed)
     exps = check_experiments(experiments)
@@ -77,8 +77,8 @@ def prepare(experiments, unknowns, call: dict, fit, options, n_elements) -> Prep
     names, fixed, initial, bounds = check_unknowns(unknowns, c["fixed"], c["initial"],
                                                    c["bounds"], c["params"], c["commands"],
                                                    c["noise"])
-    own, scene_obj, drive, c["label"], actuation = resolve_scene(c["scene"], exps,
-                                                                 c["actuation"], c["commands"])
+    own, scene_obj, drive, label, actuation = resolve_scene(c["scene"], exps, c["actuation"],
+                                                            c["commands"])
     mdl = check_model(c["model"], n_elements, n_init, drive, fit.initial_state)
     base, nominal = start_robot(c["params"], own, scene_obj, fixed, initial, names)
     lo, hi, lg = unknown_bounds(names, base, bounds)
@@ -92,7 +92,7 @@ def prepare(experiments, unknowns, call: dict, fit, options, n_elements) -> Prep
     cmd = _fill_prb(nominal if c["commands"] is None else c["commands"],
                     ("gamma", "K_theta", "rho"))
     prob = _problem(base, cmd, (names, lo, hi, lg), data, c, fit, options, mdl, solver,
-                    (n_init, meas, scene_obj, drive), exps)
+                    (n_init, meas, scene_obj, drive, label), exps)
     p0 = np.array([float(getattr(base, n)) for n in names])
     z0 = np.concatenate([_to_z(lg, lo, hi, p0), np.zeros(n_init * len(exps) + len(meas))])
     if n_init:
@@ -145,17 +145,17 @@ def _packed(exps, c, fit, scene, base, n_init, n_unknown) -> tuple:
 
 def _problem(base, cmd, unknowns, data, c, fit, options, mdl, solver, extra, exps) -> _Problem:
     """The `_Problem`: `unknowns` (names, lo, hi, log), `data` (`_packed`'s arrays), `extra`
-    (n_init, meas, scene_obj, drive)."""
+    (n_init, meas, scene_obj, drive, the scene's label)."""
     names, lo, hi, lg = unknowns
     ts, X, W, tau, th, paths, start_fits = data
-    n_init, meas, scene_obj, drive = extra
+    n_init, meas, scene_obj, drive, label = extra
     rtol, atol = options.tolerances(mdl)
     return _Problem(
         base=base, commands=cmd, lo=jnp.asarray(lo), hi=jnp.asarray(hi), ts=jnp.asarray(ts),
         X=jnp.asarray(X), w=jnp.asarray(W), tau=None if tau is None else jnp.asarray(tau),
         th=None if th is None else jnp.asarray(th),
         rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64),
-        names=names, log=tuple(lg), model=mdl, scene=c["label"],
+        names=names, log=tuple(lg), model=mdl, scene=label,
         equal_links=equal_links(base, names, local=False),
         solver=solver, max_steps=int(options.max_steps),
         loss=jnp.asarray(LOSSES.index(fit.loss)),
