@@ -62,15 +62,15 @@ def cases(truth, nominal):
         # the default call on a file with angles: they drive the model
         "gamma-auto": (("gamma",), dict(fixed=fixed), True),
         # the same with a tracker that is offset and late, its measurement model estimated
-        "gamma-auto-bias-delay": (("gamma",), dict(fixed=fixed, nuisance=("bias", "delay")),
-                                  True, True),
+        "gamma-auto-bias-delay": (("gamma",), dict(fixed=fixed, fit_options=pj.FitOptions(
+            nuisance=("bias", "delay"))), True, True),
         # Young's modulus with the strip's geometry and PRB parameters known
         "E-auto": (("E",), dict(fixed=fixed | {"gamma": float(truth.gamma)},
                                 initial={"E": 0.8 * float(truth.E)}), True),
         # the commands, computed for the model the controller used (named)
         "gamma-commanded": (("gamma",), dict(fixed=fixed, commands=nominal), False),
-        "gamma-auto-pose-velocity": (("gamma",), dict(fixed=fixed,
-                                                       initial_state="pose-velocity"), True),
+        "gamma-auto-pose-velocity": (("gamma",), dict(fixed=fixed, fit_options=pj.FitOptions(
+            initial_state="pose-velocity")), True),
         # the strip thickness with K_theta known: the joint stiffness t^3 K_theta (the
         # identifiable combination of the pair, whose relative std is three times t's)
         "t-auto": (("t",), dict(fixed={"K_theta": float(truth.K_theta),

@@ -50,10 +50,11 @@ for geometry, base in (("centerline", cl), ("strip", strip)):
         t0 = time.perf_counter()
         fit = pj.identify(exp, names or ("K_theta",), model="double1r", scene="servo-circle",
                           params=base,
-                          noise=NOISE, max_iter=50 if names else 0,
+                          noise=NOISE,
                           # as documented: no preflight refusal, no automatic refit of a
                           # poor fit (the table reports them as they are)
-                          force=True, starts=1)
+                          fit_options=pj.FitOptions(max_iter=50 if names else 0, force=True,
+                                                    starts=1))
         wall = time.perf_counter() - t0
         print(geometry, names or "(table values)", flush=True)
         print(fit.table(), flush=True)

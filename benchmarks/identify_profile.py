@@ -34,7 +34,8 @@ def main(t_end: float):
         t0 = time.perf_counter()
         fit = pj.identify(exp, unknowns, model="double1r", scene="servo-circle", params=truth,
                           initial={k: start[k] for k in unknowns},
-                          force=True)  # t with K_theta: profiled on purpose, past the preflight
+                          # t with K_theta: profiled on purpose, past the preflight
+                          fit_options=pj.FitOptions(force=True))
         fit_s = time.perf_counter() - t0
         for i, name in enumerate(unknowns):
             pr = fit.profile(name)

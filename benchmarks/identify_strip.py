@@ -49,12 +49,12 @@ for names in (("K_theta",), ("K_theta", "gamma")):
     t0 = time.perf_counter()
     # as documented: past the preflight, and no automatic refit of a poor fit (force, one start)
     fit = pj.identify(exp, names, model="double1r", scene="servo-circle", params=cl, noise=noise,
-                      force=True, starts=1)
+                      fit_options=pj.FitOptions(force=True, starts=1))
     print(fit.table(), flush=True)
     out[",".join(names)] = {**fit.to_dict(), "wall_s": time.perf_counter() - t0}
 # the centre-line model with its own (table) parameters on the same data
 fit0 = pj.identify(exp, ("K_theta",), model="double1r", scene="servo-circle", params=cl,
-                   noise=noise, max_iter=0, force=True, starts=1)
+                   noise=noise, fit_options=pj.FitOptions(max_iter=0, force=True, starts=1))
 out["centerline_defaults_residual_stats"] = fit0.residual_stats
 print(fit0.residual_stats, flush=True)
 OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "identify_strip.json")

@@ -40,7 +40,7 @@ def main(t_end: float, rate: float):
         t0 = time.perf_counter()
         # the pair on purpose (the preflight refuses it without force)
         fit = pj.identify(exp, ("t", "K_theta"), model="double1r", scene="servo-circle",
-                          initial=start, force=True)
+                          initial=start, fit_options=pj.FitOptions(force=True))
         wall = time.perf_counter() - t0
         runs.append({"wall_s": wall, "first_call_s (compile + one evaluation)":
                      fit.history["compile_s"], "iterations_run_s": fit.history["run_s"],

@@ -67,6 +67,7 @@ _EXPORTS = {
     "._studies": (
         "SweepResult", "sweep", "shard_batch", "design_members", "Sensitivity", "sensitivity",
         "base_frequency", "Identification", "IdentificationError", "StartError", "identify",
+        "FitOptions",
         "synthesize",
         "Design", "DesignError", "Objective", "Constraint", "design", "design_metrics",
         "Compensation", "CompensationError", "compensate",
@@ -213,6 +214,7 @@ if _TYPE_CHECKING:  # what static tools (type checkers, IDEs, docs) read
         IdentificationError as IdentificationError,
         StartError as StartError,
         identify as identify,
+        FitOptions as FitOptions,
         synthesize as synthesize,
         Design as Design,
         DesignError as DesignError,

@@ -42,14 +42,19 @@ IDENTIFY = [
     (dict(bounds={"t": (1e-3, 1e-4)}), pj.IdentificationError, ["bounds of 't'",
                                                                 "must satisfy"]),
     (dict(bounds=[1e-4, 1e-3]), pj.IdentificationError, ["bounds must be a mapping"]),
-    (dict(nuisance=5), pj.IdentificationError, ["nuisance", "bias, delay"]),
-    (dict(nuisance=["bias", "drift"]), pj.IdentificationError, ["'drift'", "bias, delay"]),
+    (dict(fit_options=pj.FitOptions(nuisance=5)), pj.IdentificationError,
+     ["nuisance", "bias, delay"]),
+    (dict(fit_options=pj.FitOptions(nuisance=["bias", "drift"])), pj.IdentificationError,
+     ["'drift'", "bias, delay"]),
     (dict(params="x"), pj.IdentificationError, ["params must be a RobotParams", "str"]),
     (dict(commands=3), pj.IdentificationError, ["commands must be a RobotParams"]),
     (dict(fixed={"E": HUGE}), pj.IdentificationError, ["'E'", "401 digits"]),
     (dict(fixed={"E": "abc"}), pj.IdentificationError, ["'E'", "'abc'"]),
     (dict(unknowns=5), pj.IdentificationError, ["unknowns", "allowed"]),
-    (dict(seed=HUGE), pj.IdentificationError, ["seed", "401 digits"]),
+    (dict(fit_options=pj.FitOptions(seed=HUGE)), pj.IdentificationError,
+     ["seed", "401 digits"]),
+    (dict(fit_options={"seed": 1}), pj.IdentificationError,
+     ["fit_options must be a FitOptions", "dict"]),
     (dict(options=pj.SceneOptions(), rtol=1e-8), pj.PPRError, ["identify", "not both"]),
     (dict(options={"rtol": 1e-8}), pj.PPRError, ["must be a SceneOptions", "dict"]),
 ]
@@ -69,7 +74,8 @@ def test_identify_takes_one_unknown_or_nuisance_as_a_string(exp):
     """A string is one name, not a sequence of letters ('bias' is not b, i, a, s): the
     check passes and the call goes on to the next one (a bound outside t's range here)."""
     with pytest.raises(pj.IdentificationError, match=r"bounds of 't' must satisfy"):
-        pj.identify(exp, "t", nuisance="bias", bounds={"t": (1e-9, 1e-3)})
+        pj.identify(exp, "t", bounds={"t": (1e-9, 1e-3)},
+                    fit_options=pj.FitOptions(nuisance="bias"))
 
 
 DESIGN = [

@@ -56,7 +56,8 @@ def fits(truth, clean):
     for scale in (1.0, 0.1):
         out[scale] = pj.identify(_noisy(clean, scale, seed=1), ("t", "K_theta"), scene=SC,
                                  model="double1r", initial=start,
-                                 noise=(scale * NOISE[0], scale * NOISE[1]), force=True)
+                                 noise=(scale * NOISE[0], scale * NOISE[1]),
+                                 fit_options=pj.FitOptions(force=True))
     return out
 
 
@@ -153,7 +154,7 @@ def test_validation_holds_out_samples_and_flags_a_model_that_does_not_generalise
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
     good = _noisy(clean, 1.0, seed=5)
     fit = pj.identify(good, ("t", "K_theta"), scene=SC, model="double1r", initial=start,
-                      noise=NOISE, validation=0.3, force=True)
+                      noise=NOISE, fit_options=pj.FitOptions(validation=0.3, force=True))
     v = fit.validation
     assert 17 <= v["samples"] <= 19 and int(fit.mask.sum()) == N - v["samples"]
     assert 0.7 < v["residual_scale"] < 1.4 and v["generalises"] and fit.quality["ok"], v
@@ -161,7 +162,7 @@ def test_validation_holds_out_samples_and_flags_a_model_that_does_not_generalise
     X[ts > 0.7 * T_END, 0] += 20 * NOISE[0]
     drifted = pj.experiment(ts, X, name="drifted")
     fit2 = pj.identify(drifted, ("t", "K_theta"), scene=SC, model="double1r", initial=start,
-                       noise=NOISE, validation=0.3, force=True)
+                       noise=NOISE, fit_options=pj.FitOptions(validation=0.3, force=True))
     np.testing.assert_allclose(fit2.estimate, fit.estimate, rtol=1e-6)  # the same fitted part
     v2 = fit2.validation
     assert v2["residual_scale"] > 10 and not v2["generalises"], v2
@@ -177,7 +178,8 @@ def test_validation_holds_out_samples_and_flags_a_model_that_does_not_generalise
     for bad, match in [(1.5, "in \\(0, 1\\)"), (["nope"], "not one of the experiments"),
                        ([0], "every experiment")]:
         with pytest.raises(pj.IdentificationError, match=match):
-            pj.identify(good, ("t", "K_theta"), scene=SC, model="double1r", validation=bad)
+            pj.identify(good, ("t", "K_theta"), scene=SC, model="double1r",
+                        fit_options=pj.FitOptions(validation=bad))
 
 
 def test_covariance_against_finite_difference_jacobian(fits):
@@ -244,8 +246,8 @@ def test_robust_loss_resists_outliers(truth, clean, fits):
 
     k_ref, rel_ref = stiffness(ref)
     # (one start: the outliers make a poor fit, which "auto" would refit from more starts)
-    lin = pj.identify(bad, ("t", "K_theta"), scene=SC, initial=start, noise=NOISE, force=True,
-                      starts=1)
+    lin = pj.identify(bad, ("t", "K_theta"), scene=SC, initial=start, noise=NOISE,
+                      fit_options=pj.FitOptions(force=True, starts=1))
     assert math.sqrt(lin.sigma2) > 10  # the outliers dominate a linear fit
     err_lin = abs(math.log(stiffness(lin)[0] / k_ref))
     errs = {}
@@ -254,8 +256,8 @@ def test_robust_loss_resists_outliers(truth, clean, fits):
         # from 3 more starts (and compiles a vmapped screening for them), all of which
         # end at the given start's minimum (its cost the lowest, the estimate the same to the
         # last digit)
-        rob = pj.identify(bad, ("t", "K_theta"), scene=SC, initial=start, noise=NOISE, loss=loss,
-                          force=True, starts=1)
+        rob = pj.identify(bad, ("t", "K_theta"), scene=SC, initial=start, noise=NOISE,
+                          fit_options=pj.FitOptions(loss=loss, force=True, starts=1))
         errs[loss] = abs(math.log(stiffness(rob)[0] / k_ref))
     print(f"stiffness error: linear {err_lin:.3g}, {errs} (relative std {rel_ref:.3g})")
     # Cauchy's influence vanishes for gross outliers; Huber's is bounded (each outlier still
@@ -305,7 +307,8 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
     exp, X0 = lagging
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
     fit = pj.identify(exp, ("t", "K_theta"), scene=SC, model="double1r", initial=start, noise=NOISE,
-                      actuation="measured", initial_state="pose-velocity", force=True)
+                      actuation="measured",
+                      fit_options=pj.FitOptions(initial_state="pose-velocity", force=True))
     assert fit.history["stop"] == "converged"
     assert 0.7 < math.sqrt(fit.sigma2) < 1.3, fit.table()
     c = fit.identifiability["combinations"][0]
@@ -323,7 +326,7 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
     assert "initial state of lagging servo" in fit.table()
     # the commanded angles and the scene's initial state (reuses the compiled fit of `fits`)
     bad = pj.identify(exp, ("t", "K_theta"), scene=SC, model="double1r", initial=start, noise=NOISE,
-                      actuation="commanded", force=True, starts=1)
+                      actuation="commanded", fit_options=pj.FitOptions(force=True, starts=1))
     assert math.sqrt(bad.sigma2) > 20 * math.sqrt(fit.sigma2)
     # which is reported as a poor fit, never as converged or identifiable
     assert fit.quality["ok"] and bad.history["stop"] == "poor fit", bad.history
@@ -332,11 +335,14 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
                for c in bad.identifiability["combinations"])
     # and by default the file's angles drive the model (the same as the first fit)
     assert "measured" in pj.identify(exp, ("t", "K_theta"), scene=SC, model="double1r",
-                                     initial=start, noise=NOISE, initial_state="pose-velocity",
-                                     max_iter=1, starts=1, force=True).actuation
+                                     initial=start, noise=NOISE,
+                                     fit_options=pj.FitOptions(initial_state="pose-velocity",
+                                                               max_iter=1, starts=1,
+                                                               force=True)).actuation
     # max_iter=0: no step, the statistics at the initial values (a fit only lowers the cost)
     at_start = pj.identify(exp, ("t", "K_theta"), scene=SC, model="double1r", initial=start,
-                           noise=NOISE, initial_state="pose-velocity", max_iter=0, force=True)
+                           noise=NOISE, fit_options=pj.FitOptions(
+                               initial_state="pose-velocity", max_iter=0, force=True))
     assert at_start.history["iterations"] == 0, at_start.history
     assert "no step" in at_start.history["stop"]
     # (to the round trip through the fit's log coordinates)
@@ -389,7 +395,7 @@ def test_bad_requests_raise_clear_errors(truth, clean):
     with pytest.raises(pj.PPRError, match=r"initial values given for \['E'\]"):
         pj.identify(exp, ("t",), scene=SC, initial={"E": 70e9})
     with pytest.raises(pj.PPRError, match="unknown loss"):
-        pj.identify(exp, ("t",), scene=SC, loss="l1")
+        pj.identify(exp, ("t",), scene=SC, fit_options=pj.FitOptions(loss="l1"))
     with pytest.raises(pj.PPRError, match="unknown scene"):
         pj.identify(exp, ("t",), scene="modes")
     with pytest.raises(pj.DataError, match="no experiment"):
@@ -401,9 +407,10 @@ def test_bad_requests_raise_clear_errors(truth, clean):
     with pytest.raises(pj.PPRError, match="applies to a motion-driven scene; paper-circle is"):
         pj.identify(exp, ("t",), actuation="measured", scene="paper-circle")
     with pytest.raises(pj.PPRError, match="unknown initial_state"):
-        pj.identify(exp, ("t",), scene=SC, initial_state="all")
+        pj.identify(exp, ("t",), scene=SC, fit_options=pj.FitOptions(initial_state="all"))
     with pytest.raises(pj.PPRError, match="no free initial state"):
-        pj.identify(exp, ("t",), scene=SC, model="reduced", initial_state="pose")
+        pj.identify(exp, ("t",), scene=SC, model="reduced",
+                    fit_options=pj.FitOptions(initial_state="pose"))
     # argument types: named, not a raw TypeError
     for bad in (1e-4, ("a", "b"), (1e-4,), (1e-4, float("nan"))):
         with pytest.raises(pj.IdentificationError, match=r"noise must be \(position m, phi rad"):
@@ -416,12 +423,15 @@ def _still_experiment(n=20):
 
 
 @pytest.mark.parametrize("kw, match", [
-    (dict(rtol=float("nan")), r"rtol must be finite: nan is not finite \(allowed range "
-                              r"\[1e-14, 0.01\]\)"),
-    (dict(rtol=0.5), r"rtol = 0.5 is out of its allowed range \[1e-14, 0.01\]"),
-    (dict(atol=-1e-9), r"atol = -1e-09 is out of its allowed range \[1e-16, 0.01\]"),
-    (dict(max_steps=0), r"max_steps = 0 is out of its allowed range \[1, 1e\+09\]"),
-    (dict(max_steps=2.5), r"max_steps must be an integer"),
+    (dict(options=pj.SceneOptions(rtol=float("nan"))),
+     r"rtol must be finite: nan is not finite \(allowed range \[1e-14, 0.01\]\)"),
+    (dict(options=pj.SceneOptions(rtol=0.5)),
+     r"rtol = 0.5 is out of its allowed range \[1e-14, 0.01\]"),
+    (dict(options=pj.SceneOptions(atol=-1e-9)),
+     r"atol = -1e-09 is out of its allowed range \[1e-16, 0.01\]"),
+    (dict(options=pj.SceneOptions(max_steps=0)),
+     r"max_steps = 0 is out of its allowed range \[1, 1e\+09\]"),
+    (dict(options=pj.SceneOptions(max_steps=2.5)), r"max_steps must be an integer"),
     (dict(loss_scale=0.0), r"loss_scale = 0.0 is out of its allowed range \(0, 1e\+06\] "
                            r"noise units"),
     (dict(loss_scale=float("inf")), r"loss_scale must be finite"),
@@ -437,14 +447,17 @@ def test_solver_arguments_checked_before_compiling(kw, match, monkeypatch):
     whole fit, 107 s, and then advised loosening tolerances; a zero loss scale was blamed on the
     data): one IdentificationError naming the argument and its allowed range. The compiled
     residual is replaced by a tripwire: no check may reach it."""
-    from ppr_jax._studies._identify import _identify
+    from ppr_jax._studies._identify import _run
 
     def tripwire(*a, **k):
         raise AssertionError("compiled before the arguments were checked")
 
-    monkeypatch.setattr(_identify, "_residual_and_jacobian", tripwire)
+    monkeypatch.setattr(_run, "_residual_and_jacobian", tripwire)
+    kw = dict(kw)
+    options = kw.pop("options", None)
     with pytest.raises(pj.IdentificationError, match=match):
-        pj.identify(_still_experiment(), ("t",), **kw)
+        pj.identify(_still_experiment(), ("t",), options=options,
+                    fit_options=pj.FitOptions(**kw))
 
 
 def test_cli_synth_then_identify(tmp_path, truth, capsys):
@@ -663,7 +676,7 @@ def test_recovers_truth_from_data_of_an_independent_formulation(truth):
     X[:, 2] += NOISE[1] * rng.standard_normal(N)
     exp = pj.experiment(ts, X, name="independent")  # no angles in the file: commanded
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
-    kw = dict(model="double1r", scene=SC, initial=start, noise=NOISE, force=True)
+    kw = dict(model="double1r", scene=SC, initial=start, noise=NOISE)
 
     def miss(fit):
         c0 = fit.identifiability["combinations"][0]
@@ -671,13 +684,15 @@ def test_recovers_truth_from_data_of_an_independent_formulation(truth):
         true_value = float(robot.t) ** e["t"] * float(robot.K_theta) ** e["K_theta"]
         return abs(math.log(c0["value"] / true_value)) / c0["relative_std"]
 
-    fit = pj.identify(exp, ("t", "K_theta"), commands=nominal, **kw)
+    fit = pj.identify(exp, ("t", "K_theta"), commands=nominal,
+                      fit_options=pj.FitOptions(force=True), **kw)
     assert "commanded angles of the given commands model" in fit.actuation
     assert fit.history["stop"] == "converged"
     assert miss(fit) < 1.96, (miss(fit), fit.table())
     assert 0.8 < math.sqrt(fit.sigma2) < 1.25
     # commands of the robot's own gamma (one start: a poor fit on purpose)
-    wrong = pj.identify(exp, ("t", "K_theta"), starts=1, **kw)
+    wrong = pj.identify(exp, ("t", "K_theta"), fit_options=pj.FitOptions(starts=1, force=True),
+                        **kw)
     assert "nominal robot" in wrong.actuation
     assert math.sqrt(wrong.sigma2) > 5, wrong.table()
     assert wrong.history["stop"] == "poor fit" and not wrong.quality["ok"]
@@ -703,11 +718,13 @@ def test_tracker_bias_and_delay_estimated_as_nuisance(truth):
     X[:, 2] += NOISE[1] * rng.standard_normal(N - 1)
     exp = pj.experiment(stamps, X, name="biased, late")
     start = {"t": 0.9 * float(truth.t), "K_theta": 1.2 * float(truth.K_theta)}
-    kw = dict(model="double1r", scene=SC, initial=start, noise=NOISE,
-              commands=nominal, force=True)
-    plain = pj.identify(exp, ("t", "K_theta"), starts=1, **kw)  # a poor fit on purpose
+    kw = dict(model="double1r", scene=SC, initial=start, noise=NOISE, commands=nominal)
+    # a poor fit on purpose
+    plain = pj.identify(exp, ("t", "K_theta"), fit_options=pj.FitOptions(starts=1, force=True),
+                        **kw)
     assert math.sqrt(plain.sigma2) > 5 and not plain.quality["ok"], plain.table()
-    fit = pj.identify(exp, ("t", "K_theta"), nuisance=("bias", "delay"), **kw)
+    fit = pj.identify(exp, ("t", "K_theta"),
+                      fit_options=pj.FitOptions(nuisance=("bias", "delay"), force=True), **kw)
     assert 0.75 < math.sqrt(fit.sigma2) < 1.3, fit.table()
     got = fit.measurement["values"]
     for name, true in zip(("bias_x", "bias_y", "bias_phi", "delay"), (*bias, delay)):
@@ -719,7 +736,7 @@ def test_tracker_bias_and_delay_estimated_as_nuisance(truth):
     assert abs(math.log(c0["value"] / true_c)) < 3 * c0["relative_std"], fit.table()
     assert "measurement: bias_x" in fit.table() and fit.to_dict()["measurement"]
     with pytest.raises(pj.IdentificationError, match="unknown nuisance"):
-        pj.identify(exp, ("t",), nuisance=("offset",))
+        pj.identify(exp, ("t",), fit_options=pj.FitOptions(nuisance=("offset",)))
 
 
 @pytest.mark.slow

@@ -50,12 +50,12 @@ def data_file(tmp_path_factory):
 @pytest.fixture
 def no_compile(monkeypatch):
     """Fail the test if identification reaches its compiled simulation."""
-    from ppr_jax._studies._identify import _identify
+    from ppr_jax._studies._identify import _run
 
     def guard(*args, **kw):
         raise AssertionError("the simulation was reached: the refusal came too late")
 
-    monkeypatch.setattr(_identify, "_residual_and_jacobian", guard)
+    monkeypatch.setattr(_run, "_residual_and_jacobian", guard)
 
 
 def test_identifies_gamma_of_independent_data_on_own_path(data_file):
@@ -98,6 +98,32 @@ def test_cli_identify_without_scene(data_file, tmp_path, capsys):
     g = summary["unknowns"]["gamma"]
     assert g["std"] > 0 and abs(g["estimate"] - GAMMA) < 2 * g["std"], g
     assert "own measured actuated angles" in captured.err
+
+
+def test_deprecated_keywords_warn_and_give_the_same_fit(data_file):
+    """The keywords `identify` took before `FitOptions` and `SceneOptions` (`max_iter`,
+    `starts`, `rtol`) still work for one release: a `DeprecationWarning` naming the new
+    spelling, and the numbers of `fit_options=FitOptions(...)`, `options=SceneOptions(...)`
+    to the last bit. `max_iter=0`: the statistics at the start, one evaluation of the module's
+    compiled program each."""
+    import warnings
+
+    _, exp = data_file
+    new = _identify(exp, fit_options=pj.FitOptions(max_iter=0, starts=1),
+                    options=pj.SceneOptions(rtol=1e-9))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        old = _identify(exp, max_iter=0, starts=1, rtol=1e-9)
+    texts = [str(w.message) for w in caught if w.category is DeprecationWarning]
+    assert any("fit_options=FitOptions(max_iter=..., starts=...)" in t for t in texts), texts
+    assert any("options=SceneOptions(rtol=...)" in t for t in texts), texts
+    # the warnings point at the caller's line, not into the library
+    assert all(w.filename == __file__ for w in caught if w.category is DeprecationWarning)
+    assert new.history["iterations"] == old.history["iterations"] == 0
+    for name in ("estimate", "std", "residuals", "jacobian", "covariance", "fitted"):
+        np.testing.assert_array_equal(np.asarray(getattr(old, name)),
+                                      np.asarray(getattr(new, name)), err_msg=name)
+    assert old.sigma2 == new.sigma2 and old.table() == new.table()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -195,6 +221,22 @@ def test_refuses_data_without_commands_and_commanded_without_scene(data_file, no
         _identify(pose_only)
     with pytest.raises(pj.IdentificationError, match="without a scene the data's own"):
         _identify(exp, actuation="commanded")
+
+
+def test_identify_keywords_refused_by_name(data_file, no_compile):
+    """A keyword `identify` never took is a `TypeError` naming it; a fit option given both in
+    `fit_options` and as its old keyword is refused; `n_elements` (now the model's:
+    `get_model("beam", n_elements=...)`) warns and still reaches the model's check. All before
+    anything is compiled."""
+    _, exp = data_file
+    with pytest.raises(TypeError, match=r"unexpected keyword argument\(s\) 'max_iters', 'tol'"):
+        _identify(exp, max_iters=3, tol=1e-3)
+    with pytest.raises(pj.IdentificationError, match=r"either as fit_options=FitOptions\(\.\.\.\) "
+                       r"or as keywords \(force\), not both"):
+        _identify(exp, fit_options=pj.FitOptions(), force=True)
+    with pytest.warns(DeprecationWarning, match=r"model=get_model\('beam', n_elements=\.\.\.\)"):
+        with pytest.raises(pj.PPRError, match=r"elements .* = 1 is out of its allowed range"):
+            pj.identify(exp, ("gamma",), model="beam", n_elements=1)
 
 
 def test_cli_refusal_is_one_line_exit_2(data_file, tmp_path, capsys):

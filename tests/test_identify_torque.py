@@ -80,7 +80,8 @@ def test_paper_circle_with_measured_torques_recovers_t():
     assert fit.std[0] < 0.05 * float(truth.t)
     # optimistix's Levenberg-Marquardt reaches the same minimum (its own compiled loop)
     fo = pj.identify(exp, ("t",), model="reduced", scene="paper-circle",
-                     initial={"t": 0.8 * float(truth.t)}, noise=NOISE, solver="optimistix-lm")
+                     initial={"t": 0.8 * float(truth.t)}, noise=NOISE,
+                     fit_options=pj.FitOptions(solver="optimistix-lm"))
     # same minimum: apart by a small fraction of the standard error (the stops differ)
     assert abs(fo.estimate[0] - fit.estimate[0]) < 0.1 * fit.std[0], (fo.table(), fit.table())
 
@@ -98,10 +99,10 @@ def test_multi_start_escapes_the_minimum_of_a_far_start():
                         noise_phi=NOISE[1], rate=100, t_end=T_END, seed=2)
     kw = dict(model="reduced", scene="paper-circle", initial={"t": 30 * float(truth.t)},
               noise=NOISE)
-    one = pj.identify(exp, ("t",), starts=1, **kw)
+    one = pj.identify(exp, ("t",), fit_options=pj.FitOptions(starts=1), **kw)
     assert math.sqrt(one.sigma2) > 100 and one.history["stop"] == "poor fit", one.table()
     assert one.history["escalation"] is None and one.quality["escalated"] is None
-    ms = pj.identify(exp, ("t",), starts=3, **kw)
+    ms = pj.identify(exp, ("t",), fit_options=pj.FitOptions(starts=3), **kw)
     lo, hi = ms.ci95[0]
     assert lo <= float(truth.t) <= hi and 0.7 < math.sqrt(ms.sigma2) < 1.3, ms.table()
     st = ms.quality["starts"]
@@ -110,7 +111,7 @@ def test_multi_start_escapes_the_minimum_of_a_far_start():
     assert "the given start ended in another minimum" in ms.table()
     for bad in (0, 1001, "all", 2.5, True):
         with pytest.raises(pj.IdentificationError, match="starts must be 'auto' or an integer"):
-            pj.identify(exp, ("t",), starts=bad, **kw)
+            pj.identify(exp, ("t",), fit_options=pj.FitOptions(starts=bad), **kw)
 
 
 def test_auto_starts_escape_the_far_start_and_leave_a_good_fit_alone():

@@ -11,7 +11,7 @@ import pytest
 
 import ppr_jax as pj
 from ppr_jax._data import example_path
-from ppr_jax._studies._identify import _identify
+from ppr_jax._studies._identify import _run
 from ppr_jax._studies._identify._fit import _check_ok
 
 
@@ -24,7 +24,7 @@ def tripwire(monkeypatch):
     def fail(*a, **k):
         raise Compiled
 
-    monkeypatch.setattr(_identify, "_residual_and_jacobian", fail)
+    monkeypatch.setattr(_run, "_residual_and_jacobian", fail)
 
 
 @pytest.fixture(scope="module")

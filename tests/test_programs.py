@@ -398,7 +398,8 @@ def test_identification_program_is_stored_and_loaded(tmp_path, monkeypatch):
     every fit equals the usual compile's to rounding. The two experiments have other names
     (their files', a label): one program. L0 torque-driven, 0.3 s."""
     truth = pj.scene_params("paper-circle")
-    kw = dict(model="rigid", scene="paper-circle", noise=(5e-6, 5e-5), starts=1,
+    kw = dict(model="rigid", scene="paper-circle", noise=(5e-6, 5e-5),
+              fit_options=pj.FitOptions(starts=1),
               initial={"t": 0.8 * float(truth.t)})
     exps = [pj.synthesize("paper-circle", "rigid", truth, noise_pos=5e-6, noise_phi=5e-5,
                           rate=100, t_end=0.3, seed=s, name=f"run{s}") for s in (0, 1)]

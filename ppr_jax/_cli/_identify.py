@@ -41,7 +41,7 @@ def cmd_identify(args):
     from .._data import load_experiments
     from .._params import RobotParams
     from .._scenes import SceneOptions, scene_params
-    from .._studies import StartError, identification_figures, identify
+    from .._studies import FitOptions, StartError, identification_figures, identify
     from ._common import model_from_args
 
     # before anything is fitted: a directory that cannot be written would lose the fit (it is
@@ -73,15 +73,16 @@ def cmd_identify(args):
     try:
         fit = identify(exps, unknowns, model=model_from_args(args, args.model),
                        scene=args.scene, actuation=args.actuation, commands=commands,
-                       initial_state=args.initial_state, params=params, fixed=fixed,
-                       initial=initial, bounds=_bounds(args.bound),
-                       noise=(args.noise_pos, args.noise_phi), loss=args.loss,
-                       loss_scale=args.loss_scale, solver=args.method, max_iter=args.max_iter,
+                       params=params, fixed=fixed, initial=initial, bounds=_bounds(args.bound),
+                       noise=(args.noise_pos, args.noise_phi),
+                       fit_options=FitOptions(
+                           solver=args.method, max_iter=args.max_iter, loss=args.loss,
+                           loss_scale=args.loss_scale, starts=_starts(args.starts),
+                           initial_state=args.initial_state, nuisance=tuple(args.nuisance),
+                           validation=_validation(args.validation), force=args.force),
                        options=SceneOptions().updated(solver=args.solver, rtol=args.rtol,
                                                       atol=args.atol, max_steps=args.max_steps),
-                       validation=_validation(args.validation),
-                       nuisance=tuple(args.nuisance), starts=_starts(args.starts),
-                       force=args.force, program_dir=getattr(args, "program_dir", None))
+                       program_dir=getattr(args, "program_dir", None))
     except StartError as err:
         # the experiment's name is its file's stem: name the file as the user typed it
         msg = str(err)
