@@ -698,7 +698,11 @@ def compensate() -> str:
     r0 = d["rows"][0]
     opt = [f"{r['model']}, {r['drive']}: first call {r['optimise']['first_s']:.0f} s, warm "
            f"{r['optimise']['warm_s']:.1f} s ({r['optimise']['iterations']} iterations, cost "
-           f"{r['optimise']['cost_start_m2']:.2g} -> {r['optimise']['cost_m2']:.2g} m^2)"
+           f"{r['optimise']['cost_start_m2']:.2g} -> {r['optimise']['cost_m2']:.2g} m^2"
+           + (f"; one Jacobian {r['optimise']['jacobian_s']['differences']:.1f} s by differences"
+              f", {r['optimise']['jacobian_s']['forward']:.0f} s by forward mode, "
+              f"{r['optimise']['jacobian_rel_diff']:.1g} apart"
+              if "jacobian_s" in r["optimise"] else "") + ")"
            for r in d["rows"] if r.get("optimise")]
     tail = (" `method=\"optimise\"` (12 knots, at most 4 iterations, from the inversion's "
             "commands, no replays): " + "; ".join(opt) + ".") if opt else ""
