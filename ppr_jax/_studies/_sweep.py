@@ -44,6 +44,7 @@ from .._scenes import (
     T_END,
     AbstractScene,
     SceneOptions,
+    deprecated_keywords,
     get_scene,
 )
 from ._catalogue import (
@@ -287,18 +288,12 @@ def sweep(
     model="double1r",
     torque_model=None,
     options: Optional[SceneOptions] = None,
-    trajectory: Optional[Callable] = None,
-    t_end: Optional[float] = None,
-    n_out: Optional[int] = None,
-    solver=None,
-    rtol: Optional[float] = None,
-    atol: Optional[float] = None,
-    max_steps: Optional[int] = None,
     chunk_size: int = 64,
     devices: Optional[Sequence] = None,
     checkpoint_dir: Optional[str] = None,
     progress: Union[bool, Callable] = False,
     program_dir: Optional[str] = None,
+    **option_keywords,
 ) -> SweepResult:
     """Run `scene` over a design of parameter values and return a `SweepResult` table.
 
@@ -325,8 +320,9 @@ def sweep(
       gives the torques (a scene object carries its own); None: the scene's default.
     - `options`: a `SceneOptions`; None: default horizon, output times, the model's solver and
       tolerances.
-    - `trajectory`, `t_end`, `n_out`, `solver`, `rtol`, `atol`, `max_steps`: the options'
-      fields as keywords, which replace the options' where not None.
+    - `option_keywords`: `trajectory`, `t_end`, `n_out`, `solver`, `rtol`, `atol`,
+      `max_steps`, deprecated spellings of the options' fields (a `DeprecationWarning`), which
+      replace the options' where not None.
     - `chunk_size`: members per compiled call (default 64).
     - `devices`: a list of devices to split each chunk over (`chunk_size` must be divisible by
       their number); None (default): one device.
@@ -351,8 +347,7 @@ def sweep(
     """
     scene_, base, chunk_size, devices, opts = check_arguments(
         scene, base_params, torque_model, chunk_size, devices, options,
-        dict(trajectory=trajectory, t_end=t_end, n_out=n_out, solver=solver, rtol=rtol,
-             atol=atol, max_steps=max_steps))
+        deprecated_keywords("sweep", option_keywords, warn=True))
     members = design_members(vary or {}, design, n, seed)
     names = list(members)
     N = len(members[names[0]])
