@@ -38,8 +38,8 @@ def main():
     import ppr_jax as pj
 
     vary = {"t": np.linspace(0.28e-3, 0.40e-3, args.members)}
-    kw = dict(model=args.model, t_end=args.t_end, n_out=755, rtol=args.rtol,
-              atol=args.rtol * 1e-2, chunk_size=args.chunk)
+    kw = dict(model=args.model, chunk_size=args.chunk, options=pj.SceneOptions(
+        t_end=args.t_end, n_out=755, rtol=args.rtol, atol=args.rtol * 1e-2))
     out = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
            "jax": jax.__version__, "backend": jax.default_backend(), "devices": args.devices,
            "members": args.members, "chunk": args.chunk, "t_end_s": args.t_end,

@@ -287,10 +287,8 @@ def quasi_static_state(
 
     **Returns:** (z, z'), (n,) each. Raises `PPRError` if no balance is found.
     """
-    z, zd, failed = _quasi_static_state_jit(
-        model, as_robot(robot), trajectory, t, actuation, motion_driven=motion_driven,
-        torque=torque, wrench=wrench,
-    )
+    z, zd, failed = _quasi_static_state_jit(model, as_robot(robot), trajectory, t, actuation,
+                                            motion_driven, torque, wrench)
     z = raise_if(
         z, failed,
         "quasi-static initial state not found (the Newton iteration did not converge): the "
@@ -299,33 +297,32 @@ def quasi_static_state(
     return z, zd
 
 
-def quasi_static_core(
-    model: AbstractModel,
-    robot: RobotLike,
-    trajectory: Callable,
-    t,
-    actuation: Optional[AbstractActuation] = None,
-    *,
-    motion_driven: Optional[bool] = None,
-    torque: Optional[Callable] = None,
-    wrench=None,
-):
-    """`quasi_static_state` without raising: (z, z', failed), failed a traceable bool."""
-    robot = as_robot(robot)
+def _zero_torque(t):
+    return jnp.zeros(3)
+
+
+def _actuation(robot, trajectory, actuation, motion_driven, torque) -> AbstractActuation:
+    """`quasi_static_state`'s actuation: `actuation`, or the one the older flags say."""
     if actuation is None:
         if motion_driven is None:
             raise PPRError("quasi_static_state needs an actuation (or motion_driven=True/False)")
         # motion_driven=True: the angles of the robot's own L1 inverse kinematics of the
         # trajectory (what the flag always meant); other angles need an explicit MotionDriven.
-        actuation = (
+        return (
             MotionDriven(InverseKinematicsAngles(Reduced(), robot, trajectory)) if motion_driven
-            else TorqueDriven((lambda t: jnp.zeros(3)) if torque is None else torque)
+            else TorqueDriven(_zero_torque if torque is None else torque)
         )
-        prescribed = bool(motion_driven)
-    else:
-        if motion_driven is not None or torque is not None:
-            raise PPRError("give either an actuation or motion_driven/torque, not both")
-        prescribed = actuation.prescribes_angles
+    if motion_driven is not None or torque is not None:
+        raise PPRError("give either an actuation or motion_driven/torque, not both")
+    return actuation
+
+
+def quasi_static_core(model: AbstractModel, robot: RobotLike, trajectory: Callable, t,
+                      actuation: AbstractActuation, wrench=None):
+    """`quasi_static_state` under `actuation`, without raising: (z, z', failed), failed a
+    traceable bool."""
+    robot = as_robot(robot)
+    prescribed = actuation.prescribes_angles
     n = model.n_dof
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
 
@@ -481,7 +478,13 @@ def onto_slow_manifold(model, robot, actuation, wrench, t, z, zd, fast, target):
 
 # Compiled once per (model, actuation type, shapes): run op by op, the Newton iteration's many
 # small operations cost minutes.
-_quasi_static_state_jit = eqx.filter_jit(quasi_static_core)
+def _quasi_static_state(model, robot, trajectory, t, actuation, motion_driven, torque, wrench):
+    # the older flags' actuation built inside the trace, from the traced robot itself
+    act = _actuation(robot, trajectory, actuation, motion_driven, torque)
+    return quasi_static_core(model, robot, trajectory, t, act, wrench)
+
+
+_quasi_static_state_jit = eqx.filter_jit(_quasi_static_state)
 
 
 def kinematic_state(model: AbstractModel, robot, angles, X_guess, rtol=1e-13, atol=1e-13,

@@ -9,6 +9,7 @@ standard library is used (no JAX): the docs build stays fast.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -27,6 +28,18 @@ def _load(*parts):
         return None
     with open(path) as f:
         return json.load(f)
+
+
+def _from_json(*parts):
+    """A table's decorator: the benchmark JSON at `parts` (`_load`) given to it as `d`, the table
+    "" where that benchmark has not been run."""
+    def wrap(fn):
+        @functools.wraps(fn)
+        def table() -> str:
+            d = _load(*parts)
+            return "" if d is None else fn(d)
+        return table
+    return wrap
 
 
 def _table(header, rows) -> str:
@@ -490,10 +503,8 @@ def l3_scene() -> str:
                       "metrics", "platform", "solver error", "compile"], rows))
 
 
-def implicit() -> str:
-    d = _load("implicit_l2.json")
-    if d is None:
-        return ""
+@_from_json("implicit_l2.json")
+def implicit(d) -> str:
     rows = [[f"{r['t_mm']:g}", r["solver"], f"{r['rtol']:g}", r["steps"],
              f"{r['rejected']} ({100 * r['rejected_fraction']:.1f} %)", _ms(r["run_s"]),
              f"{r['error_position_m']:.1e} m"] for r in d["rows"] if r.get("ok")]
@@ -557,10 +568,8 @@ def kvaerno_l0_l2() -> str:
     return text
 
 
-def known_truth() -> str:
-    d = _load("identify_known_truth.json")
-    if d is None:
-        return ""
+@_from_json("identify_known_truth.json")
+def known_truth(d) -> str:
     rows = [[r["case"], ", ".join(r["unknowns"]), " / ".join(f"{v:.4g}" for v in r["truth"]),
              r["actuation"], " / ".join(f"{b:.2g}" for b in r["bias_in_std"]),
              " / ".join(f"{v:.2f}" for v in r["mean_abs_error_in_std"]),
@@ -578,12 +587,10 @@ def known_truth() -> str:
                       "coverage 95 %", "seeds", "warm fit"], rows))
 
 
-def start_sensitivity() -> str:
+@_from_json("start_sensitivity.json")
+def start_sensitivity(d) -> str:
     """How much the start moves each metric and its t-derivative (benchmarks/start_sensitivity.py)
     and the library's sensitivities against the independent scipy L2's central differences."""
-    d = _load("start_sensitivity.json")
-    if d is None:
-        return ""
     parts = []
     for name, sc in d["scenes"].items():
         ref, lib = sc["reference"], sc["library"]
@@ -623,12 +630,10 @@ def start_sensitivity() -> str:
     return "\n\n".join(parts) + "\n\n" + _machine(d)
 
 
-def path_cost() -> str:
+@_from_json("path_cost.json")
+def path_cost(d) -> str:
     """Cost per integrator step of a path read from a file against the circle
     (benchmarks/path_cost.py)."""
-    d = _load("path_cost.json")
-    if d is None:
-        return ""
     rows = []
     for r in d["rows"]:
         per = r["per_step_s"]
@@ -649,12 +654,10 @@ def path_cost() -> str:
             "what each step costs.\n\n" + _machine(d))
 
 
-def identify_own() -> str:
+@_from_json("identify_own.json")
+def identify_own(d) -> str:
     """Identification of one's own experiment: the command line cold and warm, the API, and
     the hopeless starts refused (benchmarks/identify_own.py)."""
-    d = _load("identify_own.json")
-    if d is None:
-        return ""
     cli, api = d.get("cli", {}), d["api (one process, no persistent cache)"]
     rows = []
     for key, what in (("cold", "`ppr-jax identify`, fresh process, empty compilation cache"),
@@ -681,12 +684,10 @@ def identify_own() -> str:
             "before the runs.")
 
 
-def compensate() -> str:
+@_from_json("compensate.json")
+def compensate(d) -> str:
     """Compensation's cost and effect: a figure eight, cold and warm, against a forward run
     (benchmarks/compensate.py)."""
-    d = _load("compensate.json")
-    if d is None:
-        return ""
     rows = []
     for r in d["rows"]:
         b, a = r["error_before"], r["error_after"]

@@ -36,7 +36,8 @@ me, P = jax.process_index(), jax.process_count()
 mine = {k: v[me::P] for k, v in members.items()}
 devices = jax.local_devices()
 r = pj.sweep("paper-circle", vary=mine, design="list", model="reduced", torque_model="rigid",
-             t_end=T_END, n_out=11, chunk_size=4 * len(devices), devices=devices)
+             options=pj.SceneOptions(t_end=T_END, n_out=11), chunk_size=4 * len(devices),
+             devices=devices)
 os.makedirs(OUT, exist_ok=True)
 index = np.arange(len(members["t"]))[me::P]  # member numbers in the whole design
 with open(os.path.join(OUT, f"sweep_process_{me}.csv"), "w", newline="") as f:

@@ -355,7 +355,7 @@ def singular_margin_by_hand(h, n_out=101, t_end=7.54):
 
 
 def test_path_margins_against_the_inverse_kinematics():
-    from ppr_jax._studies._design import path_margins
+    from ppr_jax._studies._catalogue import path_margins
     from ppr_jax._trajectory import Circle
 
     X = np.array([np.asarray(Circle()(t)) for t in np.linspace(0.0, 7.54, 101)])
@@ -500,7 +500,7 @@ def test_elastica_metrics_are_the_pure_moment_arc():
     import jax
 
     from ppr_jax._prb import derived
-    from ppr_jax._studies._design import strip_elastica
+    from ppr_jax._studies._catalogue import strip_elastica
 
     p = pj.RobotParams(t=0.28e-3, w=0.02, r=0.03)
     rot, sig = jax.jit(lambda p: strip_elastica(p, derived(p), (0.0, 0.0, T2_M)))(p)
@@ -537,7 +537,7 @@ def test_elastica_metrics_need_a_load():
 
 
 def test_sampled_constraints_are_the_bounds_on_the_extremes_side():
-    from ppr_jax._studies._design._design import sampled_constraints
+    from ppr_jax._studies._design._constraints import sampled_constraints
 
     def sides(*cs):
         return [(0, c, s, b) for c in cs for s, b in c.sides()]
@@ -759,7 +759,7 @@ def test_band_g_and_its_derivatives():
 
 def test_band_in_the_spec_and_as_a_dict(tmp_path):
     from ppr_jax._studies import load_design_spec
-    from ppr_jax._studies._design._design import sampled_constraints
+    from ppr_jax._studies._design._constraints import sampled_constraints
     from ppr_jax._studies._design._goals import as_constraints
 
     (c,) = as_constraints([{"metric": "pivot_frequency_hz", "avoid": [4, 6.5]}])

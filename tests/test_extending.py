@@ -161,7 +161,8 @@ elif which == "scene":
     s_ = u**3 * (10 - 15 * u + 6 * u**2)
     line = np.array([0.40, 0.27, 0.0]) + s_[:, None] * np.array([0.09, -0.03, 0.03])
     out["X_diff"] = float(np.abs(np.asarray(rep.result.X) - line).max())
-    sw = pj.sweep("line", vary={"t": [3e-4, 4e-4]}, model="rigid", t_end=0.3, n_out=4)
+    sw = pj.sweep("line", vary={"t": [3e-4, 4e-4]}, model="rigid",
+                  options=pj.SceneOptions(t_end=0.3, n_out=4))
     out["sweep_status"] = [r["status"] for r in sw.rows]
     s = pj.sensitivity("line", model="rigid", parameters=["t"],
                        metrics=["position_error_max_m"], t_end=0.3, n_out=4)

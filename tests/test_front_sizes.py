@@ -10,9 +10,15 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1] / "ppr_jax"
 
-#: (module, function, most lines, most parameters: every one, `*args` and `**kwargs` included)
+#: (module, function, most lines, most parameters: every one, `*args` and `**kwargs` included;
+#: None: not bounded)
 FRONTS = [
     ("_studies/_identify/_identify.py", "identify", 150, 15),
+    ("_studies/_design/_design.py", "design", 150, None),
+    ("_studies/_sweep.py", "sweep", 150, None),
+    ("_studies/_sensitivity.py", "sensitivity", 150, None),
+    ("_studies/_identify/_synthesize.py", "synthesize", 150, None),
+    ("_studies/_compensate.py", "compensate", 150, None),
 ]
 
 
@@ -37,8 +43,8 @@ def test_front_is_thin(path, name, most_lines, most_params):
     lines = fn.end_lineno - first + 1
     assert lines <= most_lines, f"{name} ({path}) is {lines} lines, at most {most_lines}"
     params = _parameters(fn)
-    assert len(params) <= most_params, (f"{name} takes {len(params)} parameters, at most "
-                                        f"{most_params}: {params}")
+    assert most_params is None or len(params) <= most_params, (
+        f"{name} takes {len(params)} parameters, at most {most_params}: {params}")
 
 
 def test_size_reading_counts_every_parameter_and_line():

@@ -434,5 +434,7 @@ def test_options_enter_run_scene_as_one_object(line_report):
     np.testing.assert_array_equal(old.result.X, line_report.result.X)
     with pytest.raises(pj.PPRError, match="not both"):
         pj.run_scene(LineScene(), model="reduced", options=OPTIONS, t_end=1.0)
+    with pytest.raises(TypeError, match="run_scene.. got an unexpected keyword argument 't_stop'"):
+        pj.run_scene(LineScene(), model="reduced", t_stop=1.0)
     with pytest.raises(pj.PPRError, match="must be a SceneOptions"):
         pj.paper_circle(options={"t_end": 1.0})

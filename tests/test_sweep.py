@@ -283,6 +283,26 @@ def test_sweep_of_a_model_that_follows_its_input_warns():
     assert len(r.failed) == 1 and not r.ok
 
 
+def test_option_keywords_of_a_sweep_are_deprecated():
+    """The options' fields as `sweep`'s keywords still replace the options' for one release, with
+    a `DeprecationWarning` naming them; `options=` alone warns nothing; another keyword is a
+    TypeError, as Python's own. (The one member is invalid: nothing is compiled.)"""
+    import warnings
+
+    invalid = {"t": [-1e-3]}
+    with pytest.warns(DeprecationWarning, match=r"sweep\(n_out=\.\.\., t_end=\.\.\.\) is "
+                                                 r"deprecated: pass options=SceneOptions"):
+        r = pj.sweep("paper-circle", vary=invalid, t_end=0.1, n_out=3,
+                     options=pj.SceneOptions(t_end=0.2))
+    assert (r.info["t_end"], r.info["n_out"]) == (0.1, 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        r = pj.sweep("paper-circle", vary=invalid, options=pj.SceneOptions(t_end=0.1, n_out=3))
+    assert (r.info["t_end"], r.info["n_out"]) == (0.1, 3)
+    with pytest.raises(TypeError, match="sweep.. got an unexpected keyword argument 't_stop'"):
+        pj.sweep("paper-circle", vary=invalid, t_stop=0.1)
+
+
 def test_resume_recomputes_a_chunk_that_fails_its_checks(tmp_path, swept, monkeypatch):
     """The issue's reproducer: a member's value edited in a finished chunk must not reach the
     result; the chunk is named once and computed afresh. A chunk of another library version (or

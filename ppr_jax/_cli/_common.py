@@ -15,10 +15,12 @@ from .._names import (
     DEFAULT_ELEMENTS,
     FULL_L3_ATOL,
     FULL_L3_RTOL,
+    KINEMATIC_MODELS,
     MAX_STEPS,
     MODEL_NAMES,
     N_OUT,
     RTOL,
+    SCENE_NAMES,
     SOLVER_NAMES,
     STRIP_DYNAMICS,
     T_END,
@@ -160,6 +162,33 @@ def parent_parsers() -> dict:
                             "torques along the path (torque), or its inverse-kinematics angles "
                             "(motion)")
     return {"params": params, "model": model, "solve": solve, "times": times, "files": files}
+
+
+#: the shared options of a command that runs a scene (`parent_parsers`' keys)
+SCENE_OPTIONS = ("params", "model", "solve", "times", "files")
+
+
+def scene_command(sub, name: str, parents: dict, fmt, *, uses=SCENE_OPTIONS,
+                  scene: str = "paper-circle", model_help=None, torque_help=None, **kwargs):
+    """The parser of command `name` that runs a scene: the shared options `uses` (keys of
+    `parent_parsers`), then --scene (default `scene`), --model (default double1r) and
+    --torque-model (a kinematic model, default reduced), with their help texts; `kwargs` (help,
+    description) as `add_parser`'s."""
+    p = sub.add_parser(name, formatter_class=fmt, parents=[parents[k] for k in uses], **kwargs)
+    p.add_argument("--scene", default=scene, choices=list(SCENE_NAMES))
+    p.add_argument("--model", default="double1r", choices=list(MODEL_NAMES), help=model_help)
+    p.add_argument("--torque-model", default="reduced", choices=list(KINEMATIC_MODELS),
+                   help=torque_help)
+    return p
+
+
+def options_from_args(args):
+    """The `SceneOptions` of the shared options `solve` and `times` (`parent_parsers`): those
+    given replace the defaults."""
+    from .._scenes import SceneOptions
+
+    return SceneOptions().updated(t_end=args.t_end, n_out=args.n_out, solver=args.solver,
+                                  rtol=args.rtol, atol=args.atol, max_steps=args.max_steps)
 
 
 def scene_from_args(args):

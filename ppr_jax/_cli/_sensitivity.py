@@ -7,11 +7,12 @@ import math
 import os
 
 from .._files import write_file
-from .._names import KINEMATIC_MODELS, MODEL_NAMES, SCENE_NAMES, SENSITIVITY_METRICS
+from .._names import KINEMATIC_MODELS, MODEL_NAMES, SENSITIVITY_METRICS
 from ._common import (
     _log,
     _out_dir,
     _write_rows,
+    scene_command,
 )
 
 
@@ -21,6 +22,7 @@ def cmd_sensitivity(args):
         _parse_sets,
         check_commands_from_args,
         model_from_args,
+        options_from_args,
         scene_from_args,
     )
 
@@ -51,8 +53,7 @@ def cmd_sensitivity(args):
     s = sensitivity(
         scene, params, mode=args.mode, model=model_from_args(args, args.model),
         frequency_model=args.frequency_model,
-        parameters=names, metrics=metrics, t_end=args.t_end, n_out=args.n_out,
-        solver=args.solver, rtol=args.rtol, atol=args.atol, max_steps=args.max_steps,
+        parameters=names, metrics=metrics, options=options_from_args(args),
         program_dir=getattr(args, "program_dir", None),
     )
     rows = s.rows()
@@ -81,19 +82,15 @@ def cmd_sensitivity(args):
 
 def add_sensitivity(sub, parents, fmt):
     kinematic = list(KINEMATIC_MODELS)
-    s = sub.add_parser(
-        "sensitivity", formatter_class=fmt,
-        parents=[parents[k] for k in ("params", "model", "solve", "times", "files")],
+    s = scene_command(
+        sub, "sensitivity", parents, fmt,
         help="normalised sensitivities (p/m) dm/dp of the paper's metrics to every parameter",
         description="d(metric)/d(parameter) of " + ", ".join(SENSITIVITY_METRICS) + " by "
                     "automatic differentiation through the scene (forward or reverse mode), "
-                    "printed as normalised sensitivities and written to sensitivity.csv/json.")
-    s.add_argument("--scene", default="paper-circle", choices=list(SCENE_NAMES))
-    s.add_argument("--model", default="double1r", choices=list(MODEL_NAMES),
-                   help="the model whose response is measured (L0 or L1 under its own "
-                        "torques follows the circle exactly: its radial error is the "
-                        "solver's, and is refused)")
-    s.add_argument("--torque-model", default="reduced", choices=kinematic)
+                    "printed as normalised sensitivities and written to sensitivity.csv/json.",
+        model_help="the model whose response is measured (L0 or L1 under its own torques "
+                   "follows the circle exactly: its radial error is the solver's, and is "
+                   "refused)")
     s.add_argument("--frequency-model", default="double1r",
                    choices=[n for n in MODEL_NAMES if n not in kinematic],
                    help="the model whose first locked natural frequency is the base frequency")

@@ -18,6 +18,7 @@ from ._common import (
     check_commands_from_args,
     check_out_dir,
     model_from_args,
+    options_from_args,
     scene_from_args,
 )
 
@@ -27,7 +28,7 @@ def cmd_simulate(args):
 
     from .._errors import PPRError
     from .._metrics import is_circle
-    from .._scenes import SceneOptions, check_scene_args, modes_scene, run_scene, scene_names
+    from .._scenes import check_scene_args, modes_scene, run_scene, scene_names
     from ._figures import scene_figures
 
     # `modes` is a static solve, not a scene; every other choice (and --path) is a scene
@@ -51,8 +52,7 @@ def cmd_simulate(args):
         print(f"wrote {args.out}/summary.json")
         return 0
     models = _models(args.model, "rigid,reduced,double1r")
-    options = SceneOptions().updated(t_end=args.t_end, n_out=args.n_out, solver=args.solver,
-                                     rtol=args.rtol, atol=args.atol, max_steps=args.max_steps)
+    options = options_from_args(args)
     results, failed = [], {}
     traj = scene.trajectory()
     circle = is_circle(traj)

@@ -7,8 +7,7 @@ import math
 import os
 
 from .._files import save_figure, write_file
-from .._names import KINEMATIC_MODELS, MODEL_NAMES, SCENE_NAMES
-from ._common import _out_dir, _write_rows
+from ._common import _out_dir, _write_rows, scene_command
 
 
 def parse_vary(items) -> dict:
@@ -107,6 +106,7 @@ def cmd_sweep(args):
         _parse_sets,
         check_commands_from_args,
         model_from_args,
+        options_from_args,
         scene_from_args,
     )
 
@@ -132,9 +132,8 @@ def cmd_sweep(args):
         devices = avail[: args.devices]
     res = sweep(
         scene, params, vary, design=design, n=n, seed=args.seed,
-        model=model_from_args(args, args.model),
-        t_end=args.t_end, n_out=args.n_out, solver=args.solver, rtol=args.rtol, atol=args.atol,
-        max_steps=args.max_steps, chunk_size=args.chunk, devices=devices,
+        model=model_from_args(args, args.model), options=options_from_args(args),
+        chunk_size=args.chunk, devices=devices,
         checkpoint_dir=os.path.join(args.out, "chunks"), progress=True,
         program_dir=getattr(args, "program_dir", None),
     )
@@ -170,22 +169,17 @@ def cmd_sweep(args):
 
 
 def add_sweep(sub, parents, fmt):
-    kinematic = list(KINEMATIC_MODELS)
-    s = sub.add_parser(
-        "sweep", formatter_class=fmt,
-        parents=[parents[k] for k in ("params", "model", "solve", "times", "files")],
+    s = scene_command(
+        sub, "sweep", parents, fmt,
         help="run a scene over a grid or Latin hypercube of parameters; tidy table + figures",
         description="Run a scene over a grid (default) or a Latin hypercube (--lhs N) of parameter "
                     "values, in chunks of one compiled vmapped program. Writes sweep.csv (and "
                     "sweep.parquet with pyarrow), failed.csv (members that failed and why), "
                     "summary.json and metrics_vs_NAME.png. Finished chunks are kept in OUT/chunks "
-                    "and skipped when the same sweep is run again (resume).")
-    s.add_argument("--scene", default="paper-circle", choices=list(SCENE_NAMES))
-    s.add_argument("--model", default="double1r", choices=list(MODEL_NAMES),
-                   help="the model swept (L0 or L1 under its own torques follows the circle "
-                        "exactly: the sweep warns that its radial errors are the solver's)")
-    s.add_argument("--torque-model", default="reduced", choices=kinematic,
-                   help="paper-circle: the model whose inverse dynamics gives the torques")
+                    "and skipped when the same sweep is run again (resume).",
+        model_help="the model swept (L0 or L1 under its own torques follows the circle exactly: "
+                   "the sweep warns that its radial errors are the solver's)",
+        torque_help="paper-circle: the model whose inverse dynamics gives the torques")
     s.add_argument("--vary", action="append", metavar="NAME=LO:HI:N",
                    help="a parameter to vary: N values from LO to HI, or NAME=V1,V2,...; "
                         "repeatable (the grid is their product)")

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import os
 
-from .._names import KINEMATIC_MODELS, MODEL_NAMES, SCENE_NAMES, T_END
+from .._names import T_END
 from ._common import (
     _log,
     _name_values,
+    scene_command,
 )
 
 
@@ -46,18 +47,15 @@ def cmd_synth(args):
 
 
 def add_synth(sub, parents, fmt):
-    p = sub.add_parser(
-        "synth", formatter_class=fmt,
-        parents=[parents[k] for k in ("params", "model", "solve", "files")],
+    p = scene_command(
+        sub, "synth", parents, fmt, uses=("params", "model", "solve", "files"),
+        scene="servo-circle",
         help="write a synthetic tracker CSV (a scene plus Gaussian noise)",
         description="Simulate a scene with a model and write what a tracker would record: the "
                     "platform pose at --rate Hz with Gaussian noise (seeded), the actuated "
-                    "angles and torques, in the CSV format that 'identify' reads.")
-    p.add_argument("--scene", default="servo-circle", choices=list(SCENE_NAMES))
-    p.add_argument("--torque-model", default="reduced", choices=list(KINEMATIC_MODELS),
-                   help="the model whose inverse dynamics (or kinematics) gives a torque-driven "
-                        "scene's torques (or a --path's input without a command log)")
-    p.add_argument("--model", default="double1r", choices=list(MODEL_NAMES))
+                    "angles and torques, in the CSV format that 'identify' reads.",
+        torque_help="the model whose inverse dynamics (or kinematics) gives a torque-driven "
+                    "scene's torques (or a --path's input without a command log)")
     p.add_argument("--noise-pos", type=float, default=0.1e-3, help="position noise std (m)")
     p.add_argument("--noise-phi", type=float, default=1e-3, help="angle noise std (rad)")
     p.add_argument("--rate", type=float, default=100.0, help="sample rate (Hz)")

@@ -168,6 +168,37 @@ class SceneOptions(eqx.Module):
 #: the `SceneOptions` fields that the scene functions also took as keywords
 OPTION_KEYWORDS = ("t_end", "n_out", "solver", "rtol", "atol", "max_steps", "trajectory",
                    "adjoint")
+#: the `SceneOptions` fields that `run_scene` and the studies took as keywords (deprecated)
+STUDY_KEYWORDS = ("trajectory", "t_end", "n_out", "solver", "rtol", "atol", "max_steps")
+
+
+def deprecated_keywords(where: str, keywords: dict, warn: bool = False) -> dict:
+    """`keywords`, the `**` of a function that still takes `SceneOptions`' fields
+    (`STUDY_KEYWORDS`) as keywords, checked: another name is a `TypeError`, as Python's own.
+    With `warn`, those given (not None) raise a `DeprecationWarning` at the function's caller.
+
+    **Arguments:**
+
+    - `where`: the function's name, for the messages.
+    - `keywords`: {name: value} as given.
+    - `warn`: warn here (where the function does not build its options by `options_from`).
+
+    **Returns:** `keywords`.
+    """
+    unknown = sorted(set(keywords) - set(STUDY_KEYWORDS))
+    if unknown:
+        raise TypeError(f"{where}() got an unexpected keyword argument {unknown[0]!r}")
+    given = sorted(k for k, v in keywords.items() if v is not None)
+    if warn and given:
+        import warnings
+
+        warnings.warn(_deprecation(where, given), DeprecationWarning, stacklevel=3)
+    return keywords
+
+
+def _deprecation(where: str, given) -> str:
+    return (f"{where}({', '.join(f'{k}=...' for k in given)}) is deprecated: pass "
+            f"options=SceneOptions({', '.join(f'{k}=...' for k in given)})")
 
 
 def options_from(options: Optional["SceneOptions"], where: str, deprecated: bool,
@@ -200,7 +231,5 @@ def options_from(options: Optional["SceneOptions"], where: str, deprecated: bool
     if given and deprecated:
         import warnings
 
-        warnings.warn(f"{where}({', '.join(f'{k}=...' for k in sorted(given))}) is deprecated: "
-                      f"pass options=SceneOptions({', '.join(f'{k}=...' for k in sorted(given))})",
-                      DeprecationWarning, stacklevel=3)
+        warnings.warn(_deprecation(where, sorted(given)), DeprecationWarning, stacklevel=3)
     return SceneOptions(**given)

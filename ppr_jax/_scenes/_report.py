@@ -18,7 +18,7 @@ from .._metrics import metric_table
 from .._params import RobotParams
 from .._programs import compiled_program
 from ._base import AbstractScene
-from ._options import SceneOptions, options_from
+from ._options import SceneOptions, deprecated_keywords, options_from
 from ._registry import get_scene
 from ._result import SceneResult, finish
 from ._run import prepare
@@ -37,34 +37,15 @@ class SceneReport:
     solver: dict
     params: RobotParams
 
-    @property
-    def scene(self) -> str:
-        return self.result.scene
-
-    @property
-    def model(self) -> str:
-        return self.result.model
-
-    # numpy views of the signals most reports need
-    @property
-    def ts(self) -> np.ndarray:
-        return self.result.ts
-
-    @property
-    def X(self) -> np.ndarray:
-        return self.result.X
-
-    @property
-    def X_nominal(self) -> np.ndarray:
-        return self.result.X_nominal
-
-    @property
-    def tau(self) -> np.ndarray:
-        return self.result.tau
-
-    @property
-    def end_rot(self) -> np.ndarray:
-        return self.result.end_rot
+    # the result's name and the numpy signals most reports need, read through the report
+    scene = property(lambda self: self.result.scene, doc="The scene's name.")
+    model = property(lambda self: self.result.model, doc="The model's name.")
+    ts = property(lambda self: self.result.ts, doc="The output times (s).")
+    X = property(lambda self: self.result.X, doc="The platform's pose (m, m, rad).")
+    X_nominal = property(lambda self: self.result.X_nominal, doc="The nominal pose.")
+    tau = property(lambda self: self.result.tau, doc="The actuator torques (N m).")
+    end_rot = property(lambda self: self.result.end_rot,
+                       doc="Chain 1's compliant-joint end rotations (rad).")
 
 
 def scene_metrics(res: SceneResult, trajectory=None) -> Union[dict, list]:
@@ -91,13 +72,7 @@ def run_scene(
     torque_model="reduced",
     repeats: int = 1,
     program_dir: Optional[str] = None,
-    trajectory=None,
-    t_end: Optional[float] = None,
-    n_out: Optional[int] = None,
-    solver=None,
-    rtol: Optional[float] = None,
-    atol: Optional[float] = None,
-    max_steps: Optional[int] = None,
+    **option_keywords,
 ) -> SceneReport:
     """Run a scene and time it: compilation ahead of time (lowering and compiling; a cache hit
     once a model and shapes have run), then `repeats` runs, each after `block_until_ready`.
@@ -114,8 +89,9 @@ def run_scene(
       passes one inside its compilation cache): the program is loaded from there, or exported
       there on first use, so that a later process skips tracing too; `timing["program"]` says
       which ("loaded", "exported", or "compiled" where the program cannot be stored).
-    - `trajectory`, `t_end`, `n_out`, `solver`, `rtol`, `atol`, `max_steps`: deprecated
-      spellings of `options`' fields (a `DeprecationWarning`; not together with `options`).
+    - `option_keywords`: `trajectory`, `t_end`, `n_out`, `solver`, `rtol`, `atol`,
+      `max_steps`, deprecated spellings of `options`' fields (a `DeprecationWarning`; not
+      together with `options`).
 
     **Returns:** a `SceneReport`: the result as NumPy arrays, the scene's metrics, and
     `timing = {compile_s, run_s, program}`. A failure raises `SimulationError` naming the
@@ -123,9 +99,8 @@ def run_scene(
     """
     scene = get_scene(scene, torque_model)
     params = scene.default_params() if params is None else params
-    options = options_from(options, "run_scene", True, trajectory=trajectory, t_end=t_end,
-                           n_out=n_out, solver=solver, rtol=rtol, atol=atol,
-                           max_steps=max_steps)
+    options = options_from(options, "run_scene", True,
+                           **deprecated_keywords("run_scene", option_keywords))
     c = prepare(scene, params, model, options)
     # Compiled ahead of time (a cache hit if this shape ran before: lowering shares the jit
     # cache), then run `repeats` times; no extra run just to separate compilation from the run.

@@ -2,7 +2,7 @@
 sensitivities (`_sensitivity`), identification (`_identify/`) and design (`_design/`), each
 through `AbstractScene.run` and the one batch mapper of the scenes wing."""
 
-from ._catalogue import CATALOGUE, DESIGN_METRICS, Metric
+from ._catalogue import CATALOGUE, DESIGN_METRICS, Metric, design_metrics
 from ._compensate import Compensation, CompensationError, compensate, error_band
 from ._design import (
                       Constraint,
@@ -10,16 +10,9 @@ from ._design import (
                       DesignError,
                       Objective,
                       design,
-                      design_metrics,
                       load_design_spec,
 )
 from ._identify import (
-                      ACTUATIONS,
-                      DEFAULT_NOISE,
-                      INITIAL_STATES,
-                      LOSSES,
-                      POOR_FIT_SCALE,
-                      SOLVERS,
                       FitOptions,
                       Identification,
                       IdentificationError,
@@ -58,9 +51,8 @@ __all__ = [
     "CATALOGUE", "DESIGN_METRICS", "Metric",
     "Constraint", "Design", "DesignError", "Objective", "design", "design_metrics",
     "load_design_spec",
-    "ACTUATIONS", "DEFAULT_NOISE", "FLOAT_PARAMS", "FitOptions", "INITIAL_STATES", "LOSSES",
-    "METRICS", "PATH_SENSITIVITY_METRICS", "POOR_FIT_SCALE",
-    "SENSITIVITY_METRICS", "SOLVERS", "StartError", "allowed_metrics", "default_metrics",
+    "FLOAT_PARAMS", "FitOptions", "METRICS", "PATH_SENSITIVITY_METRICS", "SENSITIVITY_METRICS",
+    "StartError", "allowed_metrics", "default_metrics",
     "Identification", "IdentificationError", "Sensitivity", "SweepResult", "base_frequency",
     "check_synth_args", "design_members", "identification_figures", "profile_figure",
     "explicit_params", "identify", "library_digest",

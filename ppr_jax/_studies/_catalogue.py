@@ -396,6 +396,15 @@ def _circle(what):
     return Metric("m", what, circle=True, tracking=True)
 
 
+def _tracking(unit, what):
+    return Metric(unit, what, tracking=True)
+
+
+#: the tracking errors' reductions over the output times (`metric_table`), on any path
+_TRACKING = {"max": "the largest {} against the nominal pose",
+             "rms": "the {}'s RMS over the output times", "end": "the {} at the last output time"}
+
+
 #: The metric catalogue: name -> `Metric`, in the order the studies list them (`allowed_metrics`).
 #: A new metric is one entry here; every study, the command line and `allowed_metrics` follow.
 CATALOGUE: dict[str, Metric] = {
@@ -407,18 +416,10 @@ CATALOGUE: dict[str, Metric] = {
         "%", "the largest |e_r| over the output times, relative to the radius", circle=True,
         tracking=True),
     # the tracking error against the nominal pose, on any path (`metric_table`)
-    "position_error_max_m": Metric("m", "the largest position error against the nominal pose",
-                                   tracking=True),
-    "position_error_rms_m": Metric("m", "the position error's RMS over the output times",
-                                   tracking=True),
-    "position_error_end_m": Metric("m", "the position error at the last output time",
-                                   tracking=True),
-    "phi_error_max_rad": Metric("rad", "the largest orientation error against the nominal pose",
-                                tracking=True),
-    "phi_error_rms_rad": Metric("rad", "the orientation error's RMS over the output times",
-                                tracking=True),
-    "phi_error_end_rad": Metric("rad", "the orientation error at the last output time",
-                                tracking=True),
+    **{f"position_error_{k}_m": _tracking("m", what.format("position error"))
+       for k, what in _TRACKING.items()},
+    **{f"phi_error_{k}_rad": _tracking("rad", what.format("orientation error"))
+       for k, what in _TRACKING.items()},
     # the robot's response (`metric_table`)
     "end_rotation_diff_max_deg": Metric(
         "deg", "the largest difference of chain 1's two compliant-joint end rotations"),

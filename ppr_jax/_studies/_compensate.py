@@ -201,6 +201,27 @@ def _limit_flags(ts, u, kind, limits) -> list:
     return flags
 
 
+def _path_of(scene) -> tuple:
+    """(path, its drive, its default robot) of `compensate`'s `scene` argument."""
+    if isinstance(scene, str):
+        if scene not in ("paper-circle", "servo-circle"):
+            raise PPRError(f"scene: a path, a PathScene, 'paper-circle' or 'servo-circle', got "
+                           f"{scene!r}")
+        from .._trajectory import Circle
+
+        drive = "torque" if scene == "paper-circle" else "motion"
+        return Circle(), drive, scene_params(scene)
+    if isinstance(scene, PathScene):
+        if scene.command_log is not None:
+            raise PPRError("scene: a PathScene that replays a command log; compensate computes "
+                           "the commands itself: pass its path (scene.path)")
+        return scene.path, scene.drive, scene.default_params()
+    if callable(scene):
+        return scene, "motion", PathScene(scene, drive="motion").default_params()
+    raise PPRError(f"scene: a path, a PathScene, 'paper-circle' or 'servo-circle', got "
+                   f"{type(scene).__name__}")
+
+
 def compensate(scene: Union[AbstractScene, Callable, str], model: Union[AbstractModel, str],
                params=None, *, drive: Optional[str] = None,
                options: Optional[SceneOptions] = None, rate: Optional[float] = None,
@@ -252,25 +273,7 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
     from ._identify import Identification
 
     ident = params if isinstance(params, Identification) else None
-    if isinstance(scene, str):
-        if scene not in ("paper-circle", "servo-circle"):
-            raise PPRError(f"scene: a path, a PathScene, 'paper-circle' or 'servo-circle', got "
-                           f"{scene!r}")
-        from .._trajectory import Circle
-
-        path, scene_drive = Circle(), "torque" if scene == "paper-circle" else "motion"
-        default = scene_params(scene)
-    elif isinstance(scene, PathScene):
-        if scene.command_log is not None:
-            raise PPRError("scene: a PathScene that replays a command log; compensate computes "
-                           "the commands itself: pass its path (scene.path)")
-        path, scene_drive, default = scene.path, scene.drive, scene.default_params()
-    elif callable(scene):
-        path, scene_drive = scene, "motion"
-        default = PathScene(scene, drive="motion").default_params()
-    else:
-        raise PPRError(f"scene: a path, a PathScene, 'paper-circle' or 'servo-circle', got "
-                       f"{type(scene).__name__}")
+    path, scene_drive, default = _path_of(scene)
     drive = scene_drive if drive is None else drive
     if drive not in DRIVES:
         raise PPRError(f"drive must be one of {', '.join(DRIVES)}, got {drive!r}")

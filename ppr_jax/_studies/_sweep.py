@@ -25,7 +25,6 @@ import hashlib
 import itertools
 import json
 import os
-import sys
 import time
 import warnings
 from typing import Callable, Optional, Sequence, Union
@@ -35,31 +34,34 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import PPRError, RepairWarning, check_number, result_message
+from .._errors import PPRError, RepairWarning
 from .._files import write_file
 from .._kinematics import SINGULAR_TOL, path_margins
 from .._models import get_model
 from .._params import PARAM_RANGES, RobotParams, stack_params
-from .._programs import cached_program
 from .._robot import Robot
 from .._scenes import (
     T_END,
     AbstractScene,
     SceneOptions,
-    check_scene_commands,
+    deprecated_keywords,
     get_scene,
-    map_members,
 )
-from .._simulate import default_controller
 from ._catalogue import (
     METRICS as METRICS,
     SceneContext,
     sweep_metrics as sweep_metrics,
 )
-from ._evaluation import Evaluation, equal_links
+from ._evaluation import equal_links
+from ._sweep_arguments import check_arguments, check_model, plain, settings
+from ._sweep_chunks import (
+    RESIDUAL_TOL as RESIDUAL_TOL,
+    Chunks,
+    chunk_timing,
+    failed_row,
+    progress_callbacks,
+)
 
-#: a member whose max loop-closure residual (m) at the output times exceeds this has failed
-RESIDUAL_TOL = 1e-9
 #: the float parameters a sweep (or a sensitivity) may vary
 FLOAT_PARAMS = tuple(PARAM_RANGES)
 
@@ -215,29 +217,6 @@ def validate_members(scene, base: RobotParams, members: dict, *, torque_model=No
 # ---------------------------------------------------------------------------------------------
 
 
-def _member(robot_dyn, robot_static, ev: Evaluation, rtol, atol):
-    """One member's ({metric: value}, result code, steps) at tolerances (rtol, atol):
-    `Evaluation.run`."""
-    options = ev.ctx.options
-    opts = eqx.tree_at(lambda o: o.controller, options,
-                       default_controller(options.solver, rtol, atol))
-    return ev.run(eqx.combine(robot_dyn, robot_static), opts)
-
-
-@eqx.filter_jit
-def _chunk_program(robot, ev, rtol, atol, devices):
-    """A chunk's ({metric: (B,)}, result codes (B,), num_steps (B,)) for the batched `robot`.
-
-    `ev`: the sweep's `Evaluation` (its context's prepared `SceneOptions`, their tolerances
-    replaced by the program's inputs `rtol`, `atol`). Members are mapped as the scenes' batches
-    are (`map_members`: vmapped chunks, split over `devices` by `shard_map` when there are
-    several): adaptive steps never synchronise across devices. Every array of the arguments is
-    an input, so one program serves any values of the same shapes; the command line keeps it in
-    its program store."""
-    dyn, static = eqx.partition(robot, eqx.is_array)
-    return map_members(_member, devices)(dyn, static, ev, rtol, atol)
-
-
 def shard_batch(params: RobotParams, devices: Optional[Sequence] = None):
     """Place a batched `RobotParams` (leading axis divisible by the number of devices) split
     over `devices` (default: all local devices) along its leading axis: each device holds its
@@ -298,59 +277,6 @@ class SweepResult:
         return pd.DataFrame(self.rows, columns=self.columns)
 
 
-def _member_rows(idx, members, names, out, codes, steps):
-    rows = []
-    for j, i in enumerate(idx):
-        row = {"member": int(i), **{k: float(members[k][i]) for k in names}}
-        m = {k: float(out[k][j]) for k in out}
-        code = int(codes[j])
-        if code != 0:
-            reason = result_message(code)
-        elif not all(np.isfinite(v) for v in m.values()):
-            reason = "non-finite metrics (NaN or inf)"
-        elif m["constraint_residual_max_m"] > RESIDUAL_TOL:
-            reason = (f"loop-closure residual {m['constraint_residual_max_m']:.3g} m above "
-                      f"{RESIDUAL_TOL:g} m")
-        else:
-            reason = ""
-        if reason:
-            m = {k: float("nan") for k in out}
-        row.update(status="failed" if reason else "ok", reason=reason, **m, result_code=code,
-                   num_steps=int(steps[j]))
-        rows.append(row)
-    return rows
-
-
-def _plain(v):
-    """A parameter field as JSON: None, a static choice (int, str) as is, else a float."""
-    return v if v is None or isinstance(v, (int, str)) else float(v)
-
-
-def _failed_row(i, members, names, reason, metrics):
-    return {"member": int(i), **{k: float(members[k][i]) for k in names}, "status": "failed",
-            "reason": reason, **{k: float("nan") for k in metrics}, "result_code": -1,
-            "num_steps": 0}
-
-
-def _progress(total: int, desc: str):
-    """A progress bar: tqdm if installed, else one plain line per update on stderr."""
-    try:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=total, desc=desc, unit="member", file=sys.stderr)
-        return bar.update, bar.close
-    except ImportError:
-        state = {"n": 0, "t0": time.perf_counter()}
-
-        def update(k):
-            state["n"] += k
-            el = time.perf_counter() - state["t0"]
-            print(f"{desc}: {state['n']}/{total} members ({el:.1f} s)", file=sys.stderr,
-                  flush=True)
-
-        return update, lambda: None
-
-
 def sweep(
     scene: Union[str, AbstractScene] = "paper-circle",
     base_params: Optional[RobotParams] = None,
@@ -362,18 +288,12 @@ def sweep(
     model="double1r",
     torque_model=None,
     options: Optional[SceneOptions] = None,
-    trajectory: Optional[Callable] = None,
-    t_end: Optional[float] = None,
-    n_out: Optional[int] = None,
-    solver=None,
-    rtol: Optional[float] = None,
-    atol: Optional[float] = None,
-    max_steps: Optional[int] = None,
     chunk_size: int = 64,
     devices: Optional[Sequence] = None,
     checkpoint_dir: Optional[str] = None,
     progress: Union[bool, Callable] = False,
     program_dir: Optional[str] = None,
+    **option_keywords,
 ) -> SweepResult:
     """Run `scene` over a design of parameter values and return a `SweepResult` table.
 
@@ -400,8 +320,9 @@ def sweep(
       gives the torques (a scene object carries its own); None: the scene's default.
     - `options`: a `SceneOptions`; None: default horizon, output times, the model's solver and
       tolerances.
-    - `trajectory`, `t_end`, `n_out`, `solver`, `rtol`, `atol`, `max_steps`: the options'
-      fields as keywords, which replace the options' where not None.
+    - `option_keywords`: `trajectory`, `t_end`, `n_out`, `solver`, `rtol`, `atol`,
+      `max_steps`, deprecated spellings of the options' fields (a `DeprecationWarning`), which
+      replace the options' where not None.
     - `chunk_size`: members per compiled call (default 64).
     - `devices`: a list of devices to split each chunk over (`chunk_size` must be divisible by
       their number); None (default): one device.
@@ -424,52 +345,20 @@ def sweep(
     `PPRError` for a batch as `base_params`, a `chunk_size` out of range or not divisible by
     the number of `devices`, an invalid design (`design_members`) or invalid options.
     """
-    scene_ = get_scene(scene, torque_model)
-    base = scene_.default_params() if base_params is None else base_params
-    if np.ndim(base.a) != 0:
-        raise PPRError("base_params must be one robot, not a batch")
-    chunk_size = check_number("chunk_size", chunk_size, 1, 10**6, integer=True)
-    devices = None if devices is None else list(devices)
-    if devices is not None and chunk_size % len(devices):
-        raise PPRError(f"chunk_size {chunk_size} must be divisible by the number of devices "
-                       f"({len(devices)})")
-    # The scenes' checks (argument named, its allowed range): a NaN rtol would run every member
-    # to max_steps, max_steps 0 fail every member inside diffrax.
-    opts = (SceneOptions() if options is None else options).updated(
-        trajectory=trajectory, t_end=t_end, n_out=n_out, solver=solver, rtol=rtol, atol=atol,
-        max_steps=max_steps).check()
+    scene_, base, chunk_size, devices, opts = check_arguments(
+        scene, base_params, torque_model, chunk_size, devices, options,
+        deprecated_keywords("sweep", option_keywords, warn=True))
     members = design_members(vary or {}, design, n, seed)
     names = list(members)
     N = len(members[names[0]])
-    model_ = get_model(model)
-    follows = scene_.follows_its_input(model_)
-    if follows:
-        warnings.warn(
-            f"model {model_.name!r} in {scene_.name!r}: {follows}; the tracking-error columns "
-            f"of this sweep are the solver's error, not the robot's (sweep double1r or beam, "
-            f"or drive it by another model's input, for a physical one)", UserWarning,
-            stacklevel=2)
-    options = opts.prepared(model_, scene_.trajectory())
-    traj = options.trajectory
-    check_scene_commands(scene_, base, traj, opts.t_end)
-    metric_names = sweep_metrics(traj)
-    rtol_, atol_ = opts.tolerances(model_)
-    info = dict(scene=scene_.name, model=model_.name,
-                input_model=scene_.input_model.name, design=design, n=N,
-                seed=seed, vary={k: [float(x) for x in np.atleast_1d(v)] for k, v in
-                                 (vary or {}).items()},
-                t_end=float(opts.t_end), n_out=int(opts.n_out), solver=str(opts.solver),
-                rtol=float(rtol_), atol=float(atol_), max_steps=int(opts.max_steps),
-                chunk_size=chunk_size,
-                base={f.name: _plain(getattr(base, f.name)) for f in dataclasses.fields(base)})
-    if not isinstance(scene, str):
-        # a scene object: its path and input decide the numbers, not its name
-        info["scene_digest"] = hashlib.sha256(eqx.tree_pformat(
-            (scene_, traj), short_arrays=False).encode()).hexdigest()[:16]
+    model_, options = check_model(scene_, model, base, opts)
+    metric_names = sweep_metrics(options.trajectory)
+    info = settings(scene, scene_, model_, base, opts, options.trajectory, vary=vary,
+                    design=design, n=N, seed=seed, chunk_size=chunk_size)
     t0 = time.perf_counter()
-    plist, reasons = validate_members(scene_, base, members, trajectory=traj,
+    plist, reasons = validate_members(scene_, base, members, trajectory=options.trajectory,
                                       t_end=float(opts.t_end))
-    rows: dict = {i: _failed_row(i, members, names, reasons[i], metric_names)
+    rows: dict = {i: failed_row(i, members, names, reasons[i], metric_names)
                   for i in range(N) if reasons[i]}
     valid = [i for i in range(N) if not reasons[i]]
     # Members grouped by the static structure of their program (equal links or not), so that
@@ -481,82 +370,18 @@ def sweep(
     timing = {"validate_s": time.perf_counter() - t0, "compile_s": 0.0, "run_s": 0.0}
 
     store = _ChunkStore(checkpoint_dir, info) if checkpoint_dir else None
-    if progress is True:
-        update, close = _progress(N, f"sweep {scene_.name} ({model_.name})")
-    elif callable(progress):
-        done = {"n": 0}
-
-        def update(k):
-            done["n"] += k
-            progress(done["n"], N)
-
-        close = lambda: None  # noqa: E731
-    else:
-        update, close = (lambda k: None), (lambda: None)
+    update, close = progress_callbacks(progress, N, f"sweep {scene_.name} ({model_.name})")
     update(len(rows))
-
-    tol = (options.rtol, options.atol)
     dev = tuple(devices or ())
-    template = ({m: 0 for m in metric_names}, 0, 0)
-    label = f"sweep-{scene_.name}-{model_.name}-{len(dev) or 1}dev"
-
-    def run(equal, idx):
-        members_p = [plist[i] for i in idx] + [plist[idx[0]]] * (chunk_size - len(idx))
-        ev = Evaluation(names=tuple(names), metrics=tuple(metric_names), equal_links=equal,
-                        samples=(), ctx=SceneContext(scene_, model_, options, None))
-        args = (Robot(stack_params(members_p), equal_links=equal), ev, *tol, dev)
-        # one compilation per group (equal links or not) and shape, kept for later chunks
-        fn = cached_program(_chunk_program, args, template, program_dir, label)
-        out, codes, steps = fn(*args)
-        out = {k: np.asarray(v) for k, v in out.items()}
-        return out, np.asarray(codes), np.asarray(steps)
-
-    compiled = set()  # groups whose program has run once (its first chunk includes compiling)
-    for c, (equal, idx) in enumerate(chunks):
-        cached = store.load(c, idx) if store else None
-        if cached is not None:
-            new = cached
-        else:
-            t1 = time.perf_counter()
-            try:
-                out, codes, steps = run(equal, idx)
-                new = _member_rows(idx, members, names, out, codes, steps)
-            except Exception:  # noqa: BLE001 (a runtime check inside the program)
-                # Retry member by member (a chunk of copies of one member: the same compiled
-                # shape), so the error is pinned on the members that raise it.
-                new = []
-                for i in idx:
-                    try:
-                        out, codes, steps = run(equal, [i])
-                        new += _member_rows([i], members, names, out, codes, steps)
-                    except Exception as err1:  # noqa: BLE001
-                        msg = str(err1).strip().splitlines()[0] if str(err1).strip() else repr(err1)
-                        new.append(_failed_row(i, members, names, f"error: {msg}",
-                                               metric_names))
-            dt = time.perf_counter() - t1
-            if equal not in compiled:
-                timing["first_chunk_s"] = timing.get("first_chunk_s", 0.0) + dt
-                timing["programs"] = timing.get("programs", 0) + 1
-                compiled.add(equal)
-            else:
-                timing["run_s"] += dt
-                timing.setdefault("chunks_timed", 0)
-                timing["chunks_timed"] += 1
-            if store:
-                store.save(c, idx, new)
-        for r in new:
-            rows[r["member"]] = r
-        update(len(idx))
+    runner = Chunks(plist=plist, members=members, metrics=tuple(metric_names),
+                    ctx=SceneContext(scene_, model_, options, None), chunk_size=chunk_size,
+                    tol=(options.rtol, options.atol), devices=dev, program_dir=program_dir,
+                    label=f"sweep-{scene_.name}-{model_.name}-{len(dev) or 1}dev")
+    rows.update(runner.run_all(chunks, store, update, timing))
     close()
-    nt = timing.get("chunks_timed", 0)
-    if nt:
-        per_chunk = timing["run_s"] / nt
-        timing["per_chunk_s"] = per_chunk
-        timing["per_member_ms"] = per_chunk / chunk_size * 1e3
-        timing["compile_s"] = max(timing["first_chunk_s"] - timing["programs"] * per_chunk, 0.0)
     columns = ["member", *names, "status", "reason", *metric_names, "result_code", "num_steps"]
     return SweepResult(rows=[rows[i] for i in range(N)], columns=columns, varied=names,
-                       timing=timing, info=info)
+                       timing=chunk_timing(timing, chunk_size), info=info)
 
 
 def library_digest() -> dict:
@@ -663,7 +488,7 @@ class _ChunkStore:
         return None
 
     def save(self, c, idx, rows):
-        clean = [{k: (None if isinstance(v, float) and not np.isfinite(v) else _plain(v))
+        clean = [{k: (None if isinstance(v, float) and not np.isfinite(v) else plain(v))
                   for k, v in r.items()} for r in rows]
         data = {"digest": self.digest, "checksum": _rows_checksum(clean), "rows": clean}
         with write_file(self._file(c)) as f:  # an interrupted write leaves no partial chunk

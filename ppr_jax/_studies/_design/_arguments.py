@@ -1,10 +1,14 @@
 """The argument checks of `design`, before anything is compiled: the variables, the objective and
 constraints, the robot and options, and every keyword a specification's [settings] may give too
-(`KEYWORD_CHECKS`), each refused with a `DesignError` naming it and what is allowed."""
+(`KEYWORD_CHECKS`), each refused with a `DesignError` naming it and what is allowed; then the
+metrics against the scene and what they need (`check_metrics`), and the base robot
+(`check_base`)."""
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 from ..._errors import (
     DesignError,
@@ -17,7 +21,10 @@ from ..._errors import (
 from ..._models import get_model
 from ..._names import DESIGN_OPTIMIZERS
 from ..._params import RobotParams
-from ..._scenes import SceneOptions, get_scene
+from ..._scenes import SceneOptions, check_scene_commands, get_scene
+from .._catalogue import CATALOGUE, SceneContext, allowed_metrics, tracking_metrics
+from .._sensitivity import explicit_params
+from ._constraints import with_path_margins
 from ._goals import as_constraints, as_objective
 from ._variables import check_variables
 
@@ -116,3 +123,79 @@ def check_arguments(variables, objective, constraints, params, options, keywords
         check_instance("options", options, SceneOptions, error=DesignError,
                        what="a SceneOptions")
     return names, lo, hi, obj, cons, kw
+
+
+def check_metrics(objective, constraints, scene, model, torque_model, frequency_model, options,
+                  keywords: dict) -> tuple:
+    """The metrics of `objective` and `constraints` checked against what the design gives them:
+    the scene's (a scene's metrics need one; `allowed_metrics`), a tracking error not of a
+    model that follows its own input, the stroke and the strip's load where a metric needs
+    them, and a `frequency_model` with free coordinates for the pose metrics. On a scene the
+    path margins are bounded too (`with_path_margins`).
+
+    **Arguments:**
+
+    - `objective`, `constraints`: an `Objective` and a list of `Constraint`s.
+    - `scene`, `model`, `torque_model`, `frequency_model`, `options`: as `design`'s.
+    - `keywords`: the checked keywords (`check_keywords`), for stroke, pose and strip_load.
+
+    **Returns:** (the `SceneContext`, the checked `SceneOptions` (None without a scene), the
+    metrics (the objective's first), the constraints, the stroke (rad; 0 where unused)).
+    """
+    scene_ = model_ = prepared = opts = None
+    if scene is not None:
+        scene_, model_ = get_scene(scene, torque_model), get_model(model)
+        opts = (SceneOptions() if options is None else options).check()
+        prepared = opts.prepared(model_, scene_.trajectory())
+    allowed = allowed_metrics(None if prepared is None else prepared.trajectory, "design")
+    if scene_ is not None:
+        constraints = with_path_margins(constraints)
+    metrics = list(dict.fromkeys([objective.metric] + [c.metric for c in constraints]))
+    for m in metrics:
+        if m not in allowed:
+            more = "" if scene is not None else " (a scene's metrics need scene=...)"
+            raise DesignError(f"unknown design metric {m!r}; allowed: {', '.join(allowed)}{more}")
+    if scene_ is not None:
+        # its tracking error only: its torques, stresses and energies are the robot's
+        scene_metrics = tracking_metrics(metrics)
+        follows = scene_.follows_its_input(model_)
+        if follows and scene_metrics:
+            raise DesignError(f"{', '.join(scene_metrics)} of model {model_.name!r} in "
+                              f"{scene_.name!r} measure the integrator's error, not the robot:"
+                              f" {follows}. Design with another model (double1r or beam)")
+    needing = {k: [m for m in metrics if k in CATALOGUE[m].requires]
+               for k in ("stroke", "strip_load")}
+    stroke, strip_load = keywords["stroke"], keywords["strip_load"]
+    if needing["stroke"] and stroke is None:
+        raise DesignError(f"{', '.join(needing['stroke'])} needs stroke= (the joint rotation, "
+                          f"rad, in (0, 3.14159])")
+    fmodel = get_model(frequency_model)
+    if needing["strip_load"] and strip_load is None:
+        raise DesignError(f"{', '.join(needing['strip_load'])} need strip_load=(fx, fy, m) "
+                          f"(N, N, N m), three finite numbers, got None")
+    pose_metrics = [m for m in metrics if CATALOGUE[m].needs == "pose"]
+    if pose_metrics and fmodel.actuated_index is None:
+        raise DesignError(f"{', '.join(pose_metrics)} need a "
+                          f"frequency_model with free coordinates when the actuators are locked "
+                          f"(double1r or beam), got {fmodel.name!r}")
+    ctx = SceneContext(scene_, model_, prepared, fmodel, keywords["pose"],
+                       strip_load if needing["strip_load"] else None)
+    return ctx, opts, metrics, constraints, 0.0 if stroke is None else float(stroke)
+
+
+def check_base(params, ctx: SceneContext, options, names) -> RobotParams:
+    """The design's base robot: `params`, or the scene's (Table 1 without a scene); one robot,
+    its PRB parameters explicit where a variable is among gamma, rho and K_theta (they follow
+    theta_c otherwise), and on a scene the commands fit it (`check_scene_commands`, over the
+    checked `options`' horizon)."""
+    if params is None:
+        base = ctx.scene.default_params() if ctx.scene is not None else RobotParams()
+    else:
+        base = params
+    if np.ndim(base.a) != 0:
+        raise DesignError("a design starts from one robot, not a batch")
+    if any(n in ("gamma", "rho", "K_theta") and getattr(base, n) is None for n in names):
+        base = explicit_params(base)
+    if ctx.scene is not None:
+        check_scene_commands(ctx.scene, base, ctx.options.trajectory, options.t_end)
+    return base

@@ -251,3 +251,25 @@ def optimise(scaled: Scaled, u0, method: str, max_iter: int) -> dict:
             "nfev": int(res.nfev), "history": history,
             "jacobians": scaled.problem.jacobians - jac0, "seconds": seconds,
             "multipliers": None if mult is None else np.asarray(mult, dtype=float)}
+
+
+def multistart(scaled: Scaled, u_base, n_candidates: int, n_starts: int, seed: int,
+               method: str, max_iter: int) -> tuple:
+    """The starts screened (`screen`), one `optimise` run from each, and the best: the least
+    objective among the feasible optima (`Scaled.feasible` on the raw metrics), else the least
+    violation.
+
+    **Returns:** (runs, best run, feasible runs, {screen_s, optimise_s}); each run `optimise`'s
+    dict with its start `u0` and `feasible` added."""
+    U0, _, _, screen_s = screen(scaled, u_base, n_candidates, n_starts, seed)
+    t0 = time.perf_counter()
+    runs = [optimise(scaled, u0, method, max_iter) for u0 in U0]
+    optimise_s = time.perf_counter() - t0
+    prob = scaled.problem
+    for r, u0 in zip(runs, U0):
+        r["u0"] = u0
+        r["feasible"] = bool(scaled.feasible(prob.raw_value_and_jacobian(prob.x_of(r["u"]))[0]))
+    feasible = [r for r in runs if r["feasible"]]
+    best = (min(feasible, key=lambda r: r["fun"]) if feasible
+            else min(runs, key=lambda r: (r["max_violation"], r["fun"])))
+    return runs, best, feasible, {"screen_s": screen_s, "optimise_s": optimise_s}

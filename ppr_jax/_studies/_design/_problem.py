@@ -26,7 +26,7 @@ from ..._files import write_file
 from ..._params import RobotParams
 from ..._programs import NotExportable, cached_program, export_tracing, program_key
 from .._catalogue import SceneContext, metric_values, sampled_metrics
-from .._evaluation import Evaluation
+from .._evaluation import Evaluation, equal_links
 from .._jacobian import jacobian_with_values
 
 #: the raw rows of each metric (`Problem.sizes`), by the values program's key
@@ -248,6 +248,23 @@ class Problem:
     def u_of(self, x) -> np.ndarray:
         """Normalised values u of physical ones x."""
         return (np.asarray(x, dtype=np.float64) - self.lo) / (self.hi - self.lo)
+
+
+def design_problem(names, lo, hi, metrics, base: RobotParams, stroke: float, ctx: SceneContext,
+                   mode: Optional[str], samples: tuple,
+                   program_dir: Optional[str] = None) -> Problem:
+    """The `Problem` of a design, its robot's structural choice decided once (`equal_links`:
+    l1 == l3 only while neither is a variable) and its derivative's mode `mode`, or where None
+    'fwd' where there are no more variables than rows (the metrics, each sample of the metrics
+    `samples` a row), 'rev' otherwise."""
+    p = len(names)
+    prob = Problem(names=names, lo=lo, hi=hi, metrics=tuple(metrics), base=base, stroke=stroke,
+                   ctx=ctx, mode=mode or ("fwd" if p <= len(metrics) else "rev"),
+                   equal_links=equal_links(base, names, local=False), samples=samples,
+                   program_dir=program_dir)
+    if mode is None and samples:  # the samples are rows: count them
+        prob.mode = "fwd" if p <= int(np.sum(prob.sizes)) else "rev"
+    return prob
 
 
 def padded_size(m: int) -> int:

@@ -22,6 +22,8 @@ FD_STEP = 1e-5
 CONSTANT_RTOL = 1e-6
 #: below this many points per axis, the grid becomes a Sobol sample of the same size
 MIN_PER_AXIS = 5
+#: the KKT residual (relative) below which the optimum counts as a stationary point
+KKT_TOL = 1e-5
 
 
 def kkt(scaled: Scaled, u) -> dict:
@@ -154,3 +156,16 @@ def grid_check(scaled: Scaled, u_opt, n_points: int, rtol: float, seed: int = 0)
                best_x=dict(zip(prob.names, map(float, prob.x_of(U[best])))),
                gap=float(gap), ok=bool(gap <= rtol))
     return out
+
+
+def verify(scaled: Scaled, u, fd_rtol: float, n_grid: int, grid_rtol: float, seed: int) -> tuple:
+    """The verification of the optimum u: its KKT residual (`kkt`, within `KKT_TOL`), the
+    gradient against finite differences (`gradient_check`, within `fd_rtol`) and the grid
+    (`grid_check`: `n_grid` points, within `grid_rtol`).
+
+    **Returns:** (the `kkt` dict, {kkt_residual, kkt_tol, gradient_check, grid, ok})."""
+    kk = kkt(scaled, u)
+    gc = gradient_check(scaled, u, fd_rtol)
+    gr = grid_check(scaled, u, n_grid, grid_rtol, seed)
+    return kk, {"kkt_residual": kk["residual"], "kkt_tol": KKT_TOL, "gradient_check": gc,
+                "grid": gr, "ok": bool(kk["residual"] <= KKT_TOL and gc["ok"] and gr["ok"])}
