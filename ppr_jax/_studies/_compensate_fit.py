@@ -124,13 +124,17 @@ def fit_commands(path, drive: str, kind: str, model, params, options: SceneOptio
     - `ts` (n,), `u0` (n, 3): command times (s) and the start commands.
     - `knots`: knots of the correction's spline (at least 3); 3 x knots unknowns.
     - `rate_bound`: a bound on |du/dt| (rad/s or N m/s), or None.
-    - `max_iter`: Levenberg-Marquardt iterations (each a forward-mode Jacobian, knots x 3
-      tangents); `rtol`: stop when an accepted step lowers the cost by less than this fraction.
+    - `max_iter`: accepted Levenberg-Marquardt steps at most; `rtol`: stop when an accepted
+      step lowers the cost by less than this fraction. The Jacobian is computed at the start
+      and then updated by Broyden's rank-one secant of each accepted step; it is computed anew
+      only where the updated one finds no step that lowers the cost (a minimum is declared
+      where a fresh one finds none either).
     - `jacobian`: `"differences"` (one batch of replays, the default) or `"forward"` (forward
       mode through the solve): module docstring.
 
-    **Returns:** {"commands" (n, 3), "log", "cost_start", "cost", "iterations", "converged",
-    "history" (costs)}; cost = sum of squared residuals (m^2).
+    **Returns:** {"commands" (n, 3), "log", "cost_start", "cost", "iterations" (accepted
+    steps), "jacobians" (computed), "converged", "history" (costs)}; cost = sum of squared
+    residuals (m^2).
     """
     ts = np.asarray(ts, dtype=np.float64)
     tk = np.linspace(ts[0], ts[-1], int(knots))
@@ -146,13 +150,16 @@ def fit_commands(path, drive: str, kind: str, model, params, options: SceneOptio
     c = jnp.zeros((int(knots), 3))
     r, code = _values(fit, c, params)
     cost = float(jnp.sum(r**2)) if int(code) == 0 else float("inf")
-    history, lam, converged, it = [cost], 1e-3, False, 0
-    for it in range(1, max_iter + 1):
-        J = _jacobian_of(fit, c, params, jacobian, h, r.shape[0])
+    history, lam, converged, it, jacobians = [cost], 1e-3, False, 0, 0
+    J, fresh = None, False
+    while it < max_iter:
+        if J is None:
+            J, fresh = _jacobian_of(fit, c, params, jacobian, h, r.shape[0]), True
+            jacobians += 1
         g, A = J.T @ np.asarray(r), J.T @ J
         d = np.diag(A).copy() + 1e-300
         accepted = False
-        for _ in range(8):  # raise the damping until a step lowers the cost
+        for _ in range(8 if fresh else 3):  # raise the damping until a step lowers the cost
             step = -np.linalg.solve(A + lam * np.diag(d), g)
             c_new = c + jnp.asarray(step.reshape(c.shape))
             r_new, code = _values(fit, c_new, params)
@@ -161,9 +168,17 @@ def fit_commands(path, drive: str, kind: str, model, params, options: SceneOptio
                 accepted, lam = True, max(lam / 3.0, 1e-9)
                 break
             lam *= 10.0
-        if not accepted:
+        if not accepted and fresh:
             converged = True  # no step lowers the cost: a minimum to the damping's resolution
             break
+        if not accepted:
+            J = None  # the updated Jacobian has gone stale: take it anew
+            continue
+        it += 1
+        # Broyden's rank-one update: the Jacobian of the secant through the accepted step
+        dr = np.asarray(r_new) - np.asarray(r)
+        J = J + np.outer(dr - J @ step, step) / (step @ step)
+        fresh = False
         gain = (cost - new) / cost
         c, r, cost = c_new, r_new, new
         history.append(cost)
@@ -172,7 +187,7 @@ def fit_commands(path, drive: str, kind: str, model, params, options: SceneOptio
             break
     return {"commands": np.asarray(fit.commands(c)), "log": fit.log(c),
             "cost_start": history[0], "cost": cost, "iterations": it,
-            "converged": converged, "history": history}
+            "jacobians": jacobians, "converged": converged, "history": history}
 
 
 __all__ = ["fit_commands", "FD_STEP", "JACOBIANS", "PHI_SCALE", "RATE_WEIGHT"]
