@@ -79,7 +79,7 @@ if method == "optimise":
     z = jnp.zeros((12, 3))
     h = F.FD_STEP * float(np.max(np.abs(u0)))
     jac = {}
-    for how, fn in (("differences", lambda: F._differences(fit, z, params, h)[0]),
+    for how, fn in (("differences", lambda: F._differences(fit, z, params, jnp.asarray(h))[0]),
                     ("forward", lambda: F._jacobian(fit, z, params))):
         jax.block_until_ready(fn())
         w = []

@@ -96,7 +96,8 @@ def _jacobian(fit, c, params):
 @eqx.filter_jit
 def _differences(fit, c, params, h):
     """Forward differences (m, p) of the residuals in each of c's p entries, by step h, from one
-    vmapped batch of p + 1 replays; and the batch's worst status code."""
+    vmapped batch of p + 1 replays; and the batch's worst status code. h is an array (traced):
+    a Python float would be a static argument, and each commands' scale a new program."""
     p = c.size
     cs = c[None] + jnp.concatenate([jnp.zeros((1, p)), h * jnp.eye(p)]).reshape(p + 1, *c.shape)
     r, code = jax.vmap(lambda ci: fit.residuals(ci, params))(cs)
@@ -105,7 +106,7 @@ def _differences(fit, c, params, h):
 
 def _jacobian_of(fit, c, params, how: str, h: float, m: int) -> np.ndarray:
     if how == "differences":
-        J, code = _differences(fit, c, params, h)
+        J, code = _differences(fit, c, params, jnp.asarray(h))
         if int(code) == 0:
             return np.asarray(J)
     return np.asarray(_jacobian(fit, c, params)).reshape(m, -1)
