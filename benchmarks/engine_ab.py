@@ -14,6 +14,12 @@ tree interleaved, each pair twice; a row keeps the minimum of each side:
 - `compile`: the first `solve_scene` of L0-L2 in a process with no persistent cache (tracing,
   lowering and XLA's compilation: what a user waits for before the first answer).
 
+With `--gpu`, the batches of L1 and L2 at the batch benchmark's settings on the GPU too
+(`--gpu-sizes`, one probe on the GPU at a time). On a many-core machine `--lanes 8 --cores 2` runs
+the jobs side by side, each probe pinned to its own 2 cores (XLA sizes its CPU thread pool from
+the process's affinity): a quiet stand-in for the 2-core machine, base and new of a row always
+in the same lane one after the other.
+
 Writes `benchmarks/results/engine_ab.json` (each row: base, new, new/base and, where the
 issue sets one, the goal and whether it is met).
 """
@@ -26,7 +32,9 @@ import os
 import platform
 import subprocess
 import sys
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
@@ -48,7 +56,7 @@ def best(fn, repeats):
 """
 
 _RUN = _PRELUDE + r"""
-models = sys.argv[1].split(",")
+models = sys.argv[1].split(",")  # one or more, comma-separated
 out = {}
 for m in models:
     model = pj.QuasiStaticBeam(4) if m == "beam_qs" else m
@@ -69,14 +77,11 @@ print(json.dumps(dict(run_s=s, trajectories_per_s=B / s, ok=bool(np.all(np.asarr
 """
 
 _SENS = _PRELUDE + r"""
+mode = sys.argv[1]
 o = pj.SceneOptions(t_end=1.0, n_out=101)
 fwd, _ = best(lambda: pj.solve_scene("paper-circle", model="double1r", options=o), 5)
-out = dict(forward_run_s=fwd)
-for mode in ("fwd", "rev"):
-    runs = [pj.sensitivity("paper-circle", model="double1r", mode=mode, options=o)
-            for _ in range(3)]
-    out[mode + "_run_s"] = min(s.timing["run_s"] for s in runs)
-print(json.dumps(out))
+runs = [pj.sensitivity("paper-circle", model="double1r", mode=mode, options=o) for _ in range(3)]
+print(json.dumps(dict(forward_run_s=fwd, run_s=min(s.timing["run_s"] for s in runs))))
 """
 
 _COMPILE = _PRELUDE + r"""
@@ -89,24 +94,33 @@ print(json.dumps(dict(first_s=time.perf_counter() - t0)))
 """
 
 
-def _probe(checkout: str, snippet: str, *args, timeout=1800) -> dict:
-    env = dict(os.environ, PYTHONPATH=checkout, EQX_ON_ERROR="nan", JAX_ENABLE_X64="1")
+#: the cores a probe may use (None: all); set per lane by `--lanes` (`_lane_cpus`)
+_CPUS = threading.local()
+
+
+def _probe(checkout: str, snippet: str, *args, timeout=1800, platform_="cpu") -> dict:
+    env = dict(os.environ, PYTHONPATH=checkout, EQX_ON_ERROR="nan", JAX_ENABLE_X64="1",
+               JAX_PLATFORMS=platform_)
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     env.pop("PPR_JAX_CACHE_DIR", None)
+    cpus = getattr(_CPUS, "cpus", None)
+    # XLA's CPU thread pool is sized from the process's affinity, so a pinned probe runs as on
+    # a machine of that many cores
+    pin = (lambda: os.sched_setaffinity(0, cpus)) if cpus else None
     p = subprocess.run([sys.executable, "-c", snippet, *map(str, args)], capture_output=True,
-                       text=True, env=env, timeout=timeout, cwd=checkout)
+                       text=True, env=env, timeout=timeout, cwd=checkout, preexec_fn=pin)
     if p.returncode != 0:
         return {"failed": (p.stderr.strip().splitlines() or ["?"])[-1]}
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
-def _pair(base: str, new: str, snippet: str, *args, rounds: int = 2):
+def _pair(base: str, new: str, snippet: str, *args, rounds: int = 2, platform_="cpu"):
     """(base, new) results of `snippet`, interleaved `rounds` times; numbers keep their
     minimum (or maximum for a rate)."""
     got = {"base": [], "new": []}
     for _ in range(rounds):
-        got["base"].append(_probe(base, snippet, *args))
-        got["new"].append(_probe(new, snippet, *args))
+        got["base"].append(_probe(base, snippet, *args, platform_=platform_))
+        got["new"].append(_probe(new, snippet, *args, platform_=platform_))
     return tuple(_merge(got[k]) for k in ("base", "new"))
 
 
@@ -139,48 +153,27 @@ def _row(name, base, new, key, goal=None, higher_is_better=False):
     return row
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--checkout", required=True, help="the base checkout (a git worktree)")
-    ap.add_argument("--new", default=ROOT, help="the new checkout (default: this tree)")
-    ap.add_argument("--label-base", default=None, help="the base's commit (default: its HEAD)")
-    ap.add_argument("--parts", nargs="+", default=["run", "batch", "sensitivity", "compile"])
-    ap.add_argument("--quick", action="store_true", help="L0-L1 only, small batches")
-    ap.add_argument("--out", default=os.path.join(HERE, "results", "engine_ab.json"))
-    args = ap.parse_args(argv)
-    base, new = os.path.abspath(args.checkout), os.path.abspath(args.new)
-
-    def head(path):
-        return subprocess.run(["git", "-C", path, "rev-parse", "--short", "HEAD"],
-                              capture_output=True, text=True).stdout.strip()
-
-    data = {"machine": {"system": platform.platform(), "cpus": os.cpu_count()},
-            "base": args.label_base or head(base), "new": head(new),
-            "date": time.strftime("%Y-%m-%d"), "rows": [], "raw": {}}
-
-    def save():
-        with open(args.out, "w") as f:
-            f.write(json.dumps(data, indent=1) + "\n")
-
-    t0 = time.perf_counter()
-    if "run" in args.parts:
-        models = "rigid,reduced" if args.quick else "rigid,reduced,double1r,beam_qs"
-        b, n = _pair(base, new, _RUN, models)
-        data["raw"]["run"] = {"base": b, "new": n}
-        for m in models.split(","):
+def _jobs(args, base, new):
+    """The measurements as independent jobs, longest first: each returns (raw key, raw result,
+    rows)."""
+    jobs = []
+    models = ["rigid", "reduced"] if args.quick else ["rigid", "reduced", "double1r", "beam_qs"]
+    # one model a job (each probe a fresh process, so splitting changes no number)
+    for m in reversed(models):
+        def run(m=m):
+            b, n = _pair(base, new, _RUN, m)
             goal = 0.5 if m == "beam_qs" else 0.2
             row = _row(f"paper-circle {m} warm run (s)", b.get(m, {}), n.get(m, {}), "run_s",
                        goal)
             row["steps"] = [b.get(m, {}).get("steps"), n.get(m, {}).get("steps")]
-            data["rows"].append(row)
-        save()
-    if "batch" in args.parts:
-        plan = ([("reduced", 64, "bench")] if args.quick else
-                [("reduced", 1024, "bench"), ("reduced", 1024, "defaults"),
-                 ("double1r", 64, "defaults")])
-        for model, B, mode in plan:
+            return f"run-{m}", {"base": b, "new": n}, [row]
+        jobs.append(("run", run))
+    plan = ([("reduced", 64, "bench")] if args.quick else
+            [("reduced", 1024, "bench"), ("reduced", 1024, "defaults"),
+             ("double1r", 64, "defaults")])
+    for model, B, mode in plan:
+        def batch(model=model, B=B, mode=mode):
             b, n = _pair(base, new, _BATCH, model, B, mode, rounds=1)
-            data["raw"][f"batch-{model}-{B}-{mode}"] = {"base": b, "new": n}
             goal = 5.0 if (model, mode) != ("reduced", "bench") else None
             row = _row(f"batch {model} x{B} ({mode}) trajectories/s", b, n,
                        "trajectories_per_s", goal, higher_is_better=True)
@@ -188,30 +181,123 @@ def main(argv=None):
                                                                      float):
                 row["goal_absolute"] = 10_000
                 row["met"] = n["trajectories_per_s"] >= 10_000
-            data["rows"].append(row)
-            save()
-    if "sensitivity" in args.parts and not args.quick:
-        b, n = _pair(base, new, _SENS, rounds=1)
-        data["raw"]["sensitivity"] = {"base": b, "new": n}
-        for mode in ("fwd", "rev"):
-            rb = b.get(f"{mode}_run_s", float("nan")) / b.get("forward_run_s", float("nan"))
-            rn = n.get(f"{mode}_run_s", float("nan")) / n.get("forward_run_s", float("nan"))
+            return f"batch-{model}-{B}-{mode}", {"base": b, "new": n}, [row]
+        jobs.append(("batch", batch))
+    for mode in ([] if args.quick else ["fwd", "rev"]):
+        def sensitivity(mode=mode):
+            b, n = _pair(base, new, _SENS, mode, rounds=1)
+            rb = b.get("run_s", float("nan")) / b.get("forward_run_s", float("nan"))
+            rn = n.get("run_s", float("nan")) / n.get("forward_run_s", float("nan"))
             row = {"row": f"sensitivity {mode} / forward run (L2, 1 s)", "base": rb, "new": rn}
             row["goal"] = rb if mode == "fwd" else 3.0
             row["met"] = bool(rn <= row["goal"]) if rn == rn else False
-            data["rows"].append(row)
-        save()
-    if "compile" in args.parts:
-        for m in ("rigid", "reduced") if args.quick else ("rigid", "reduced", "double1r"):
+            return f"sensitivity-{mode}", {"base": b, "new": n}, [row]
+        jobs.append(("sensitivity", sensitivity))
+    for m in ("rigid", "reduced") if args.quick else ("rigid", "reduced", "double1r"):
+        def compile_(m=m):
             b, n = _pair(base, new, _COMPILE, m, rounds=1)
-            data["raw"][f"compile-{m}"] = {"base": b, "new": n}
-            data["rows"].append(_row(f"paper-circle {m} first call, no cache (s)", b, n,
-                                     "first_s"))
+            return (f"compile-{m}", {"base": b, "new": n},
+                    [_row(f"paper-circle {m} first call, no cache (s)", b, n, "first_s")])
+        jobs.append(("compile", compile_))
+    # the GPU rows: one job, so that no two probes share the GPU
+    sizes = [int(x) for x in args.gpu_sizes]
+    if args.gpu:
+        def gpu():
+            raw, rows = {}, []
+            for model in ("reduced", "double1r"):
+                for B in sizes:
+                    b, n = _pair(base, new, _BATCH, model, B, "bench", rounds=1,
+                                 platform_="cuda")
+                    raw[f"{model}-{B}"] = {"base": b, "new": n}
+                    rows.append(_row(f"GPU batch {model} x{B} (bench) trajectories/s", b, n,
+                                     "trajectories_per_s", higher_is_better=True))
+            return "gpu-batch", raw, rows
+        jobs.append(("gpu", gpu))
+    # the longest first, so that the lanes end together
+    order = ["gpu", "sensitivity", "run", "batch", "compile"]
+    jobs.sort(key=lambda j: order.index(j[0]))
+    return [(part, fn) for part, fn in jobs if part in args.parts]
+
+
+def _lane_cpus(lanes: int, width: int):
+    """Disjoint sets of `width` cores for `lanes` lanes, from the cores this process may use."""
+    free = sorted(os.sched_getaffinity(0))
+    if lanes * width > len(free):
+        raise SystemExit(f"--lanes {lanes} x --cores {width} needs {lanes * width} cores; "
+                         f"{len(free)} are free")
+    return [set(free[i * width:(i + 1) * width]) for i in range(lanes)]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--checkout", required=True, help="the base checkout (a git worktree)")
+    ap.add_argument("--new", default=ROOT, help="the new checkout (default: this tree)")
+    ap.add_argument("--label-base", default=None, help="the base's commit (default: its HEAD)")
+    ap.add_argument("--label-new", default=None, help="the new tree's commit (default: its HEAD)")
+    ap.add_argument("--parts", nargs="+", default=["run", "batch", "sensitivity", "compile"],
+                    help="of run, batch, sensitivity, compile, gpu")
+    ap.add_argument("--quick", action="store_true", help="L0-L1 only, small batches")
+    ap.add_argument("--lanes", type=int, default=0,
+                    help="run the jobs side by side in this many lanes, each pinned to its own "
+                         "--cores cores (a many-core machine standing in for the 2-core one); "
+                         "0: one after another on every core")
+    ap.add_argument("--cores", type=int, default=2, help="cores a lane (with --lanes)")
+    ap.add_argument("--gpu", action="store_true", help="the GPU batch rows too (part gpu)")
+    ap.add_argument("--gpu-sizes", nargs="+", default=["1024", "4096"])
+    ap.add_argument("--out", default=os.path.join(HERE, "results", "engine_ab.json"))
+    args = ap.parse_args(argv)
+    if args.gpu and "gpu" not in args.parts:
+        args.parts.append("gpu")
+    base, new = os.path.abspath(args.checkout), os.path.abspath(args.new)
+
+    def head(path):
+        return subprocess.run(["git", "-C", path, "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True).stdout.strip()
+
+    data = {"machine": {"system": platform.platform(), "cpus": os.cpu_count(),
+                        "lanes": args.lanes, "cores_a_lane": args.cores if args.lanes else None},
+            "base": args.label_base or head(base), "new": args.label_new or head(new),
+            "date": time.strftime("%Y-%m-%d"), "rows": [], "raw": {}}
+    lock = threading.Lock()
+
+    def save():
+        with open(args.out, "w") as f:
+            f.write(json.dumps(data, indent=1) + "\n")
+
+    def record(result):
+        key, raw, rows = result
+        with lock:
+            data["raw"][key] = raw
+            data["rows"].extend(rows)
             save()
+            for r in rows:
+                print(json.dumps(r), flush=True)
+
+    t0 = time.perf_counter()
+    jobs = _jobs(args, base, new)
+    if args.lanes:
+        cpus = _lane_cpus(args.lanes, args.cores)
+        pool = list(range(args.lanes))
+
+        def in_lane(fn):
+            with lock:
+                lane = pool.pop(0)
+            _CPUS.cpus = cpus[lane]
+            try:
+                record(fn())
+            finally:
+                _CPUS.cpus = None
+                with lock:
+                    pool.append(lane)
+
+        with ThreadPoolExecutor(args.lanes) as ex:
+            for f in [ex.submit(in_lane, fn) for _, fn in jobs]:
+                f.result()
+    else:
+        for _, fn in jobs:
+            record(fn())
     data["wall_s"] = time.perf_counter() - t0
     save()
-    for r in data["rows"]:
-        print(json.dumps(r))
 
 
 if __name__ == "__main__":

@@ -220,8 +220,15 @@ def member_params(params: RobotParams, i: int) -> RobotParams:
 
 
 def unstack_params(params: RobotParams) -> list[RobotParams]:
-    """Inverse of `stack_params`."""
-    return [member_params(params, i) for i in range(params.a.shape[0])]
+    """Inverse of `stack_params`.
+
+    Each batched leaf is copied to the host once and its members cut there: indexing the device
+    array member by member is one dispatched operation per member and field (16 fields), which
+    for a batch of 1,024 took 3 s, as long as the batch's simulation."""
+    leaves, tree = jax.tree_util.tree_flatten(params)
+    host = [np.asarray(x) if np.ndim(x) else None for x in leaves]
+    return [tree.unflatten([x if h is None else jnp.asarray(h[i]) for x, h in zip(leaves, host)])
+            for i in range(params.a.shape[0])]
 
 
 def parse_value(name: str, text: str):

@@ -104,3 +104,40 @@ def test_stack_and_traced_validation(params):
     f = jax.jit(jax.vmap(params_invalid))
     mixed = jax.tree_util.tree_map(lambda *x: jnp.stack(x), params, bad, nan, params)
     np.testing.assert_array_equal(np.asarray(f(mixed)), [False, True, True, False])
+
+
+def test_unstack_params_inverts_stack_params(params):
+    """Each member of `unstack_params` equals the robot it was stacked from, leaf by leaf and in
+    kind (JAX arrays, explicit PRB parameters kept)."""
+    members = [params.replace(t=0.3e-3, gamma=0.85), params.replace(t=0.45e-3, gamma=0.8),
+               params.replace(a=0.95, gamma=0.9)]
+    back = pj.unstack_params(pj.stack_params(members))
+    assert len(back) == 3
+    for p, q in zip(members, back):
+        lp, tp = jax.tree_util.tree_flatten(p)
+        lq, tq = jax.tree_util.tree_flatten(q)
+        assert tp == tq
+        for x, y in zip(lp, lq):
+            assert isinstance(y, jax.Array) and y.shape == np.shape(x)
+            np.testing.assert_array_equal(np.asarray(y), np.asarray(x))
+
+
+def test_a_batch_on_a_scene_with_nothing_to_check_is_not_cut(params, monkeypatch):
+    """A built-in scene checks no commands, so a batch run does not cut its robots into members
+    on the host (one dispatched operation per member and field: as long as the run itself for
+    1,024 robots); a path scene with an angle log still judges every member."""
+    from ppr_jax._scenes import _base
+
+    def refuse(_):
+        raise AssertionError("the batch was cut into members")
+
+    monkeypatch.setattr("ppr_jax._params.unstack_params", refuse)
+    from ppr_jax._scenes import get_scene
+
+    batch = pj.stack_params([params, params.replace(t=0.4e-3)])
+    scene = get_scene("paper-circle")
+    _base.check_scene_commands(scene, batch, scene.trajectory(), 1.0)
+    with pytest.raises(AssertionError, match="cut into members"):  # the patch is reached
+        log = pj.PathScene(path=scene.trajectory(), drive="motion",
+                           command_log=lambda t: jnp.zeros(3))
+        _base.check_scene_commands(log, batch, scene.trajectory(), 1.0)
