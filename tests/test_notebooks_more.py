@@ -5,7 +5,6 @@ import pytest
 from test_notebooks import NOTEBOOK_GROUPS, run_notebook
 
 
-@pytest.mark.parametrize("path", NOTEBOOK_GROUPS["more"],
-                         ids=[p.stem for p in NOTEBOOK_GROUPS["more"]])
+@pytest.mark.parametrize("path", NOTEBOOK_GROUPS["more"])
 def test_notebook_runs(path, tmp_path):
     run_notebook(path, tmp_path)
