@@ -132,8 +132,8 @@ class Evaluation(eqx.Module):
 
         - `x`: (p,) the values of `names` (SI).
         - `base`: the `RobotParams` whose other fields stay.
-        - `ts`: (m,) the sample times (s), ts[0] the start (traced: the panels of the
-          options' input table are fixed before, from the count of the times alone).
+        - `ts`: (m,) the sample times (s), ts[0] the start (traced or not: the options'
+          input table has its panels already, `SceneOptions.panels`).
         - `actuation`: the run's input (an experiment's measured angles or torques); None: the
           scene's commands for `commands`.
         - `initial_offset`: (6,) added to the start's platform pose and rate (m, m, rad, m/s,
