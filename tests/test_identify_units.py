@@ -79,7 +79,8 @@ def _prob(**kw):
     """A stand-in problem: t as the one unknown, log-bounded in [0.1, 3] mm."""
     base = dict(names=("t", "K_theta"), lo=np.array([1e-4, 0.5]), hi=np.array([3e-3, 5.0]),
                 log=(True, False), model=SimpleNamespace(name="double1r"),
-                scene="paper-circle", rtol=1e-8, atol=1e-9, max_steps=100000, tau=np.ones(3),
+                scene="paper-circle",
+                options=SimpleNamespace(rtol=1e-8, atol=1e-9, max_steps=100000), tau=np.ones(3),
                 th=None, n_init=0, experiment_names=("lab",))
     return SimpleNamespace(**(base | kw))
 

@@ -53,9 +53,11 @@ def input_panels(traj, t_end, n_out: int) -> int:
     """Panels of the scene's input table (`_tabulated.scene_panels`). The count is a shape, so it
     is decided before tracing: more panels for a longer horizon where t_end and the trajectory's
     speed (`omega`) are concrete, the minimum otherwise (the scene then reports a table too
-    coarse for its horizon as `RESULTS.input_table_too_coarse`)."""
+    coarse for its horizon as `RESULTS.input_table_too_coarse`). t_end None: the horizon is
+    not known before tracing (a program whose sample times are its inputs)."""
     omega = getattr(traj, "omega", None)
-    known = not (is_traced(t_end) or omega is None or is_traced(omega) or np.ndim(omega) != 0)
+    known = not (t_end is None or is_traced(t_end) or omega is None or is_traced(omega)
+                 or np.ndim(omega) != 0)
     return scene_panels(n_out, float(t_end) * float(omega) if known else None)
 
 

@@ -4,7 +4,9 @@ A sensitivity differentiates it, a design optimises it (and screens and verifies
 batches): both evaluate an `Evaluation`, the variables' names, the catalogue's metrics and the
 scene they run (`_catalogue.SceneContext`), at parameter values x (p,) that replace those fields
 of a base robot; a sweep maps its scene run and metrics over its members, whole robots of a
-batch (`Evaluation.run`). The structural choice of the robot (`Robot`'s `equal_links`: the
+batch (`Evaluation.run`); an identification fits the platform poses of its scene's run at
+the measured sample times, for each experiment's actuation and initial-state offset
+(`Evaluation.poses`). The structural choice of the robot (`Robot`'s `equal_links`: the
 closed-form inverse kinematics where l1 == l3) is decided once, in Python, by `equal_links`.
 
 An `Evaluation` is a pytree: its names are static (they key the compiled programs), the
@@ -15,6 +17,7 @@ stored) program serves any of their values.
 from __future__ import annotations
 
 import dataclasses
+from typing import Optional
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -61,7 +64,9 @@ def params_at(base: RobotParams, names, x) -> RobotParams:
 
 
 class Evaluation(eqx.Module):
-    """The catalogue's `metrics` of a robot whose fields `names` take the values x.
+    """The catalogue's `metrics` of a robot whose fields `names` take the values x, or the
+    platform poses of its scene's run at given sample times (`poses`: what identification fits;
+    no metrics then).
 
     `names` (p,) fields of `RobotParams`; `metrics` (k,) catalogue names; `equal_links` the
     robot's static choice (`equal_links` above); `samples` the metrics of
@@ -117,6 +122,44 @@ class Evaluation(eqx.Module):
         values = evaluate(self.metrics, Inputs(robot, ctx, result=res), self.samples)
         return (dict(zip(self.metrics, (v[0] for v in values))), result_code(res.result),
                 res.num_steps)
+
+    def poses(self, x, base: RobotParams, ts, actuation=None, initial_offset=None,
+              commands: Optional[Robot] = None, scene=None) -> tuple:
+        """The platform poses of the context's scene run at the sample times ts for the robot at
+        x: what identification fits to the measured poses.
+
+        **Arguments:**
+
+        - `x`: (p,) the values of `names` (SI).
+        - `base`: the `RobotParams` whose other fields stay.
+        - `ts`: (m,) the sample times (s), ts[0] the start (traced or not: the options'
+          input table has its panels already, `SceneOptions.panels`).
+        - `actuation`: the run's input (an experiment's measured angles or torques); None: the
+          scene's commands for `commands`.
+        - `initial_offset`: (6,) added to the start's platform pose and rate (m, m, rad, m/s,
+          m/s, rad/s); None: the start of the scene.
+        - `commands`: the `Robot` the scene's commands are computed for where `actuation` is
+          None (identification holds them fixed, apart from the robot simulated); None: the
+          robot at x.
+        - `scene`: a scene replacing the context's (an experiment's own `PathScene`); None:
+          the context's.
+
+        **Returns:** (the poses (m, 3) (m, m, rad), their rates (m, 3), the run's result code
+        (`_errors.result_code`)).
+        """
+        model, options = self.ctx.model, self.ctx.options
+        scene = self.ctx.scene if scene is None else scene
+        if options.trajectory is None:
+            # the scene's own path, built in the program as the scene builds it (its numbers
+            # the program's constants, as a scene's run has them)
+            options = dataclasses.replace(options, trajectory=scene.trajectory())
+        robot = self.robot(x, base)
+        if actuation is None and commands is not None:
+            actuation = scene.commands(model, commands, options.trajectory, ts,
+                                       options.panels).actuation
+        res = scene.run(model, robot, options, actuation, ts=ts, initial_offset=initial_offset)
+        # z[:3] is the platform pose in every model: its rates are the pose's
+        return res.X, res.zdot[:, :3], result_code(res.result)
 
     def values(self, x, base: RobotParams, stroke=None, adjoint=None):
         """`blocks` concatenated: (k,), or longer where `samples` asks for samples."""

@@ -72,8 +72,9 @@ def _check_ok(codes, z, prob, start=False, names=None):
     which = f"experiment {names[k]!r}" if names else f"experiment {k + 1}"
     what = f"the {prob.model.name} simulation of {which} ({prob.scene})"
     cause = result_message(int(codes[k]))
-    tols = (f"rtol {float(prob.rtol):g}, atol {float(prob.atol):g}, max_steps "
-            f"{prob.max_steps}")
+    opts = prob.options
+    tols = (f"rtol {float(opts.rtol):g}, atol {float(opts.atol):g}, max_steps "
+            f"{opts.max_steps}")
     if not start:
         raise IdentificationError(f"{what} failed at {at}: {cause} ({tols})")
     given = []

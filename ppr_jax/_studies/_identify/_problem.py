@@ -1,5 +1,6 @@
-"""The identification problem: everything the compiled residual needs, as one pytree, and the
-residual and its Jacobian through the scene's own run."""
+"""The identification problem: the data the compiled residual compares, with the `Evaluation`
+that predicts them (the platform poses of the scene's run at the sample times, `poses`), as one
+pytree, and the residual and its Jacobian."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ import dataclasses
 import math
 from typing import Optional
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -15,7 +15,6 @@ import numpy as np
 
 from ..._actuation import MotionDriven, TorqueDriven
 from ..._custom_types import Array
-from ..._errors import result_code
 from ..._labels import label_field
 from ..._names import (  # the choices the command line offers, written there
     ACTUATIONS as ACTUATIONS,
@@ -26,9 +25,9 @@ from ..._names import (  # the choices the command line offers, written there
 from ..._params import RobotParams
 from ..._paths import StartPath
 from ..._robot import Robot
-from ..._scenes import PathScene, SceneOptions, input_panels_at
+from ..._scenes import PathScene, SceneOptions
 from ..._trajectory import Interpolated, PiecewiseCubic
-from .._evaluation import params_at
+from .._evaluation import Evaluation
 
 #: the least-squares solvers (`identify(solver=...)`, the CLI's --method)
 SOLVERS = ID_SOLVERS
@@ -68,6 +67,12 @@ DEFAULT_NOISE = (1e-4, 1e-3)
 
 
 class _Problem(eqx.Module):
+    """An identification's data and the `Evaluation` its residual runs: the measured poses,
+    their sample times and weights, each experiment's measured actuation (or own path), the
+    unknowns' bounds and the loss. The evaluation holds the unknowns' names, the model, the
+    scene (None: each experiment's own) and its prepared `SceneOptions`."""
+
+    evaluation: Evaluation
     base: RobotParams  # the parameters with the unknowns at their initial values
     commands: RobotParams  # the parameters of the model that computed the commands (fixed)
     lo: Array  # (P,) bounds of the unknowns
@@ -77,15 +82,8 @@ class _Problem(eqx.Module):
     w: Array  # (E, m, 3) weights 1/noise, 0 on padding
     tau: Optional[Array]  # (E, m, 3) measured torques or None
     th: Optional[Array]  # (E, m - 1, 4, 3) spline pieces of the measured actuated angles or None
-    rtol: Array
-    atol: Array
-    names: tuple = eqx.field(static=True)
     log: tuple = eqx.field(static=True)  # per unknown: bounds in log space
-    model: object = eqx.field(static=True)
     scene: str = eqx.field(static=True)  # what the reports call the experiments' scene
-    equal_links: bool = eqx.field(static=True)
-    solver: object = eqx.field(static=True)
-    max_steps: int = eqx.field(static=True)
     loss: Array  # index into LOSSES: traced, so that changing the loss reuses the compilation
     loss_scale: Array
     #: unknowns of each experiment's initial state (0, 3 or 6: INITIAL_STATES), after the
@@ -95,9 +93,6 @@ class _Problem(eqx.Module):
     #: indices into MEAS_NAMES of the measurement nuisance parameters estimated, the last
     #: entries of z, in units of MEAS_SCALE
     meas: tuple = eqx.field(static=True, default=())
-    #: the named scene (an `AbstractScene`), or None: each experiment's own scene (a `PathScene`
-    #: on its measured poses, driven by its own angles or torques: `paths`, `starts`)
-    scene_obj: object = None
     #: the scene's drive, "motion" or "torque" (what the measured commands are)
     drive: str = eqx.field(static=True, default="motion")
     #: (E, m - 1, 4, 3) spline pieces of each experiment's measured poses (its own scene's path)
@@ -111,6 +106,21 @@ class _Problem(eqx.Module):
     #: residual-and-Jacobian program is exported once and loaded by later processes; None:
     #: compiled in this process as usual
     program_dir: Optional[str] = eqx.field(static=True, default=None)
+
+    @property
+    def names(self) -> tuple:
+        """The unknowns' names (the evaluation's)."""
+        return self.evaluation.names
+
+    @property
+    def model(self):
+        """The model simulated."""
+        return self.evaluation.ctx.model
+
+    @property
+    def options(self) -> SceneOptions:
+        """The prepared `SceneOptions` of every experiment's run."""
+        return self.evaluation.ctx.options
 
 
 def _to_p(prob: _Problem, z):
@@ -138,10 +148,6 @@ def _dp_dz(prob: _Problem, z):
     ds = s * (1 - s)
     lg = jnp.asarray(prob.log)
     return jnp.where(lg, p * (jnp.log(prob.hi) - jnp.log(prob.lo)) * ds, (prob.hi - prob.lo) * ds)
-
-
-def _params_at(prob: _Problem, p):
-    return params_at(prob.base, prob.names, p)
 
 
 def _offsets(prob: _Problem, z):
@@ -188,35 +194,21 @@ def _delayed(X, V, ts, delay):
     return jnp.where(delay >= 0, later, earlier)
 
 
-def _pose_one(prob: _Problem, params, base_robot, ts, tau, th, d0, path, start):
-    """Simulated pose (m, 3) of one experiment at times ts (ts[0] = 0, the scene's start),
-    its rates, and its scene's result code: the scene's own run (`AbstractScene.run`), driven
-    by the measured angles or torques, or by the scene's commands for the commands' robot.
-    Without a named scene, the experiment's own scene: a `PathScene` on its measured poses
-    (`path`, spline pieces), started from the fit of its first samples (`start`)."""
-    model = prob.model
-    if prob.scene_obj is None:
+def _experiment(prob: _Problem, ts, tau, th, path, start) -> tuple:
+    """One experiment's own scene and actuation from its data (ts[0] = 0, the scene's start):
+    a `PathScene` on its measured poses (`path`, spline pieces), started from the fit of its
+    first samples (`start`), where no scene is named (else None: the named one); driven by the
+    measured angles (a C2 spline through the samples) or torques, or None: the scene's
+    commands for the commands' robot."""
+    scene = None
+    if prob.evaluation.ctx.scene is None:
         scene = PathScene(PiecewiseCubic(ts, path), drive=prob.drive,
                           start_path=StartPath(ts[0], start), name=prob.scene)
-    else:
-        scene = prob.scene_obj
-    traj = scene.trajectory()
-    # The panel count is a shape: decided from the (traced) times as the scenes decide it.
-    options = SceneOptions(solver=prob.solver, rtol=prob.rtol, atol=prob.atol,
-                           max_steps=prob.max_steps, adjoint=diffrax.ForwardMode(),
-                           panels=input_panels_at(traj, ts)).prepared(model, traj)
     if th is not None:
-        # the angles the motors followed: a C2 spline through the samples
-        act = MotionDriven(PiecewiseCubic(ts, th))
-    elif tau is not None:
-        act = TorqueDriven(Interpolated(ts, tau))
-    else:
-        # the commands, fixed, from the commands' parameters
-        act = scene.commands(model, base_robot, traj, ts, options.panels).actuation
-    robot = Robot(params, equal_links=prob.equal_links)
-    res = scene.run(model, robot, options, act, ts=ts, initial_offset=d0)
-    # z[:3] is the platform pose in every model: its rates are the pose's
-    return res.X, res.zdot[:, :3], result_code(res.result)
+        return scene, MotionDriven(PiecewiseCubic(ts, th))
+    if tau is not None:
+        return scene, TorqueDriven(Interpolated(ts, tau))
+    return scene, None
 
 
 def _robust(r, loss, c):
@@ -235,13 +227,16 @@ def _weighted_residuals(prob: _Problem, p, d0, meas=None):
     `result_code`); d0 (E, 6)
     initial-state offsets; meas (bias (3,), delay) the measurement model: the pose predicted at
     t is the simulated one at t - delay, plus the bias."""
-    params = _params_at(prob, p)
-    base_robot = Robot(jax.lax.stop_gradient(prob.commands))
+    commands = Robot(jax.lax.stop_gradient(prob.commands))
     tau, th = prob.tau, prob.th
     paths, starts = prob.paths, prob.starts
+
+    def one(ts, tau, th, d0, path, start):
+        scene, act = _experiment(prob, ts, tau, th, path, start)
+        return prob.evaluation.poses(p, prob.base, ts, act, d0, commands, scene)
+
     X, V, codes = jax.vmap(
-        lambda ts, tau, th, d0, path, start: _pose_one(prob, params, base_robot, ts, tau, th,
-                                                       d0, path, start),
+        one,
         in_axes=(0, None if tau is None else 0, None if th is None else 0, 0,
                  None if paths is None else 0, None if starts is None else 0),
     )(prob.ts, tau, th, d0, paths, starts)

@@ -20,7 +20,6 @@ from ._problem import (
     INIT_SCALE,
     MEAS_SCALE,
     POOR_FIT_SCALE,
-    _params_at,
     _Problem,
     _residual_and_jacobian,
     _to_z,
@@ -427,7 +426,7 @@ def _finish(prob, zrj, p0, hist, exps, mask, noise, drive="", held=None) -> Iden
                "preflight_not_identifiable": (hist.get("preflight") or {}).get("refused", []),
                "problems": problems}
     stats_ = _residual_stats(X, prob, mask, exps)
-    params = _params_at(prob, jnp.asarray(p))
+    params = prob.evaluation.params(jnp.asarray(p), prob.base)
     return Identification(
         names=prob.names, estimate=p, initial=p0, std=std, ci95=ci, ci95_log=ci_log, covariance=C,
         correlation=corr, params=params, sigma2=s2, jacobian=J, residuals=r, fitted=X,

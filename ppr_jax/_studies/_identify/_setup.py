@@ -4,16 +4,20 @@ packed into arrays (`_data`), and the problem (`_Problem`) with the fit's start.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import NamedTuple, Optional
 
+import diffrax
 import jax.numpy as jnp
 import numpy as np
 
 from ..._data import DataError
 from ..._paths import fit_start
+from ..._scenes import SceneOptions, input_panels
 from ..._simulate import get_solver
-from .._evaluation import equal_links
+from .._catalogue import SceneContext
+from .._evaluation import Evaluation, equal_links
 from ._arguments import (
     check_choices,
     check_commands,
@@ -149,23 +153,42 @@ def _problem(base, cmd, unknowns, data, c, fit, options, mdl, solver, extra, exp
     names, lo, hi, lg = unknowns
     ts, X, W, tau, th, paths, start_fits = data
     n_init, meas, scene_obj, drive, label = extra
-    rtol, atol = options.tolerances(mdl)
     return _Problem(
+        evaluation=evaluation(names, base, mdl, scene_obj, options, solver, ts.shape[1]),
         base=base, commands=cmd, lo=jnp.asarray(lo), hi=jnp.asarray(hi), ts=jnp.asarray(ts),
         X=jnp.asarray(X), w=jnp.asarray(W), tau=None if tau is None else jnp.asarray(tau),
-        th=None if th is None else jnp.asarray(th),
-        rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64),
-        names=names, log=tuple(lg), model=mdl, scene=label,
-        equal_links=equal_links(base, names, local=False),
-        solver=solver, max_steps=int(options.max_steps),
+        th=None if th is None else jnp.asarray(th), log=tuple(lg), scene=label,
         loss=jnp.asarray(LOSSES.index(fit.loss)),
         loss_scale=jnp.asarray(float(fit.loss_scale), dtype=jnp.float64),
         n_init=n_init, init_scale=jnp.asarray(INIT_SCALE[:n_init]) if n_init else None,
-        meas=meas, scene_obj=scene_obj, drive=drive,
+        meas=meas, drive=drive,
         paths=None if paths is None else jnp.asarray(paths),
         starts=None if start_fits is None else jnp.asarray(start_fits),
         experiment_names=tuple(e.name for e in exps), program_dir=c["program_dir"],
     )
+
+
+def evaluation(names, base, model, scene, options, solver, m: int) -> Evaluation:
+    """The `Evaluation` of the poses an identification fits: the unknowns `names` of `base`,
+    `model` on `scene` (None: each experiment's own), with `options`' tolerances and step
+    budget and `solver`, forward mode (the fit's Jacobian is `jacfwd`), for runs of `m` sample
+    times.
+
+    **Returns:**
+
+    The `Evaluation` (no metrics), its options prepared once; their trajectory None: each run
+    takes its scene's path (`Evaluation.poses`).
+    """
+    rtol, atol = options.tolerances(model)
+    # The sample times are the program's inputs: the input table's panels follow from their
+    # count alone (`input_panels` of an unknown horizon).
+    prepared = SceneOptions(solver=solver, rtol=rtol, atol=atol,
+                            max_steps=int(options.max_steps), adjoint=diffrax.ForwardMode(),
+                            panels=input_panels(None, None, m)).prepared(model)
+    prepared = dataclasses.replace(prepared, trajectory=None)
+    return Evaluation(names=tuple(names), metrics=(),
+                      equal_links=equal_links(base, names, local=False), samples=(),
+                      ctx=SceneContext(scene, model, prepared, None))
 
 
 def driven_by(own: bool, n_exps: int, actuation: str, drive: str, torques: bool,
