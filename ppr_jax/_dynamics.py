@@ -78,37 +78,11 @@ def _eom_terms_jit(model, robot, z, zdot) -> EOM:
     # Jitted although mostly called inside other traces: a scene traces the equations of motion
     # several times (the quasi-static solve's shape probe and loop, the right-hand side), and a
     # cached jaxpr is traced once (tracing is a third of a scene's compilation).
-    if _has_fused_terms(model):
-        return _fused_terms(robot, z, zdot, model=model)
+    fused = model.fused_eom(robot, z, zdot)
+    if fused is not None:
+        kin, M, h, Q, Jth, JX = fused
+        return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=JX, kin=kin)
     return _eom_terms(model, robot, z, zdot, implicit=True)
-
-
-def _has_fused_terms(model: AbstractModel) -> bool:
-    """Whether `model.fused_eom` gives terms (L0-L2), decided from its class before tracing."""
-    kind = type(model)
-    if kind.fused_eom is AbstractModel.fused_eom:
-        return False
-    return not (isinstance(model, AbstractClosedLoop)
-                and kind.fused_eom is AbstractClosedLoop.fused_eom
-                and kind.chain_spec is AbstractClosedLoop.chain_spec)
-
-
-@eqx.filter_custom_jvp
-def _fused_terms(robot, z, zdot, *, model) -> EOM:
-    """The fused terms (`AbstractModel.fused_eom`), differentiated through the generic
-    projection (`_fused_terms_jvp`)."""
-    kin, M, h, Q, Jth, JX = model.fused_eom(robot, z, zdot)
-    return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=JX, kin=kin)
-
-
-@_fused_terms.def_jvp
-def _fused_terms_jvp(primals, tangents, *, model):
-    # The derivatives of the generic projection, which equal the fused terms' (tested to 1e-12),
-    # at a fraction of their cost: differentiated, the fused arithmetic's sums over the chains
-    # become fusions that XLA's CPU backend recomputes per element, and an L2 sensitivity took
-    # 1.4x (forward mode) and 3.3x (reverse mode) the generic projection's time.
-    return eqx.filter_jvp(lambda r, z, zd: _eom_terms(model, r, z, zd, implicit=True),
-                          primals, tangents)
 
 
 def _eom_terms(model, robot, z, zdot, implicit: bool) -> EOM:
