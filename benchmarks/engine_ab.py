@@ -41,6 +41,8 @@ ROOT = os.path.dirname(HERE)
 
 _PRELUDE = r"""
 import json, os, sys, time
+if os.environ.get("AB_CPUS"):  # pinned before JAX starts: XLA sizes its thread pool from it
+    os.sched_setaffinity(0, {int(c) for c in os.environ["AB_CPUS"].split(",")})
 import jax
 jax.config.update("jax_enable_x64", True)
 import numpy as np
@@ -104,11 +106,11 @@ def _probe(checkout: str, snippet: str, *args, timeout=1800, platform_="cpu") ->
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     env.pop("PPR_JAX_CACHE_DIR", None)
     cpus = getattr(_CPUS, "cpus", None)
-    # XLA's CPU thread pool is sized from the process's affinity, so a pinned probe runs as on
-    # a machine of that many cores
-    pin = (lambda: os.sched_setaffinity(0, cpus)) if cpus else None
+    # the probe pins itself (`_PRELUDE`): a preexec_fn is unsafe with the lanes' threads
+    if cpus:
+        env["AB_CPUS"] = ",".join(map(str, sorted(cpus)))
     p = subprocess.run([sys.executable, "-c", snippet, *map(str, args)], capture_output=True,
-                       text=True, env=env, timeout=timeout, cwd=checkout, preexec_fn=pin)
+                       text=True, env=env, timeout=timeout, cwd=checkout)
     if p.returncode != 0:
         return {"failed": (p.stderr.strip().splitlines() or ["?"])[-1]}
     return json.loads(p.stdout.strip().splitlines()[-1])
