@@ -7,13 +7,14 @@ Two robots: the defaults (centre-line joints) and one with every term of the fus
 switched on (the strip geometry's fixed link offsets, spring damping, actuator friction, rotor
 inertia). One compiled program per model, robot and formulation evaluates a batch of states."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import ppr_jax as pj
-from ppr_jax._dynamics import EOM, _eom_terms, accelerations
+from ppr_jax._dynamics import EOM, _eom_terms, accelerations, eom_terms
 from ppr_jax._geometry import home_pose
 from ppr_jax._studies import explicit_params
 
@@ -147,3 +148,73 @@ def test_the_simulator_uses_the_fused_terms():
         z = model.coords_from_pose(robot, home_pose(robot))
         assert model.fused_eom(robot, z, jnp.zeros_like(z)) is not None
     assert pj.get_model("beam").fused_eom(robot, None, None) is None
+
+
+#: what a batch's members differ in: their state, or one parameter
+BATCHINGS = ("state", *PARAMS)
+
+
+def _batched_terms(eom_fn, model, params, batching):
+    """The terms of two members that differ in `batching`, as a function of the parameters'
+    values and the states, vmapped inside whatever differentiates it (a derivative of a batched
+    program: identification's Jacobian over its experiments, a sweep's sensitivities)."""
+
+    @jax.jit
+    def member(values, z, zd):
+        # the terms used inside the same program, as a right-hand side uses them
+        eom = eom_fn(model, pj.Robot(params.replace(**dict(zip(PARAMS, values)))), z, zd)
+        zdd = accelerations(eom, eom.Jth[:, 0], eom.JX[0])
+        return eqx.tree_at(lambda e: e.h, eom, eom.h + zdd)
+
+    def terms(values, z, zd):
+        values = tuple(values[i] for i in range(len(PARAMS)))  # one input a parameter
+        if batching == "state":
+            return jax.vmap(member, in_axes=(None, 0, 0))(values, z[:2], zd[:2])
+        # only this parameter is batched: a custom derivative's batching is decided per input
+        k = PARAMS.index(batching)
+        members = (*values[:k], values[k] * jnp.array([1.0, 1.01]), *values[k + 1:])
+        axes = tuple(0 if i == k else None for i in range(len(PARAMS)))
+        return jax.vmap(member, in_axes=(axes, None, None))(members, z[0], zd[0])
+
+    return terms
+
+
+def _jvp_of(f):
+    return lambda values, z, zd, dv, dz, dzd: jax.jvp(f, (values, z, zd), (dv, dz, dzd))[1]
+
+
+def _grad_of(f):
+    def loss(values, z, zd):
+        eom = f(values, z, zd)
+        return sum(jnp.sum(jnp.sin(x)) for x in (eom.M, eom.h, eom.Q_passive, eom.Jth, eom.JX))
+
+    return jax.grad(loss, argnums=(0, 1, 2))
+
+
+def _used(model, robot, z, zd):
+    return eom_terms(model, robot, z, zd)
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_derivatives_of_batched_terms(name):
+    """The simulator's terms (`eom_terms`: the fused primal, M, h and Q differentiated through the
+    generic projection) under `vmap` inside a derivative, the members differing in their state or
+    in one parameter (one batched input each). JAX fixes a custom derivative's batching from its
+    primal, and a rule whose output is batched where the primal's is not fails to trace (L2's Jth
+    is constant in the fused terms and a function of the state in the generic ones). Every
+    batching is traced in forward mode, the batch of states in reverse mode too; L2's batch of
+    states is evaluated against the generic projection."""
+    model, params = pj.get_model(name), ROBOTS["default"]
+    values, (z, zd, _, dv, dz, dzd, _) = _states(model, params, seed=7)
+    args = (values, z, zd, dv[0], dz, dzd)
+    for batching in BATCHINGS:
+        f = _batched_terms(_used, model, params, batching)
+        jax.eval_shape(_jvp_of(f), *args)
+        if batching == "state":  # reverse mode transposes the same rule (its tracing is costly)
+            jax.eval_shape(_grad_of(f), *args[:3])
+    if name != "double1r":
+        return  # L2's terms, whose Jth the two formulations compute differently, are evaluated
+    used, generic = (jax.jit(_jvp_of(_batched_terms(fn, model, params, "state")))(*args)
+                     for fn in (_used, _generic))
+    for what in ("M", "h", "Q_passive", "Jth", "JX"):
+        _close(getattr(used, what), getattr(generic, what), f"{name} d{what}")
