@@ -320,6 +320,45 @@ def studies() -> str:
     return "\n\n".join(out)
 
 
+def engine_ab() -> str:
+    """The engine issue's speed rows: this tree against its base commit, in one run on one
+    machine each (`benchmarks/engine_ab.py`, `engine_ab*.json`: one file a machine)."""
+    names = sorted(f for f in os.listdir(RESULTS) if f.startswith("engine_ab") and
+                   f.endswith(".json"))
+    out = []
+    for name in names:
+        d = _load(name)
+        m = d["machine"]
+        where = m.get("what") or f"{m.get('cpus')} cores"
+        rows = []
+        for r in d["rows"]:
+            b, n = r.get("base"), r.get("new")
+            cells = [_num(b), _num(n), f"{r['new_over_base']:.2f}" if "new_over_base" in r
+                     else "-"]
+            if "goal_absolute" in r:
+                goal = f">= {r['goal_absolute']:,}"
+            elif "goal" in r:
+                ratio = "ratio" if "/ forward run" in r["row"] else "new / base"
+                more = r["row"].endswith("trajectories/s")
+                goal = f"{ratio} {'>=' if more else '<='} {r['goal']:.3g}"
+            else:
+                goal = "-"
+            met = {True: "met", False: "not met"}.get(r.get("met"), "-")
+            rows.append([r["row"], *cells, goal, met])
+        notes = "".join(f"\n- {note}" for note in d.get("notes", []))
+        out.append(f"`{name}`: {d['base']} (base) against {d['new']} (new), {d['date']}, "
+                   f"{where}; jax {m.get('jax')}.\n\n"
+                   + _table(["row", "base", "new", "new / base", "goal", ""], rows)
+                   + (f"\n{notes}" if notes else ""))
+    return "\n\n".join(out) if out else "*No A/B results.*"
+
+
+def _num(x) -> str:
+    if not isinstance(x, (int, float)) or x != x:
+        return "-"
+    return f"{x:.3g}" if abs(x) < 1000 else f"{x:,.0f}"
+
+
 #: the engine profile's parts as the docs name them (benchmarks/kernel_counts.py, PARTS)
 ENGINE_PART_NAMES = {
     "dispatch": "dispatch", "input_table": "input table", "start": "quasi-static start",
@@ -754,6 +793,7 @@ def tables() -> dict:
         "mjx": mjx_batch(),
         "studies": studies(),
         "engine-profile": engine_profile(),
+        "engine-ab": engine_ab(),
         "l3": l3(),
         "l3-scene": l3_scene(),
         "implicit": implicit(),

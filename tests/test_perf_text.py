@@ -70,3 +70,19 @@ def test_engine_profile_section_is_generated_from_the_json():
         line = next(ln for ln in text.splitlines() if ln.startswith(f"| {m} |"))
         assert " / ".join(f"{r['steps']:,}" for r in rows) in line, line
         assert " / ".join(f"{r['kernels_per_step']:.0f}" for r in rows) in line, line
+
+
+def test_engine_ab_section_is_generated_from_the_json():
+    """The engine's A/B rows on docs/performance.md are every `engine_ab*.json`'s, each row with
+    its goal's verdict."""
+    assert "<!-- perf:engine-ab -->" in PERF_MD
+    text = _gen_perf().tables()["engine-ab"]
+    files = sorted((ROOT / "benchmarks/results").glob("engine_ab*.json"))
+    assert files
+    for path in files:
+        d = json.loads(path.read_text())
+        assert f"`{path.name}`: {d['base']} (base) against {d['new']} (new)" in text
+        for r in d["rows"]:
+            line = next(x for x in text.splitlines() if x.startswith(f"| {r['row']} |"))
+            verdict = {True: "| met |", False: "| not met |"}.get(r.get("met"), "| - |")
+            assert line.endswith(verdict), line
