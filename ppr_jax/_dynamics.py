@@ -28,6 +28,8 @@ projection otherwise (L3); `_eom_terms` is the generic projection for every mode
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -86,11 +88,19 @@ def _eom_terms_jit(model, robot, z, zdot) -> EOM:
 def _has_fused_terms(model: AbstractModel) -> bool:
     """Whether `model.fused_eom` gives terms (L0-L2), decided from its class before tracing."""
     kind = type(model)
-    if kind.fused_eom is AbstractModel.fused_eom:
+    if not model.fused or kind.fused_eom is AbstractModel.fused_eom:
         return False
     return not (isinstance(model, AbstractClosedLoop)
                 and kind.fused_eom is AbstractClosedLoop.fused_eom
                 and kind.chain_spec is AbstractClosedLoop.chain_spec)
+
+
+def for_batch(model: AbstractModel) -> AbstractModel:
+    """`model` as a batch's program takes it: with the generic projection's terms
+    (`AbstractModel.fused`), which `vmap` runs faster on a CPU than the fused arithmetic. A
+    structural choice, made in Python before tracing; a model without fused terms is returned
+    as it is (its programs stay the same)."""
+    return dataclasses.replace(model, fused=False) if _has_fused_terms(model) else model
 
 
 def _fused(model, robot, z, zdot) -> EOM:

@@ -14,7 +14,14 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from ppr_jax._dynamics import EOM, _eom_terms, accelerations, eom_terms
+from ppr_jax._dynamics import (
+    EOM,
+    _eom_terms,
+    _has_fused_terms,
+    accelerations,
+    eom_terms,
+    for_batch,
+)
 from ppr_jax._geometry import home_pose
 from ppr_jax._studies import explicit_params
 
@@ -148,6 +155,14 @@ def test_the_simulator_uses_the_fused_terms():
         z = model.coords_from_pose(robot, home_pose(robot))
         assert model.fused_eom(robot, z, jnp.zeros_like(z)) is not None
     assert pj.get_model("beam").fused_eom(robot, None, None) is None
+    # a batch's program takes the generic terms (faster under vmap; test_batch.py compares its
+    # members with single runs, which take the fused ones), decided before tracing
+    for name in MODELS:
+        model = pj.get_model(name)
+        assert _has_fused_terms(model) and not _has_fused_terms(for_batch(model))
+        assert for_batch(model) != model and type(for_batch(model)) is type(model)
+    beam = pj.get_model("beam")
+    assert for_batch(beam) is beam
 
 
 #: what a batch's members differ in: their state, or one parameter

@@ -9,6 +9,7 @@ import diffrax
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._dynamics import for_batch
 from .._models import get_model
 from .._params import RobotParams
 from .._programs import cached_program
@@ -32,7 +33,7 @@ def _member(robot_dyn, scene, model, robot_static, options):
 
 def scene_batch_program(scene, model, robot, options):
     dyn, static = eqx.partition(robot, eqx.is_array)
-    return map_members(_member)(dyn, scene, model, static, options)
+    return map_members(_member)(dyn, scene, for_batch(model), static, options)
 
 
 _JIT_BATCH = eqx.filter_jit(scene_batch_program)
@@ -44,7 +45,7 @@ def _sharded(devices: tuple):
     if devices not in _SHARDED:
         def fn(scene, model, robot, options):
             dyn, static = eqx.partition(robot, eqx.is_array)
-            return map_members(_member, devices)(dyn, scene, model, static, options)
+            return map_members(_member, devices)(dyn, scene, for_batch(model), static, options)
 
         _SHARDED[devices] = eqx.filter_jit(fn)
     return _SHARDED[devices]
