@@ -397,3 +397,24 @@ def test_a_member_whose_path_crosses_a_singularity_is_refused_before_running():
     assert reasons[0] == "" and plist[0] is not None
     assert plist[1] is None and reasons[1].startswith(
         "singular configuration along the nominal path"), reasons
+
+
+def test_a_members_run_takes_the_generic_terms(monkeypatch):
+    """A sweep's members are vmapped, so they take the generic equations of motion as a scene's
+    batch does (`for_batch`: faster under vmap; `test_sweep_members_equal_single_runs` compares
+    them with single runs, which take the fused ones). The run itself is replaced here: only
+    the model it is handed is checked."""
+    from ppr_jax._dynamics import _has_fused_terms
+    from ppr_jax._studies._evaluation import Evaluation
+
+    seen = []
+
+    def run(self, robot, options=None):
+        seen.append(self.ctx.model)
+        return {m: robot.params.t * 0.0 for m in self.metrics}, 0, 0
+
+    monkeypatch.setattr(Evaluation, "run", run)
+    res = pj.sweep("paper-circle", vary={"t": [0.3e-3]}, chunk_size=1, **KW)
+    assert [r["status"] for r in res.rows] == ["ok"]
+    assert seen and all(m.name == "reduced" and not _has_fused_terms(m) for m in seen)
+    assert _has_fused_terms(pj.get_model("reduced"))
