@@ -38,7 +38,10 @@ ahead of time and then
   any attribution (the two runs timed in turn, so that both see the same load; on a busy
   machine the time can still come out wrong, even negative: the kernels are exact);
 - one right-hand side alone (the scene's vector field at its initial state): its compiled XLA
-  operations and its time per call inside a `lax.scan` of 2,000 calls.
+  operations, its time per call inside a `lax.scan` of 2,000 calls, and its arithmetic as
+  element operations (each elementwise operation once per output element) in the traced
+  program and in the compiled one: XLA's fusion recomputes a value in every fusion that uses
+  it, so the second can exceed the first (`jaxpr_element_ops`, `hlo_element_ops`).
 
 `--checkout DIR` measures DIR's library (another commit: `before`) and this tree's (`after`),
 each in a fresh process with `PYTHONPATH` set to its tree, one after the other on the same
@@ -76,6 +79,7 @@ import argparse
 import collections
 import glob
 import json
+import math
 import os
 import platform
 import re
@@ -387,6 +391,41 @@ def _ops(compiled_text: str) -> dict:
             "dots": ops.get("dot", 0)}
 
 
+#: elementwise arithmetic, as JAX names it and as XLA's HLO does
+_JAXPR_ARITH = {"mul", "add", "sub", "neg", "div", "sin", "cos", "atan2", "sqrt", "select_n",
+                "lt", "le", "gt", "ge", "eq", "ne", "integer_pow", "max", "min", "abs", "exp",
+                "log", "tan", "rsqrt", "pow", "sign", "floor", "round"}
+_HLO_ARITH = {"multiply", "add", "subtract", "negate", "divide", "sine", "cosine", "atan2",
+              "sqrt", "select", "compare", "maximum", "minimum", "abs", "exponential", "log",
+              "tan", "rsqrt", "power", "sign", "floor", "round-nearest-even", "round-nearest-afz",
+              "clamp"}
+
+
+def jaxpr_element_ops(jaxpr) -> int:
+    """Elements computed by `jaxpr`'s elementwise arithmetic (each operation counted once per
+    output element; nested jaxprs included): the traced program's arithmetic."""
+    n = 0
+    for e in jaxpr.eqns:
+        if e.primitive.name in _JAXPR_ARITH:
+            n += int(math.prod(e.outvars[0].aval.shape))
+        for p in e.params.values():
+            for sub in (p if isinstance(p, (tuple, list)) else (p,)):
+                inner = getattr(sub, "jaxpr", sub)
+                if hasattr(inner, "eqns"):
+                    n += jaxpr_element_ops(inner)
+    return n
+
+
+def hlo_element_ops(compiled_text: str) -> int:
+    """Elements computed by the elementwise arithmetic of a compiled module's text (every
+    instruction, inside fusions too, counted once per output element)."""
+    n = 0
+    for m in re.finditer(r"= [a-z]\w*\[([\d,]*)\](?:\{[^}]*\})? ([a-z][\w-]*)\(", compiled_text):
+        if m.group(2) in _HLO_ARITH:
+            n += math.prod(int(x) for x in m.group(1).split(",") if x)
+    return n
+
+
 def _min_time(fn, args, repeats, budget_s=None):
     """Minimum over `repeats` calls (fewer where `budget_s` seconds are spent first)."""
     jax.block_until_ready(fn(*args))
@@ -467,8 +506,14 @@ def _rhs_alone(c, repeats) -> dict:
     def vf(r, y, t):
         return _vector_field(model, r, act, w, None, t, y)
 
-    text = eqx.filter_jit(vf).lower(robot, y0, 0.01).compile().compiled.as_text()
+    lowered = eqx.filter_jit(vf).lower(robot, y0, 0.01)
+    text = lowered.compile().compiled.as_text()
     row = _ops(text)
+    # the arithmetic: element operations as traced and as compiled (XLA's fusion recomputes a
+    # value in every fusion that uses it, so the compiled count can exceed the traced one)
+    row["traced_element_ops"] = jaxpr_element_ops(
+        jax.make_jaxpr(lambda r, y: vf(r, y, 0.01))(robot, y0).jaxpr)
+    row["compiled_element_ops"] = hlo_element_ops(text)
     n_calls = 2000
     times = jnp.linspace(0.0, float(ts[-1]), n_calls)
     run = _scanned(vf, lambda d: d[1][0], times)

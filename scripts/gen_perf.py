@@ -376,6 +376,16 @@ def _us(us) -> str:
     return f"{us / 1e3:.1f} ms" if us >= 1e3 else f"{us:.1f} us"
 
 
+def _element_ops(r) -> str:
+    """A right-hand side's elementwise arithmetic as traced and as compiled (the compiled count
+    holds XLA's recomputation of a value in each fusion that uses it)."""
+    rhs = r.get("rhs", {})
+    if "traced_element_ops" not in rhs:
+        return "-"
+    t, c = rhs["traced_element_ops"], rhs["compiled_element_ops"]
+    return f"{t:,}, {c:,} ({c / t:.2f}x)"
+
+
 def engine_profile() -> str:
     """Where a `paper-circle` run's kernels and time go, per model, before and after
     (benchmarks/kernel_counts.py --all-models, `engine_profile.json`)."""
@@ -396,7 +406,7 @@ def engine_profile() -> str:
         return " / ".join(cells)
 
     head = ["model", "steps", "run", "kernel events", "kernels a step", "a step",
-            "one right-hand side"]
+            "one right-hand side", "its element operations: traced, compiled"]
     rows = []
     for m in models:
         rows.append([
@@ -407,6 +417,7 @@ def engine_profile() -> str:
             both(m, lambda r: f"{r['us_per_step']:.1f} us" if "us_per_step" in r else "-"),
             both(m, lambda r: (f"{r['rhs']['kernels']} kernels, {r['rhs']['us_per_call']:.1f} us"
                                if "kernels" in r.get("rhs", {}) else "-")),
+            both(m, _element_ops),
         ])
     out = []
     if len(sides) > 1:

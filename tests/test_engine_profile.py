@@ -75,3 +75,20 @@ def test_parts_follow_the_frames(kc):
     rk = ("/diffrax/_solver/runge_kutta.py", "AbstractRungeKutta.step", 100)
     assert kc.classify((rk, body), rk_error_line=200) == "rk_stages"
     assert kc.classify((rk, body), rk_error_line=50) == "error_controller"
+
+
+def _sine_twice_plus(x):
+    return jnp.sin(x) * 2.0 + x
+
+
+def test_element_operations_counted_as_traced_and_as_compiled(kc):
+    """A right-hand side's arithmetic, counted in the traced program and in the compiled one:
+    one count per output element of each elementwise operation, nested programs included."""
+    x = jnp.linspace(0.0, 1.0, 4)
+    # sine, product and sum of 4 elements; twice through the inner program, plus one sum
+    assert kc.jaxpr_element_ops(jax.make_jaxpr(_sine_twice_plus)(x).jaxpr) == 12
+    twice = jax.make_jaxpr(lambda x: jax.jit(_sine_twice_plus)(x) + _sine_twice_plus(x))(x)
+    assert kc.jaxpr_element_ops(twice.jaxpr) == 28
+    # XLA computes the same 12 in one fusion (no operand is needed twice)
+    text = jax.jit(_sine_twice_plus).lower(x).compile().as_text()
+    assert kc.hlo_element_ops(text) == 12

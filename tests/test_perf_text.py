@@ -58,7 +58,8 @@ def test_design_latency_sentences_quote_the_benchmark():
 
 def test_engine_profile_section_is_generated_from_the_json():
     """docs/performance.md's "Where a run's time goes" is `engine_profile.json`'s: every model's
-    steps, run and kernels a step, before and after where both were measured."""
+    steps, run, kernels a step and a right-hand side's element operations, before and after
+    where both were measured."""
     assert "<!-- perf:engine-profile -->" in PERF_MD
     d = json.loads((ROOT / "benchmarks/results/engine_profile.json").read_text())
     text = _gen_perf().tables()["engine-profile"]
@@ -70,6 +71,12 @@ def test_engine_profile_section_is_generated_from_the_json():
         line = next(ln for ln in text.splitlines() if ln.startswith(f"| {m} |"))
         assert " / ".join(f"{r['steps']:,}" for r in rows) in line, line
         assert " / ".join(f"{r['kernels_per_step']:.0f}" for r in rows) in line, line
+        # a right-hand side's arithmetic as traced and as compiled, where it was counted
+        for r in rows:
+            rhs = r.get("rhs", {})
+            if "traced_element_ops" in rhs:
+                pair = f"{rhs['traced_element_ops']:,}, {rhs['compiled_element_ops']:,}"
+                assert pair in line, line
 
 
 def test_engine_ab_section_is_generated_from_the_json():
