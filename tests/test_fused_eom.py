@@ -23,6 +23,7 @@ from ppr_jax._dynamics import (
     for_batch,
 )
 from ppr_jax._geometry import home_pose
+from ppr_jax._scenes import map_members
 from ppr_jax._studies import explicit_params
 
 MODELS = ["rigid", "reduced", "double1r"]
@@ -163,6 +164,16 @@ def test_the_simulator_uses_the_fused_terms():
         assert for_batch(model) != model and type(for_batch(model)) is type(model)
     beam = pj.get_model("beam")
     assert for_batch(beam) is beam
+    # the one batch mapper hands every member the batch's model, wherever it sits in the shared
+    # arguments (a scene's batch passes the model, a sweep its `Evaluation`'s context)
+    seen = []
+
+    def member(one, shared):
+        seen.extend(shared)
+        return one
+
+    map_members(member)(jnp.zeros(2), [pj.get_model("double1r"), {"m": pj.get_model("rigid")}])
+    assert [_has_fused_terms(m) for m in (seen[0], seen[1]["m"])] == [False, False]
 
 
 #: what a batch's members differ in: their state, or one parameter

@@ -2,7 +2,8 @@
 
 Scenes, sweeps, sensitivities and identification map their members through `map_members`.
 Adaptive steps never synchronise across devices (`_devices.py`): each device runs a plain local
-vmap over its members, a chunk at a time.
+vmap over its members, a chunk at a time. Every model among the shared arguments takes the
+generic equations of motion there (`_dynamics.for_batch`: faster under vmap on a CPU).
 """
 
 from __future__ import annotations
@@ -12,6 +13,9 @@ from typing import Callable, Sequence
 import equinox as eqx
 import jax
 import numpy as np
+
+from .._dynamics import for_batch
+from .._models import AbstractModel
 
 #: members vectorised together on one device at most: a larger local batch runs as a loop over
 #: chunks of this size (`chunked_vmap`)
@@ -40,9 +44,14 @@ def batch_devices(batch: int) -> tuple:
 def map_members(member: Callable, devices: Sequence = ()) -> Callable:
     """`fn(batched, *shared)`: `member(one, *shared)` for every member of the pytree `batched`
     (leading axis), traceable. Without `devices` (or one), a chunked vmap; with several, the
-    batch axis split over a 1-D mesh by `shard_map`, `shared` replicated."""
+    batch axis split over a 1-D mesh by `shard_map`, `shared` replicated. Every model in
+    `shared` (an `AbstractModel` anywhere in its pytrees) is handed to `member` as a batch
+    takes it (`for_batch`), a structural choice made before tracing."""
 
     def local(batched, *shared):
+        shared = jax.tree_util.tree_map(
+            lambda x: for_batch(x) if isinstance(x, AbstractModel) else x, shared,
+            is_leaf=lambda x: isinstance(x, AbstractModel))
         return chunked_vmap(lambda one: member(one, *shared), batched)
 
     if len(devices) <= 1:

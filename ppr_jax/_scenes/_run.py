@@ -9,7 +9,6 @@ import diffrax
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._dynamics import for_batch
 from .._models import get_model
 from .._params import RobotParams
 from .._programs import cached_program
@@ -28,8 +27,8 @@ def scene_program(scene, model, robot, options):
 
 
 def _member(robot_dyn, scene, model, robot_static, options):
-    # a batch's member takes the generic terms (`for_batch`: faster under vmap)
-    return scene.run(for_batch(model), eqx.combine(robot_dyn, robot_static), options)
+    # `map_members` hands a member the model with the generic terms (`for_batch`)
+    return scene.run(model, eqx.combine(robot_dyn, robot_static), options)
 
 
 def scene_batch_program(scene, model, robot, options):

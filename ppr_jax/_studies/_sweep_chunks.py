@@ -13,7 +13,6 @@ from typing import Callable, Union
 import equinox as eqx
 import numpy as np
 
-from .._dynamics import for_batch
 from .._errors import result_message
 from .._params import stack_params
 from .._programs import cached_program
@@ -33,9 +32,7 @@ def _member(robot_dyn, robot_static, ev: Evaluation, rtol, atol):
     options = ev.ctx.options
     opts = eqx.tree_at(lambda o: o.controller, options,
                        default_controller(options.solver, rtol, atol))
-    # a member takes the generic terms, as a scene's batch member does (`for_batch`)
-    if ev.ctx.model is not None:
-        ev = eqx.tree_at(lambda e: e.ctx.model, ev, for_batch(ev.ctx.model))
+    # `map_members` hands the member its models with the generic terms (`for_batch`)
     return ev.run(eqx.combine(robot_dyn, robot_static), opts)
 
 
