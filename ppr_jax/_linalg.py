@@ -287,3 +287,21 @@ def solve_spd(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, " n
     if A.shape[-1] > UNROLL_MAX:
         return solve(A, b)
     return _solve_spd(A, b)
+
+
+def solve_arrow(A: Float[Array, "n n"], b: Float[Array, " n"], k: int) -> Float[Array, " n"]:
+    """x with A x = b for a symmetric positive definite A whose last `k` rows and columns couple
+    with the first n - k and with themselves only (an arrow matrix: [[A11, A12], [A12^T, D]]
+    with D diagonal, L2's mass matrix with its chains' own coordinates last). The diagonal is
+    eliminated first: S = A11 - A12 D^-1 A12^T, x1 = S^-1 (b1 - A12 D^-1 b2),
+    x2 = D^-1 (b2 - A12^T x1); k divisions and one (n - k) x (n - k) solve. The entries of the
+    diagonal block off its diagonal are not read."""
+    s = A.shape[-1] - k
+    A12 = A[:s, s:]
+    d = jnp.stack([A[s + i, s + i] for i in range(k)])
+    W = A12 * (1.0 / d)[None, :]  # (s, k): A12 D^-1
+    S = A[:s, :s] - _mm(W, A12.T)
+    b1, b2 = b[:s], b[s:]
+    x1 = solve_spd(S, b1 - _mv(W, b2))
+    x2 = (b2 - _mv(A12.T, x1)) / d
+    return jnp.concatenate([x1, x2])

@@ -31,7 +31,7 @@ from ._errors import (
     is_traced,
 )
 from ._esdirk import KeptKvaerno5
-from ._linalg import solve_spd
+from ._linalg import solve_arrow, solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
 from ._robot import RobotLike, as_robot
@@ -297,7 +297,14 @@ def accelerations(model, robot, actuation, wrench, t, zf, zfd):
     eom = eom_terms(model, robot, z, zd)
     if not pres:
         tau = actuation.torque_at(t, eom.kin.th_a, eom.Jth @ zd)
-        zdd = solve_spd(eom.M, generalized_force(eom, tau, wrench) - eom.h)
+        rhs = generalized_force(eom, tau, wrench) - eom.h
+        if model.chain_coordinates:
+            # XLA fuses the mass matrix's arithmetic into every kernel that reads a block of it;
+            # eliminating the diagonal block first reads fewer blocks (L2's compiled right-hand
+            # side: 7,323 -> 4,859 element operations)
+            zdd = solve_arrow(eom.M, rhs, model.chain_coordinates)
+        else:
+            zdd = solve_spd(eom.M, rhs)
         return z, zd, zdd, tau
     rhs = generalized_force(eom, jnp.zeros(3), wrench) - eom.h
     Mf = _take(eom.M, free)

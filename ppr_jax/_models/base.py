@@ -16,7 +16,7 @@ its registry (`ppr_jax/_models/__init__.py`).
 
 
 import abc
-from typing import Optional
+from typing import ClassVar, Optional
 
 import equinox as eqx
 import jax
@@ -70,6 +70,12 @@ class AbstractModel(eqx.Module):
     #: and its default tolerances looser, `_scenes/_options.py`) and the quasi-static start
     #: moves them onto their slow path (`_statics.onto_slow_manifold`)
     fast_index: eqx.AbstractClassVar[tuple[int, ...]]
+    #: how many of the last coordinates each belong to one chain alone (one per chain, in chain
+    #: order; L2's actuated angles), 0 for none: the mass matrix couples each of them with the
+    #: others only through the first coordinates, so the right-hand side solves it with that
+    #: diagonal block eliminated first (`_linalg.solve_arrow`) and the fused terms compute
+    #: their columns as one per-chain column (`_models/fused.ChainSpec.own`)
+    chain_coordinates: ClassVar[int] = 0
     #: the solver a scene uses when the options name none (`SceneOptions.solver`; the names of
     #: `_simulate.get_solver`): explicit Runge-Kutta for the non-stiff levels (docs/
     #: which_model.md), an implicit one for a model with fast coordinates

@@ -67,9 +67,10 @@ class AbstractDouble1R(AbstractClosedLoop):
             th_a=th[:, 0] - robot.sigma * robot.delta1, margin=margin,
         )
 
-    def double1r_spec(self, robot: Robot, th, Gz, Gu) -> ChainSpec:
+    def double1r_spec(self, robot: Robot, th, Gz, Gu, own=()) -> ChainSpec:
         """The `ChainSpec` of the double-1R chains with angles th (3, 3) and their derivatives
-        Gz (3, 3, n), Gu (3, 2) (the subclass's choice of u): the bodies of `chain_bodies`."""
+        Gz (3, 3, n), Gu (3, 2) (the subclass's choice of u), the chains' own coordinates
+        `own`: the bodies of `chain_bodies`."""
         sig = robot.sigma
         return ChainSpec(
             alpha=[th[:, 0], th[:, 1], th[:, 2]], Gz=Gz, Gu=Gu,
@@ -82,7 +83,7 @@ class AbstractDouble1R(AbstractClosedLoop):
                       Link(2, -robot.l3 / 2, sig * robot.delta3)), 2, robot.m3, robot.I3),
             ),
             springs=(np.array([-1.0, 1.0, 0.0]), np.array([0.0, -1.0, 1.0])),
-            actuated=0,
+            actuated=0, own=own,
         )
 
     def masses(self, robot):
@@ -116,6 +117,7 @@ class Double1R(AbstractDouble1R):
     level = 2
     n_dof = 6
     actuated_index = (3, 4, 5)
+    chain_coordinates = 3
 
     # The dependent coordinates u (3, 2) are each chain's (th_i2, th_i3); th_i1 is th_a (+ the
     # strip geometry's fixed offset), a coordinate.
@@ -139,7 +141,9 @@ class Double1R(AbstractDouble1R):
         Gz = np.zeros((3, 3, 6))
         Gz[0, np.arange(3), 3 + np.arange(3)] = 1.0
         Gu = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-        return self.double1r_spec(robot, self._angles(robot, z, u), Gz, Gu)
+        # each chain's actuated angle moves that chain alone
+        return self.double1r_spec(robot, self._angles(robot, z, u), Gz, Gu,
+                                  own=self.actuated_index)
 
     def coords_from_pose(self, robot, X):
         th, _ = ik_reduced(robot, X)

@@ -20,8 +20,12 @@ angles u_i (`ChainSpec`: constant coefficients `Gz`, `Gu`), and every body is su
 which is the generic projection's algorithm (implicit differentiation of the closures, Kane's
 form) with every derivative in closed form: elementwise operations on the three chains' (3,)
 arrays, unrolled over the n coordinates, and sums over the chains, which XLA fuses into a few
-kernels. The physics is unchanged; `tests/test_fused_eom.py` compares every term with the generic
-projection, in value and in forward and reverse derivatives.
+kernels. A coordinate that moves one chain alone (L2's actuated angles, `ChainSpec.own`) takes
+one column for the three chains, entry i chain i's derivative along its own coordinate: its
+terms are the chains' own, not sums, and the mass matrix is an arrow matrix whose diagonal
+block the right-hand side eliminates first (`_linalg.solve_arrow`). The physics is unchanged;
+`tests/test_fused_eom.py` compares every term with the generic projection, in value and in
+forward and reverse derivatives.
 """
 
 from __future__ import annotations
@@ -63,7 +67,9 @@ class ChainSpec(NamedTuple):
     `bodies`: the chains' bodies (the platform, m4 and I4 at X, is added here);
     `springs`: one (K,) NumPy coefficient vector per spring of a chain (the deflection's
     Jacobian is coef . d alpha/dz; its value comes from `Kin.deflection`, chain-major);
-    `actuated`: the chain angle whose derivative is the actuated angle's."""
+    `actuated`: the chain angle whose derivative is the actuated angle's;
+    `own`: the coordinates that each chain depends on alone, one per chain in chain order, the
+    last of z (L2's actuated angles), or () (L0, L1: every coordinate is the platform's)."""
 
     alpha: list
     Gz: np.ndarray
@@ -72,6 +78,7 @@ class ChainSpec(NamedTuple):
     bodies: tuple
     springs: tuple
     actuated: int
+    own: tuple = ()
 
 
 #: entries per stack in the sums over the chains (`fused_eom`)
@@ -106,7 +113,11 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
     (`_dynamics.EOM`) from a `ChainSpec` at (z, z') with `kin` the kinematics at z."""
     n = z.shape[0]
     K = len(spec.alpha)
-    zd = [zdot[j] for j in range(n)]
+    own = tuple(int(j) for j in spec.own)
+    ns = n - len(own)  # the shared coordinates, the platform's pose first
+    Gz = _local_columns(spec.Gz, own)
+    nl = Gz.shape[-1]  # the shared coordinates, then one column for the chains' own ones
+    zd = [zdot[j] for j in range(ns)] + ([zdot[ns:]] if own else [])
     ev = [(jnp.cos(a), jnp.sin(a)) for a in spec.alpha]
     ep = [_perp(v) for v in ev]
     phi = z[2]
@@ -117,7 +128,7 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
     rho_E = robot.rho_E
 
     def gz(k, j):
-        g = spec.Gz[k, :, j]
+        g = Gz[k, :, j]
         if not g.any():
             return None
         return float(g[0]) if np.all(g == g[0]) else jnp.asarray(g)
@@ -135,7 +146,7 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
     Phi_u = [closure_col([float(spec.Gu[link.k, m]) or None for link in spec.closure])
              for m in range(2)]
     Phi_z = []
-    for j in range(n):
+    for j in range(nl):
         col = closure_col([gz(link.k, j) for link in spec.closure])
         # minus dE_i/dz_j: E_i = (x, y) + rho_E e(psi_i)
         if j < 2:
@@ -155,7 +166,7 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
         rx, ry = r
         return (-(d * rx - b * ry) * inv_det, -(a * ry - c * rx) * inv_det)
 
-    u_z = [solve2(Phi_z[j]) for j in range(n)]  # u_z[j] = (du_0/dz_j, du_1/dz_j)
+    u_z = [solve2(Phi_z[j]) for j in range(nl)]  # u_z[j] = (du_0/dz_j, du_1/dz_j)
 
     def add(x, y):
         return y if x is None else (x if y is None else x + y)
@@ -164,7 +175,7 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
     A_z = []
     for k in range(K):
         row = []
-        for j in range(n):
+        for j in range(nl):
             v = gz(k, j)
             for m in range(2):
                 g = float(spec.Gu[k, m])
@@ -183,15 +194,15 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
                 float(spec.Gu[k, 1]) * udd[1] if spec.Gu[k, 1] else None) for k in range(K)]
 
     # Bodies: mass matrix and convective terms, per chain
-    M = [[None] * n for _ in range(n)]
-    h = [None] * n
+    M = [[None] * nl for _ in range(nl)]
+    h = [None] * nl
     for body in spec.bodies:
-        Jx, Jy = [None] * n, [None] * n
+        Jx, Jy = [None] * nl, [None] * nl
         ax, ay = None, None
         for link in body.links:
             e_ = _turned(ev[link.k], link.offset)
             p_ = _perp(e_)
-            for j in range(n):
+            for j in range(nl):
                 if A_z[link.k][j] is not None:
                     Jx[j] = add(Jx[j], link.c * A_z[link.k][j] * p_[0])
                     Jy[j] = add(Jy[j], link.c * A_z[link.k][j] * p_[1])
@@ -201,8 +212,8 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
                 ax = ax + link.c * A_dd[link.k] * p_[0]
                 ay = ay + link.c * A_dd[link.k] * p_[1]
         Ja = A_z[body.angle]
-        for i in range(n):
-            for j in range(i, n):
+        for i in range(nl):
+            for j in range(i, nl):
                 t = _dot([Jx[i], Jy[i]], [Jx[j], Jy[j]])
                 t = body.m * t if t is not None else None
                 if Ja[i] is not None and Ja[j] is not None:
@@ -216,39 +227,79 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
 
     # Springs with their damping, and the actuators' viscous friction
     defl = kin.deflection.reshape(3, -1)
-    Q = [None] * n
+    Q = [None] * nl
     for s, coef in enumerate(spec.springs):
         Jd = [_dot([float(c_) or None for c_ in coef], [A_z[k][j] for k in range(K)])
-              for j in range(n)]
+              for j in range(nl)]
         f = -stiffness * defl[:, s] - damping * _dot(Jd, zd)
-        for j in range(n):
+        for j in range(nl):
             if Jd[j] is not None:
                 Q[j] = add(Q[j], Jd[j] * f)
     Jth = A_z[spec.actuated]
     fa = -robot.c_act * _dot(Jth, zd)
-    for j in range(n):
+    for j in range(nl):
         if Jth[j] is not None:
             Q[j] = add(Q[j], Jth[j] * fa)
 
     # The sums over the chains, in groups of `GROUP` entries: XLA's CPU fusion takes a stack of
     # a few operands into the reduction that consumes it, but computes every operand of a longer
-    # stack as a kernel of its own (one stack of L2's 48 entries: 49 kernels; in groups: 5)
+    # stack as a kernel of its own (one stack of L2's 48 entries: 49 kernels; in groups: 5).
+    # Only the shared coordinates' terms are sums; a chain's own coordinate takes its chain's.
     zero = jnp.zeros(3, dtype=z.dtype)
-    cols = [M[i][j] for i in range(n) for j in range(i, n)] + h + Q
-    cols = [zero if x is None else jnp.broadcast_to(x, (3,)) for x in cols]
+
+    def chains(x):
+        return zero if x is None else jnp.broadcast_to(x, (3,))
+
+    cols = [M[i][j] for i in range(ns) for j in range(i, ns)] + h[:ns] + Q[:ns]
+    cols = [chains(x) for x in cols]
+    # A chain's own terms ride in the same array as the sums: every output then depends on
+    # every input that any does, as the generic projection's do, which a custom derivative
+    # under `vmap` needs (its outputs' batching is the primal's; L2's h does not depend on
+    # the rotor inertia here and does there)
+    own_terms = ([chains(M[i][ns]) for i in range(ns)] + [chains(M[ns][ns]), chains(h[ns]),
+                                                          chains(Q[ns])]) if own else []
     S = jnp.concatenate([jnp.sum(jnp.stack(cols[g : g + GROUP]), axis=-1)
-                         for g in range(0, len(cols), GROUP)])
-    iu = np.triu_indices(n)
-    upper = np.zeros((n, n), dtype=int)
+                         for g in range(0, len(cols), GROUP)] + own_terms)
+    iu = np.triu_indices(ns)
+    upper = np.zeros((ns, ns), dtype=int)
     upper[iu] = np.arange(len(iu[0]))
     upper = np.maximum(upper, upper.T)  # the symmetric entry's index
     nm = len(iu[0])
     # the platform: m4 at (x, y), I4 about phi (no convective acceleration in X)
     plat = jnp.stack([robot.m4, robot.m4, robot.I4])
-    M = jnp.stack([jnp.stack([S[int(upper[i, j])] for j in range(n)]) for i in range(n)])
-    M = M + jnp.diag(jnp.pad(plat, (0, n - 3)))
-    h, Q = S[nm : nm + n], S[nm + n :]
-    Jth = jnp.stack([x if x is not None else zero for x in Jth], axis=-1)
+    Mss = jnp.stack([jnp.stack([S[int(upper[i, j])] for j in range(ns)]) for i in range(ns)])
+    Mss = Mss + jnp.diag(jnp.pad(plat, (0, ns - 3)))
+    h_s, Q_s = S[nm : nm + ns], S[nm + ns : nm + 2 * ns]
+    Jth_s = jnp.stack([chains(x) for x in Jth[:ns]], axis=-1)
+    if own:
+        # chain i's own coordinate couples with the shared ones and with itself only
+        o = nm + 2 * ns
+        B = S[o : o + 3 * ns].reshape(ns, 3)
+        D, h_o, Q_o = (S[o + 3 * (ns + m) : o + 3 * (ns + m + 1)] for m in range(3))
+        M = jnp.concatenate([jnp.concatenate([Mss, B], axis=1),
+                             jnp.concatenate([B.T, jnp.diag(D)], axis=1)])
+        h = jnp.concatenate([h_s, h_o])
+        Q = jnp.concatenate([Q_s, Q_o])
+        Jth = jnp.concatenate([Jth_s, jnp.diag(chains(Jth[ns]))], axis=1)
+    else:
+        M, h, Q, Jth = Mss, h_s, Q_s, Jth_s
     JX = jnp.asarray(np.eye(3, n), dtype=z.dtype)
     return M, h, Q, Jth, JX
 
+
+def _local_columns(Gz, own):
+    """Gz (K, 3, n) with the chains' own coordinates `own` (one per chain, the last of z) merged
+    into one column (K, 3, n - len(own) + 1): entry i of the merged column is chain i's
+    derivative along its own coordinate. The terms of the three own coordinates are then one
+    (3,) array each instead of three, two thirds of them structural zeros."""
+    if not own:
+        return Gz
+    n, ns = Gz.shape[-1], Gz.shape[-1] - len(own)
+    if own != tuple(range(ns, n)) or len(own) != Gz.shape[1]:
+        raise ValueError(f"own coordinates {own}: one per chain, the last of z ({n} coordinates)")
+    merged = np.stack([Gz[:, i, j] for i, j in enumerate(own)], axis=1)  # (K, 3)
+    others = Gz[:, :, ns:].copy()
+    others[:, np.arange(len(own)), np.arange(len(own))] = 0.0
+    if others.any():
+        raise ValueError("a chain's own coordinate moves another chain's angles")
+    return np.concatenate([Gz[:, :, :ns], merged[:, :, None]], axis=2)
