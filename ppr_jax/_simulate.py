@@ -389,7 +389,7 @@ def _solve(diff, model, solver, stepsize_controller, dt0, max_steps, throw, prog
 
 
 def _solve_out(sol):
-    return sol.ys, sol.result, sol.stats
+    return sol.ys, sol.ts, sol.result, sol.stats
 
 
 @eqx.filter_custom_vjp
@@ -407,7 +407,7 @@ def _solve_recorded_fwd(perturbed, diff, *rest):
     sol = _solve(diff, *rest, saveat=saveat)
     ends = sol.ts[1]
     grid = jnp.concatenate([ts[:1], jnp.where(jnp.isfinite(ends), ends, ts[-1])])
-    out = (sol.ys[0], sol.result, sol.stats)
+    out = (sol.ys[0], sol.ts[0], sol.result, sol.stats)
     return out, grid
 
 
@@ -415,6 +415,8 @@ def _solve_recorded_fwd(perturbed, diff, *rest):
 def _solve_recorded_bwd(grid, g_out, perturbed, diff, model, solver, stepsize_controller, dt0,
                         max_steps, throw, progress_meter, adjoint, skip):
     del perturbed, stepsize_controller, dt0, throw, progress_meter
+    # the saved times' cotangent is dropped: they are the requested ts (or inf where the
+    # solve stopped short), and simulate_core takes their derivative from ts itself
     g_ys = g_out[0]
 
     def ys(d):
@@ -426,6 +428,16 @@ def _solve_recorded_bwd(grid, g_out, perturbed, diff, model, solver, stepsize_co
         g_ys = jnp.zeros_like(out)
     (g_diff,) = vjp(g_ys)
     return g_diff
+
+
+def _on_recorded_grid(adjoint, controller) -> bool:
+    """Whether reverse mode differentiates on the recorded steps: diffrax's
+    `RecursiveCheckpointAdjoint` with an adaptive controller that makes no jumps (after a
+    `jump_ts` time a first-same-as-last solver evaluates the vector field again, which a grid
+    of step ends does not say)."""
+    return (isinstance(adjoint, diffrax.RecursiveCheckpointAdjoint)
+            and isinstance(controller, diffrax.AbstractAdaptiveStepSizeController)
+            and getattr(controller, "jump_ts", None) is None)
 
 
 @eqx.filter_jit
@@ -457,19 +469,20 @@ def simulate_core(
     diff = (robot, actuation, wrench, y0, ts)
     rest = (model, solver, stepsize_controller, dt0, max_steps, throw, progress_meter, adjoint,
             skip)
-    if (isinstance(adjoint, diffrax.RecursiveCheckpointAdjoint)
-            and isinstance(stepsize_controller, diffrax.AbstractAdaptiveStepSizeController)):
-        ys, result, stats = _solve_recorded(diff, *rest)
+    if _on_recorded_grid(adjoint, stepsize_controller):
+        ys, saved, result, stats = _solve_recorded(diff, *rest)
+        # diffrax's saved times: ts, inf where the solve stopped short
+        saved = jnp.where(jnp.isfinite(saved), ts, saved)
     else:
-        ys, result, stats = _solve_out(_solve(diff, *rest))
+        ys, saved, result, stats = _solve_out(_solve(diff, *rest))
     nf = len(free)
     z, zd, tau = jax.vmap(
         lambda t, a, b: _outputs(model, robot, actuation, wrench, t, a, b)
-    )(ts, ys[:, :nf], ys[:, nf:])
+    )(saved, ys[:, :nf], ys[:, nf:])
     # A status code, not a host callback: invalid (traced) parameters name themselves.
     result = first_failure((params_invalid(robot.params), RESULTS.invalid_parameter), result)
     return Solution(
-        ts=ts, z=z, zdot=zd, tau=tau, result=result,
+        ts=saved, z=z, zdot=zd, tau=tau, result=result,
         num_steps=stats["num_steps"], num_accepted=stats["num_accepted_steps"],
         num_rejected=stats["num_rejected_steps"],
     )
