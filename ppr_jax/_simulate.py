@@ -392,6 +392,10 @@ def _solve_out(sol):
     return sol.ys, sol.ts, sol.result, sol.stats
 
 
+def _nothing(t, y, args):
+    return jnp.zeros((0,), y.dtype)
+
+
 @eqx.filter_custom_vjp
 def _solve_recorded(diff, *rest):
     return _solve_out(_solve(diff, *rest))
@@ -401,9 +405,11 @@ def _solve_recorded(diff, *rest):
 def _solve_recorded_fwd(perturbed, diff, *rest):
     del perturbed
     ts = diff[4]
-    # the grid as one more output of the same adaptive solve: the accepted steps' ends
+    # the grid as one more output of the same adaptive solve: the accepted steps' ends, which
+    # diffrax keeps as that output's times; its values are empty (a copy of the times there
+    # would be a second max_steps-long buffer written every step)
     saveat = diffrax.SaveAt(subs=[diffrax.SubSaveAt(ts=ts),
-                                  diffrax.SubSaveAt(steps=True, fn=lambda t, y, args: t)])
+                                  diffrax.SubSaveAt(steps=True, fn=_nothing)])
     sol = _solve(diff, *rest, saveat=saveat)
     ends = sol.ts[1]
     grid = jnp.concatenate([ts[:1], jnp.where(jnp.isfinite(ends), ends, ts[-1])])
