@@ -52,6 +52,13 @@ noise). Most of the script's time is compilation: an estimated 1-2 minutes a tre
 2-core CPU (XLA compiles L0-L2 in 3-8 s and L3 in about 15 s there), 20 minutes a tree on a
 2-core machine shared with several others.
 
+**A batch's profile** (`--all-models --batch B`, writes
+`benchmarks/results/engine_profile_batch.json`): the same parts for the program of a batch of B
+robots (`profile_batch`). A batch launches as many kernels as one run, each over every member,
+so its time is arithmetic, and where XLA's fusion computes a value again in every kernel or
+every entry that reads it, that recomputation is paid per member: the profile names the kernels
+that take the most time.
+
 **Reverse mode's cost** (without `--all-models`, writes `benchmarks/results/kernel_counts.json`):
 the L1 `paper-circle` sensitivity (`benchmarks/sensitivity_cost.py`: 7.54 s, rtol 1e-8, L1 under
 the rigid model's torques, the scalar `radial_error_min_m` of all 19 parameters) is made of
@@ -70,6 +77,8 @@ Run:
 
     python benchmarks/kernel_counts.py --all-models --checkout /work/base   # before and after
     python benchmarks/kernel_counts.py --all-models                          # this tree only
+    python benchmarks/kernel_counts.py --all-models --batch 256 --models reduced double1r \
+        --checkout /work/base --repeats 5                                    # a batch's
     python benchmarks/kernel_counts.py [--model reduced] [--repeats 25]      # reverse mode
 """
 
@@ -584,6 +593,79 @@ def profile_model(model_name, t_end, n_out, short_t_end, repeats) -> dict:
     return row
 
 
+#: the members of a profiled batch: strip thickness spread evenly over this range (m), as the
+#: batch benchmark's (`benchmarks/run.py --parts batch`)
+BATCH_T_RANGE = (0.28e-3, 0.40e-3)
+
+
+def profile_batch(model_name, batch, repeats) -> dict:
+    """Where a batch's time goes: `pj.paper_circle`'s program (the scene's defaults) for `batch`
+    robots whose strip thickness is spread over `BATCH_T_RANGE`, every model in it as a batch
+    takes it (`_dynamics.for_batch`, where the tree has it), `vmap`ped on one device and timed
+    (minimum of `repeats`); its kernel events attributed to the parts as a single run's are
+    (`attribute`), each part's time its share of the profiled run applied to the unprofiled
+    one. A batch's kernels are as many as one run's, each over the whole batch: here the
+    arithmetic, not the launches, sets the time, so `top` lists the kernels that take most of
+    it, with their part and innermost function."""
+    import numpy as np
+
+    import ppr_jax._dynamics as dyn_mod
+    from ppr_jax import scene_params
+    from ppr_jax._models import AbstractModel
+    from ppr_jax._robot import as_robot
+    from ppr_jax._scenes._options import SceneOptions
+    from ppr_jax._scenes._run import prepare, scene_program
+
+    t0 = time.perf_counter()
+    c = prepare("paper-circle", None, model_name, SceneOptions())
+    scene, model, _, opts = c.args
+    for_batch = getattr(dyn_mod, "for_batch", None)
+    if for_batch is not None:
+        scene, model = jax.tree_util.tree_map(
+            lambda x: for_batch(x) if isinstance(x, AbstractModel) else x, (scene, model),
+            is_leaf=lambda x: isinstance(x, AbstractModel))
+    base = scene_params("paper-circle")
+    robots = [as_robot(base.replace(t=float(t))) for t in np.linspace(*BATCH_T_RANGE, batch)]
+    robots = jax.tree_util.tree_map(lambda *a: jnp.stack(a) if eqx.is_array(a[0]) else a[0],
+                                    *robots)
+    dyn, static = eqx.partition((scene, model, robots, opts), eqx.is_array)
+
+    def program(d):
+        s, m, r, o = eqx.combine(d, static)
+        return jax.vmap(lambda one: scene_program(s, m, one, o))(r)
+
+    compiled = jax.jit(program).lower(dyn).compile()
+    row = {"model": model_name, "scene": "paper-circle", "batch": batch,
+           "t_range_m": list(BATCH_T_RANGE), "n_out": int(opts.times().shape[0]),
+           "compile_s": time.perf_counter() - t0}
+    res = compiled(dyn)
+    row["steps_max"] = int(jnp.max(res.num_steps))
+    row["run_s"] = _min_time(compiled, (dyn,), repeats, 20.0)
+    row["trajectories_per_s"] = batch / row["run_s"]
+    text = compiled.as_text()
+    index = hlo_index(text)
+    events = _trace_events(compiled, (dyn,))
+    rk_line = _rk_error_line()
+    parts = attribute(events, index, rk_line)
+    row["kernel_events"] = sum(v[0] for v in parts.values())
+    traced_ns = sum(v[1] for v in parts.values()) or 1
+    row["parts"] = {p: {"kernels": k, "share": ns / traced_ns, "s": ns / traced_ns * row["run_s"]}
+                    for p, (k, ns) in parts.items() if k}
+    busy, count = collections.Counter(), collections.Counter()
+    for name, _, dur, _ in events:
+        if _is_kernel(name, index):
+            busy[name] += dur
+            count[name] += 1
+    row["top"] = []
+    for name, ns in busy.most_common(10):
+        stack = index[name][1] if name in index else ()
+        row["top"].append({"kernel": name, "part": classify(stack, rk_line),
+                           "where": _innermost(stack), "events": count[name],
+                           "share": ns / traced_ns})
+    row["wall_s"] = time.perf_counter() - t0
+    return row
+
+
 def _tree_info(path) -> dict:
     def git(*a):
         try:
@@ -596,8 +678,9 @@ def _tree_info(path) -> dict:
             "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
 
 
-def profile_tree(models, repeats, short_t_end, l3_t_end) -> dict:
-    """The engine profile of every model of `models` with this process's `ppr_jax`."""
+def profile_tree(models, repeats, short_t_end, l3_t_end, batch=None) -> dict:
+    """The engine profile of every model of `models` with this process's `ppr_jax` (with
+    `batch`, of a batch of that many robots: `profile_batch`)."""
     import ppr_jax
 
     tree = os.path.dirname(os.path.dirname(os.path.abspath(ppr_jax.__file__)))
@@ -605,10 +688,11 @@ def profile_tree(models, repeats, short_t_end, l3_t_end) -> dict:
     for m in models:
         t_end, n_out = (7.54, 755) if m != "beam" else (l3_t_end, int(round(l3_t_end * 100)) + 1)
         try:
-            row = profile_model(m, t_end, n_out, short_t_end, repeats)
+            row = (profile_batch(m, batch, repeats) if batch else
+                   profile_model(m, t_end, n_out, short_t_end, repeats))
         except Exception as exc:  # noqa: BLE001 - one model failing leaves the others
             row = {"model": m, "error": f"{type(exc).__name__}: {exc}"[:500]}
-        if m == "beam":
+        if m == "beam" and not batch:
             row["note"] = (f"quasi-static L3 (N = 8) over {t_end:g} s with {n_out} output times "
                            "(the whole 7.54 s scene takes seconds a run)")
         out["models"][m] = row
@@ -622,7 +706,8 @@ def _subprocess_profile(tree, args) -> dict:
         path = os.path.join(d, "side.json")
         cmd = [sys.executable, os.path.abspath(__file__), "--side", path, "--repeats",
                str(args.repeats), "--short-t-end", str(args.short_t_end), "--l3-t-end",
-               str(args.l3_t_end), "--models", *args.models]
+               str(args.l3_t_end), "--models", *args.models] + (
+                   ["--batch", str(args.batch)] if args.batch else [])
         env = dict(os.environ, PYTHONPATH=os.path.abspath(tree))
         print(f"-- {tree}", flush=True)
         proc = subprocess.run(cmd, env=env, cwd=d)
@@ -640,7 +725,8 @@ def _ratios(before: dict, after: dict) -> dict:
         if not b or "error" in a or "error" in b:
             continue
         r = {}
-        for key in ("run_s", "kernel_events", "kernels_per_step", "us_per_step", "steps"):
+        for key in ("run_s", "kernel_events", "kernels_per_step", "us_per_step", "steps",
+                    "trajectories_per_s"):
             if a.get(key) and b.get(key):
                 r[key] = a[key] / b[key]
         out[m] = r
@@ -678,19 +764,25 @@ def _machine() -> dict:
 
 def engine_profile(args) -> None:
     t0 = time.perf_counter()
-    out = {"what": "where a paper-circle run's kernels and time go, per model (module "
-                   "docstring of benchmarks/kernel_counts.py)",
+    what = (f"where the time of a batch of {args.batch} paper-circle runs goes, per model "
+            "(profile_batch in benchmarks/kernel_counts.py)" if args.batch else
+            "where a paper-circle run's kernels and time go, per model (module docstring of "
+            "benchmarks/kernel_counts.py)")
+    out = {"what": what,
            "command": "python benchmarks/kernel_counts.py " + " ".join(sys.argv[1:]),
            "parts": {p: {"kind": k, "what": w} for p, k, w in PARTS}, "machine": _machine()}
     if args.checkout:
         out["before"] = _subprocess_profile(args.checkout, args)
         out["after"] = _subprocess_profile(ROOT, args)
         out["ratios"] = _ratios(out["before"], out["after"])
-        out["goals"] = goals(out["ratios"])
+        if not args.batch:  # the goals are a single run's
+            out["goals"] = goals(out["ratios"])
     else:
-        out["after"] = profile_tree(args.models, args.repeats, args.short_t_end, args.l3_t_end)
+        out["after"] = profile_tree(args.models, args.repeats, args.short_t_end, args.l3_t_end,
+                                    args.batch)
     out["runtime_s"] = time.perf_counter() - t0
-    path = os.path.join(OUT, args.out or "engine_profile.json")
+    default = "engine_profile_batch.json" if args.batch else "engine_profile.json"
+    path = os.path.join(OUT, args.out or default)
     with open(path, "w") as fh:
         json.dump(out, fh, indent=1)
     print(f"wrote {path} in {out['runtime_s']:.0f} s")
@@ -788,11 +880,15 @@ def main():
     ap.add_argument("--model", default="reduced", help="reverse mode's model")
     ap.add_argument("--repeats", type=int, default=25)
     ap.add_argument("--out", default=None, help="file name under benchmarks/results/")
+    ap.add_argument("--batch", type=int, default=None,
+                    help="with --all-models: profile a batch of this many robots instead of one "
+                         "run (engine_profile_batch.json)")
     ap.add_argument("--side", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     os.makedirs(OUT, exist_ok=True)
     if args.side:  # one tree's profile, for --checkout
-        out = profile_tree(args.models, args.repeats, args.short_t_end, args.l3_t_end)
+        out = profile_tree(args.models, args.repeats, args.short_t_end, args.l3_t_end,
+                           args.batch)
         with open(args.side, "w") as fh:
             json.dump(out, fh)
     elif args.all_models or args.checkout:

@@ -485,6 +485,43 @@ def engine_profile() -> str:
     return "\n\n".join(out)
 
 
+@_from_json("engine_profile_batch.json")
+def engine_profile_batch(d) -> str:
+    """Where a batch's time goes, per model, before and after (benchmarks/kernel_counts.py
+    --all-models --batch B, `engine_profile_batch.json`): the run and its parts' times, then the
+    kernels that take the most of the newer side's time."""
+    sides = [s for s in ("before", "after") if s in d]
+    label = {s: f"{s} ({(d[s].get('commit') or '?')[:7]})" for s in sides}
+    out = []
+    for m in MODEL_ORDER:
+        rows = {s: d[s]["models"].get(m) for s in sides}
+        if any(r is None or "error" in r for r in rows.values()):
+            continue
+        last = rows[sides[-1]]
+        runs = " against ".join(
+            f"{_ms(rows[s]['run_s'])} ({rows[s]['trajectories_per_s']:,.0f} trajectories/s, "
+            f"{label[s]})" for s in sides)
+        names = [p for p in d["parts"] if any(p in rows[s]["parts"] for s in sides)]
+        names.sort(key=lambda p: -last["parts"].get(p, {}).get("s", 0.0))
+        prows = [[ENGINE_PART_NAMES.get(p, p)] + [
+            (f"{_ms(v['s'])} ({100 * v['share']:.0f} %)" if (v := rows[s]["parts"].get(p))
+             else "-") for s in sides] for p in names]
+        trows = [[f"`{k['kernel']}`", ENGINE_PART_NAMES.get(k["part"], k["part"]),
+                  f"`{k['where']}`", f"{k['events']:,}", f"{100 * k['share']:.1f} %"]
+                 for k in last["top"]]
+        out.append(f"**{m}**, {last['batch']:,} robots: {runs}.\n\n"
+                   + _table(["part"] + [label[s] for s in sides], prows)
+                   + f"\n\nThe kernels that take the most of {label[sides[-1]]}'s time:\n\n"
+                   + _table(["kernel", "part", "innermost function", "events", "share"], trows))
+    text = (f"`paper-circle` at the scene's defaults, the members' strip thickness spread over "
+            f"{d['after']['models'][next(iter(d['after']['models']))]['t_range_m'][0] * 1e3:.2f}-"
+            f"{d['after']['models'][next(iter(d['after']['models']))]['t_range_m'][1] * 1e3:.2f}"
+            " mm, `vmap` on one device; a part's time is its share of the profiled run applied "
+            f"to the unprofiled one (minimum of repeats). `{d['command']}` "
+            f"({d['runtime_s'] / 60:.0f} min). " + _machine(d))
+    return "\n\n".join(out + [text])
+
+
 def l3() -> str:
     d = _load("l3_validation.json")
     out = []
@@ -804,6 +841,7 @@ def tables() -> dict:
         "mjx": mjx_batch(),
         "studies": studies(),
         "engine-profile": engine_profile(),
+        "engine-profile-batch": engine_profile_batch(),
         "engine-ab": engine_ab(),
         "l3": l3(),
         "l3-scene": l3_scene(),

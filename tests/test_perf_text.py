@@ -96,3 +96,16 @@ def test_engine_ab_section_is_generated_from_the_json():
             line = next(x for x in section.splitlines() if x.startswith(f"| {r['row']} |"))
             verdict = {True: "| met |", False: "| not met |"}.get(r.get("met"), "| - |")
             assert line.endswith(verdict), line
+
+
+def test_engine_profile_batch_section_is_generated_from_the_json():
+    """docs/performance.md's batch profile is `engine_profile_batch.json`'s: every model's run
+    time and trajectories per second on each side."""
+    assert "<!-- perf:engine-profile-batch -->" in PERF_MD
+    d = json.loads((ROOT / "benchmarks/results/engine_profile_batch.json").read_text())
+    text = _gen_perf().tables()["engine-profile-batch"]
+    for side in ("before", "after"):
+        for m, row in d.get(side, {}).get("models", {}).items():
+            if "error" in row:
+                continue
+            assert f"{row['trajectories_per_s']:,.0f} trajectories/s" in text, (side, m)
