@@ -598,7 +598,7 @@ def profile_model(model_name, t_end, n_out, short_t_end, repeats) -> dict:
 BATCH_T_RANGE = (0.28e-3, 0.40e-3)
 
 
-def profile_batch(model_name, batch, repeats) -> dict:
+def profile_batch(model_name, batch, repeats, rtol=None) -> dict:
     """Where a batch's time goes: `pj.paper_circle`'s program (the scene's defaults) for `batch`
     robots whose strip thickness is spread over `BATCH_T_RANGE`, every model in it as a batch
     takes it (`_dynamics.for_batch`, where the tree has it), `vmap`ped on one device and timed
@@ -617,7 +617,10 @@ def profile_batch(model_name, batch, repeats) -> dict:
     from ppr_jax._scenes._run import prepare, scene_program
 
     t0 = time.perf_counter()
-    c = prepare("paper-circle", None, model_name, SceneOptions())
+    # `rtol`: the batch benchmark's settings (atol rtol / 100) instead of the scene's defaults
+    opts_in = (SceneOptions() if rtol is None else
+               SceneOptions(rtol=rtol, atol=rtol * 1e-2, max_steps=400_000))
+    c = prepare("paper-circle", None, model_name, opts_in)
     scene, model, _, opts = c.args
     for_batch = getattr(dyn_mod, "for_batch", None)
     if for_batch is not None:
@@ -635,7 +638,7 @@ def profile_batch(model_name, batch, repeats) -> dict:
         return jax.vmap(lambda one: scene_program(s, m, one, o))(r)
 
     compiled = jax.jit(program).lower(dyn).compile()
-    row = {"model": model_name, "scene": "paper-circle", "batch": batch,
+    row = {"model": model_name, "scene": "paper-circle", "batch": batch, "rtol": rtol,
            "t_range_m": list(BATCH_T_RANGE), "n_out": int(opts.times().shape[0]),
            "compile_s": time.perf_counter() - t0}
     res = compiled(dyn)
@@ -678,7 +681,7 @@ def _tree_info(path) -> dict:
             "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
 
 
-def profile_tree(models, repeats, short_t_end, l3_t_end, batch=None) -> dict:
+def profile_tree(models, repeats, short_t_end, l3_t_end, batch=None, batch_rtol=None) -> dict:
     """The engine profile of every model of `models` with this process's `ppr_jax` (with
     `batch`, of a batch of that many robots: `profile_batch`)."""
     import ppr_jax
@@ -688,7 +691,7 @@ def profile_tree(models, repeats, short_t_end, l3_t_end, batch=None) -> dict:
     for m in models:
         t_end, n_out = (7.54, 755) if m != "beam" else (l3_t_end, int(round(l3_t_end * 100)) + 1)
         try:
-            row = (profile_batch(m, batch, repeats) if batch else
+            row = (profile_batch(m, batch, repeats, batch_rtol) if batch else
                    profile_model(m, t_end, n_out, short_t_end, repeats))
         except Exception as exc:  # noqa: BLE001 - one model failing leaves the others
             row = {"model": m, "error": f"{type(exc).__name__}: {exc}"[:500]}
@@ -707,7 +710,8 @@ def _subprocess_profile(tree, args) -> dict:
         cmd = [sys.executable, os.path.abspath(__file__), "--side", path, "--repeats",
                str(args.repeats), "--short-t-end", str(args.short_t_end), "--l3-t-end",
                str(args.l3_t_end), "--models", *args.models] + (
-                   ["--batch", str(args.batch)] if args.batch else [])
+                   ["--batch", str(args.batch)] if args.batch else []) + (
+                   ["--batch-rtol", str(args.batch_rtol)] if args.batch_rtol else [])
         env = dict(os.environ, PYTHONPATH=os.path.abspath(tree))
         print(f"-- {tree}", flush=True)
         proc = subprocess.run(cmd, env=env, cwd=d)
@@ -779,7 +783,7 @@ def engine_profile(args) -> None:
             out["goals"] = goals(out["ratios"])
     else:
         out["after"] = profile_tree(args.models, args.repeats, args.short_t_end, args.l3_t_end,
-                                    args.batch)
+                                    args.batch, args.batch_rtol)
     out["runtime_s"] = time.perf_counter() - t0
     default = "engine_profile_batch.json" if args.batch else "engine_profile.json"
     path = os.path.join(OUT, args.out or default)
@@ -883,12 +887,15 @@ def main():
     ap.add_argument("--batch", type=int, default=None,
                     help="with --all-models: profile a batch of this many robots instead of one "
                          "run (engine_profile_batch.json)")
+    ap.add_argument("--batch-rtol", type=float, default=None,
+                    help="with --batch: this rtol (atol rtol / 100), the batch benchmark's "
+                         "settings, instead of the scene's defaults")
     ap.add_argument("--side", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     os.makedirs(OUT, exist_ok=True)
     if args.side:  # one tree's profile, for --checkout
         out = profile_tree(args.models, args.repeats, args.short_t_end, args.l3_t_end,
-                           args.batch)
+                           args.batch, args.batch_rtol)
         with open(args.side, "w") as fh:
             json.dump(out, fh)
     elif args.all_models or args.checkout:

@@ -513,11 +513,14 @@ def engine_profile_batch(d) -> str:
                    + _table(["part"] + [label[s] for s in sides], prows)
                    + f"\n\nThe kernels that take the most of {label[sides[-1]]}'s time:\n\n"
                    + _table(["kernel", "part", "innermost function", "events", "share"], trows))
-    text = (f"`paper-circle` at the scene's defaults, the members' strip thickness spread over "
-            f"{d['after']['models'][next(iter(d['after']['models']))]['t_range_m'][0] * 1e3:.2f}-"
-            f"{d['after']['models'][next(iter(d['after']['models']))]['t_range_m'][1] * 1e3:.2f}"
-            " mm, `vmap` on one device; a part's time is its share of the profiled run applied "
-            f"to the unprofiled one (minimum of repeats). `{d['command']}` "
+    first = next(iter(d["after"]["models"].values()))
+    rtol = first.get("rtol")
+    settings = "the scene's defaults" if rtol is None else f"rtol {rtol:g}, atol {rtol / 100:g}"
+    flags = d.get("machine", {}).get("xla_flags") or "XLA's default flags"
+    text = (f"`paper-circle` at {settings}, the members' strip thickness spread over "
+            f"{first['t_range_m'][0] * 1e3:.2f}-{first['t_range_m'][1] * 1e3:.2f} mm, `vmap` on "
+            f"one device, {flags}; a part's time is its share of the profiled run applied to "
+            f"the unprofiled one (minimum of repeats). `{d['command']}` "
             f"({d['runtime_s'] / 60:.0f} min). " + _machine(d))
     return "\n\n".join(out + [text])
 
