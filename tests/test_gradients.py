@@ -80,11 +80,17 @@ def test_reverse_mode_does_not_depend_on_the_checkpoint_schedule(pexp, fns):
     reject a step the forward pass kept, and the gradient followed another step sequence
     (1 % off at this run's rtol 1e-12 under one compilation, right under another). The
     library differentiates on the forward pass's recorded steps, so three checkpoints
-    (nearly every step recomputed) give the default schedule's gradient."""
+    (nearly every step recomputed) give the default schedule's gradient, up to the forward
+    pass's own dependence on its program: at rtol 1e-12 the error estimate is close to
+    rounding, and the same solve compiled into different programs takes different step
+    sequences (750 steps in the default schedule's gradient, 756 with three checkpoints, 766
+    undifferentiated; measured at fa32980), whose gradients differ by the integration's error
+    (5e-9 relative), not by the 1e-2 of a gradient that follows other steps than its
+    solution."""
     _, rev, _, metric = fns
     adjoint = diffrax.RecursiveCheckpointAdjoint(checkpoints=3)
     g3 = eqx.filter_jit(jax.grad(lambda p: metric(p, adjoint)))(pexp)
     g = rev(pexp)
     for name in ("t", "gamma", "K_theta"):
         np.testing.assert_allclose(float(getattr(g3, name)), float(getattr(g, name)),
-                                   rtol=1e-9, err_msg=name)
+                                   rtol=1e-7, err_msg=name)
