@@ -599,20 +599,20 @@ BATCH_T_RANGE = (0.28e-3, 0.40e-3)
 
 
 def profile_batch(model_name, batch, repeats, rtol=None) -> dict:
-    """Where a batch's time goes: `pj.paper_circle`'s program (the scene's defaults) for `batch`
-    robots whose strip thickness is spread over `BATCH_T_RANGE`, every model in it as a batch
-    takes it (`_dynamics.for_batch`, where the tree has it), `vmap`ped on one device and timed
-    (minimum of `repeats`); its kernel events attributed to the parts as a single run's are
-    (`attribute`), each part's time its share of the profiled run applied to the unprofiled
-    one. A batch's kernels are as many as one run's, each over the whole batch: here the
-    arithmetic, not the launches, sets the time, so `top` lists the kernels that take most of
-    it, with their part and innermost function."""
+    """Where a batch's time goes: `pj.paper_circle`'s program (the scene's defaults, or `rtol`)
+    for `batch` robots whose strip thickness is spread over `BATCH_T_RANGE`, mapped as the
+    library maps a batch on one device (`_scenes._batch.map_members`: chunks of vmapped
+    members, each model as a batch takes it) and timed (minimum of `repeats`); its kernel
+    events attributed to the parts as a single run's are (`attribute`), each part's time its
+    share of the profiled run applied to the unprofiled one. A batch's kernels are as many as
+    one run's, each over a chunk of members: here the arithmetic, not the launches, sets the
+    time, so `top` lists the kernels that take most of it, with their part and innermost
+    function."""
     import numpy as np
 
-    import ppr_jax._dynamics as dyn_mod
     from ppr_jax import scene_params
-    from ppr_jax._models import AbstractModel
     from ppr_jax._robot import as_robot
+    from ppr_jax._scenes._batch import map_members
     from ppr_jax._scenes._options import SceneOptions
     from ppr_jax._scenes._run import prepare, scene_program
 
@@ -622,20 +622,15 @@ def profile_batch(model_name, batch, repeats, rtol=None) -> dict:
                SceneOptions(rtol=rtol, atol=rtol * 1e-2, max_steps=400_000))
     c = prepare("paper-circle", None, model_name, opts_in)
     scene, model, _, opts = c.args
-    for_batch = getattr(dyn_mod, "for_batch", None)
-    if for_batch is not None:
-        scene, model = jax.tree_util.tree_map(
-            lambda x: for_batch(x) if isinstance(x, AbstractModel) else x, (scene, model),
-            is_leaf=lambda x: isinstance(x, AbstractModel))
     base = scene_params("paper-circle")
     robots = [as_robot(base.replace(t=float(t))) for t in np.linspace(*BATCH_T_RANGE, batch)]
     robots = jax.tree_util.tree_map(lambda *a: jnp.stack(a) if eqx.is_array(a[0]) else a[0],
                                     *robots)
-    dyn, static = eqx.partition((scene, model, robots, opts), eqx.is_array)
+    dyn, static = eqx.partition((robots, scene, model, opts), eqx.is_array)
+    mapped = map_members(lambda one, s, m, o: scene_program(s, m, one, o))
 
     def program(d):
-        s, m, r, o = eqx.combine(d, static)
-        return jax.vmap(lambda one: scene_program(s, m, one, o))(r)
+        return mapped(*eqx.combine(d, static))
 
     compiled = jax.jit(program).lower(dyn).compile()
     row = {"model": model_name, "scene": "paper-circle", "batch": batch, "rtol": rtol,

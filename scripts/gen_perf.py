@@ -518,8 +518,9 @@ def engine_profile_batch(d) -> str:
     settings = "the scene's defaults" if rtol is None else f"rtol {rtol:g}, atol {rtol / 100:g}"
     flags = d.get("machine", {}).get("xla_flags") or "XLA's default flags"
     text = (f"`paper-circle` at {settings}, the members' strip thickness spread over "
-            f"{first['t_range_m'][0] * 1e3:.2f}-{first['t_range_m'][1] * 1e3:.2f} mm, `vmap` on "
-            f"one device, {flags}; a part's time is its share of the profiled run applied to "
+            f"{first['t_range_m'][0] * 1e3:.2f}-{first['t_range_m'][1] * 1e3:.2f} mm, mapped "
+            "as the library maps a batch on one device (`map_members`: chunks of vmapped "
+            f"members), {flags}; a part's time is its share of the profiled run applied to "
             f"the unprofiled one (minimum of repeats). `{d['command']}` "
             f"({d['runtime_s'] / 60:.0f} min). " + _machine(d))
     return "\n\n".join(out + [text])
