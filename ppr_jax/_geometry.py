@@ -217,10 +217,14 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     # correction, with their sines) again for every entry of th and of each of its tangents: an
     # L1 batch of 256 on `paper-circle` spent 29 % of its run in those stacks (the path's
     # singularity check, the spring solve, the output kinematics) and ran at 0.75 of c4893c8's
-    # speed. A dot is a kernel of its own, so its operands are computed once.
+    # speed. A batched dot is a kernel of its own, so its operands are computed once. (One
+    # unbatched evaluation: XLA turns the small dot back into fused arithmetic, the run's time
+    # unchanged. Under XLA's default flags YNNPACK takes the dot, slowly for this shape;
+    # `configure_cpu` turns that off.)
     P = jnp.asarray([[1.0, 0.5, 0.0], [0.0, 0.5, 1.0]], dtype=th1.dtype)
     zero = jnp.zeros_like(th1)
-    th = jnp.stack([th1, th3], axis=-1) @ P + jnp.stack([zero, zero + c2, zero], axis=-1)
+    mid = jnp.broadcast_to(c2, th1.shape)  # c2 is a scalar or one per chain
+    th = jnp.stack([th1, th3], axis=-1) @ P + jnp.stack([zero, mid, zero], axis=-1)
     return th, margin
 
 
