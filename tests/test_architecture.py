@@ -19,7 +19,7 @@ FLOORS = [
     ("actuation and paths", ["_actuation", "_trajectory", "_paths"]),
     ("dynamics and kinematics", ["_dynamics", "_kinematics", "_paper_eom", "_assembly"]),
     ("models", ["_models", "_mjcf"]),
-    ("chain geometry", ["_geometry", "_linalg"]),
+    ("chain geometry", ["_geometry", "_linalg", "_fusion"]),
     ("robot and joint", ["_robot", "_prb", "_params", "_params_file", "_prb_table", "_prb_fit",
                          "elastica"]),
     ("infrastructure", ["_errors", "_custom_types", "_data", "_cache", "_devices", "_programs",

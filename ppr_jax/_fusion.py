@@ -1,0 +1,62 @@
+"""Values that XLA's CPU compiler computes once: `materialize`.
+
+XLA's CPU fusion copies a cheap-looking elementwise producer into every fusion that consumes
+it, and it counts sines and cosines as cheap enough: a right-hand side whose dozen angles feed
+the mass matrix's entries, the convective terms and the springs computed each sine once per
+kernel that reads it. Measured on L2's compiled right-hand side (`paper-circle`): 30 sines and
+30 cosines as traced, 77 and 77 as compiled. XLA does not copy an expensive producer into a
+consumer that reads each of its elements more than once, so a value with such a consumer is
+computed once, by a kernel of its own, and every other kernel reads it. `materialize` makes
+that consumer a running sum over a zero and the value: one small `reduce_window` kernel, exact
+and linear. (An identity product does the same, but a batch's product goes to YNNPACK under
+XLA's default flags.)
+
+Only one member's program takes it. Under `vmap` it is the identity: each kernel of a batch
+runs over all its members, where the copies of a sine are vectorised arithmetic and the extra
+kernel and pass over the batch cost more than they save (L1 `paper-circle`, 256 members on the
+2-core CPU: 664-674 trajectories/s without it, 559-584 with it). Its derivative is the
+identity too: tangents are not materialised, so differentiated programs stay as they were.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array, Float
+
+
+def _running_sum(x):
+    return jax.lax.cumsum(jnp.stack([jnp.zeros_like(x), x]), axis=0)[1]
+
+
+@jax.custom_batching.custom_vmap
+def _unbatched(x):
+    return _running_sum(x)
+
+
+@_unbatched.def_vmap
+def _batched(axis_size, in_batched, x):
+    del axis_size
+    return x, in_batched[0]
+
+
+@jax.custom_jvp
+def materialize(x: Float[Array, "..."]) -> Float[Array, "..."]:
+    """`x`, computed once by XLA however many kernels read it (module docstring).
+
+    **Arguments:**
+
+    - `x`: a floating array; stack the values that many kernels read into one (one kernel for
+      all of them).
+
+    **Returns:** `x`'s values, except that a negative zero comes back as +0.0 (it is 0 + x):
+    use it on values that feed arithmetic, not on the sign-sensitive `arctan2` of a zero.
+    Under `vmap` and for tangents, `x` itself.
+    """
+    return _unbatched(x)
+
+
+@materialize.defjvp
+def _materialize_jvp(primals, tangents):
+    return materialize(primals[0]), tangents[0]

@@ -1,0 +1,111 @@
+"""`materialize` (`ppr_jax/_fusion.py`): values that XLA's CPU compiler computes once.
+
+Its values are its argument's (a negative zero aside), exactly; under `vmap` and for
+derivatives it is the identity; and in a compiled program a sine that several kernels read is
+computed once. On the models: one unbatched right-hand side of L0-L2 (the fused equations of
+motion) computes no more sines and cosines than it traces, and its accelerations equal the
+generic projection's (the batched comparison in `test_fused_eom.py` runs under `vmap`, where
+`materialize` is the identity)."""
+
+import re
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ppr_jax as pj
+from ppr_jax._dynamics import _eom_terms, accelerations, eom_terms
+from ppr_jax._fusion import materialize
+from ppr_jax._geometry import home_pose
+
+TRIG = ("sine", "cosine")
+
+
+def _trig_elements(text: str) -> int:
+    """Sine and cosine elements computed by a compiled module (every instruction, in fusions
+    too): what the program's kernels evaluate."""
+    n = 0
+    for shape, op in re.findall(r"= f64\[([\d,]*)\]\S* (\w+)\(", text):
+        if op in TRIG:
+            n += int(np.prod([int(d) for d in shape.split(",") if d]))
+    return n
+
+
+def _traced_trig(jaxpr) -> int:
+    n = 0
+    for eqn in jaxpr.eqns:
+        for v in eqn.params.values():
+            if isinstance(v, jax.extend.core.ClosedJaxpr):
+                n += _traced_trig(v.jaxpr)
+            elif isinstance(v, jax.extend.core.Jaxpr):
+                n += _traced_trig(v)
+        if eqn.primitive.name in ("sin", "cos"):
+            n += int(np.prod(eqn.outvars[0].aval.shape))
+    return n
+
+
+def _three_readers(x, y, once):
+    s = jnp.sin(x)
+    s = materialize(s) if once else s
+    return s * y[0] + s[::-1], jnp.concatenate([s, s * y[1]]).sum(), jnp.outer(s, y[:3]).sum(0)
+
+
+def test_values_are_exact():
+    x = jnp.array([-0.0, 1e-300, -2.5, 3.0e300, jnp.inf, -jnp.inf, 0.1])
+    out = np.asarray(jax.jit(materialize)(x))
+    ref = np.asarray(x)
+    assert np.array_equal(out, ref + 0.0)  # -0.0 comes back as +0.0, nothing else moves
+    assert np.isnan(np.asarray(jax.jit(materialize)(jnp.array([jnp.nan])))).all()
+
+
+def test_a_value_many_kernels_read_is_computed_once():
+    x, y = jnp.linspace(0.1, 0.7, 3), jnp.arange(4.0)
+    once = jax.jit(lambda a, b: _three_readers(a, b, True)).lower(x, y).compile().as_text()
+    assert _trig_elements(once) == 3, once
+    for a, b in zip(_three_readers(x, y, True), _three_readers(x, y, False)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_identity_under_vmap_and_for_derivatives():
+    x = jnp.linspace(-1.0, 1.0, 6).reshape(2, 3)
+    y = jnp.arange(4.0)
+    batched = jax.jit(jax.vmap(lambda a: _three_readers(a, y, True)))
+    assert "reduce-window" not in batched.lower(x).compile().as_text()
+
+    def f(a, once):
+        return sum(jnp.sum(o ** 2) for o in _three_readers(a, y, once))
+
+    for g in (jax.grad, jax.jacfwd):
+        np.testing.assert_allclose(g(lambda a: f(a, True))(x[0]), g(lambda a: f(a, False))(x[0]),
+                                   rtol=1e-14)
+    # second order, both modes, as the right-hand sides' derivatives take it
+    h1 = jax.jacfwd(jax.grad(lambda a: f(a, True)))(x[0])
+    h2 = jax.jacrev(jax.jacfwd(lambda a: f(a, False)))(x[0])
+    np.testing.assert_allclose(h1, h2, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("name", ["rigid", "reduced", "double1r"])
+def test_one_right_hand_side_computes_each_sine_once(name):
+    model = pj.get_model(name)
+    robot = pj.Robot(pj.RobotParams())
+    rng = np.random.default_rng(7)
+    X = np.asarray(home_pose(robot)) + rng.uniform(-1, 1, 3) * [0.02, 0.02, 0.05]
+    z = jnp.asarray(model.coords_from_pose(robot, jnp.asarray(X)))
+    zd = jnp.asarray(rng.normal(size=model.n_dof))
+    tau = jnp.array([0.3, -0.2, 0.05])
+    w = jnp.zeros(3)
+
+    def fused(r, z, zd):
+        return accelerations(eom_terms(model, r, z, zd), tau, w)
+
+    def generic(r, z, zd):
+        return accelerations(_eom_terms(model, r, z, zd, implicit=True), tau, w)
+
+    jitted = eqx.filter_jit(fused)
+    text = jitted.lower(robot, z, zd).compile().compiled.as_text()
+    traced = _traced_trig(jax.make_jaxpr(lambda a, b: fused(robot, a, b))(z, zd).jaxpr)
+    assert 0 < _trig_elements(text) <= traced, (_trig_elements(text), traced)
+    np.testing.assert_allclose(jitted(robot, z, zd), eqx.filter_jit(generic)(robot, z, zd),
+                               rtol=1e-11, atol=1e-11)
