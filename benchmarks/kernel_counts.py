@@ -309,7 +309,18 @@ def classify(stack: tuple, rk_error_line: int = 0) -> str:
 
     in_loop = any("diffrax" in p and "_integrate" in p and f.startswith("loop.<locals>.body_fun")
                   for p, f, _ in stack)
-    if in_loop:
+    # the project's own loop (`ppr_jax/_lean.py`): its step, stages, controller and saving
+    lean = any(p.endswith("_lean.py") and f.startswith("lean_solve.<locals>.step")
+               for p, f, _ in stack)
+    if lean and not has("_vector_field"):
+        if has("save", "more", "_interpolant", "_rescale"):
+            return "saving"
+        if has("_adapt"):
+            return "error_controller"
+        if has("stage", "_weighted"):
+            return "rk_stages"
+        return "loop_status"
+    if in_loop or lean:
         if has("_vector_field", "ODETerm.vf"):
             for p, f, _ in stack:  # the freeze of a failed member, in the vector field itself
                 if "ppr_jax" in p:
@@ -331,7 +342,7 @@ def classify(stack: tuple, rk_error_line: int = 0) -> str:
         if has("AbstractRungeKutta", "Tsit5", "Dopri", "step"):
             return "rk_stages"
         return "loop_status"
-    if has("diffeqsolve"):
+    if has("diffeqsolve", "lean_solve"):
         return "solver_start"
     if has("quasi_static", "_open_at"):
         return "start"

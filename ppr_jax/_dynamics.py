@@ -97,10 +97,12 @@ def _has_fused_terms(model: AbstractModel) -> bool:
 
 def for_batch(model: AbstractModel) -> AbstractModel:
     """`model` as a batch's program takes it: with the generic projection's terms
-    (`AbstractModel.fused`), which `vmap` runs faster on a CPU than the fused arithmetic. A
-    structural choice, made in Python before tracing; a model without fused terms is returned
-    as it is (its programs stay the same)."""
-    return dataclasses.replace(model, fused=False) if _has_fused_terms(model) else model
+    (`AbstractModel.fused`), which `vmap` runs faster on a CPU than the fused arithmetic, and
+    marked as a batch member (`AbstractModel.batch_member`: diffrax's loop, not the lean one).
+    A structural choice, made in Python before tracing."""
+    if _has_fused_terms(model):
+        model = dataclasses.replace(model, fused=False)
+    return dataclasses.replace(model, batch_member=True)
 
 
 def _fused(model, robot, z, zdot) -> EOM:

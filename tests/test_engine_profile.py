@@ -75,6 +75,21 @@ def test_parts_follow_the_frames(kc):
     rk = ("/diffrax/_solver/runge_kutta.py", "AbstractRungeKutta.step", 100)
     assert kc.classify((rk, body), rk_error_line=200) == "rk_stages"
     assert kc.classify((rk, body), rk_error_line=50) == "error_controller"
+    # the project's own loop (`_lean.py`)
+    lean = ("/ppr_jax/_lean.py", "lean_solve.<locals>.step", 1)
+    lean_cases = {
+        "rk_stages": [("/ppr_jax/_lean.py", "lean_solve.<locals>.step.<locals>.stage", 1), lean],
+        "error_controller": [("/ppr_jax/_lean.py", "_adapt", 1), lean],
+        "saving": [("/ppr_jax/_lean.py", "_interpolant", 1),
+                   ("/ppr_jax/_lean.py", "lean_solve.<locals>.step.<locals>.save", 1), lean],
+        "loop_status": [lean],
+        "rhs_mass_solve": [("/ppr_jax/_linalg.py", "solve_spd", 1), vf,
+                           ("/ppr_jax/_lean.py", "lean_solve.<locals>.step.<locals>.stage", 1),
+                           lean],
+        "solver_start": [("/ppr_jax/_lean.py", "lean_solve", 1)],
+    }
+    for part, stack in lean_cases.items():
+        assert kc.classify(tuple(stack)) == part, (part, stack)
 
 
 def _sine_twice_plus(x):

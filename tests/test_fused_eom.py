@@ -163,7 +163,10 @@ def test_the_simulator_uses_the_fused_terms():
         assert _has_fused_terms(model) and not _has_fused_terms(for_batch(model))
         assert for_batch(model) != model and type(for_batch(model)) is type(model)
     beam = pj.get_model("beam")
-    assert for_batch(beam) is beam
+    # a model without fused terms keeps its terms; every batch member integrates with diffrax
+    # (`AbstractModel.batch_member`, `_lean.py`)
+    assert for_batch(beam).fused == beam.fused and for_batch(beam).batch_member
+    assert not beam.batch_member
     # the one batch mapper hands every member the batch's model, wherever it sits in the shared
     # arguments (a scene's batch passes the model, a sweep its `Evaluation`'s context)
     seen = []
