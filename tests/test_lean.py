@@ -111,9 +111,10 @@ def test_which_solves_take_it():
 
 @pytest.mark.slow
 def test_a_scene_differentiates_in_both_modes():
-    """L0 `paper-circle` (driven by L1's torques) over 0.2 s: reverse mode (whose forward pass is diffrax's solve, the
-    primal the lean loop's) equals forward mode (through the lean loop), and the lean loop's
-    metrics equal central differences of themselves in the links' density."""
+    """L0 `paper-circle` (driven by L1's torques) over 0.2 s: reverse mode (whose forward pass
+    is diffrax's solve, the primal the lean loop's) equals forward mode (through the lean
+    loop), and the lean loop's metrics equal central differences of themselves in the links'
+    density."""
     import ppr_jax as pj
 
     o = pj.SceneOptions(t_end=0.2, n_out=21)
