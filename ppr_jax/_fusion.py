@@ -60,3 +60,15 @@ def materialize(x: Float[Array, "..."]) -> Float[Array, "..."]:
 @materialize.defjvp
 def _materialize_jvp(primals, tangents):
     return materialize(primals[0]), tangents[0]
+
+
+def cos_sin(*angles: Float[Array, " k"]) -> tuple[list, list]:
+    """The cosines and the sines of 1-D arrays of angles, all computed once (`materialize`, one
+    kernel for all of them): ([cos a for a in angles], [sin a for a in angles])."""
+    trig = materialize(jnp.concatenate([f(a) for f in (jnp.cos, jnp.sin) for a in angles]))
+    ends = [0]
+    for a in angles:
+        ends.append(ends[-1] + a.shape[0])
+    half = ends[-1]
+    return ([trig[a:b] for a, b in zip(ends, ends[1:])],
+            [trig[half + a : half + b] for a, b in zip(ends, ends[1:])])

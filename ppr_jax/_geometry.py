@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Float
-from ._fusion import materialize
+from ._fusion import cos_sin
 from ._linalg import solve
 from ._robot import Robot
 
@@ -184,9 +184,7 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
         # kernels of each L1 right-hand side).
         t2 = (t1 + t3) / 2 + c2
         # each sine once, not once per kernel that reads it (`_fusion.py`)
-        trig = materialize(jnp.concatenate([f(t) for f in (jnp.cos, jnp.sin)
-                                            for t in (t1, t2, t3)]))
-        c1, c2_, c3, s1, s2_, s3 = (trig[3 * k : 3 * k + 3] for k in range(6))
+        (c1, c2_, c3), (s1, s2_, s3) = cos_sin(t1, t2, t3)
         rx = robot.r1 * c1 + robot.r2 * c2_ + robot.r3 * c3 - d[:, 0]
         ry = robot.r1 * s1 + robot.r2 * s2_ + robot.r3 * s3 - d[:, 1]
         hx, hy = -(robot.r2 / 2) * s2_, (robot.r2 / 2) * c2_

@@ -9,11 +9,11 @@ that machinery is a third of a step's kernels, and the saving loop alone several
 output time: an L1 `paper-circle` run (160 steps, 755 output times) spent about a third of its
 time saving.
 
-`lean_solve` is the same algorithm written for this one case on a flat state: the same tableau
-and its interpolant, the same error norm (`optimistix.rms_norm`), step-size rule (safety, factor
-bounds, a rejected step's factor at most `safety`), first step, the same clipping of the last
-step to the end (within 100 ulp), and
-output times saved a block of `BLOCK` at a time, each block one vectorised interpolation.
+`lean_solve` is the same algorithm written for this one case on a flat state: diffrax's
+tableau, its interpolant (`Tsit5.interpolation_cls`) and the controller's own
+`adapt_step_size`, the same first step and clipping of the last step to the end (within 100
+ulp); the stages written out on a (7, n) array of increments, and output times saved a block
+of `BLOCK` at a time, each block one vectorised interpolation.
 Its solutions equal `diffeqsolve`'s to rounding (the sums are taken in another order), with
 the same step counts; it is forward-differentiable (`jax.jvp`, `jax.jacfwd`: the step sizes
 carry no derivative, as diffrax's controller stops them) and maps under `vmap`. Reverse mode
@@ -42,13 +42,14 @@ import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from diffrax._solver.tsit5 import _tsit5_tableau as _TABLEAU
 
 from ._custom_types import Array
 
 #: the first step (s): what diffrax 0.7's controller takes (module docstring)
 FIRST_STEP = 0.01
+#: the order of Tsit5's error estimate, as `diffeqsolve` gives it to the controller
+ERROR_ORDER = 5
 #: output times saved per block (one vectorised interpolation each; a step that passes more
 #: output times takes several blocks)
 BLOCK = 8
@@ -65,39 +66,16 @@ _B_ERR = np.asarray(_TABLEAU.b_error)
 
 def lean_applies(solver, controller, dt0, throw, progress_meter, saveat) -> bool:
     """Whether a solve is the one `lean_solve` computes (module docstring): diffrax's `Tsit5`
-    under a `PIDController` with only its integral term (pcoeff 0, icoeff 1, dcoeff 0), no
-    dtmin or dtmax, the RMS norm and diffrax's error order; the first step chosen by the
+    under a `PIDController` with only its integral term (pcoeff 0, dcoeff 0: its state then
+    does not enter the step size) and no dtmin or dtmax; the first step chosen by the
     controller (dt0 None); no `throw`, no progress meter; output at given times only."""
     if type(solver) is not diffrax.Tsit5 or type(controller) is not diffrax.PIDController:
         return False
     c = controller
-    coeffs = (c.pcoeff, c.icoeff, c.dcoeff)
-    if not all(isinstance(x, (int, float)) for x in coeffs) or coeffs != (0, 1, 0):
+    if not all(isinstance(x, (int, float)) and x == 0 for x in (c.pcoeff, c.dcoeff)):
         return False
-    return (c.dtmin is None and c.dtmax is None and c.norm is optx.rms_norm
-            and c.error_order is None
-            and all(isinstance(x, (int, float)) for x in (c.factormin, c.factormax, c.safety))
-            and dt0 is None and not throw
+    return (c.dtmin is None and c.dtmax is None and dt0 is None and not throw
             and isinstance(progress_meter, diffrax.NoProgressMeter) and saveat is None)
-
-
-def _rescale(t0, t, t1):
-    """(t - t0) / (t1 - t0), 0 where t1 == t0 (diffrax's `linear_rescale`)."""
-    same = t0 == t1
-    return jnp.where(same, 0.0, (t - t0) / jnp.where(same, 1.0, t1 - t0))
-
-
-def _interpolant(s):
-    """Tsit5's dense-output weights (7, ...) at s in [0, 1] (diffrax's `_Tsit5Interpolation`)."""
-    b1 = (-1.0530884977290216 * s * (s - 1.3299890189751412)
-          * (s**2 - 1.4364028541716351 * s + 0.7139816917074209))
-    b2 = 0.1017 * s**2 * (s**2 - 2.1966568338249754 * s + 1.2949852507374631)
-    b3 = 2.490627285651252793 * s**2 * (s**2 - 2.38535645472061657 * s + 1.57803468208092486)
-    b4 = -16.54810288924490272 * (s - 1.21712927295533244) * (s - 0.61620406037800089) * s**2
-    b5 = 47.37952196281928122 * (s - 1.203071208372362603) * (s - 0.658047292653547382) * s**2
-    b6 = -34.87065786149660974 * (s - 1.2) * (s - 0.666666666666666667) * s**2
-    b7 = 2.5 * (s - 1) * (s - 0.6) * s**2
-    return (b1, b2, b3, b4, b5, b6, b7)
 
 
 def _weighted(weights, k):
@@ -113,19 +91,15 @@ def _weighted(weights, k):
 
 
 def _adapt(tprev, tn, y, y1, err, controller, t1, floor):
-    """(keep, next t0, next t1): diffrax's I controller on the step (tprev, tn) from y to y1
-    with error estimate err, and `diffeqsolve`'s clipping of a step that ends within 100 ulp
-    (`floor`) of t1."""
-    c = controller
+    """(keep, next t0, next t1): the controller's own decision on the step (tprev, tn) from y to
+    y1 with error estimate err (NaN read as inf, as `diffeqsolve` does), then `diffeqsolve`'s
+    clipping of a step that ends within 100 ulp (`floor`) of t1."""
     err = jnp.where(jnp.isnan(err), jnp.inf, err)
-    y1 = jnp.where(jnp.any(jnp.isnan(y1)), y, y1)
-    scaled = optx.rms_norm(err / (c.atol + jnp.maximum(jnp.abs(y), jnp.abs(y1)) * c.rtol))
-    keep = scaled < 1
-    # the step size carries no derivative (diffrax's controller stops it the same way)
-    factor = jnp.clip(c.safety * jax.lax.stop_gradient(1 / scaled) ** (1 / 5),
-                      jnp.where(keep, 1.0, c.factormin), jnp.where(keep, c.factormax, c.safety))
-    nt0 = jnp.where(keep, tn, tprev)
-    nt1 = nt0 + (tn - tprev) * jax.lax.stop_gradient(factor)
+    # an I controller's state (its previous error ratios) does not enter its step size, so the
+    # state `PIDController.init` returns serves every step
+    state = (jnp.ones((), y.dtype), jnp.ones((), y.dtype), False)
+    keep, nt0, nt1, _, _, _ = controller.adapt_step_size(tprev, tn, y, y1, None, err,
+                                                          ERROR_ORDER, state)
     nt0 = jnp.minimum(nt0, t1)
     nt1 = jnp.where(nt1 > floor, jnp.where(keep, t1, nt0 + 0.5 * (t1 - nt0)), nt1)
     return keep, nt0, nt1
@@ -139,8 +113,7 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
     - `vf`: (t, y (n,)) -> y' (n,).
     - `y0`: (n,) the initial state.
     - `ts`: (m,) output times, increasing, ts[0] the start.
-    - `controller`: the `PIDController` whose rtol, atol, safety and factor bounds are used
-      (`lean_applies`).
+    - `controller`: the `PIDController` that decides the steps (`lean_applies`).
     - `max_steps`: the step budget (static).
 
     **Returns:** (ys (m, n), saved times (m,), result, stats) as `diffeqsolve`'s `Solution`
@@ -173,6 +146,9 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
         y1 = y + _weighted(_B_SOL, k)
         keep, nt0, nt1 = _adapt(tprev, tn, y, y1, _weighted(_B_ERR, k), controller, t1, floor)
 
+        # diffrax's own Tsit5 interpolant on this step
+        dense = diffrax.Tsit5.interpolation_cls(t0=tprev, t1=tn, y0=y, y1=y1, k=k)
+
         def more(c):
             j, _ = c
             return keep & (padded[j] <= tn) & (j < m)
@@ -181,8 +157,7 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
             j, ys = c
             tt = jax.lax.dynamic_slice(padded, (j,), (BLOCK,))
             due = (tt <= tn) & (rows + j < m)
-            w = _interpolant(_rescale(tprev, jnp.where(due, tt, tprev), tn))
-            vals = y[None, :] + _weighted([wi[:, None] for wi in w], k[:, None, :])
+            vals = jax.vmap(dense.evaluate)(jnp.where(due, tt, tprev))
             old = jax.lax.dynamic_slice(ys, (j, 0), (BLOCK, n))
             ys = jax.lax.dynamic_update_slice(ys, jnp.where(due[:, None], vals, old), (j, 0))
             return j + jnp.sum(due, dtype=j.dtype), ys

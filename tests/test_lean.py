@@ -21,8 +21,8 @@ def _vf(t, y, mu):
     return jnp.stack([y[1], mu * (1 - y[0] ** 2) * y[1] - y[0] + jnp.sin(3 * t)])
 
 
-def _diffrax(y0, mu, rtol, max_steps=100_000, adjoint=None):
-    c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2)
+def _diffrax(y0, mu, rtol, max_steps=100_000, adjoint=None, **ctrl):
+    c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2, **ctrl)
     kw = {} if adjoint is None else {"adjoint": adjoint}
     sol = diffrax.diffeqsolve(diffrax.ODETerm(lambda t, y, a: _vf(t, y, mu)), diffrax.Tsit5(),
                               TS[0], TS[-1], None, y0, saveat=diffrax.SaveAt(ts=TS),
@@ -30,8 +30,8 @@ def _diffrax(y0, mu, rtol, max_steps=100_000, adjoint=None):
     return sol.ys, sol.ts, sol.result, sol.stats
 
 
-def _lean(y0, mu, rtol, max_steps=100_000):
-    c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2)
+def _lean(y0, mu, rtol, max_steps=100_000, **ctrl):
+    c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2, **ctrl)
     return lean_solve(lambda t, y: _vf(t, y, mu), y0, TS, c, max_steps)
 
 
@@ -47,6 +47,18 @@ def test_same_steps_and_solution_as_diffeqsolve(rtol):
     np.testing.assert_array_equal(np.asarray(ts_l), np.asarray(ts_d))
     np.testing.assert_allclose(ys_l, ys_d, rtol=0, atol=1e-12)
     assert res_l == res_d == diffrax.RESULTS.successful
+
+
+def test_an_i_controller_with_other_settings():
+    """The controller decides the steps (its own `adapt_step_size`): another integral gain,
+    safety factor and factor bounds give diffrax's steps too."""
+    kw = dict(icoeff=0.7, safety=0.8, factormin=0.3, factormax=4.0)
+    ys_d, _, _, st_d = _diffrax(Y0, 2.0, 1e-8, **kw)
+    ys_l, _, _, st_l = _lean(Y0, 2.0, 1e-8, **kw)
+    assert int(st_l["num_steps"]) == int(st_d["num_steps"]) != int(_lean(Y0, 2.0, 1e-8)[3][
+        "num_steps"])
+    assert int(st_l["num_rejected_steps"]) == int(st_d["num_rejected_steps"])
+    np.testing.assert_allclose(ys_l, ys_d, rtol=0, atol=1e-12)
 
 
 def test_a_budget_that_runs_out():

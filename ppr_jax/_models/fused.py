@@ -35,7 +35,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from .._fusion import materialize
+from .._fusion import cos_sin
 from .._geometry import BETA
 from .._robot import Robot
 
@@ -120,16 +120,13 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
     nl = Gz.shape[-1]  # the shared coordinates, then one column for the chains' own ones
     zd = [zdot[j] for j in range(ns)] + ([zdot[ns:]] if own else [])
     phi = z[2]
-    ang = list(spec.alpha) + [phi[None]]
     # the sines and cosines once, not once per kernel that reads them (`_fusion.py`)
-    trig = materialize(jnp.concatenate([f(a) for f in (jnp.cos, jnp.sin) for a in ang]))
-    na = 3 * len(spec.alpha) + 1
-    cos_, sin_ = trig[:na], trig[na:]
-    ev = [(cos_[3 * k : 3 * k + 3], sin_[3 * k : 3 * k + 3]) for k in range(len(spec.alpha))]
+    cos_, sin_ = cos_sin(*spec.alpha, phi[None])
+    ev = list(zip(cos_[:-1], sin_[:-1]))
     ep = [_perp(v) for v in ev]
     # platform joint directions psi_i = beta_i + phi, turned from the constant beta_i
     eb = (np.cos(BETA), np.sin(BETA))
-    cphi, sphi = cos_[na - 1], sin_[na - 1]
+    cphi, sphi = cos_[-1][0], sin_[-1][0]
     epsi = (cphi * eb[0] - sphi * eb[1], sphi * eb[0] + cphi * eb[1])
     rho_E = robot.rho_E
 
