@@ -20,7 +20,7 @@ import optimistix as optx
 
 from ._actuation import AbstractActuation
 from ._custom_types import Array, Float
-from ._dynamics import eom_terms, generalized_force
+from ._dynamics import eom_terms, generalized_force, torque_driven_accelerations
 from ._errors import (
     RESULTS,
     PPRError,
@@ -32,7 +32,7 @@ from ._errors import (
 )
 from ._esdirk import KeptKvaerno5
 from ._lean import lean_applies, lean_solve
-from ._linalg import solve_arrow, solve_spd
+from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
 from ._robot import RobotLike, as_robot
@@ -295,18 +295,10 @@ def accelerations(model, robot, actuation, wrench, t, zf, zfd):
     """(z, z', z'', tau) at time t from the free state."""
     free, pres = split_coordinates(model, actuation)
     z, zd, thadd = _full_state(model, actuation, t, zf, zfd)
-    eom = eom_terms(model, robot, z, zd)
     if not pres:
-        tau = actuation.torque_at(t, eom.kin.th_a, eom.Jth @ zd)
-        rhs = generalized_force(eom, tau, wrench) - eom.h
-        if model.chain_coordinates:
-            # XLA fuses the mass matrix's arithmetic into every kernel that reads a block of it;
-            # eliminating the diagonal block first reads fewer blocks (L2's compiled right-hand
-            # side: 7,323 -> 4,859 element operations)
-            zdd = solve_arrow(eom.M, rhs, model.chain_coordinates)
-        else:
-            zdd = solve_spd(eom.M, rhs)
+        zdd, tau = torque_driven_accelerations(model, robot, actuation, wrench, t, z, zd)
         return z, zd, zdd, tau
+    eom = eom_terms(model, robot, z, zd)
     rhs = generalized_force(eom, jnp.zeros(3), wrench) - eom.h
     Mf = _take(eom.M, free)
     zdd_f = solve_spd(_take(Mf, free, axis=1), _take(rhs, free) - _take(Mf, pres, axis=1) @ thadd)

@@ -8,6 +8,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import ppr_jax as pj
+from ppr_jax._geometry import home_pose
+from ppr_jax._studies import explicit_params
+
 
 def tree_allclose(a, b, rtol=1e-10, atol=1e-12):
     la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
@@ -165,3 +169,51 @@ class SmoothLine(eqx.Module):
     def __call__(self, t):
         u = jnp.clip(t / self.duration, 0.0, 1.0)
         return self.start + u**3 * (10 - 15 * u + 6 * u**2) * (self.end - self.start)
+
+
+# Random states of the closed-loop levels, for the equations of motion and their derivatives
+# (test_fused_eom.py, test_forward_dynamics.py)
+
+EOM_MODELS = ["rigid", "reduced", "double1r"]
+EOM_N_STATES = 4
+#: the parameters whose derivatives are compared (the strip's t, E and gamma, and the radius,
+#: density, damping and rotor inertia that enter the fused formulas directly; l1 and l3 stay
+#: concrete, so that L1 keeps its closed form)
+EOM_PARAMS = ("t", "E", "gamma", "r", "rho_m", "c_spring", "c_act", "J_rotor")
+EOM_TOL = 1e-12
+
+
+def _eom_robots():
+    base = explicit_params(pj.RobotParams())
+    full = explicit_params(pj.RobotParams(
+        joint_geometry="strip", c_spring=2e-3, c_act=1e-3, J_rotor=1e-4))
+    return {"default": base, "all-terms": full}
+
+
+EOM_ROBOTS = _eom_robots()
+
+
+def eom_states(model, params, seed):
+    """Random states near the workspace's centre: poses within a few cm and 0.1 rad of home,
+    the internal coordinates off the quasi-static manifold, velocities of order 1."""
+    rng = np.random.default_rng(seed)
+    robot = pj.Robot(params)
+    n = model.n_dof
+    Xs = np.asarray(home_pose(robot)) + rng.uniform(-1, 1, (EOM_N_STATES, 3)) * [0.03, 0.03, 0.1]
+    z = np.stack([np.asarray(model.coords_from_pose(robot, jnp.asarray(X))) for X in Xs])
+    z[:, 3:] += rng.uniform(-0.02, 0.02, (EOM_N_STATES, n - 3))
+    zd = rng.normal(size=(EOM_N_STATES, n)) * np.r_[0.2, 0.2, 1.0, [1.0] * (n - 3)]
+    tau = rng.normal(size=(EOM_N_STATES, 3))
+    values = jnp.array([float(getattr(params, p)) for p in EOM_PARAMS])
+    scale = np.asarray(values) + 1e-3  # relative directions (the damping terms are zero-based)
+    dv = rng.normal(size=(EOM_N_STATES, len(EOM_PARAMS))) * scale
+    dz, dzd = rng.normal(size=(EOM_N_STATES, n)), rng.normal(size=(EOM_N_STATES, n))
+    ct = rng.normal(size=(EOM_N_STATES, n))
+    return values, tuple(jnp.asarray(a) for a in (z, zd, tau, dv, dz, dzd, ct))
+
+
+def relative_close(a, b, what):
+    a, b = np.asarray(a), np.asarray(b)
+    scale = max(np.abs(b).max(), 1e-300)
+    err = np.abs(a - b).max() / scale
+    assert err <= EOM_TOL, f"{what}: relative difference {err:.2e}"

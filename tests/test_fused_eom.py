@@ -24,25 +24,13 @@ from ppr_jax._dynamics import (
 )
 from ppr_jax._geometry import home_pose
 from ppr_jax._scenes import map_members
-from ppr_jax._studies import explicit_params
-
-MODELS = ["rigid", "reduced", "double1r"]
-N_STATES = 4
-#: the parameters whose derivatives are compared (the strip's t, E and gamma, and the radius,
-#: density, damping and rotor inertia that enter the fused formulas directly; l1 and l3 stay
-#: concrete, so that L1 keeps its closed form)
-PARAMS = ("t", "E", "gamma", "r", "rho_m", "c_spring", "c_act", "J_rotor")
-TOL = 1e-12
-
-
-def _robots():
-    base = explicit_params(pj.RobotParams())
-    full = explicit_params(pj.RobotParams(
-        joint_geometry="strip", c_spring=2e-3, c_act=1e-3, J_rotor=1e-4))
-    return {"default": base, "all-terms": full}
-
-
-ROBOTS = _robots()
+from tests.helpers import (
+    EOM_MODELS as MODELS,
+    EOM_PARAMS as PARAMS,
+    EOM_ROBOTS as ROBOTS,
+    eom_states as _states,
+    relative_close as _close,
+)
 
 
 def _fused(model, robot, z, zd):
@@ -74,25 +62,6 @@ def _program(model, eom_fn):
     return jax.jit(jax.vmap(one, in_axes=(None, None, 0, 0, 0, 0, 0, 0, 0)))
 
 
-def _states(model, params, seed):
-    """Random states near the workspace's centre: poses within a few cm and 0.1 rad of home,
-    the internal coordinates off the quasi-static manifold, velocities of order 1."""
-    rng = np.random.default_rng(seed)
-    robot = pj.Robot(params)
-    n = model.n_dof
-    Xs = np.asarray(home_pose(robot)) + rng.uniform(-1, 1, (N_STATES, 3)) * [0.03, 0.03, 0.1]
-    z = np.stack([np.asarray(model.coords_from_pose(robot, jnp.asarray(X))) for X in Xs])
-    z[:, 3:] += rng.uniform(-0.02, 0.02, (N_STATES, n - 3))
-    zd = rng.normal(size=(N_STATES, n)) * np.r_[0.2, 0.2, 1.0, [1.0] * (n - 3)]
-    tau = rng.normal(size=(N_STATES, 3))
-    values = jnp.array([float(getattr(params, p)) for p in PARAMS])
-    scale = np.asarray(values) + 1e-3  # relative directions (the damping terms are zero-based)
-    dv = rng.normal(size=(N_STATES, len(PARAMS))) * scale
-    dz, dzd = rng.normal(size=(N_STATES, n)), rng.normal(size=(N_STATES, n))
-    ct = rng.normal(size=(N_STATES, n))
-    return values, tuple(jnp.asarray(a) for a in (z, zd, tau, dv, dz, dzd, ct))
-
-
 def _pairs():
     # The all-terms robot of L0 and L1 is slow-marked to keep the default suite cheap: L2 shares
     # the double-1R bodies, offsets and springs with L1 and the damping and friction with L0.
@@ -111,13 +80,6 @@ def pair(request):
     fused = _program(model, _fused)(values, params, *args)
     generic = _program(model, _generic)(values, params, *args)
     return name, fused, generic
-
-
-def _close(a, b, what):
-    a, b = np.asarray(a), np.asarray(b)
-    scale = max(np.abs(b).max(), 1e-300)
-    err = np.abs(a - b).max() / scale
-    assert err <= TOL, f"{what}: relative difference {err:.2e}"
 
 
 def test_terms_and_accelerations(pair):

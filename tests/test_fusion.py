@@ -1,10 +1,12 @@
 """`materialize` (`ppr_jax/_fusion.py`): values that XLA's CPU compiler computes once.
 
-Its values are its argument's (a negative zero aside), exactly; under `vmap` and for
-derivatives it is the identity; and in a compiled program a sine that several kernels read is
-computed once. On the models: one unbatched right-hand side of L0-L2 (the fused equations of
-motion) computes no more sines and cosines than it traces, and its accelerations equal the
-generic projection's (the batched comparison in `test_fused_eom.py` runs under `vmap`, where
+Its values are its argument's (a negative zero aside), exactly; under `vmap` (of a batched
+value) and for derivatives it is the identity, while a value that a batch's members share is
+still computed once (the primal of a forward-mode Jacobian); and in a compiled program a sine
+that several kernels read is computed once. `tangents_once` changes no value or derivative.
+On the models: one unbatched right-hand side of L0-L2 (the fused equations of motion)
+computes no more sines and cosines than it traces, and its accelerations equal the generic
+projection's (the batched comparison in `test_fused_eom.py` runs under `vmap`, where
 `materialize` is the identity)."""
 
 import re
@@ -17,7 +19,7 @@ import pytest
 
 import ppr_jax as pj
 from ppr_jax._dynamics import _eom_terms, accelerations, eom_terms
-from ppr_jax._fusion import materialize
+from ppr_jax._fusion import materialize, tangents_once
 from ppr_jax._geometry import home_pose
 
 TRIG = ("sine", "cosine")
@@ -84,6 +86,42 @@ def test_identity_under_vmap_and_for_derivatives():
     h1 = jax.jacfwd(jax.grad(lambda a: f(a, True)))(x[0])
     h2 = jax.jacrev(jax.jacfwd(lambda a: f(a, False)))(x[0])
     np.testing.assert_allclose(h1, h2, rtol=1e-12, atol=1e-14)
+
+
+def test_a_value_shared_by_a_batch_is_computed_once():
+    """vmapped over a direction, as `jax.jacfwd` maps a JVP over its tangents: the primal is
+    not batched and keeps its one kernel."""
+    x, y = jnp.linspace(0.1, 0.7, 3), jnp.arange(4.0)
+    def f(a, once):  # squared, so that the tangents read the values
+        return [o ** 2 for o in _three_readers(a, y, once)]
+
+    jac = jax.jit(jax.jacfwd(lambda a: f(a, True)))
+    assert "reduce-window" in jac.lower(x).compile().as_text()
+    for a, b in zip(jac(x), jax.jacfwd(lambda a: f(a, False))(x)):
+        np.testing.assert_allclose(a, b, rtol=1e-14)
+
+
+def _tangent_readers(x, once):
+    xs = [jnp.sin(x) * x[0], jnp.cos(x[:2]) ** 2]
+    xs = tangents_once(xs) if once else xs
+    return xs[0] * xs[1][0] + xs[0][::-1], jnp.outer(xs[1], xs[0]).sum(0)
+
+
+def test_tangents_once_changes_no_value_or_derivative():
+    x = jnp.array([0.3, -1.2, 2.0])
+    for a, b in zip(_tangent_readers(x, True), _tangent_readers(x, False)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+    def f(a, once):
+        return sum(jnp.sum(jnp.sin(o)) for o in _tangent_readers(a, once))
+
+    for g in (jax.grad, jax.jacfwd):
+        np.testing.assert_allclose(g(lambda a: f(a, True))(x), g(lambda a: f(a, False))(x),
+                                   rtol=1e-14)
+    # the tangents computed by one kernel of their own (a running sum), in both modes
+    for g in (jax.grad, jax.jacfwd):
+        text = jax.jit(g(lambda a: f(a, True))).lower(x).compile().as_text()
+        assert "reduce-window" in text
 
 
 @pytest.mark.parametrize("name", ["rigid", "reduced", "double1r"])

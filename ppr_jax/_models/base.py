@@ -26,7 +26,7 @@ from .._custom_types import Array, Float
 from .._linalg import solve_blocks
 from .._names import ATOL, RTOL  # noqa: F401 (the non-stiff levels' defaults)
 from .._robot import Robot
-from .fused import ChainSpec, fused_eom
+from .fused import ChainSpec, fused_balance, fused_eom
 
 
 class Kin(eqx.Module):
@@ -205,6 +205,17 @@ class AbstractClosedLoop(AbstractModel):
         kin = self.kin_at(robot, z, u, margin)
         return (kin, *fused_eom(spec, robot, z, zdot, kin, self.stiffness(robot),
                                 self.damping(robot)))
+
+    def fused_balance(self, robot, z, zdot, zdd, once=None):
+        """(kin, Q_passive - M z'' - h, Jth, JX) at (z, z', z'') as straight-line arithmetic
+        (`_models/fused.fused_balance`), or None where the model has no `chain_spec`."""
+        u, margin = self.dependent(robot, z)
+        spec = self.chain_spec(robot, z, u)
+        if spec is None:
+            return None
+        kin = self.kin_at(robot, z, u, margin)
+        return (kin, *fused_balance(spec, robot, z, zdot, zdd, kin, self.stiffness(robot),
+                                    self.damping(robot), once=once))
 
     def motion(self, robot: Robot, z, zdot, convective: bool = True) -> Motion:
         """`Motion` at (z, z') by implicit differentiation of the closures (class docstring)."""

@@ -109,9 +109,28 @@ def _dot(a, b):
     return out
 
 
-def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
-    """(M (n, n), h (n,), Q_passive (n,), Jth (3, n), JX (3, n)) of the generic projection
-    (`_dynamics.EOM`) from a `ChainSpec` at (z, z') with `kin` the kinematics at z."""
+class _Chains(NamedTuple):
+    """What the mass matrix, the balance and the passive forces share (`_chains`): per-chain
+    (3,) arrays, Python floats or None (a structural zero)."""
+
+    n: int
+    ns: int  # shared coordinates
+    nl: int  # shared coordinates, then one column for the chains' own ones
+    own: tuple
+    zd: list  # z' in local columns
+    A_z: list  # [k][j]: d alpha_k / dz_j
+    bodies: list  # per body: (Jx, Jy, ax, ay), the COM's Jacobian columns and its convective
+    #   acceleration
+    Q: list  # [j]: the springs', their damping's and the actuators' friction's force
+    Jth: list  # [j]: d th_a / dz_j
+
+
+def _chains(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping,
+            once=None) -> _Chains:
+    """The closure's implicit derivatives, the bodies' Jacobians and convective accelerations
+    and the passive forces (module docstring). `once`, where given, is applied to the list of
+    the angles' derivatives and the links' directions (`_fusion.tangents_once` in
+    `fused_balance`)."""
     n = z.shape[0]
     K = len(spec.alpha)
     own = tuple(int(j) for j in spec.own)
@@ -196,9 +215,11 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
     A_dd = [add(float(spec.Gu[k, 0]) * udd[0] if spec.Gu[k, 0] else None,
                 float(spec.Gu[k, 1]) * udd[1] if spec.Gu[k, 1] else None) for k in range(K)]
 
-    # Bodies: mass matrix and convective terms, per chain
-    M = [[None] * nl for _ in range(nl)]
-    h = [None] * nl
+    if once is not None:
+        ev, A_z, A_d, A_dd = _once(once, ev, A_z, A_d, A_dd)
+
+    # Bodies: the Jacobians of their centres of mass and their convective accelerations
+    per_body = []
     for body in spec.bodies:
         Jx, Jy = [None] * nl, [None] * nl
         ax, ay = None, None
@@ -214,19 +235,7 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
             if A_dd[link.k] is not None:
                 ax = ax + link.c * A_dd[link.k] * p_[0]
                 ay = ay + link.c * A_dd[link.k] * p_[1]
-        Ja = A_z[body.angle]
-        for i in range(nl):
-            for j in range(i, nl):
-                t = _dot([Jx[i], Jy[i]], [Jx[j], Jy[j]])
-                t = body.m * t if t is not None else None
-                if Ja[i] is not None and Ja[j] is not None:
-                    t = add(t, body.I * Ja[i] * Ja[j])
-                M[i][j] = add(M[i][j], t)
-            t = _dot([Jx[i], Jy[i]], [ax, ay])
-            t = body.m * t if t is not None else None
-            if Ja[i] is not None and A_dd[body.angle] is not None:
-                t = add(t, body.I * Ja[i] * A_dd[body.angle])
-            h[i] = add(h[i], t)
+        per_body.append((Jx, Jy, ax, ay, A_z[body.angle], A_dd[body.angle]))
 
     # Springs with their damping, and the actuators' viscous friction
     defl = kin.deflection.reshape(3, -1)
@@ -243,6 +252,49 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
     for j in range(nl):
         if Jth[j] is not None:
             Q[j] = add(Q[j], Jth[j] * fa)
+    return _Chains(n=n, ns=ns, nl=nl, own=own, zd=zd, A_z=A_z, bodies=per_body, Q=Q, Jth=Jth)
+
+
+def _add(x, y):
+    return y if x is None else (x if y is None else x + y)
+
+
+def _once(once, ev, A_z, A_d, A_dd):
+    """`once` applied to every array among the links' directions and the angles' derivatives
+    (Python floats and structural zeros pass by)."""
+    K = len(ev)
+    rows = [list(v) for v in ev] + [list(r) for r in A_z] + [list(A_d), list(A_dd)]
+    live = [(r, j) for r, row in enumerate(rows) for j, x in enumerate(row)
+            if x is not None and not isinstance(x, float)]
+    got = once([jnp.broadcast_to(rows[r][j], (3,)) for r, j in live])
+    for (r, j), v in zip(live, got):
+        rows[r][j] = v
+    return [tuple(v) for v in rows[:K]], rows[K : 2 * K], rows[2 * K], rows[2 * K + 1]
+
+
+def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
+    """(M (n, n), h (n,), Q_passive (n,), Jth (3, n), JX (3, n)) of the generic projection
+    (`_dynamics.EOM`) from a `ChainSpec` at (z, z') with `kin` the kinematics at z."""
+    ch = _chains(spec, robot, z, zdot, kin, stiffness, damping)
+    n, ns, nl, own = ch.n, ch.ns, ch.nl, ch.own
+    add = _add
+    # Bodies: mass matrix and convective terms, per chain
+    M = [[None] * nl for _ in range(nl)]
+    h = [None] * nl
+    for body, (Jx, Jy, ax, ay, Ja, Ja_dd) in zip(spec.bodies, ch.bodies):
+        for i in range(nl):
+            for j in range(i, nl):
+                t = _dot([Jx[i], Jy[i]], [Jx[j], Jy[j]])
+                t = body.m * t if t is not None else None
+                if Ja[i] is not None and Ja[j] is not None:
+                    t = add(t, body.I * Ja[i] * Ja[j])
+                M[i][j] = add(M[i][j], t)
+            t = _dot([Jx[i], Jy[i]], [ax, ay])
+            t = body.m * t if t is not None else None
+            if Ja[i] is not None and Ja_dd is not None:
+                t = add(t, body.I * Ja[i] * Ja_dd)
+            h[i] = add(h[i], t)
+    Q, Jth = ch.Q, ch.Jth
 
     # The sums over the chains, in groups of `GROUP` entries: XLA's CPU fusion takes a stack of
     # a few operands into the reduction that consumes it, but computes every operand of a longer
@@ -273,7 +325,7 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
     Mss = jnp.stack([jnp.stack([S[int(upper[i, j])] for j in range(ns)]) for i in range(ns)])
     Mss = Mss + jnp.diag(jnp.pad(plat, (0, ns - 3)))
     h_s, Q_s = S[nm : nm + ns], S[nm + ns : nm + 2 * ns]
-    Jth_s = jnp.stack([chains(x) for x in Jth[:ns]], axis=-1)
+    Jth_s = _jth_matrix(Jth, ns, own, z.dtype)
     if own:
         # chain i's own coordinate couples with the shared ones and with itself only
         o = nm + 2 * ns
@@ -283,11 +335,65 @@ def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
                              jnp.concatenate([B.T, jnp.diag(D)], axis=1)])
         h = jnp.concatenate([h_s, h_o])
         Q = jnp.concatenate([Q_s, Q_o])
-        Jth = jnp.concatenate([Jth_s, jnp.diag(chains(Jth[ns]))], axis=1)
+        Jth = Jth_s
     else:
         M, h, Q, Jth = Mss, h_s, Q_s, Jth_s
     JX = jnp.asarray(np.eye(3, n), dtype=z.dtype)
     return M, h, Q, Jth, JX
+
+
+def _jth_matrix(Jth, ns, own, dtype):
+    """d th_a / dz (3, n) from its local columns (a chain's own coordinate: its own entry)."""
+    zero = jnp.zeros(3, dtype=dtype)
+
+    def chains(x):
+        return zero if x is None else jnp.broadcast_to(x, (3,))
+
+    shared = jnp.stack([chains(x) for x in Jth[:ns]], axis=-1)
+    if not own:
+        return shared
+    return jnp.concatenate([shared, jnp.diag(chains(Jth[ns]))], axis=1)
+
+
+def fused_balance(spec: ChainSpec, robot: Robot, z, zdot, zdd, kin, stiffness, damping,
+                  once=None):
+    """(Q_passive - M z'' - h (n,), Jth (3, n), JX (3, n)) at (z, z') for given accelerations
+    z'' (n,): the equations of motion's balance without the actuators and the wrench, written
+    as the bodies' inertial forces (Kane's form, `sum_b m_b Jp_b^T (Jp_b z'' + p_b''_conv)` and
+    likewise for the rotations) instead of M and h. It needs no n x n matrix, so its
+    derivative is a fraction of M's: forward dynamics takes its tangents from it
+    (`_dynamics.forward_dynamics`). `once`: as `_chains`'."""
+    ch = _chains(spec, robot, z, zdot, kin, stiffness, damping, once=once)
+    ns, nl, own = ch.ns, ch.nl, ch.own
+    a = [zdd[j] for j in range(ns)] + ([zdd[ns:]] if own else [])
+    F = list(ch.Q)
+    # the bodies' accelerations Jp z'' + p''_conv (per chain)
+    acc = [[_add(_dot(Jx, a), ax), _add(_dot(Jy, a), ay), _add(_dot(Ja, a), Ja_dd)]
+           for Jx, Jy, ax, ay, Ja, Ja_dd in ch.bodies]
+    jac = [[list(Jx), list(Jy), list(Ja)] for Jx, Jy, _, _, Ja, _ in ch.bodies]
+    if once is not None:
+        rows = [r for b in range(len(acc)) for r in (acc[b], *jac[b])]
+        live = [(r, j) for r, row in enumerate(rows) for j, x in enumerate(row)
+                if x is not None and not isinstance(x, float)]
+        got = once([jnp.broadcast_to(rows[r][j], (3,)) for r, j in live])
+        for (r, j), v in zip(live, got):
+            rows[r][j] = v
+    for body, (vx, vy, va), (Jx, Jy, Ja) in zip(spec.bodies, acc, jac):
+        for j in range(nl):
+            t = _dot([Jx[j], Jy[j]], [vx, vy])
+            t = body.m * t if t is not None else None
+            if Ja[j] is not None and va is not None:
+                t = _add(t, body.I * Ja[j] * va)
+            if t is not None:
+                F[j] = -t if F[j] is None else F[j] - t
+    zero = jnp.zeros(3, dtype=z.dtype)
+    cols = jnp.stack([zero if x is None else jnp.broadcast_to(x, (3,)) for x in F[:ns]])
+    plat = jnp.stack([robot.m4, robot.m4, robot.I4])
+    r = jnp.sum(cols, axis=-1) - jnp.pad(plat, (0, ns - 3)) * zdd[:ns]
+    if own:
+        r = jnp.concatenate([r, zero if F[ns] is None else jnp.broadcast_to(F[ns], (3,))])
+    return r, _jth_matrix(ch.Jth, ns, own, z.dtype), jnp.asarray(np.eye(3, z.shape[0]),
+                                                                   dtype=z.dtype)
 
 
 def _local_columns(Gz, own):
