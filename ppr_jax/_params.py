@@ -12,6 +12,7 @@ orientation `sigma` is a discrete branch choice and therefore a static field.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, Optional
 
@@ -115,6 +116,18 @@ class RobotParams(eqx.Module):
         kw = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         kw.update(changes)
         return RobotParams(**kw)
+
+
+@functools.lru_cache(maxsize=32)
+def table1_with_thickness(t: float) -> "RobotParams":
+    """Table 1 with strip thickness `t` (m), built and checked once per thickness (a scene's
+    defaults, on every call that leaves the robot to the scene). Its numpy leaves are made
+    read-only: the one object is shared, and `robot_of` keeps its `Robot`."""
+    params = RobotParams().replace(t=t)
+    for leaf in jax.tree_util.tree_leaves(params):
+        if isinstance(leaf, np.ndarray):
+            leaf.flags.writeable = False
+    return params
 
 
 #: the float parameters that may be None (the PRB table's or Howell's value)

@@ -27,6 +27,7 @@ function (`jax.grad(lambda p: f(Robot(p)))`), as the public functions that take 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Optional, Union
 
 import equinox as eqx
@@ -34,7 +35,7 @@ import jax
 import numpy as np
 
 from ._errors import PPRError, is_traced
-from ._params import RobotParams
+from ._params import RobotParams, table1_with_thickness
 from ._prb import Derived, derived, derived_concrete
 
 
@@ -104,6 +105,13 @@ for _name in (f.name for f in dataclasses.fields(RobotParams)):
     if not hasattr(Robot, _name):
         setattr(Robot, _name, _forward("params", _name))
 del _name
+
+
+@functools.lru_cache(maxsize=32)
+def table1_robot(t: float) -> Robot:
+    """`Robot` of Table 1 with strip thickness `t` (m) (`table1_with_thickness`), built once:
+    a scene's default robot, on every call that leaves the robot to the scene."""
+    return Robot(table1_with_thickness(t))
 
 
 #: what the public functions accept: a built `Robot`, or `RobotParams` to build one from

@@ -141,3 +141,28 @@ def test_a_batch_on_a_scene_with_nothing_to_check_is_not_cut(params, monkeypatch
         log = pj.PathScene(path=scene.trajectory(), drive="motion",
                            command_log=lambda t: jnp.zeros(3))
         _base.check_scene_commands(log, batch, scene.trajectory(), 1.0)
+
+
+def test_a_scenes_defaults_are_built_once_and_read_only():
+    """A scene's default parameters and robot are one shared object per thickness
+    (`table1_with_thickness`, `table1_robot`): equal to Table 1 built afresh, their leaves
+    read-only (an in-place change would reach every later call), and overrides build anew."""
+    import numpy as np
+
+    from ppr_jax._scenes import get_scene
+
+    scene = get_scene("paper-circle")
+    p = scene.default_params()
+    assert p is scene.default_params()
+    fresh = pj.RobotParams().replace(t=scene.thickness)
+    for a, b in zip(jax.tree_util.tree_leaves(p), jax.tree_util.tree_leaves(fresh)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match="read-only"):
+        p.t[()] = 1e-3
+    robot = scene.default_robot()
+    assert robot is scene.default_robot() and robot.params is p
+    ref = pj.Robot(fresh)
+    for a, b in zip(jax.tree_util.tree_leaves(robot), jax.tree_util.tree_leaves(ref)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    other = scene.default_params(E=2.0e11)
+    assert other is not p and float(other.E) == 2.0e11 and float(p.E) != 2.0e11

@@ -31,8 +31,8 @@ from .._errors import RESIDUAL_TOL, RESULTS, PPRError, first_failure
 from .._kinematics import det3, fold_flags, path_margins
 from .._metrics import outputs
 from .._models import AbstractModel
-from .._params import RobotParams, params_invalid
-from .._robot import Robot
+from .._params import RobotParams, params_invalid, table1_with_thickness
+from .._robot import Robot, table1_robot
 from .._simulate import Solution, simulate_core
 from .._statics import kinematic_state, quasi_static_core
 from .._tabulated import breakpoints, input_too_coarse, scene_input
@@ -372,8 +372,14 @@ class AbstractScene(eqx.Module):
         angles (`drive="motion"`) of a model whose coordinates are the pose (L0, L1)."""
         return not (self.drive == "motion" and model.actuated_index is None)
 
+    def default_robot(self) -> Robot:
+        """`Robot(self.default_params())`, built once per thickness."""
+        return table1_robot(float(self.thickness))
+
     def default_params(self, **overrides) -> RobotParams:
         """Table 1 with the scene's strip thickness, and `overrides` applied."""
+        if not overrides:
+            return table1_with_thickness(float(self.thickness))
         kw = {"t": self.thickness}
         kw.update(overrides)
         return RobotParams().replace(**kw)

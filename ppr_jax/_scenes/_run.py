@@ -75,7 +75,11 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
     options.check()
     scene = get_scene(scene, torque_model)
     model = get_model(model)
-    params = scene.default_params() if params is None else params
+    # Built here, outside any trace when params are concrete: the derived quantities once and
+    # the structural choices (equal links, elbow) static, so a batch is branch-free. A scene's
+    # default robot is built once per process.
+    robot = scene.default_robot() if params is None else Robot(params)
+    params = robot.params
     if not scene.needs_integrator(model):
         solver_name = "none (kinematics + inverse dynamics)"
     elif options.auto_solver:
@@ -86,9 +90,6 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
         solver_name = f"{name} (auto: {why})"
     else:
         solver_name = options.solver_name(model)
-    # Built here, outside any trace when params are concrete: the derived quantities once and
-    # the structural choices (equal links, elbow) static, so a batch is branch-free.
-    robot = Robot(params)
     opts = options.prepared(model, scene.trajectory())
     # the commands a scene is given, against the robot and the path run (before any trace)
     check_scene_commands(scene, params, opts.trajectory, options.t_end)
