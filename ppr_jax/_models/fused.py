@@ -216,7 +216,11 @@ def _chains(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping,
                 float(spec.Gu[k, 1]) * udd[1] if spec.Gu[k, 1] else None) for k in range(K)]
 
     if once is not None:
-        ev, A_z, A_d, A_dd = _once(once, ev, A_z, A_d, A_dd)
+        K = len(ev)
+        rows = [list(v) for v in ev] + [list(r) for r in A_z] + [list(A_d), list(A_dd)]
+        _once(once, rows)
+        ev, A_z = [tuple(v) for v in rows[:K]], rows[K : 2 * K]
+        A_d, A_dd = rows[2 * K], rows[2 * K + 1]
 
     # Bodies: the Jacobians of their centres of mass and their convective accelerations
     per_body = []
@@ -259,17 +263,13 @@ def _add(x, y):
     return y if x is None else (x if y is None else x + y)
 
 
-def _once(once, ev, A_z, A_d, A_dd):
-    """`once` applied to every array among the links' directions and the angles' derivatives
-    (Python floats and structural zeros pass by)."""
-    K = len(ev)
-    rows = [list(v) for v in ev] + [list(r) for r in A_z] + [list(A_d), list(A_dd)]
+def _once(once, rows):
+    """`once` applied to every array in `rows` (lists of per-chain entries), in place; Python
+    floats and structural zeros (None) pass by."""
     live = [(r, j) for r, row in enumerate(rows) for j, x in enumerate(row)
             if x is not None and not isinstance(x, float)]
-    got = once([jnp.broadcast_to(rows[r][j], (3,)) for r, j in live])
-    for (r, j), v in zip(live, got):
+    for (r, j), v in zip(live, once([jnp.broadcast_to(rows[r][j], (3,)) for r, j in live])):
         rows[r][j] = v
-    return [tuple(v) for v in rows[:K]], rows[K : 2 * K], rows[2 * K], rows[2 * K + 1]
 
 
 def fused_eom(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping):
@@ -372,12 +372,7 @@ def fused_balance(spec: ChainSpec, robot: Robot, z, zdot, zdd, kin, stiffness, d
            for Jx, Jy, ax, ay, Ja, Ja_dd in ch.bodies]
     jac = [[list(Jx), list(Jy), list(Ja)] for Jx, Jy, _, _, Ja, _ in ch.bodies]
     if once is not None:
-        rows = [r for b in range(len(acc)) for r in (acc[b], *jac[b])]
-        live = [(r, j) for r, row in enumerate(rows) for j, x in enumerate(row)
-                if x is not None and not isinstance(x, float)]
-        got = once([jnp.broadcast_to(rows[r][j], (3,)) for r, j in live])
-        for (r, j), v in zip(live, got):
-            rows[r][j] = v
+        _once(once, [r for b in range(len(acc)) for r in (acc[b], *jac[b])])
     for body, (vx, vy, va), (Jx, Jy, Ja) in zip(spec.bodies, acc, jac):
         for j in range(nl):
             t = _dot([Jx[j], Jy[j]], [vx, vy])
