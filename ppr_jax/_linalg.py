@@ -180,30 +180,6 @@ class SmallLU(lx.AbstractLinearSolver):
         return True
 
 
-def _cholesky_solve(A, b):
-    """x with A x = b for symmetric positive definite A (n <= UNROLL_MAX): Cholesky without
-    pivoting, every index static, so XLA fuses it (no data-dependent row swaps)."""
-    n = A.shape[-1]
-    L = [[None] * n for _ in range(n)]
-    for j in range(n):
-        s = A[j, j] - sum((L[j][k] ** 2 for k in range(j)), 0.0)
-        L[j][j] = jnp.sqrt(s)
-        for i in range(j + 1, n):
-            L[i][j] = (A[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), 0.0)) / L[j][j]
-    y = [None] * n
-    for i in range(n):
-        y[i] = (b[i] - sum((L[i][k] * y[k] for k in range(i)), 0.0)) / L[i][i]
-    x = [None] * n
-    for i in reversed(range(n)):
-        x[i] = (y[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), 0.0)) / L[i][i]
-    return jnp.stack(x)
-
-
-#: up to this size `solve_spd` inverts by blocks of at most 3 (`_block_factor`), above it
-#: Cholesky
-BLOCK_MAX = 6
-
-
 def _mv(A, v):
     """A v by columns (elementwise products of slices: no dot kernel for a 3 x 3)."""
     out = A[:, 0] * v[0]
@@ -236,54 +212,48 @@ def _inverse3(A):
 
 
 def _block_factor(A):
-    """(A11^-1, X = A11^-1 A12, S^-1) of A = [[A11, A12], [A12^T, A22]] split after row 3, with
-    S = A22 - A12^T X its Schur complement (block LDL^T: no pivoting for a symmetric positive
-    definite A). Two divisions for n <= 6 instead of Cholesky's 2 n square roots and divisions in
-    sequence, each of which XLA's CPU fusion keeps as a kernel boundary (L2's 6 x 6 mass-matrix
-    solve was about 30 kernels)."""
+    """(A11^-1, X = A11^-1 A12, the factors of S) of A = [[A11, A12], [A12^T, A22]] split after
+    row 3, with S = A22 - A12^T X its Schur complement, factored the same way (block LDL^T by
+    3 x 3 blocks: no pivoting for a symmetric positive definite A, whose Schur complements are
+    too). One division a block (the adjugate's determinant) instead of Cholesky's 2 n square
+    roots and divisions in sequence, each of which XLA's CPU fusion keeps as a kernel boundary
+    (L2's 6 x 6 mass-matrix solve was about 30 kernels, L3's 9 x 9 64)."""
     n = A.shape[-1]
     if n <= 3:
         return _inverse3(A), None, None
     P = _inverse3(A[:3, :3])
     X = _mm(P, A[:3, 3:])
     S = A[3:, 3:] - _mm(A[:3, 3:].T, X)
-    return P, X, _inverse3(S)
+    return P, X, _block_factor(S)
 
 
 def _block_solve(F, b):
-    P, X, Si = F
+    P, X, F_S = F
     if X is None:
         return _mv(P, b)
-    y1 = _mv(P, b[:3])
-    x2 = _mv(Si, b[3:] - _mv(X.T, b[:3]))
-    return jnp.concatenate([y1 - _mv(X, x2), x2])
+    x2 = _block_solve(F_S, b[3:] - _mv(X.T, b[:3]))
+    return jnp.concatenate([_mv(P, b[:3]) - _mv(X, x2), x2])
 
 
 @jax.custom_jvp
 def _solve_spd(A, b):
-    if A.shape[-1] <= BLOCK_MAX:
-        return _block_solve(_block_factor(A), b)
-    return _cholesky_solve(A, b)
+    return _block_solve(_block_factor(A), b)
 
 
 @_solve_spd.defjvp
 def _solve_spd_jvp(primals, tangents):
     A, b = primals
     dA, db = tangents
-    if A.shape[-1] <= BLOCK_MAX:
-        F = _block_factor(A)
-        x = _block_solve(F, b)
-        return x, _block_solve(F, db - _mv(dA, x))
-    x = _cholesky_solve(A, b)
-    return x, _cholesky_solve(A, db - dA @ x)
+    F = _block_factor(A)
+    x = _block_solve(F, b)
+    return x, _block_solve(F, db - _mv(dA, x))
 
 
 @jax.jit
 def solve_spd(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, " n"]:
     """x with A x = b for a symmetric positive definite A (a mass matrix): in plain XLA, up to
-    `BLOCK_MAX` by 3 x 3 blocks and their adjugates (`_block_factor`), up to `UNROLL_MAX`
-    Cholesky, `solve` above that. A matrix that is not positive definite gives NaN (Cholesky)
-    or a meaningless x (blocks; a mass matrix always is)."""
+    `UNROLL_MAX` by 3 x 3 blocks and their adjugates (`_block_factor`), `solve` above that. A
+    matrix that is not positive definite gives a meaningless x (a mass matrix always is)."""
     if A.shape[-1] > UNROLL_MAX:
         return solve(A, b)
     return _solve_spd(A, b)

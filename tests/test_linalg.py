@@ -67,7 +67,7 @@ def test_small_lu_in_optimistix_newton_and_implicit_gradient():
     np.testing.assert_allclose(Jf, J, rtol=1e-10, atol=1e-14)
 
 
-@pytest.mark.parametrize("n", [1, 3, 6, UNROLL_MAX + 3])
+@pytest.mark.parametrize("n", [1, 3, 5, 6, 9, UNROLL_MAX, UNROLL_MAX + 3])
 def test_spd_solve_matches_numpy_with_derivatives(n):
     """The Cholesky solve of the mass matrices against numpy, and its derivatives against the
     same expression through LAPACK's solve."""
