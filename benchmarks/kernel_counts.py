@@ -637,6 +637,11 @@ def profile_batch(model_name, batch, repeats, rtol=None) -> dict:
     robots = [as_robot(base.replace(t=float(t))) for t in np.linspace(*BATCH_T_RANGE, batch)]
     robots = jax.tree_util.tree_map(lambda *a: jnp.stack(a) if eqx.is_array(a[0]) else a[0],
                                     *robots)
+    try:  # as the library's batches do: what the members share, once (`compress_shared`)
+        from ppr_jax._scenes._batch import compress_shared
+        robots = compress_shared(robots)
+    except ImportError:  # a checkout from before it
+        pass
     dyn, static = eqx.partition((robots, scene, model, opts), eqx.is_array)
     mapped = map_members(lambda one, s, m, o: scene_program(s, m, one, o))
 

@@ -101,3 +101,30 @@ def test_chunked_batch_equals_single_runs(params, monkeypatch):
         np.testing.assert_allclose(res.X[i], single.X, rtol=0, atol=1e-12)
         np.testing.assert_allclose(res.tau[i], single.tau, rtol=1e-12, atol=1e-14)
         assert int(res.num_steps[i]) == int(single.num_steps)
+
+
+def test_arrays_all_members_share_run_unbatched(params):
+    """A batch's robot keeps one copy of each array its members share (`compress_shared`),
+    which `map_members` hands to every member unbatched: exactly the arrays that are equal in
+    the members' own robots are cut to one. The members differ in a mass (strip thickness)
+    and, for one, in a length, so the geometry is shared by some arrays only. That every
+    member of such a batch still equals its single run (a member that took another's array
+    would not) is what `test_vmapped_scene_equals_python_loop` and
+    `test_chunked_batch_equals_single_runs` check, and the sweep's tests for its chunks."""
+    from ppr_jax._robot import Robot
+    from ppr_jax._scenes._run import prepare
+
+    members = [params.replace(t=0.3e-3), params.replace(t=0.36e-3),
+               params.replace(t=0.33e-3, l3=float(params.l3) * 1.01)]
+    c = prepare("paper-circle", pj.stack_params(members), "reduced", pj.SceneOptions())
+    singles = [jax.tree_util.tree_leaves(Robot(p)) for p in members]
+    leaves = jax.tree_util.tree_leaves(c.args[2])
+    n_shared = 0
+    for k, leaf in enumerate(leaves):
+        equal = all(np.array_equal(np.asarray(s[k]), np.asarray(singles[0][k])) for s in singles)
+        assert leaf.shape[0] == (1 if equal else 3), k
+        n_shared += equal
+    assert 0 < n_shared < len(leaves)
+    # identical members: one array keeps the batch's length
+    c = prepare("paper-circle", pj.stack_params([members[0]] * 2), "reduced", pj.SceneOptions())
+    assert max(x.shape[0] for x in jax.tree_util.tree_leaves(c.args[2])) == 2

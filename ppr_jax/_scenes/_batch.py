@@ -4,6 +4,13 @@ Scenes, sweeps, sensitivities and identification map their members through `map_
 Adaptive steps never synchronise across devices (`_devices.py`): each device runs a plain local
 vmap over its members, a chunk at a time. Every model among the shared arguments takes the
 generic equations of motion there (`_dynamics.for_batch`: faster under vmap on a CPU).
+
+A batch over some parameters leaves the rest equal in every member (a sweep of the strip
+thickness leaves 43 of a robot's 49 arrays alone). `compress_shared` keeps one copy of such an
+array, its leading axis of length 1, and `map_members` hands it to every member unbatched, so
+that what depends on it alone (the path's inverse kinematics, the geometry) is computed once
+for the batch, not once a member. Which arrays are shared is decided on the concrete values,
+before tracing, and is part of the arguments' shapes (so of every program's key).
 """
 
 from __future__ import annotations
@@ -41,35 +48,83 @@ def batch_devices(batch: int) -> tuple:
     return ()
 
 
+def shared_mask(batched):
+    """A pytree of bools like `batched` (arrays with a leading batch axis, concrete): True for
+    an array whose members are all equal. All False for a batch of one member or of identical
+    members (one array then keeps the batch's length)."""
+    def same(x):
+        if not eqx.is_array(x) or isinstance(x, jax.core.Tracer) or x.shape[0] <= 1:
+            return False
+        a = np.asarray(x)
+        return bool(np.all(a == a[:1]))
+
+    mask = jax.tree_util.tree_map(same, batched)
+    if all(jax.tree_util.tree_leaves(mask)):
+        return jax.tree_util.tree_map(lambda _: False, mask)
+    return mask
+
+
+def compress_shared(batched, mask=None):
+    """`batched` with every array that `mask` marks (default `shared_mask(batched)`: those whose
+    members are all equal) cut to its first member, leading axis kept (length 1), for
+    `map_members` to hand to every member unbatched. A study whose batches run in chunks takes
+    one mask for all of them, so that every chunk runs the same program."""
+    mask = shared_mask(batched) if mask is None else mask
+    return jax.tree_util.tree_map(lambda x, c: x[:1] if c else x, batched, mask)
+
+
+def _split_shared(batched):
+    """(varying, shared): the arrays of `batched` with the batch's length on their leading axis,
+    and those of length 1 in a batch of more members (`compress_shared`) without that axis; each
+    tree with None where the other has the array."""
+    lengths = [x.shape[0] for x in jax.tree_util.tree_leaves(batched) if eqx.is_array(x)]
+    n = max(lengths, default=1)
+    if n <= 1:
+        return batched, None
+    is_shared = jax.tree_util.tree_map(lambda x: eqx.is_array(x) and x.shape[0] == 1, batched)
+    shared, varying = eqx.partition(batched, is_shared)
+    return varying, jax.tree_util.tree_map(lambda x: x[0], shared)
+
+
 def map_members(member: Callable, devices: Sequence = ()) -> Callable:
     """`fn(batched, *shared)`: `member(one, *shared)` for every member of the pytree `batched`
     (leading axis), traceable. Without `devices` (or one), a chunked vmap; with several, the
-    batch axis split over a 1-D mesh by `shard_map`, `shared` replicated. Every model in
-    `shared` (an `AbstractModel` anywhere in its pytrees) is handed to `member` as a batch
-    takes it (`for_batch`), a structural choice made before tracing."""
+    batch axis split over a 1-D mesh by `shard_map`, `shared` replicated. An array of `batched`
+    whose leading axis has length 1 in a batch of more members (`compress_shared`) is the same
+    for every member: it is handed to each unbatched. Every model in `shared` (an
+    `AbstractModel` anywhere in its pytrees) is handed to `member` as a batch takes it
+    (`for_batch`), a structural choice made before tracing."""
 
-    def local(batched, *shared):
+    def one_member(varying, common, *shared):
+        return member(varying if common is None else eqx.combine(varying, common), *shared)
+
+    def local(varying, common, *shared):
         shared = jax.tree_util.tree_map(
             lambda x: for_batch(x) if isinstance(x, AbstractModel) else x, shared,
             is_leaf=lambda x: isinstance(x, AbstractModel))
-        return chunked_vmap(lambda one: member(one, *shared), batched)
+        return chunked_vmap(lambda one: one_member(one, common, *shared), varying)
 
     if len(devices) <= 1:
-        return local
+        def mapped(batched, *shared):
+            return local(*_split_shared(batched), *shared)
+
+        return mapped
     from jax.sharding import Mesh, PartitionSpec as P
 
     mesh = Mesh(np.asarray(devices), ("batch",))
 
     def sharded(batched, *shared):
-        shared_dyn, shared_static = eqx.partition(shared, eqx.is_array)
+        varying, common = _split_shared(batched)
+        shared_dyn, shared_static = eqx.partition((common, shared), eqx.is_array)
 
         def body(b, sd):
-            return local(b, *eqx.combine(sd, shared_static))
+            c, s = eqx.combine(sd, shared_static)
+            return local(b, c, *s)
 
         # check_vma=False: diffrax's loops carry values that are replicated at entry and vary
         # per device after one step, which the varying-axes check rejects; each device's body
         # is a plain local vmap, with no collective to get wrong.
         return jax.shard_map(body, mesh=mesh, in_specs=(P("batch"), P()),
-                             out_specs=P("batch"), check_vma=False)(batched, shared_dyn)
+                             out_specs=P("batch"), check_vma=False)(varying, shared_dyn)
 
     return sharded

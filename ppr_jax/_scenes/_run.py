@@ -14,7 +14,7 @@ from .._params import RobotParams
 from .._programs import cached_program
 from .._robot import Robot
 from ._base import AbstractScene, check_scene_commands
-from ._batch import batch_devices, map_members
+from ._batch import batch_devices, compress_shared, map_members
 from ._options import SceneOptions, default_solver, options_from
 from ._registry import get_scene, scene_params
 from ._result import SceneResult, finish, result_template
@@ -95,6 +95,8 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
     check_scene_commands(scene, params, opts.trajectory, options.t_end)
     batched = jnp.ndim(params.a) == 1
     devices = batch_devices(int(jnp.shape(params.a)[0])) if batched else ()
+    if batched:
+        robot = compress_shared(robot)  # what the members share, computed once (`_batch.py`)
     fn = _sharded(devices) if devices else (_JIT_BATCH if batched else scene_program)
     return SceneCall(fn=fn, args=(scene, model, robot, opts), scene=scene.name,
                      batched=batched, solver_name=solver_name, devices=len(devices))

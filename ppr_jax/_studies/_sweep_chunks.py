@@ -18,9 +18,10 @@ from .._params import stack_params
 from .._programs import cached_program
 from .._robot import Robot
 from .._scenes import map_members
+from .._scenes._batch import compress_shared, shared_mask
 from .._simulate import default_controller
 from ._catalogue import SceneContext
-from ._evaluation import Evaluation
+from ._evaluation import Evaluation, equal_links
 
 #: a member whose max loop-closure residual (m) at the output times exceeds this has failed
 RESIDUAL_TOL = 1e-9
@@ -136,6 +137,18 @@ class Chunks:
     program_dir: object
     label: str
 
+    def shared(self, equal: bool):
+        """Which of a chunk's robot arrays all of the sweep's members of its group (`equal`
+        links or not) share (`shared_mask` of them at once): each chunk computes them once, and
+        every chunk of the group runs the same program (a chunk's own mask would change with
+        the members it happens to hold)."""
+        masks = self.__dict__.setdefault("_masks", {})
+        if equal not in masks:
+            group = [p for p in self.plist
+                     if p is not None and equal_links(p, (), local=False) == equal]
+            masks[equal] = shared_mask(Robot(stack_params(group), equal_links=equal))
+        return masks[equal]
+
     def run(self, equal: bool, idx) -> tuple:
         """The chunk of members `idx` (all of one structure: `equal` links or not) in its
         compiled program: ({metric: (B,)}, codes (B,), steps (B,)) as numpy arrays."""
@@ -143,8 +156,9 @@ class Chunks:
             self.chunk_size - len(idx))
         ev = Evaluation(names=tuple(self.members), metrics=self.metrics, equal_links=equal,
                         samples=(), ctx=self.ctx)
-        args = (Robot(stack_params(members_p), equal_links=equal), ev, *self.tol,
-                self.devices)
+        robot = compress_shared(Robot(stack_params(members_p), equal_links=equal),
+                                self.shared(equal))
+        args = (robot, ev, *self.tol, self.devices)
         template = ({m: 0 for m in self.metrics}, 0, 0)
         # one compilation per group (equal links or not) and shape, kept for later chunks
         fn = cached_program(_chunk_program, args, template, self.program_dir, self.label)
