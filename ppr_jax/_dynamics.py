@@ -36,7 +36,7 @@ import jax.numpy as jnp
 
 from ._custom_types import Array, Float
 from ._errors import PPRError
-from ._fusion import tangents_once
+from ._fusion import materialize, tangents_once
 from ._linalg import solve, solve_arrow, solve_spd
 from ._models import AbstractClosedLoop, AbstractModel, Kin
 from ._robot import Robot, RobotLike, as_robot
@@ -200,8 +200,36 @@ def _torque_driven_fused_jvp(primals, tangents, *, model):
             r = r + Jth[k] * tau[k] + JX[k] * wrench[k]
         return r, tau
 
-    _, (dr, dtau) = eqx.filter_jvp(balance, primals, tangents)
+    dr, dtau = _jvp_residuals_once(balance, primals, tangents)
     return (zdd, tau), (mass_solve(model, M, dr), dtau)
+
+
+def _jvp_residuals_once(fn, primals, tangents):
+    """The tangent of `fn(*primals)` along `tangents` (None: zero), with every primal value the
+    tangent reads computed once: `jax.linearize` splits the derivative into the primal values
+    it needs (its residuals) and arithmetic linear in the tangents, and the residuals go
+    through one `materialize`. Straight-line arithmetic differentiated in one piece let XLA's
+    CPU fusion recompute primal products inside every fusion of the tangents, once per tangent
+    entry (19 parameters' tangents of L2's balance: 292,000 primal operations a right-hand
+    side inside tangent kernels, against 145,000 tangent operations)."""
+    diff, nondiff = eqx.partition(primals, eqx.is_inexact_array)
+    _, lin = jax.linearize(lambda d: fn(*eqx.combine(d, nondiff)), diff)
+    leaves, treedef = jax.tree_util.tree_flatten(lin)
+    floats = [i for i, x in enumerate(leaves)
+              if eqx.is_inexact_array(x) and x.dtype == jnp.float64]
+    if floats:
+        flat = materialize(jnp.concatenate([jnp.ravel(leaves[i]) for i in floats]))
+        start = 0
+        for i in floats:
+            size = leaves[i].size
+            leaves[i] = flat[start:start + size].reshape(leaves[i].shape)
+            start += size
+    lin = jax.tree_util.tree_unflatten(treedef, leaves)
+    dt = jax.tree_util.tree_map(
+        lambda p, t: None if p is None else (jnp.zeros_like(p) if t is None else t), diff,
+        tangents,
+        is_leaf=lambda x: x is None)
+    return lin(dt)
 
 
 def _eom_terms(model, robot, z, zdot, implicit: bool) -> EOM:

@@ -165,3 +165,34 @@ def test_batch_members_take_the_generic_terms():
     for name in MODELS:
         assert not _has_fused_balance(for_batch(pj.get_model(name)))
     assert not _has_fused_balance(pj.get_model("beam"))
+
+
+def test_jvp_with_residuals_once_equals_jax_jvp():
+    """`_jvp_residuals_once` (the balance's tangent with its primal residuals computed once)
+    against `jax.jvp` of the same function: a static integer argument, an argument without a
+    tangent (None), and tangents mapped by `vmap` as a forward-mode Jacobian maps them."""
+    from ppr_jax._dynamics import _jvp_residuals_once
+
+    def fn(x, k, w):
+        s = jnp.sin(x) * jnp.cos(x[::-1]) + w
+        a = s * x[0] + jnp.sin(s) * x[1]
+        b = jnp.cumsum(a) * s[0] ** k
+        return a * b, jnp.sum(b * jnp.sin(a))
+
+    x, w = jnp.linspace(0.1, 1.2, 6), jnp.linspace(-1.0, 1.0, 6)
+    directions = jnp.asarray(np.random.default_rng(3).normal(size=(4, 6)))
+
+    def ours(t):
+        return _jvp_residuals_once(fn, (x, 3, w), (t, None, None))
+
+    def reference(t):
+        return jax.jvp(lambda x: fn(x, 3, w), (x,), (t,))[1]
+
+    got, want = jax.jit(jax.vmap(ours))(directions), jax.vmap(reference)(directions)
+    for g, r in zip(got, want):
+        np.testing.assert_allclose(g, r, rtol=1e-14, atol=1e-14)
+    # a tangent for w as well
+    g = _jvp_residuals_once(fn, (x, 3, w), (directions[0], None, directions[1]))
+    r = jax.jvp(lambda x, w: fn(x, 3, w), (x, w), (directions[0], directions[1]))[1]
+    for a, b in zip(g, r):
+        np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-14)
