@@ -11,7 +11,14 @@ from ._base import (
     tabulated,
     torque_input,
 )
-from ._batch import MEMBER_CHUNK, batch_devices, chunked_vmap, map_members
+from ._batch import (
+    MEMBER_CHUNK,
+    batch_devices,
+    chunked_vmap,
+    compress_shared,
+    map_members,
+    shared_mask,
+)
 from ._modes_scene import modes_scene
 from ._options import (
     ATOL,
@@ -44,10 +51,11 @@ __all__ = [
     "deprecated_keywords",
     "check_scene_commands", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
-    "experiment_drive", "experiment_scene", "kinematic_motion", "map_members", "modes_scene",
-    "motion_input", "nominal_torques",
+    "compress_shared", "experiment_drive", "experiment_scene", "kinematic_motion",
+    "map_members", "modes_scene", "motion_input", "nominal_torques",
     "paper_circle",
     "path_out_of_reach", "prepare", "result_template", "run_scene", "scene_metrics",
-    "register_scene", "scene_names", "scene_params", "servo_circle", "solve_scene",
+    "register_scene", "scene_names", "scene_params", "servo_circle", "shared_mask",
+    "solve_scene",
     "tabulated", "torque_input",
 ]

@@ -17,8 +17,7 @@ from .._errors import result_message
 from .._params import stack_params
 from .._programs import cached_program
 from .._robot import Robot
-from .._scenes import map_members
-from .._scenes._batch import compress_shared, shared_mask
+from .._scenes import compress_shared, map_members, shared_mask
 from .._simulate import default_controller
 from ._catalogue import SceneContext
 from ._evaluation import Evaluation, equal_links
