@@ -46,6 +46,7 @@ from .._scenes import (
     SceneOptions,
     deprecated_keywords,
     get_scene,
+    shared_mask,
 )
 from ._catalogue import (
     METRICS as METRICS,
@@ -376,7 +377,10 @@ def sweep(
     runner = Chunks(plist=plist, members=members, metrics=tuple(metric_names),
                     ctx=SceneContext(scene_, model_, options, None), chunk_size=chunk_size,
                     tol=(options.rtol, options.atol), devices=dev, program_dir=program_dir,
-                    label=f"sweep-{scene_.name}-{model_.name}-{len(dev) or 1}dev")
+                    label=f"sweep-{scene_.name}-{model_.name}-{len(dev) or 1}dev",
+                    masks={eq: shared_mask(Robot(stack_params([plist[i] for i in g]),
+                                                 equal_links=eq))
+                           for eq, g in groups.items() if g})
     rows.update(runner.run_all(chunks, store, update, timing))
     close()
     columns = ["member", *names, "status", "reason", *metric_names, "result_code", "num_steps"]

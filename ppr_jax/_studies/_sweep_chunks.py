@@ -17,10 +17,10 @@ from .._errors import result_message
 from .._params import stack_params
 from .._programs import cached_program
 from .._robot import Robot
-from .._scenes import compress_shared, map_members, shared_mask
+from .._scenes import compress_shared, map_members
 from .._simulate import default_controller
 from ._catalogue import SceneContext
-from ._evaluation import Evaluation, equal_links
+from ._evaluation import Evaluation
 
 #: a member whose max loop-closure residual (m) at the output times exceeds this has failed
 RESIDUAL_TOL = 1e-9
@@ -135,18 +135,10 @@ class Chunks:
     devices: tuple
     program_dir: object
     label: str
-
-    def shared(self, equal: bool):
-        """Which of a chunk's robot arrays all of the sweep's members of its group (`equal`
-        links or not) share (`shared_mask` of them at once): each chunk computes them once, and
-        every chunk of the group runs the same program (a chunk's own mask would change with
-        the members it happens to hold)."""
-        masks = self.__dict__.setdefault("_masks", {})
-        if equal not in masks:
-            group = [p for p in self.plist
-                     if p is not None and equal_links(p, (), local=False) == equal]
-            masks[equal] = shared_mask(Robot(stack_params(group), equal_links=equal))
-        return masks[equal]
+    #: {equal: `shared_mask` of the group's members at once}: each chunk computes what the
+    #: group shares once, and every chunk of a group runs the same program (a chunk's own mask
+    #: would change with the members it happens to hold)
+    masks: dict = dataclasses.field(default_factory=dict)
 
     def run(self, equal: bool, idx) -> tuple:
         """The chunk of members `idx` (all of one structure: `equal` links or not) in its
@@ -156,7 +148,7 @@ class Chunks:
         ev = Evaluation(names=tuple(self.members), metrics=self.metrics, equal_links=equal,
                         samples=(), ctx=self.ctx)
         robot = compress_shared(Robot(stack_params(members_p), equal_links=equal),
-                                self.shared(equal))
+                                self.masks[equal])
         args = (robot, ev, *self.tol, self.devices)
         template = ({m: 0 for m in self.metrics}, 0, 0)
         # one compilation per group (equal links or not) and shape, kept for later chunks
