@@ -31,7 +31,7 @@ from ._errors import (
     is_traced,
 )
 from ._esdirk import KeptKvaerno5
-from ._lean import lean_applies, lean_solve
+from ._lean import lean_applies, lean_solve, lean_vjp
 from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
@@ -361,22 +361,40 @@ class RecordedGrid(diffrax.AbstractStepSizeController):
                 diffrax.RESULTS.successful)
 
 
-def _solve(diff, model, solver, stepsize_controller, dt0, max_steps, throw, progress_meter,
-           adjoint, skip, saveat=None):
-    """diffrax's solve of the free state y = (z_f, z_f') from `diff` = (robot, actuation,
-    wrench, y0, ts): what reverse mode differentiates."""
-    robot, actuation, wrench, y0, ts = diff
-    free, _ = split_coordinates(model, actuation)
-    nf = len(free)
-
-    def vf(t, y, args):
+def _flat_field(model, skip):
+    """(d = (robot, actuation, wrench), t, y) -> y' on the flat free state y = (z_f, z_f')."""
+    def field(d, t, y):
+        robot, actuation, wrench = d
+        nf = len(split_coordinates(model, actuation)[0])
         dz, dzd = _vector_field(model, robot, actuation, wrench, skip, t, (y[:nf], y[nf:]))
         return jnp.concatenate([dz, dzd])
+    return field
+
+
+def _lean_reverse(model, solver, controller, dt0, throw, progress_meter, adjoint) -> bool:
+    """Whether reverse mode runs on the lean loop (`_lean.lean_vjp`): a solve the lean loop
+    computes, outside a mapped batch, under diffrax's default checkpointing (a chosen number
+    of checkpoints is diffrax's `RecursiveCheckpointAdjoint`'s)."""
+    return (not model.batch_member and adjoint.checkpoints is None
+            and lean_applies(solver, controller, dt0, throw, progress_meter, None))
+
+
+def _solve(diff, model, solver, stepsize_controller, dt0, max_steps, throw, progress_meter,
+           adjoint, skip, saveat=None, record=False):
+    """diffrax's solve of the free state y = (z_f, z_f') from `diff` = (robot, actuation,
+    wrench, y0, ts): what reverse mode differentiates; the lean loop's where it applies (with
+    `record`, its `Tape` after the solution)."""
+    robot, actuation, wrench, y0, ts = diff
+    field = _flat_field(model, skip)
+
+    def vf(t, y, args):
+        return field((robot, actuation, wrench), t, y)
 
     if not model.batch_member and lean_applies(solver, stepsize_controller, dt0, throw,
                                                progress_meter, saveat):
-        return _LeanSolution(*lean_solve(lambda t, y: vf(t, y, None), y0, ts,
-                                         stepsize_controller, max_steps))
+        out = lean_solve(lambda t, y: vf(t, y, None), y0, ts, stepsize_controller, max_steps,
+                         record=record)
+        return (_LeanSolution(*out[:4]), out[4]) if record else _LeanSolution(*out)
     return diffrax.diffeqsolve(
         diffrax.ODETerm(vf), solver, ts[0], ts[-1], dt0, y0,
         saveat=diffrax.SaveAt(ts=ts) if saveat is None else saveat,
@@ -410,6 +428,10 @@ def _solve_recorded(diff, *rest):
 def _solve_recorded_fwd(perturbed, diff, *rest):
     del perturbed
     ts = diff[4]
+    model, solver, controller, dt0, _, throw, meter, adjoint, _ = rest
+    if _lean_reverse(model, solver, controller, dt0, throw, meter, adjoint):
+        sol, tape = _solve(diff, *rest, record=True)
+        return _solve_out(sol), tape
     # the grid as one more output of the same adaptive solve: the accepted steps' ends, which
     # diffrax keeps as that output's times; its values are empty (a copy of the times there
     # would be a second max_steps-long buffer written every step)
@@ -425,10 +447,16 @@ def _solve_recorded_fwd(perturbed, diff, *rest):
 @_solve_recorded.def_bwd
 def _solve_recorded_bwd(grid, g_out, perturbed, diff, model, solver, stepsize_controller, dt0,
                         max_steps, throw, progress_meter, adjoint, skip):
-    del perturbed, stepsize_controller, dt0, throw, progress_meter
     # the saved times' cotangent is dropped: they are the requested ts (or inf where the
     # solve stopped short), and simulate_core takes their derivative from ts itself
     g_ys = g_out[0]
+    if _lean_reverse(model, solver, stepsize_controller, dt0, throw, progress_meter, adjoint):
+        y0, ts = diff[3], diff[4]
+        if g_ys is None:
+            g_ys = jnp.zeros((ts.shape[0], y0.shape[0]), y0.dtype)
+        g_d, g_y0, g_ts = lean_vjp(_flat_field(model, skip), diff[:3], y0, ts, grid, g_ys)
+        return (*g_d, g_y0, g_ts)
+    del perturbed, stepsize_controller, dt0, throw, progress_meter
 
     def ys(d):
         return _solve(d, model, solver, RecordedGrid(grid), None, max_steps, False,
@@ -469,7 +497,10 @@ def simulate_core(
     flags and right under others. On the recorded grid nothing is decided again, and the
     gradient is diffrax's adaptive one (its controllers stop the step sizes' gradient). The
     cost is one more forward pass in reverse mode and a `max_steps`-long grid per solve;
-    forward mode and undifferentiated runs are unchanged."""
+    forward mode and undifferentiated runs are unchanged. Where the lean loop runs the solve
+    and no number of checkpoints is chosen (`_lean_reverse`), both passes are its own: it
+    records its steps and a state every `SEGMENT` steps, and `_lean.lean_vjp` replays and
+    transposes them a segment at a time."""
     robot = as_robot(robot)
     free, _ = split_coordinates(model, actuation)
     # The state as one flat array (z_f, z_f'): a Runge-Kutta stage's combination of

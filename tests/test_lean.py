@@ -3,7 +3,10 @@ controller, an independent implementation of the same algorithm: a forced Van de
 oscillator at three tolerances (the same steps, accepted and rejected, and the same solution to
 rounding), a budget that runs out (the status code and the rows not reached), forward-mode
 derivatives in a parameter and the initial state, a batch under `vmap`, and which solves take
-the lean loop."""
+the lean loop; its reverse mode (`lean_vjp`) against forward mode and against diffrax's own
+backward pass on the same steps."""
+
+import functools
 
 import diffrax
 import jax
@@ -11,7 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ppr_jax._lean import lean_applies, lean_solve
+from ppr_jax._lean import SEGMENT, lean_applies, lean_solve, lean_vjp
+from ppr_jax._simulate import RecordedGrid
 
 TS = jnp.linspace(0.0, 10.0, 101)
 Y0 = jnp.array([1.5, 0.0])
@@ -143,3 +147,84 @@ def test_a_scene_differentiates_in_both_modes():
           - np.asarray(fwd.evaluate(x - [h, 0.0]))) / (2 * h)
     np.testing.assert_allclose(fwd.jacobian[:, 0] / scale[:, 0], fd / scale[:, 0], rtol=0,
                                atol=1e-4)
+
+
+# reverse mode: the same oscillator with its parameters as a pytree (mu, forcing amplitude)
+W = jnp.asarray(np.random.default_rng(7).normal(size=(TS.shape[0], 2)))
+
+
+def _vf_d(d, t, y):
+    return _vf(t, y, d["mu"]) + jnp.stack([0.0 * t, (d["a"] - 1.0) * jnp.sin(3 * t)])
+
+
+def _loss_fwd(p, ts, rtol, max_steps=100_000):
+    """sum(W * ys) through the lean loop, for forward mode."""
+    d = {"mu": p[2], "a": p[3]}
+    c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2)
+    ys = lean_solve(lambda t, y: _vf_d(d, t, y), p[:2], ts, c, max_steps)[0]
+    return jnp.sum(jnp.where(jnp.isfinite(ys), W * ys, 0.0))
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4))
+def _rev(p, ts, g, rtol=1e-9, max_steps=100_000):
+    d = {"mu": p[2], "a": p[3]}
+    c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2)
+    *_, tape = lean_solve(lambda t, y: _vf_d(d, t, y), p[:2], ts, c, max_steps, record=True)
+    gd, gy0, gts = lean_vjp(_vf_d, d, p[:2], ts, tape, g)
+    return jnp.concatenate([gy0, jnp.stack([gd["mu"], gd["a"]])]), gts, tape
+
+
+P = jnp.array([1.5, 0.0, 2.0, 1.3])
+
+
+@pytest.mark.parametrize("rtol", [1e-9, 1e-7])
+def test_reverse_mode_equals_forward_mode(rtol):
+    """Parameters, the initial state and the output times against `jax.jacfwd` through the
+    loop (but the first: in forward mode it moves every step with it, on the recorded steps
+    only the first step's start); at both
+    tolerances the accepted steps are not a whole number of segments, once more than one
+    segment."""
+    g, gts, tape = _rev(P, TS, W, rtol)
+    assert int(tape.accepted) % SEGMENT != 0 and int(tape.accepted) > SEGMENT
+    g_f = jax.jacfwd(_loss_fwd)(P, TS, rtol)
+    np.testing.assert_allclose(g, g_f, rtol=0, atol=1e-12 * np.abs(g_f).max())
+    gts_f = jax.jacfwd(_loss_fwd, argnums=1)(P, TS, rtol)
+    np.testing.assert_allclose(gts[1:], gts_f[1:], rtol=0,
+                               atol=1e-12 * np.abs(gts_f).max())
+
+
+def test_reverse_mode_equals_diffrax_on_the_recorded_steps():
+    """diffrax's own backward pass of `diffeqsolve` on the steps the lean loop accepted
+    (`RecordedGrid`, what reverse mode ran before): the same cotangents, the first output
+    time's included."""
+    g, gts, tape = _rev(P, TS, W)
+    grid = jnp.where(jnp.isfinite(tape.grid), tape.grid, TS[-1])
+
+    def loss(p, ts):
+        d = {"mu": p[2], "a": p[3]}
+        sol = diffrax.diffeqsolve(diffrax.ODETerm(lambda t, y, a: _vf_d(d, t, y)),
+                                  diffrax.Tsit5(), ts[0], ts[-1], None, p[:2],
+                                  saveat=diffrax.SaveAt(ts=ts),
+                                  stepsize_controller=RecordedGrid(grid), max_steps=100_000)
+        return jnp.sum(W * sol.ys)
+
+    g_d, gts_d = jax.jit(jax.grad(loss, argnums=(0, 1)))(P, TS)
+    np.testing.assert_allclose(g, g_d, rtol=0, atol=1e-12 * np.abs(g_d).max())
+    np.testing.assert_allclose(gts, gts_d, rtol=0, atol=1e-12 * np.abs(gts_d).max())
+
+
+def test_reverse_mode_of_a_solve_that_stops_short():
+    """A budget that runs out: the rows not reached (inf) carry no cotangent, the rest are
+    forward mode's."""
+    g, _, tape = _rev(P, TS, W, 1e-9, 40)
+    assert int(tape.accepted) < 40
+    g_f = jax.jacfwd(_loss_fwd)(P, TS, 1e-9, 40)
+    np.testing.assert_allclose(g, g_f, rtol=0, atol=1e-12 * np.abs(g_f).max())
+
+
+def test_reverse_mode_maps_over_cotangents():
+    """`jax.jacrev`'s use: cotangents batched under `vmap`, the forward pass's tape not."""
+    gs = jnp.stack([W, -2.0 * W, W.at[:, 0].set(0.0)])
+    batch = jax.vmap(lambda g: _rev(P, TS, g)[0])(gs)
+    for i in range(3):
+        np.testing.assert_allclose(batch[i], _rev(P, TS, gs[i])[0], rtol=1e-13, atol=1e-13)

@@ -211,8 +211,10 @@ def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,
       on any other path (`allowed_metrics` lists them all).
     - `options`: a `SceneOptions`; `t_end`, `n_out`, `solver`, `rtol`, `atol`, `max_steps`:
       its fields also as keywords (replacing the options' where not None), as `sweep`.
-    - `checkpoints`: the checkpoints of mode 'rev'; None (default): diffrax's default, about
-      log(steps) memory.
+    - `checkpoints`: the checkpoints of mode 'rev'; None (default): the solve's own
+      reverse pass where it runs Tsit5 under the default controller (a state kept every 16
+      accepted steps, each segment replayed and transposed), diffrax's default elsewhere; a
+      number: diffrax's `RecursiveCheckpointAdjoint` with that many.
     - `program_dir`: a directory of stored programs (as `run_scene`'s; the command line's): the
       metrics' and their derivatives' programs are exported there once and loaded by later
       processes, which skip tracing them; None (default): compiled in this process (and kept
