@@ -236,7 +236,7 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
     return ys[:m], times, result, stats
 
 
-def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array):
+def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool = True):
     """Reverse mode of `lean_solve` on its own accepted steps: the cotangents of (d, y0, ts)
     given the cotangent `g_ys` (m, n) of its saved states (module docstring).
 
@@ -255,6 +255,8 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array):
     - `d`, `y0` (n,), `ts` (m,): what the forward pass solved with.
     - `tape`: the forward pass's `Tape` (`lean_solve(..., record=True)`).
     - `g_ys`: (m, n) the cotangent of the saved states (rows not reached are ignored).
+    - `times`: whether to differentiate the output times (static; False: g_ts is None, and
+      the right-hand sides' time derivatives are not transposed).
 
     **Returns:** (g_d, g_y0 (n,), g_ts (m,)); g_d as `eqx.filter_vjp` gives it (None where d
     has no floating array).
@@ -336,12 +338,18 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array):
         start = s * SEGMENT
         count = jnp.minimum(SEGMENT, accepted - start)
         y, fy = tape.tape[s, :n], tape.tape[s, n:]
-        (_, _, ys, ks), pull = eqx.filter_vjp(
-            lambda dd, yy, ff, t0, t1: segment(dd, yy, ff, t0, t1, start, count),
-            d, y, fy, ts[0], ts[-1])
+        if times:
+            (_, _, ys, ks), pull = eqx.filter_vjp(
+                lambda dd, yy, ff, t0, t1: segment(dd, yy, ff, t0, t1, start, count),
+                d, y, fy, ts[0], ts[-1])
+        else:
+            (_, _, ys, ks), pull = eqx.filter_vjp(
+                lambda dd, yy, ff: segment(dd, yy, ff, ts[0], ts[-1], start, count), d, y, fy)
         gys, gks, g_ts = outputs_cotangent(start, count, ys, ks, g_ts)
-        dd, gy, gf, gt0, gt1 = pull((g_y, g_fy, gys, gks))
-        return s, gy, gf, _add(g_d, dd), g_ts.at[0].add(gt0).at[m - 1].add(gt1)
+        dd, gy, gf, *gt = pull((g_y, g_fy, gys, gks))
+        if times:
+            g_ts = g_ts.at[0].add(gt[0]).at[m - 1].add(gt[1])
+        return s, gy, gf, _add(g_d, dd), g_ts
 
     zero_d = jax.tree_util.tree_map(jnp.zeros_like, eqx.filter(d, eqx.is_inexact_array))
     n_seg = (accepted + SEGMENT - 1) // SEGMENT
@@ -351,7 +359,7 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array):
     # the first step's derivative is vf's at the start (later ones are the previous step's)
     _, pull = eqx.filter_vjp(vf, d, ts[0], y0)
     dd, gt0, gy = pull(g_fy)
-    return _add(g_d, dd), g_y + gy, g_ts[:m].at[0].add(gt0)
+    return _add(g_d, dd), g_y + gy, g_ts[:m].at[0].add(gt0) if times else None
 
 
 def _add(a, b):

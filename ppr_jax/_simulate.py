@@ -454,7 +454,12 @@ def _solve_recorded_bwd(grid, g_out, perturbed, diff, model, solver, stepsize_co
         y0, ts = diff[3], diff[4]
         if g_ys is None:
             g_ys = jnp.zeros((ts.shape[0], y0.shape[0]), y0.dtype)
-        g_d, g_y0, g_ts = lean_vjp(_flat_field(model, skip), diff[:3], y0, ts, grid, g_ys)
+        # only what is differentiated: a robot's arrays that no parameter moves, and the
+        # output times (their derivative transposes every right-hand side's in t), are left out
+        dyn, const = eqx.partition(diff[:3], perturbed[:3])
+        field = _flat_field(model, skip)
+        g_d, g_y0, g_ts = lean_vjp(lambda d, t, y: field(eqx.combine(d, const), t, y), dyn, y0,
+                                   ts, grid, g_ys, times=bool(perturbed[4]))
         return (*g_d, g_y0, g_ts)
     del perturbed, stepsize_controller, dt0, throw, progress_meter
 

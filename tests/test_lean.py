@@ -228,3 +228,15 @@ def test_reverse_mode_maps_over_cotangents():
     batch = jax.vmap(lambda g: _rev(P, TS, g)[0])(gs)
     for i in range(3):
         np.testing.assert_allclose(batch[i], _rev(P, TS, gs[i])[0], rtol=1e-13, atol=1e-13)
+
+
+def test_reverse_mode_without_the_output_times():
+    """`times=False` (output times not differentiated): the same cotangents of the rest."""
+    d = {"mu": P[2], "a": P[3]}
+    c = diffrax.PIDController(rtol=1e-9, atol=1e-11)
+    *_, tape = lean_solve(lambda t, y: _vf_d(d, t, y), P[:2], TS, c, 100_000, record=True)
+    gd, gy0, gts = jax.jit(lambda g: lean_vjp(_vf_d, d, P[:2], TS, tape, g, times=False))(W)
+    assert gts is None
+    g = jnp.concatenate([gy0, jnp.stack([gd["mu"], gd["a"]])])
+    ref = _rev(P, TS, W)[0]
+    np.testing.assert_allclose(g, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
