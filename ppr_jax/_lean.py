@@ -275,6 +275,7 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool =
     last = jnp.where(grid[accepted] == ts[-1], accepted - 1, -1)
     lanes = jnp.arange(SEGMENT)
     rows = jnp.arange(BLOCK)
+    ends = (ts[0], ts[-1])
 
     def segment(dd, y, fy, t0, t1, start, count):
         """The segment's `count` steps from accepted step `start`: its end (y, fy) and each
@@ -338,13 +339,10 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool =
         start = s * SEGMENT
         count = jnp.minimum(SEGMENT, accepted - start)
         y, fy = tape.tape[s, :n], tape.tape[s, n:]
-        if times:
-            (_, _, ys, ks), pull = eqx.filter_vjp(
-                lambda dd, yy, ff, t0, t1: segment(dd, yy, ff, t0, t1, start, count),
-                d, y, fy, ts[0], ts[-1])
-        else:
-            (_, _, ys, ks), pull = eqx.filter_vjp(
-                lambda dd, yy, ff: segment(dd, yy, ff, ts[0], ts[-1], start, count), d, y, fy)
+        # the ends of the solve are differentiated only with the times (else constants)
+        (_, _, ys, ks), pull = eqx.filter_vjp(
+            lambda dd, yy, ff, *t: segment(dd, yy, ff, *(t or ends), start, count),
+            d, y, fy, *(ends if times else ()))
         gys, gks, g_ts = outputs_cotangent(start, count, ys, ks, g_ts)
         dd, gy, gf, *gt = pull((g_y, g_fy, gys, gks))
         if times:
@@ -357,9 +355,13 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool =
     init = (n_seg, jnp.zeros_like(y0), jnp.zeros_like(y0), zero_d, g_ts)
     _, g_y, g_fy, g_d, g_ts = jax.lax.while_loop(lambda c: c[0] > 0, back, init)
     # the first step's derivative is vf's at the start (later ones are the previous step's)
+    if not times:
+        _, pull = eqx.filter_vjp(lambda dd, yy: vf(dd, ts[0], yy), d, y0)
+        dd, gy = pull(g_fy)
+        return _add(g_d, dd), g_y + gy, None
     _, pull = eqx.filter_vjp(vf, d, ts[0], y0)
     dd, gt0, gy = pull(g_fy)
-    return _add(g_d, dd), g_y + gy, g_ts[:m].at[0].add(gt0) if times else None
+    return _add(g_d, dd), g_y + gy, g_ts[:m].at[0].add(gt0)
 
 
 def _add(a, b):

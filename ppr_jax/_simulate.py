@@ -450,10 +450,10 @@ def _solve_recorded_bwd(grid, g_out, perturbed, diff, model, solver, stepsize_co
     # the saved times' cotangent is dropped: they are the requested ts (or inf where the
     # solve stopped short), and simulate_core takes their derivative from ts itself
     g_ys = g_out[0]
+    if g_ys is None:
+        g_ys = jnp.zeros((diff[4].shape[0], diff[3].shape[0]), diff[3].dtype)
     if _lean_reverse(model, solver, stepsize_controller, dt0, throw, progress_meter, adjoint):
         y0, ts = diff[3], diff[4]
-        if g_ys is None:
-            g_ys = jnp.zeros((ts.shape[0], y0.shape[0]), y0.dtype)
         # only what is differentiated: a robot's arrays that no parameter moves, and the
         # output times (their derivative transposes every right-hand side's in t), are left out
         dyn, const = eqx.partition(diff[:3], perturbed[:3])
@@ -467,9 +467,7 @@ def _solve_recorded_bwd(grid, g_out, perturbed, diff, model, solver, stepsize_co
         return _solve(d, model, solver, RecordedGrid(grid), None, max_steps, False,
                       diffrax.NoProgressMeter(), adjoint, skip).ys
 
-    out, vjp = eqx.filter_vjp(ys, diff)
-    if g_ys is None:
-        g_ys = jnp.zeros_like(out)
+    _, vjp = eqx.filter_vjp(ys, diff)
     (g_diff,) = vjp(g_ys)
     return g_diff
 
