@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._custom_types import Array
+from ._custom_types import Array, as_f64
 from ._errors import PPRError, is_traced
 from ._names import PARAM_RANGES, settable_names
 
@@ -34,11 +34,8 @@ def _f(x):
             x = float(x)
         except OverflowError:  # beyond float64: inf, which `check_params` names with the field
             x = math.inf if x > 0 else -math.inf
-    if isinstance(x, (int, float, np.ndarray, np.generic)) and not isinstance(x, bool):
-        # kept on the host: a jitted call takes numpy leaves as it takes device arrays, and
-        # building, checking and replacing parameters then moves nothing to the device
-        return np.asarray(x, dtype=np.float64)
-    return jnp.asarray(x, dtype=jnp.float64)
+    # kept on the host: building, checking and replacing parameters moves nothing to the device
+    return as_f64(x)
 
 
 def _field(default):

@@ -19,7 +19,7 @@ import numpy as np
 import optimistix as optx
 
 from ._actuation import AbstractActuation
-from ._custom_types import Array, Float
+from ._custom_types import Array, Float, as_f64
 from ._dynamics import eom_terms, generalized_force, torque_driven_accelerations
 from ._errors import (
     RESULTS,
@@ -168,10 +168,7 @@ def default_controller(solver, rtol, atol) -> diffrax.PIDController:
     recompile): diffrax's I controller for explicit solvers, the PI controller `IMPLICIT_PI`
     for implicit ones (and the linearly implicit `Ros34PW2`)."""
     kw = IMPLICIT_PI if is_stiff_solver(solver) else {}
-    return diffrax.PIDController(
-        rtol=jnp.asarray(rtol, dtype=jnp.float64), atol=jnp.asarray(atol, dtype=jnp.float64),
-        **kw,
-    )
+    return diffrax.PIDController(rtol=as_f64(rtol), atol=as_f64(atol), **kw)
 
 
 def is_stiff_solver(solver) -> bool:

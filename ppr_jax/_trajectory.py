@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._custom_types import Array, Float
+from ._custom_types import Array, Float, as_f64
 
 
 def derivatives(f, t):
@@ -32,13 +32,13 @@ class Circle(eqx.Module):
     phi = -phi_amp sin(omega t). Defaults: c = (0.45, 0.15 sqrt 3) m, R = 0.1 m,
     omega = 5/6 rad/s, phi_amp = 0.05 rad, t in [0, 7.54] s (one turn is 2 pi/omega = 7.54 s)."""
 
-    # built in numpy (the same float64 values): no XLA program per operation on the host
+    # numpy float64 leaves (`as_f64`): a scene builds its circle on every call, and host
+    # values cost no device transfer
     center: Array = eqx.field(
-        default_factory=lambda: jnp.asarray(np.array([0.45, 0.15 * np.sqrt(3.0)]))
-    )
-    radius: Array = eqx.field(default_factory=lambda: jnp.asarray(0.1))
-    omega: Array = eqx.field(default_factory=lambda: jnp.asarray(5.0 / 6.0))
-    phi_amp: Array = eqx.field(default_factory=lambda: jnp.asarray(0.05))
+        default_factory=lambda: as_f64(np.array([0.45, 0.15 * np.sqrt(3.0)])))
+    radius: Array = eqx.field(default_factory=lambda: as_f64(0.1))
+    omega: Array = eqx.field(default_factory=lambda: as_f64(5.0 / 6.0))
+    phi_amp: Array = eqx.field(default_factory=lambda: as_f64(0.05))
 
     def __call__(self, t) -> Float[Array, "3"]:
         wt = self.omega * t

@@ -9,7 +9,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._custom_types import Array
+from .._custom_types import Array, as_f64
 from .._errors import check_number, is_traced
 from .._names import (  # the scenes' defaults, written there
     ATOL as ATOL,
@@ -143,9 +143,8 @@ class SceneOptions(eqx.Module):
         panels = (input_panels(traj, self.t_end, self.n_out) if self.panels is None
                   else self.panels)
         return SceneOptions(
-            t_end=jnp.asarray(self.t_end, dtype=jnp.float64), n_out=self.n_out, solver=solver,
-            rtol=jnp.asarray(rtol, dtype=jnp.float64),
-            atol=jnp.asarray(atol, dtype=jnp.float64), max_steps=self.max_steps,
+            t_end=as_f64(self.t_end), n_out=self.n_out, solver=solver,
+            rtol=as_f64(rtol), atol=as_f64(atol), max_steps=self.max_steps,
             adjoint=(diffrax.RecursiveCheckpointAdjoint() if self.adjoint is None
                      else self.adjoint),
             controller=controller, trajectory=traj, panels=panels,

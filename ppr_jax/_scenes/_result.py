@@ -117,40 +117,50 @@ def failure_detail(res: SceneResult, params=None):
     they describe the failure: the parameters out of range (given `params`), how far and when the
     loop opened, where the solver stopped, or when the nominal path meets a type-II singularity
     (given `params`)."""
-    # the codes as host integers, compared in numpy (no XLA program per comparison)
-    codes = np.asarray(result_code(res.result))
+    # read on the host only when a member failed: a successful call asks nothing
+    # (`failure_reasons` calls `detail` for failed members alone)
+    host = {}
 
-    def is_(*names):
-        return np.isin(codes, [int(result_code(getattr(RESULTS, n))) for n in names
-                               if hasattr(RESULTS, n)])
+    def read():
+        if host:
+            return host
+        # the codes as host integers, compared in numpy (no XLA program per comparison)
+        codes = np.asarray(result_code(res.result))
 
-    invalid = is_("invalid_parameter")
-    singular = is_("singular_path")
-    # how far and when the loop is open: for a chain that opened, and for a path out of reach
-    open_loop = is_("loop_not_closed", "trajectory_out_of_reach")
-    # the solver's own failures: diffrax fills the output times after one with inf
-    stopped = is_("max_steps_reached", "max_steps_rejected", "singular", "breakdown",
-                  "nonlinear_divergence", "nonlinear_max_steps_reached", "dt_min_reached",
-                  "nonfinite")
-    resid = np.asarray(res.residual)
-    ts = np.asarray(res.ts)
-    X_nominal = np.asarray(res.X_nominal)
+        def is_(*names):
+            return np.isin(codes, [int(result_code(getattr(RESULTS, n))) for n in names
+                                   if hasattr(RESULTS, n)])
+
+        host.update(
+            invalid=is_("invalid_parameter"),
+            singular=is_("singular_path"),
+            # how far and when the loop is open: for a chain that opened, and for a path out
+            # of reach
+            open_loop=is_("loop_not_closed", "trajectory_out_of_reach"),
+            # the solver's own failures: diffrax fills the output times after one with inf
+            stopped=is_("max_steps_reached", "max_steps_rejected", "singular", "breakdown",
+                        "nonlinear_divergence", "nonlinear_max_steps_reached",
+                        "dt_min_reached", "nonfinite"),
+            resid=np.asarray(res.residual), ts=np.asarray(res.ts),
+            X_nominal=np.asarray(res.X_nominal))
+        return host
 
     def detail(i):
+        h = read()
         pick = (lambda a: a) if i is None else (lambda a: a[i])
-        r, t = pick(resid), pick(ts)
-        if pick(invalid):
+        r, t = pick(h["resid"]), pick(h["ts"])
+        if pick(h["invalid"]):
             return _bad_params(params, i) if params is not None else ""
-        if pick(singular):
-            return _singular_time(params, i, t, pick(X_nominal))
-        if pick(open_loop):
+        if pick(h["singular"]):
+            return _singular_time(params, i, t, pick(h["X_nominal"]))
+        if pick(h["open_loop"]):
             bad = np.flatnonzero(~(r <= RESIDUAL_TOL) & np.isfinite(t))
             if bad.size == 0:
                 return ""
             k = bad[0]
             return (f"loop-closure residual {r[k]:.3g} m at t = {t[k]:.4g} s, largest "
                     f"{np.nanmax(r):.3g} m")
-        if pick(stopped):
+        if pick(h["stopped"]):
             done = np.flatnonzero(np.isfinite(t))
             if done.size and done.size < t.size:
                 return f"the last output time reached is t = {t[done[-1]]:.4g} s"
