@@ -31,7 +31,13 @@ ahead of time and then
   (`error_controller`), saving at output times (`saving`: interpolation and the store) and the
   loop's status checks and bookkeeping (`loop_status`, with the freeze of a failed member).
   A part's time is its share of the profiled run's time (its kernels' durations and their
-  launches) applied to the unprofiled run less the dispatch;
+  launches) applied to the unprofiled run less the dispatch. The shares are biased: the
+  profiler lengthens each kernel it records, the step's short kernels several times over
+  (L1: 34 ms of recorded kernel time in a 5.2 ms run) and the long kernels that run once
+  hardly at all, so the parts outside the loop come out several times too small;
+- hence the two largest of those parts also compiled and timed alone (`alone`: the scene's
+  input, `scene.commands`, and the per-output quantities on the run's solution,
+  `_metrics.outputs`);
 - the same program over `--short-t-end` (0.01 s, the same output count and input table: one
   compiled program, the horizon is an argument): the difference of the two runs over the
   difference of their steps is the cost of a step (`us_per_step`, `kernels_per_step`), free of
@@ -541,6 +547,36 @@ def _rhs_alone(c, repeats) -> dict:
     return row
 
 
+def _fixed_alone(c, res, repeats) -> dict:
+    """The two largest parts outside the solver's loop, each compiled and timed by itself
+    (minimum of repeats, seconds): the scene's input (`input`: `scene.commands`, the input
+    table and the path's checks) and the per-output quantities on the run's own solution
+    (`outputs`: `_metrics.outputs`, kinematics, loop residual and energies at every output
+    time). The profiler's shares cannot give them: it lengthens every kernel it records, the
+    step's short kernels several times over and the outputs' long ones hardly at all, so their
+    shares of a profiled run understate what runs once (L1: 0.12 ms attributed to the outputs,
+    about 1 ms measured alone). Inside the run the input's path checks may overlap the solve
+    (XLA runs independent operations concurrently), so these are costs, not a partition."""
+    from ppr_jax._metrics import outputs
+
+    scene, model, robot, opts = c.args
+    ts = opts.times()
+    out = {}
+    try:
+        fn = jax.jit(lambda r, t: scene.commands(model, r, opts.trajectory, t, opts.panels))
+        out["input_s"] = _min_time(fn.lower(robot, ts).compile(), (robot, ts), repeats, 3.0)
+    except Exception as exc:  # noqa: BLE001 - another tree's internals: say so, go on
+        out["input_error"] = f"{type(exc).__name__}: {exc}"[:300]
+    try:
+        z, zd = jnp.asarray(res.z), jnp.asarray(res.zdot)
+        fn = jax.jit(lambda r, a, b: outputs(model, r, a, b))
+        out["outputs_s"] = _min_time(fn.lower(robot, z, zd).compile(), (robot, z, zd),
+                                     repeats, 3.0)
+    except Exception as exc:  # noqa: BLE001
+        out["outputs_error"] = f"{type(exc).__name__}: {exc}"[:300]
+    return out
+
+
 def profile_model(model_name, t_end, n_out, short_t_end, repeats) -> dict:
     """The engine profile of one model on `paper-circle` (module docstring)."""
     t0 = time.perf_counter()
@@ -596,6 +632,7 @@ def profile_model(model_name, t_end, n_out, short_t_end, repeats) -> dict:
     row["detail"] = {p: c.most_common(8) for p, c in detail.items()}
     row["attributed_kernels_per_step"] = sum(v["kernels_per_step"] for v in step.values())
     row["attributed_us_per_step"] = sum(v["us_per_step"] for v in step.values())
+    row["alone"] = _fixed_alone(c, res, repeats)
     try:
         row["rhs"] = _rhs_alone(c, repeats)
     except Exception as exc:  # noqa: BLE001 - another tree's internals: say so, go on

@@ -464,6 +464,20 @@ def engine_profile() -> str:
         return _table(["part"] + models, prows)
 
     out.append("Once a run (kernel events `k` and time, per run):\n\n" + part_table("fixed"))
+    arows = []
+    for key, name in (("input_s", "the scene's input (table and path checks)"),
+                      ("outputs_s", "the per-output quantities")):
+        cells = [both(m, lambda r: _ms(r["alone"][key])
+                      if key in r.get("alone", {}) else "-") for m in models]
+        if any(c.replace("-", "").replace("/", "").strip() for c in cells):
+            arows.append([name] + cells)
+    if arows:
+        arows.append(["the whole run"] + [both(m, lambda r: _ms(r["run_s"])) for m in models])
+        out.append("The two largest of those, each compiled and timed alone (the profiler's "
+                   "shares above understate them: it lengthens every kernel it records, the "
+                   "step's short ones several times over, the outputs' long ones hardly at "
+                   "all; inside the run the path checks may overlap the solve):\n\n"
+                   + _table(["part"] + models, arows))
     out.append("In every step of the solver (kernel events `k` and time, per step):\n\n"
                + part_table("step"))
     notes = [f"`paper-circle`, the scene's defaults (L1 torques, {last[models[0]]['t_end_s']:g} s, "
