@@ -11,13 +11,16 @@ that consumer a running sum over a zero and the value: one small `reduce_window`
 and linear. (An identity product does the same, but a batch's product goes to YNNPACK under
 XLA's default flags.)
 
-Only one member's program takes it. Under `vmap` a batched value passes unchanged: each kernel
-of a batch runs over all its members, where the copies of a sine are vectorised arithmetic and
-the extra kernel and pass over the batch cost more than they save (L1 `paper-circle`, 256
-members on the 2-core CPU: 664-674 trajectories/s without it, 559-584 with it). A value the
-same for every member (the primal of a forward-mode Jacobian, whose tangents are the batch) is
-still computed once. Its derivative is the identity; `tangents_once` computes a list's tangents
-once where a derivative needs it.
+Under `vmap` it keeps its kernel, batched or not: a vectorised program (the input table's
+nodes, the path's checks and the outputs at every output time, a batch's members) reads a
+batched sine in several kernels as a single run reads one, and XLA copies it into each of them,
+once per element. Computed once: L1 `paper-circle`'s input table 580 -> 380 us, its path check
+844 -> 761 us, its outputs 1,067 -> 943 us, the warm run 6.1-6.6 -> 5.8-5.9 ms (L0 9.4 -> 8.6
+ms); a batch of 256 L1 robots 385 -> 400 trajectories/s, L2 x64 and L0 x256 unchanged. (It was
+the identity for a batched value while a batch's right-hand side measured faster without it,
+664-674 against 559-584 trajectories/s for L1 x256; that no longer held once L1's inverse
+kinematics took its chain angles as a product, fa32980.) Its derivative is the identity;
+`tangents_once` computes a list's tangents once where a derivative needs it.
 """
 
 from __future__ import annotations
@@ -39,11 +42,10 @@ def _unbatched(x):
 
 @_unbatched.def_vmap
 def _batched(axis_size, in_batched, x):
+    # batched or not (a value the members share, such as a forward-mode Jacobian's primal,
+    # whose tangents are the batch), the value keeps its one kernel (module docstring)
     del axis_size
-    if not in_batched[0]:
-        # the value is the same for every member (a derivative's tangents are the batch)
-        return _running_sum(x), False
-    return x, True
+    return _running_sum(x), in_batched[0]
 
 
 @jax.custom_jvp
@@ -57,7 +59,7 @@ def materialize(x: Float[Array, "..."]) -> Float[Array, "..."]:
 
     **Returns:** `x`'s values, except that a negative zero comes back as +0.0 (it is 0 + x):
     use it on values that feed arithmetic, not on the sign-sensitive `arctan2` of a zero.
-    Under `vmap` a batched `x` itself; for tangents, the identity.
+    The same under `vmap`; for tangents, the identity.
     """
     return _unbatched(x)
 
