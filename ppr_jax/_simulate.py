@@ -31,7 +31,7 @@ from ._errors import (
     is_traced,
 )
 from ._esdirk import KeptKvaerno5
-from ._lean import lean_applies, lean_solve, lean_vjp
+from ._lean import Tape, lean_applies, lean_solve, lean_vjp
 from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
@@ -449,7 +449,8 @@ def _solve_recorded_bwd(grid, g_out, perturbed, diff, model, solver, stepsize_co
     g_ys = g_out[0]
     if g_ys is None:
         g_ys = jnp.zeros((diff[4].shape[0], diff[3].shape[0]), diff[3].dtype)
-    if _lean_reverse(model, solver, stepsize_controller, dt0, throw, progress_meter, adjoint):
+    # the forward rule's choice, carried by its residual: the lean loop's `Tape` or a grid
+    if isinstance(grid, Tape):
         y0, ts = diff[3], diff[4]
         # only what is differentiated: a robot's arrays that no parameter moves, and the
         # output times (their derivative transposes every right-hand side's in t), are left out
