@@ -13,14 +13,9 @@ XLA's default flags.)
 
 Under `vmap` it keeps its kernel, batched or not: a vectorised program (the input table's
 nodes, the path's checks and the outputs at every output time, a batch's members) reads a
-batched sine in several kernels as a single run reads one, and XLA copies it into each of them,
-once per element. Computed once: L1 `paper-circle`'s input table 580 -> 380 us, its path check
-844 -> 761 us, its outputs 1,067 -> 943 us, the warm run 6.1-6.6 -> 5.8-5.9 ms (L0 9.4 -> 8.6
-ms); a batch of 256 L1 robots 385 -> 400 trajectories/s, L2 x64 and L0 x256 unchanged. (It was
-the identity for a batched value while a batch's right-hand side measured faster without it,
-664-674 against 559-584 trajectories/s for L1 x256; that no longer held once L1's inverse
-kinematics took its chain angles as a product, fa32980.) Its derivative is the identity;
-`tangents_once` computes a list's tangents once where a derivative needs it.
+batched sine in several kernels as a single run reads one (L1 `paper-circle`: outputs 1,067 ->
+943 us, input table 580 -> 380 us). Its derivative is the identity; `tangents_once` computes a
+list's tangents once where a derivative needs it.
 """
 
 from __future__ import annotations
@@ -33,19 +28,6 @@ from ._custom_types import Array, Float
 
 def _running_sum(x):
     return jax.lax.cumsum(jnp.stack([jnp.zeros_like(x), x]), axis=0)[1]
-
-
-@jax.custom_batching.custom_vmap
-def _unbatched(x):
-    return _running_sum(x)
-
-
-@_unbatched.def_vmap
-def _batched(axis_size, in_batched, x):
-    # batched or not (a value the members share, such as a forward-mode Jacobian's primal,
-    # whose tangents are the batch), the value keeps its one kernel (module docstring)
-    del axis_size
-    return _running_sum(x), in_batched[0]
 
 
 @jax.custom_jvp
@@ -61,7 +43,7 @@ def materialize(x: Float[Array, "..."]) -> Float[Array, "..."]:
     use it on values that feed arithmetic, not on the sign-sensitive `arctan2` of a zero.
     The same under `vmap`; for tangents, the identity.
     """
-    return _unbatched(x)
+    return _running_sum(x)
 
 
 @materialize.defjvp
