@@ -50,7 +50,6 @@ from typing import NamedTuple
 
 import diffrax
 import equinox as eqx
-import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -105,6 +104,20 @@ def _weighted(weights, k):
     return out
 
 
+def ulps_below(x: Array, n: int) -> Array:
+    """x lowered by `n` ulp: `diffeqsolve`'s `n` steps of `eqxi.prevbefore` (its clipping
+    threshold below t1) as one subtraction on the bits, not `n` unrolled steps of about 17
+    operations each (1,705 of an L1 scene program's 8,435 compiled operations, one fused
+    kernel that LLVM compiled on every first call). Equal to the steps for |x| >= 1e-290
+    (`tests/test_lean.py`); below, where the steps pass through zero and the subnormals (which
+    XLA's CPU code flushes), x - n times the smallest normal number."""
+    idt = jnp.int64 if x.dtype == jnp.float64 else jnp.int32
+    bits = jax.lax.bitcast_convert_type(x, idt)
+    # sign and magnitude: a lower positive number has smaller bits, a lower negative one larger
+    below = jax.lax.bitcast_convert_type(jnp.where(x > 0, bits - n, bits + n), x.dtype)
+    return jnp.where(jnp.abs(x) >= 1e-290, below, x - n * jnp.finfo(x.dtype).tiny)
+
+
 def _adapt(tprev, tn, y, y1, err, controller, t1, floor):
     """(keep, next t0, next t1): the controller's own decision on the step (tprev, tn) from y to
     y1 with error estimate err (NaN read as inf, as `diffeqsolve` does), then `diffeqsolve`'s
@@ -139,6 +152,28 @@ def _stages(vf, tprev, h, y, fy, remat=False):
     return k, y + _weighted(_B_SOL, k)
 
 
+def _stages_from(vf, tprev, h, y, fy, first):
+    """`_stages`, where on the `first` step (a traced bool) the loop also computes fy =
+    vf(tprev, y), its stage 0 (A's row 0 and c_0 are zero), instead of taking it: the solve
+    then compiles its right-hand side once, in the loop, not a second time for the start
+    (L1 `paper-circle`: 1,226 of the program's 8,435 compiled operations). Returns (k, y1,
+    fy)."""
+    A, C = jnp.asarray(_A), jnp.asarray(_C)
+
+    def stage(i, c):
+        k, f0 = c
+        yi = y + jnp.sum(A[i][:, None] * k, axis=0)
+        f = vf(tprev + C[i] * h, yi)
+        return k.at[i].set(f * h), jnp.where(i == 0, f, f0)
+
+    # on the first step fy is a placeholder of zeros: k[0] = 0 until stage 0 sets it, and
+    # stage 0 reads y + 0
+    k = jnp.zeros((7, y.shape[0]), y.dtype).at[0].set(fy * h)
+    lo = jnp.where(first, 0, 1)
+    k, f0 = jax.lax.fori_loop(lo, 7, stage, (k, fy))
+    return k, y + _weighted(_B_SOL, k), jnp.where(first, f0, fy)
+
+
 class Tape(NamedTuple):
     """What a recorded `lean_solve` leaves for `lean_vjp`: `grid` (max_steps + 1,) the
     accepted steps' ends after t0 (inf past the last), `tape` (max_steps // SEGMENT + 1, 2n)
@@ -170,10 +205,7 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
     """
     n, m = y0.shape[0], ts.shape[0]
     t0, t1 = ts[0], ts[-1]
-    floor = t1
-    for _ in range(100):  # diffrax clips a step that ends within 100 ulp of t1
-        floor = eqxi.prevbefore(floor)
-    f0 = vf(t0, y0)
+    floor = ulps_below(t1, 100)  # diffrax clips a step that ends within 100 ulp of t1
     tnext = jnp.minimum(t0 + FIRST_STEP, t1)
     padded = jnp.concatenate([ts, jnp.full((BLOCK,), jnp.inf, ts.dtype)])
     rows = jnp.arange(BLOCK)
@@ -181,7 +213,8 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
     def step(state):
         tprev, tn, y, fy, steps, accepted, ys, saved = state[:8]
         h = tn - tprev
-        k, y1 = _stages(vf, tprev, h, y, fy)
+        first = steps == 0
+        k, y1, fy = _stages_from(vf, tprev, h, y, fy, first)
         keep, nt0, nt1 = _adapt(tprev, tn, y, y1, _weighted(_B_ERR, k), controller, t1, floor)
 
         # diffrax's own Tsit5 interpolant on this step
@@ -206,6 +239,7 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
         out = (nt0, nt1, y_next, f_next, steps + 1, new, ys, saved)
         if record:
             grid, tape = state[8:]
+            tape = tape.at[0].set(jnp.where(first, jnp.concatenate([y, fy]), tape[0]))
             # an accepted step's end, and every SEGMENT-th accepted step's state
             grid = grid.at[new].set(jnp.where(keep, tn, grid[new]))
             row = jnp.concatenate([y_next, f_next])
@@ -219,11 +253,12 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
 
     zero = jnp.asarray(0)
     ys0 = jnp.full((m + BLOCK, n), jnp.inf, y0.dtype)
-    init = (t0, tnext, y0, f0, zero, zero, ys0, zero)
+    # vf(t0, y0) comes from the first step's loop (`_stages_from`)
+    init = (t0, tnext, y0, jnp.zeros_like(y0), zero, zero, ys0, zero)
     if record:
         grid = jnp.full((max_steps + 1,), jnp.inf, ts.dtype).at[0].set(t0)
         tape = jnp.zeros((max_steps // SEGMENT + 1, 2 * n), y0.dtype)
-        init = init + (grid, tape.at[0].set(jnp.concatenate([y0, f0])))
+        init = init + (grid, tape)
     out = jax.lax.while_loop(going, step, init)
     tprev, _, _, _, steps, accepted, ys, saved = out[:8]
     result = diffrax.RESULTS.where(tprev < t1, diffrax.RESULTS.max_steps_reached,

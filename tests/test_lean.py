@@ -9,12 +9,13 @@ backward pass on the same steps."""
 import functools
 
 import diffrax
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ppr_jax._lean import SEGMENT, lean_applies, lean_solve, lean_vjp
+from ppr_jax._lean import SEGMENT, lean_applies, lean_solve, lean_vjp, ulps_below
 from ppr_jax._simulate import RecordedGrid
 
 TS = jnp.linspace(0.0, 10.0, 101)
@@ -51,6 +52,57 @@ def test_same_steps_and_solution_as_diffeqsolve(rtol):
     np.testing.assert_array_equal(np.asarray(ts_l), np.asarray(ts_d))
     np.testing.assert_allclose(ys_l, ys_d, rtol=0, atol=1e-12)
     assert res_l == res_d == diffrax.RESULTS.successful
+
+
+def _stiff(t, y, lam):
+    return -lam * (y - jnp.stack([jnp.cos(t), jnp.sin(t)]))
+
+
+def test_a_rejected_first_step():
+    """The loop's first step also computes the start's derivative (its stage 0); a first step
+    that the controller rejects keeps it for the next try. The first step (0.01 s) is 20 times
+    past the problem's explicit stability limit here: rejected (a budget of one step accepts
+    none), and the steps and solution are still diffrax's, in value and in forward mode."""
+    ts = jnp.linspace(0.0, 0.5, 11)
+    y0 = jnp.array([2.0, -1.0])
+    c = diffrax.PIDController(rtol=1e-8, atol=1e-10)
+
+    def lean(lam, max_steps=100_000):
+        return lean_solve(lambda t, y: _stiff(t, y, lam), y0, ts, c, max_steps)
+
+    def ref(lam):
+        sol = diffrax.diffeqsolve(diffrax.ODETerm(lambda t, y, a: _stiff(t, y, lam)),
+                                  diffrax.Tsit5(), ts[0], ts[-1], None, y0,
+                                  saveat=diffrax.SaveAt(ts=ts), stepsize_controller=c,
+                                  max_steps=100_000, throw=False,
+                                  adjoint=diffrax.ForwardMode())
+        return sol.ys, sol.stats
+
+    assert int(jax.jit(lean, static_argnums=1)(2000.0, 1)[3]["num_accepted_steps"]) == 0
+    ys_l, _, _, st_l = jax.jit(lean)(2000.0)
+    ys_d, st_d = jax.jit(ref)(2000.0)
+    for key in ("num_steps", "num_accepted_steps", "num_rejected_steps"):
+        assert int(st_l[key]) == int(st_d[key]), key
+    np.testing.assert_allclose(ys_l, ys_d, rtol=0, atol=1e-12)
+    t_l = jax.jit(lambda lam: jax.jvp(lambda x: lean(x)[0], (lam,), (1.0,))[1])(2000.0)
+    t_d = jax.jit(lambda lam: jax.jvp(lambda x: ref(x)[0], (lam,), (1.0,))[1])(2000.0)
+    np.testing.assert_allclose(t_l, t_d, rtol=0, atol=1e-9 * float(jnp.abs(t_d).max()))
+
+
+def test_clipping_threshold_equals_diffraxs():
+    """t1 lowered by 100 ulp on the bits equals diffrax's 100 steps of `prevbefore`, over the
+    magnitudes and signs a horizon can have."""
+    rng = np.random.default_rng(3)
+    mags = 10.0 ** rng.uniform(-290, 300, 500)
+    xs = jnp.asarray(np.concatenate([mags, -mags, [7.54, 1.0, 0.5, 2.0 ** 40, -4.0]]))
+
+    def steps(x):
+        for _ in range(100):
+            x = eqxi.prevbefore(x)
+        return x
+
+    np.testing.assert_array_equal(jax.jit(jax.vmap(steps))(xs),
+                                  jax.jit(jax.vmap(lambda x: ulps_below(x, 100)))(xs))
 
 
 def test_an_i_controller_with_other_settings():
