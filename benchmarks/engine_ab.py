@@ -12,7 +12,9 @@ tree interleaved, each pair twice; a row keeps the minimum of each side:
 - `sensitivity`: L2 `paper-circle` over 1 s, the default metrics with respect to every float
   parameter, forward and reverse mode, against the forward run of the same options;
 - `compile`: the first `solve_scene` of L0-L2 in a process with no persistent cache (tracing,
-  lowering and XLA's compilation: what a user waits for before the first answer).
+  lowering and XLA's compilation: what a user waits for before the first answer), the
+  minimum of three processes a side: one process's first call moved by 15 % from run to run
+  on the 2-core machine.
 
 With `--gpu`, the batches of L1 and L2 at the batch benchmark's settings on the GPU too
 (`--gpu-sizes`, one probe on the GPU at a time). On a many-core machine `--lanes 8 --cores 2` runs
@@ -199,7 +201,7 @@ def _jobs(args, base, new):
         jobs.append(("sensitivity", sensitivity))
     for m in ("rigid", "reduced") if args.quick else ("rigid", "reduced", "double1r"):
         def compile_(m=m):
-            b, n = _pair(base, new, _COMPILE, m, rounds=1)
+            b, n = _pair(base, new, _COMPILE, m, rounds=3)
             return (f"compile-{m}", {"base": b, "new": n},
                     [_row(f"paper-circle {m} first call, no cache (s)", b, n, "first_s")])
         jobs.append(("compile", compile_))
