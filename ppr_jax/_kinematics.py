@@ -392,12 +392,24 @@ def forward_kinematics_path(
     if th_a_path.ndim != 2 or th_a_path.shape[-1] != 3:
         raise PPRError(f"th_a_path must have shape (m, 3), got {th_a_path.shape}")
     Xs, codes = _fk_path_jit(model, robot, th_a_path, X0, rtol, atol, max_steps)
+    res = _ik_path_jit(model, robot, Xs)
+    # Newton's attainable accuracy is about eps / (S's inverse condition number): within a
+    # factor of ten of its tolerance, whether it converges is a matter of rounding, and the
+    # singularity, not the solve, is the reason to name
+    floor = 10.0 * float(jnp.finfo(Xs.dtype).eps) / max(min(rtol, atol), 1e-300)
+    stuck = codes != 0
     Xs = raise_if(
-        Xs, codes != 0,
+        Xs, stuck & (res.singularity < floor),
+        f"forward kinematics along the path did not converge next to a type-II singularity "
+        f"(S's inverse condition number below {floor:.2g} at the last iterate, where Newton's "
+        f"attainable accuracy is about its tolerance); keep the motion away from the "
+        f"singularity", what="samples",
+    )
+    Xs = raise_if(
+        Xs, stuck,
         "forward kinematics along the path did not converge (out of reach, singular, or a jump "
         "between samples too large for the warm start)", what="samples",
     )
-    res = _ik_path_jit(model, robot, Xs)
     Xs = raise_if(Xs, jnp.any(res.margin <= REACH_TOL, axis=-1),
                   "unreachable pose along the path: a chain cannot close", what="samples")
     Xs = raise_if(Xs, res.singularity < SINGULAR_TOL,

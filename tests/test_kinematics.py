@@ -223,9 +223,13 @@ def test_forward_kinematics_path_through_a_type2_singularity_is_refused(params):
     """The issue's reproducer: forward kinematics of the L1 angles of 41 poses through the
     singularity. Before, the returned phi rose to -0.812 and turned back to -0.728 while the
     poses went on to -0.90 (0.17 rad off), every check passed. Now the fold is named at the
-    samples around it; the path before it, and a path that stops short of it, pass exactly."""
+    samples around it; the path before it, and a path that stops short of it, pass exactly.
+    Sample 22 (phi = -0.810, S's inverse condition number 7e-4) solves to 1.0e-13, Newton's
+    tolerance: whether it converges there, or the fold shows at [23, 24], is rounding (a
+    custom derivative of the sines moved it), and either refusal names the singularity."""
     X, th = _base_centre_path(params, -0.90)
-    with pytest.raises(pj.PPRError, match=r"type-II singularity.*samples: \[23, 24\]"):
+    with pytest.raises(pj.PPRError,
+                       match=r"type-II singularity.*samples: \[(22, 23|23, 24)\]"):
         pj.forward_kinematics_path(params, th, X[0])
     ok = pj.forward_kinematics_path(params, th[:22], X[0])
     np.testing.assert_allclose(ok, X[:22], atol=1e-12)
