@@ -53,14 +53,31 @@ def _materialize_jvp(primals, tangents):
 
 def cos_sin(*angles: Float[Array, " k"]) -> tuple[list, list]:
     """The cosines and the sines of 1-D arrays of angles, all computed once (`materialize`, one
-    kernel for all of them): ([cos a for a in angles], [sin a for a in angles])."""
-    trig = materialize(jnp.concatenate([f(a) for f in (jnp.cos, jnp.sin) for a in angles]))
+    kernel for all of them): ([cos a for a in angles], [sin a for a in angles]). Their
+    derivatives read the same values (d cos a = -sin a da): differentiated through `jnp.cos`
+    and `jnp.sin`, every derivative would evaluate each sine again, outside the kernel that
+    computed it (L1's path check: 21 sines a pose for the 12 it needs)."""
+    trig = _cos_sin_once(jnp.concatenate(angles))
     ends = [0]
     for a in angles:
         ends.append(ends[-1] + a.shape[0])
     half = ends[-1]
     return ([trig[a:b] for a, b in zip(ends, ends[1:])],
             [trig[half + a : half + b] for a, b in zip(ends, ends[1:])])
+
+
+@jax.custom_jvp
+def _cos_sin_once(a):
+    """(cos a, sin a) of a 1-D array, concatenated and computed once (`materialize`)."""
+    return materialize(jnp.concatenate([jnp.cos(a), jnp.sin(a)]))
+
+
+@_cos_sin_once.defjvp
+def _cos_sin_once_jvp(primals, tangents):
+    (a,), (da,) = primals, tangents
+    cs = _cos_sin_once(a)  # through this rule again at higher orders
+    k = a.shape[0]
+    return cs, jnp.concatenate([-cs[k:] * da, cs[:k] * da])
 
 
 @jax.custom_jvp

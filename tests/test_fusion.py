@@ -149,3 +149,31 @@ def test_one_right_hand_side_computes_each_sine_once(name):
     assert 0 < _trig_elements(text) <= traced, (_trig_elements(text), traced)
     np.testing.assert_allclose(jitted(robot, z, zd), eqx.filter_jit(generic)(robot, z, zd),
                                rtol=1e-11, atol=1e-11)
+
+
+def test_cos_sin_derivatives_read_the_values_once():
+    """`cos_sin`'s values and derivatives (first and second order, both modes) are jnp's, and a
+    derivative reads the sines computed once instead of evaluating them again."""
+    from ppr_jax._fusion import cos_sin
+
+    a, b = jnp.linspace(-2.0, 2.5, 3), jnp.array([0.3, -1.1])
+
+    def f(x, once):
+        u, v = x[:3], x[3:]
+        if once:
+            (cu, cv), (su, sv) = cos_sin(u, v)
+        else:
+            cu, cv, su, sv = jnp.cos(u), jnp.cos(v), jnp.sin(u), jnp.sin(v)
+        return jnp.concatenate([cu * su[::-1], cv ** 2 - sv, su * v[0]])
+
+    x = jnp.concatenate([a, b])
+    np.testing.assert_array_equal(np.asarray(f(x, True)), np.asarray(f(x, False)))
+    for jac in (jax.jacfwd, jax.jacrev):
+        np.testing.assert_allclose(jac(lambda y: f(y, True))(x), jac(lambda y: f(y, False))(x),
+                                   rtol=1e-14, atol=1e-15)
+    h1 = jax.jacfwd(jax.jacrev(lambda y: f(y, True)))(x)
+    h2 = jax.jacrev(jax.jacfwd(lambda y: f(y, False)))(x)
+    np.testing.assert_allclose(h1, h2, rtol=1e-13, atol=1e-14)
+    # forward mode evaluates each of the 5 angles' sine and cosine once
+    text = jax.jit(jax.jacfwd(lambda y: f(y, True))).lower(x).compile().as_text()
+    assert _trig_elements(text) == 10, _trig_elements(text)
