@@ -400,10 +400,10 @@ def forward_kinematics_path(
     stuck = codes != 0
     Xs = raise_if(
         Xs, stuck & (res.singularity < floor),
-        f"forward kinematics along the path did not converge next to a type-II singularity "
+        f"forward kinematics along the path did not converge next to a singular configuration "
         f"(S's inverse condition number below {floor:.2g} at the last iterate, where Newton's "
-        f"attainable accuracy is about its tolerance); keep the motion away from the "
-        f"singularity", what="samples",
+        f"attainable accuracy is about its tolerance): a type-II singularity, or a chain "
+        f"stretched to its reach; keep the motion away from it", what="samples",
     )
     Xs = raise_if(
         Xs, stuck,
