@@ -133,14 +133,17 @@ def _adapt(tprev, tn, y, y1, err, controller, t1, floor):
     return keep, nt0, nt1
 
 
+def _stage_f(vf, tprev, h, y, k, i):
+    """Stage i's derivative vf(tprev + c_i h, y + sum_j a_ij k_j); i traced, k (7, n)."""
+    yi = y + jnp.sum(jnp.asarray(_A)[i][:, None] * k, axis=0)
+    return vf(tprev + jnp.asarray(_C)[i] * h, yi)
+
+
 def _stages(vf, tprev, h, y, fy, remat=False):
     """Tsit5's step from (tprev, y) over h: (k (7, n) the stages' increments, y1 (n,)); fy is
     vf(tprev, y) (first same as last)."""
-    A, C = jnp.asarray(_A), jnp.asarray(_C)
-
     def stage(k, i):
-        yi = y + jnp.sum(A[i][:, None] * k, axis=0)
-        return k.at[i].set(vf(tprev + C[i] * h, yi) * h), None
+        return k.at[i].set(_stage_f(vf, tprev, h, y, k, i) * h), None
 
     if remat:
         stage = jax.checkpoint(stage, policy=jax.checkpoint_policies.nothing_saveable,
@@ -158,12 +161,9 @@ def _stages_from(vf, tprev, h, y, fy, first):
     then compiles its right-hand side once, in the loop, not a second time for the start
     (L1 `paper-circle`: 1,226 of the program's 8,435 compiled operations). Returns (k, y1,
     fy)."""
-    A, C = jnp.asarray(_A), jnp.asarray(_C)
-
     def stage(i, c):
         k, f0 = c
-        yi = y + jnp.sum(A[i][:, None] * k, axis=0)
-        f = vf(tprev + C[i] * h, yi)
+        f = _stage_f(vf, tprev, h, y, k, i)
         return k.at[i].set(f * h), jnp.where(i == 0, f, f0)
 
     # on the first step fy is a placeholder of zeros: k[0] = 0 until stage 0 sets it, and
@@ -239,12 +239,13 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
         out = (nt0, nt1, y_next, f_next, steps + 1, new, ys, saved)
         if record:
             grid, tape = state[8:]
-            tape = tape.at[0].set(jnp.where(first, jnp.concatenate([y, fy]), tape[0]))
-            # an accepted step's end, and every SEGMENT-th accepted step's state
+            # an accepted step's end; every SEGMENT-th accepted step's state, and on the first
+            # step the start's (its derivative comes from that step's loop), in one write
             grid = grid.at[new].set(jnp.where(keep, tn, grid[new]))
-            row = jnp.concatenate([y_next, f_next])
-            at = new // SEGMENT
-            tape = tape.at[at].set(jnp.where(keep & (new % SEGMENT == 0), row, tape[at]))
+            row = jnp.where(first, jnp.concatenate([y, fy]), jnp.concatenate([y_next, f_next]))
+            at = jnp.where(first, 0, new // SEGMENT)
+            write = first | (keep & (new % SEGMENT == 0))
+            tape = tape.at[at].set(jnp.where(write, row, tape[at]))
             out = out + (grid, tape)
         return out
 
