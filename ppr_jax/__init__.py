@@ -8,7 +8,9 @@ neither JAX nor the numerical modules, so the command line answers `--help` at o
 program loads only what it uses; `from ppr_jax import simulate` imports what `simulate` needs.
 float64 is enabled all the same: where JAX is imported already, at once; otherwise through
 `JAX_ENABLE_X64=1` in the environment, which JAX reads when it is first imported (and which
-child processes inherit).
+child processes inherit). Likewise XLA's CPU settings that the library was measured with (the
+loop emitters, and Runge-Kutta stages compiled as one kernel) are added to `XLA_FLAGS` where
+JAX's backend has not started (`_devices`; `PPR_JAX_CPU_DEFAULTS=0` keeps XLA's defaults).
 """
 
 import os as _os
@@ -19,6 +21,13 @@ if "jax" in _sys.modules and hasattr(_sys.modules["jax"], "config"):
     _sys.modules["jax"].config.update("jax_enable_x64", True)
 else:
     _os.environ["JAX_ENABLE_X64"] = "1"
+
+# XLA's CPU settings measured for these models (`_devices`: about half a run's time and a
+# quarter of its compilation), added to XLA_FLAGS before JAX's backend starts;
+# PPR_JAX_CPU_DEFAULTS=0 leaves them alone
+from ._devices import apply_defaults as _apply_defaults  # noqa: E402
+
+_apply_defaults()
 
 #: module -> the public names it gives, in the order of the floors they come from
 _EXPORTS = {

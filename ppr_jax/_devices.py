@@ -22,11 +22,27 @@ compile seconds and the run of `paper-circle` (7.54 s): L0 3.4 -> 1.8 s (10.6 ->
 two code generators round differently (poses differ by 1.5e-12 m), nothing more. XLA aborts on a
 flag it does not know, so `fast_compile` sets it only on the jaxlib it was measured with (0.10).
 
-All are process settings that XLA reads once, when JAX starts its backend, so `configure_cpu`
-must run before the first computation; the library itself starts nothing at import. The command
-line sets the compile flag for every command (`PPR_JAX_CPU_DEFAULTS=0` keeps XLA's defaults),
-and the devices too for `sweep`, the command that runs batches. The library does not call it on
-import, because XLA's settings are visible to everything else in the process.
+XLA's CPU runtime runs a program as one kernel launch per fused operation (about 60 ns each on
+this CPU), and a Runge-Kutta step of these models is hundreds of them: the runs were bound by
+launches, not arithmetic. XLA compiles a while loop that accesses fewer than a threshold of bytes
+as one kernel instead (its `SmallWhileLoopHoistingPass`, which marks the loop a
+`xla_cpu_small_call`; dots and custom calls keep a loop out). Its default threshold, 1,024 bytes,
+takes none of the solver's loops; at 64 KiB (`loop_flags`) it takes the Runge-Kutta stages of a
+step and leaves the loops that carry a run's outputs or a batch's members, which ran slower as
+one kernel. Measured on the 2-core CPU (`paper-circle`'s program, minimum of 10 warm runs, one
+process each): L0 7.6 -> 3.2 ms, L1 5.2 -> 2.8 ms, L2 30.9 -> 11.6 ms, poses equal to 1.4e-12 m;
+a batch of 1,024 L1 robots and the quasi-static L3 unchanged (their loops stay as they were).
+
+All are process settings that XLA reads once, when JAX starts its backend. `import ppr_jax`
+adds the two that change no number beyond rounding, the loop emitters and the small-loop
+threshold (`default_flags`), to `XLA_FLAGS` when JAX's backend has not started yet: the
+library's users get its measured speed without a call. A flag already in `XLA_FLAGS` is kept as
+the user gave it, and `PPR_JAX_CPU_DEFAULTS=0` leaves `XLA_FLAGS` alone. Because the settings are
+the process's, they apply to other JAX programs in it too (and to child processes, which inherit
+the environment). Where JAX has computed before `import ppr_jax`, nothing is changed; call
+`configure_cpu` (or set `XLA_FLAGS`) before the first computation instead. `configure_cpu` adds
+the host devices and the small-dot setting for batches; the command line calls it for `sweep`,
+the command that runs batches.
 """
 
 from __future__ import annotations
@@ -34,11 +50,12 @@ from __future__ import annotations
 import os
 from typing import Optional
 
-from ._errors import PPRError
-
 _DEVICES_FLAG = "--xla_force_host_platform_device_count"
 _YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type"
 _EMITTERS_FLAG = "--xla_cpu_use_fusion_emitters"
+_BACKEND_OPTIONS_FLAG = "--xla_backend_extra_options"
+#: bytes: XLA compiles a while loop that accesses fewer as one kernel (module docstring)
+SMALL_LOOP_BYTES = 65536
 
 
 def _backend_started() -> bool:
@@ -79,11 +96,44 @@ def compile_flags() -> list[str]:
     return [f"{_EMITTERS_FLAG}=false"] if _loop_emitters_measured() else []
 
 
+def loop_flags() -> list[str]:
+    """The XLA flag that compiles a Runge-Kutta step's stages as one kernel (module docstring):
+    the small-loop threshold at `SMALL_LOOP_BYTES`, on the jaxlib it was measured with (0.10);
+    none elsewhere."""
+    if not _loop_emitters_measured():
+        return []
+    return [f"{_BACKEND_OPTIONS_FLAG}=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"]
+
+
+def default_flags() -> list[str]:
+    """The flags `import ppr_jax` sets (module docstring): `compile_flags` and `loop_flags`."""
+    return compile_flags() + loop_flags()
+
+
+def apply_defaults() -> list[str]:
+    """Add `default_flags` to `XLA_FLAGS` unless `PPR_JAX_CPU_DEFAULTS=0` or JAX's backend has
+    started (then nothing changes). Called by `import ppr_jax`; imports no JAX. Returns the
+    flags added."""
+    if os.environ.get("PPR_JAX_CPU_DEFAULTS", "1") == "0":
+        return []
+    import sys
+
+    if "jax" in sys.modules and _backend_started():
+        return []
+    current = os.environ.get("XLA_FLAGS", "").split()
+    new = _merged(current, default_flags())
+    if new != current:
+        os.environ["XLA_FLAGS"] = " ".join(new)
+    return [f for f in new if f not in current]
+
+
 def cpu_flags(devices: Optional[int] = None, small_dots: bool = True,
               fast_compile: bool = True) -> list[str]:
     """The XLA flags `configure_cpu` sets: `devices` host devices (default: one per core), with
-    `small_dots` on a jaxlib that has them no YNNPACK fusions, and with `fast_compile` the
-    loop emitters (`compile_flags`)."""
+    `small_dots` on a jaxlib that has them no YNNPACK fusions, with `fast_compile` the loop
+    emitters (`compile_flags`), and the small-loop threshold (`loop_flags`)."""
+    from ._errors import PPRError
+
     n = (os.cpu_count() or 1) if devices is None else int(devices)
     if n < 1:
         raise PPRError(f"devices must be at least 1, got {devices}")
@@ -92,7 +142,7 @@ def cpu_flags(devices: Optional[int] = None, small_dots: bool = True,
         flags.append(f"{_YNN_FLAG}=")
     if fast_compile:
         flags += compile_flags()
-    return flags
+    return flags + loop_flags()
 
 
 def configure_cpu(devices: Optional[int] = None, small_dots: bool = True,
@@ -108,19 +158,42 @@ def configure_cpu(devices: Optional[int] = None, small_dots: bool = True,
 
 
 def set_xla_flags(wanted: list[str], caller: str = "set_xla_flags") -> list[str]:
-    """Add `wanted` to `XLA_FLAGS`, keeping the flags already there (`configure_cpu`'s rules).
-    Returns the flags of `wanted`'s names now in force; raises `PPRError` if the backend has
-    started and one is missing."""
+    """Add `wanted` to `XLA_FLAGS`, keeping the flags already there (`configure_cpu`'s rules;
+    XLA's backend options, a map, gain the keys they lack). Returns the flags of `wanted`'s
+    names now in force; raises `PPRError` if the backend has started and one is missing."""
     current = os.environ.get("XLA_FLAGS", "").split()
-    name = lambda f: f.split("=")[0]  # noqa: E731
-    wanted_names = {name(f) for f in wanted}
-    add = [f for f in wanted if name(f) not in {name(c) for c in current}]
-    if not add:
-        return [f for f in current if name(f) in wanted_names]
-    if _backend_started():
-        raise PPRError(
-            f"{caller} must run before JAX's first computation (XLA reads its flags once); "
-            f"call it right after import, or start Python with XLA_FLAGS='{' '.join(wanted)}'"
-        )
-    os.environ["XLA_FLAGS"] = " ".join(current + add)
-    return [f for f in current + add if name(f) in wanted_names]
+    new = _merged(current, wanted)
+    if new != current:
+        if _backend_started():
+            from ._errors import PPRError
+
+            raise PPRError(
+                f"{caller} must run before JAX's first computation (XLA reads its flags once); "
+                f"call it right after import, or start Python with "
+                f"XLA_FLAGS='{' '.join(wanted)}'"
+            )
+        os.environ["XLA_FLAGS"] = " ".join(new)
+    wanted_names = {_name(f) for f in wanted}
+    return [f for f in new if _name(f) in wanted_names]
+
+
+def _name(flag: str) -> str:
+    return flag.split("=")[0]
+
+
+def _merged(current: list[str], wanted: list[str]) -> list[str]:
+    """`current` with `wanted` added: a flag already there is kept as given, except XLA's
+    backend options (`--xla_backend_extra_options=k=v,k2=v2`), which gain the keys they lack."""
+    out = list(current)
+    for flag in wanted:
+        names = [_name(c) for c in out]
+        if _name(flag) not in names:
+            out.append(flag)
+        elif _name(flag) == _BACKEND_OPTIONS_FLAG:
+            i = names.index(_name(flag))
+            have = [kv for kv in out[i].partition("=")[2].split(",") if kv]
+            keys = {_name(kv) for kv in have}
+            extra = [kv for kv in flag.partition("=")[2].split(",") if kv and _name(kv) not in keys]
+            if extra:
+                out[i] = f"{_BACKEND_OPTIONS_FLAG}=" + ",".join(have + extra)
+    return out

@@ -40,9 +40,9 @@ if _CACHE != "0":
 _USER_XLA_FLAGS = os.environ.setdefault("PPR_TEST_USER_XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
 _FAST = os.environ.get("PPR_TEST_FAST_COMPILE", "1") != "0"
 if _FAST:
-    from ppr_jax._devices import compile_flags, set_xla_flags  # noqa: E402
+    from ppr_jax._devices import default_flags, set_xla_flags  # noqa: E402
 
-    set_xla_flags(["--xla_backend_optimization_level=0", *compile_flags()])
+    set_xla_flags(["--xla_backend_optimization_level=0", *default_flags()])
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from ppr_jax._devices import cpu_flags
+from ppr_jax._devices import _merged, cpu_flags, loop_flags
 from tests.helpers import env_with_devices
 
 SHORT = dict(t_end=0.3, n_out=31, rtol=1e-8, atol=1e-10)
@@ -74,7 +74,7 @@ def test_cpu_flags():
     f = cpu_flags(3)
     assert f[0] == "--xla_force_host_platform_device_count=3"
     assert cpu_flags(1, small_dots=False, fast_compile=False) == [
-        "--xla_force_host_platform_device_count=1"]
+        "--xla_force_host_platform_device_count=1", *loop_flags()]
 
 
 def test_loop_emitters_only_on_the_measured_jaxlib(monkeypatch):
@@ -88,12 +88,16 @@ def test_loop_emitters_only_on_the_measured_jaxlib(monkeypatch):
                     ("0.11.0", []), ("1.10.0", []), ("garbage", [])]:
         monkeypatch.setattr(importlib.metadata, "version", lambda name, v=v: v)
         assert devices.compile_flags() == want, v
-        assert cpu_flags(1, small_dots=False)[1:] == want, v
+        loops = ([f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold="
+                  f"{devices.SMALL_LOOP_BYTES}"] if want else [])
+        assert devices.loop_flags() == loops, v
+        assert cpu_flags(1, small_dots=False)[1:] == want + loops, v
 
 
 def test_the_command_line_sets_the_compile_flag_before_jax_starts():
-    """A fresh `ppr-jax` process adds the loop-emitter flag to the user's XLA_FLAGS (kept) before
-    JAX's backend starts; `PPR_JAX_CPU_DEFAULTS=0` leaves XLA_FLAGS alone."""
+    """A fresh `ppr-jax` process adds the library's default flags (the loop emitters and the
+    small-loop threshold) to the user's XLA_FLAGS (kept) before JAX's backend starts;
+    `PPR_JAX_CPU_DEFAULTS=0` leaves XLA_FLAGS alone."""
     code = textwrap.dedent(
         """
         import os, sys
@@ -102,9 +106,9 @@ def test_the_command_line_sets_the_compile_flag_before_jax_starts():
         print(rc, os.environ.get("XLA_FLAGS", ""))
         """
     )
-    from ppr_jax._devices import compile_flags
+    from ppr_jax._devices import default_flags
 
-    for defaults, want in [("1", compile_flags()), ("0", [])]:
+    for defaults, want in [("1", default_flags()), ("0", [])]:
         env = dict(os.environ, XLA_FLAGS="--xla_cpu_enable_fast_math=false",
                    PPR_JAX_CPU_DEFAULTS=defaults, PPR_JAX_CACHE="0")
         proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -115,3 +119,43 @@ def test_the_command_line_sets_the_compile_flag_before_jax_starts():
         assert flags == ["--xla_cpu_enable_fast_math=false"] + want, flags
     with pytest.raises(pj.PPRError, match="devices must be at least 1"):
         cpu_flags(0)
+
+
+def test_backend_options_gain_the_keys_they_lack():
+    """XLA's backend options are one flag holding a map: the small-loop key joins a user's
+    other keys, and a user's own threshold is kept."""
+    ours = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=65536"
+    assert _merged(["--xla_foo=1"], [ours]) == ["--xla_foo=1", ours]
+    assert _merged(["--xla_backend_extra_options=a=1"], [ours]) == [
+        "--xla_backend_extra_options=a=1,xla_cpu_small_while_loop_byte_threshold=65536"]
+    mine = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=9"
+    assert _merged([mine], [ours]) == [mine]
+    assert _merged(["--xla_cpu_use_fusion_emitters=true"], ["--xla_cpu_use_fusion_emitters=false"]
+                   ) == ["--xla_cpu_use_fusion_emitters=true"]
+
+
+def test_import_sets_the_defaults_before_jax_starts():
+    """`import ppr_jax` adds the default flags to the user's XLA_FLAGS (kept) and imports no
+    JAX; with PPR_JAX_CPU_DEFAULTS=0, or where JAX computed first, XLA_FLAGS is left alone."""
+    from ppr_jax._devices import default_flags
+
+    code = textwrap.dedent(
+        """
+        import os, sys
+        if sys.argv[1] == "late":
+            import jax.numpy as jnp
+            jnp.zeros(1).block_until_ready()
+        import ppr_jax
+        print("jax" in sys.modules, os.environ.get("XLA_FLAGS", ""))
+        """
+    )
+    user = "--xla_cpu_enable_fast_math=false"
+    for defaults, when, want in [("1", "first", [user, *default_flags()]), ("0", "first", [user]),
+                                 ("1", "late", [user])]:
+        env = dict(os.environ, XLA_FLAGS=user, PPR_JAX_CPU_DEFAULTS=defaults)
+        proc = subprocess.run([sys.executable, "-c", code, when], capture_output=True,
+                              text=True, timeout=300, env=env)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        imported, *flags = proc.stdout.split()
+        assert imported == ("True" if when == "late" else "False")
+        assert flags == want, (defaults, when, flags)

@@ -292,3 +292,28 @@ def test_reverse_mode_without_the_output_times():
     g = jnp.concatenate([gy0, jnp.stack([gd["mu"], gd["a"]])])
     ref = _rev(P, TS, W)[0]
     np.testing.assert_allclose(g, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+def test_a_scenes_stages_compile_as_one_kernel():
+    """Under the library's XLA settings (`_devices.loop_flags`, which the suite sets too) the
+    Runge-Kutta stages of L1's and L2's scene programs are a loop that XLA compiles as one
+    kernel (a call marked `xla_cpu_small_call`); a stage loop grown past `SMALL_LOOP_BYTES`
+    would lose that, and this test says so."""
+    import os
+
+    import equinox as eqx
+
+    from ppr_jax._devices import loop_flags
+    from ppr_jax._scenes._options import SceneOptions
+    from ppr_jax._scenes._run import prepare, scene_program
+
+    if not loop_flags() or loop_flags()[0] not in os.environ.get("XLA_FLAGS", ""):
+        pytest.skip("the small-loop threshold is not set in this process")
+    for model in ("reduced", "double1r"):
+        c = prepare("paper-circle", None, model, SceneOptions(t_end=0.05, n_out=6))
+        dyn, static = eqx.partition(c.args, eqx.is_array)
+        text = jax.jit(lambda d: scene_program(*eqx.combine(d, static))).lower(dyn).compile(
+        ).as_text()
+        small = [line for line in text.splitlines()
+                 if " call(" in line and "xla_cpu_small_call" in line]
+        assert small, model

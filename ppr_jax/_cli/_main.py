@@ -217,13 +217,13 @@ def _main(argv, state) -> int:
     if getattr(args, "t_end", T_END) is None and getattr(args, "path", None) is None:
         args.t_end = T_END  # a --path file's own horizon is read with the file (scene_from_args)
     if os.environ.get("PPR_JAX_CPU_DEFAULTS", "1") != "0":
-        from .._devices import compile_flags, configure_cpu, set_xla_flags
+        from .._devices import configure_cpu, default_flags, set_xla_flags
 
         try:
             if args.cmd == "sweep":
                 configure_cpu()  # one host device per core: a sweep's chunks split over them
             else:
-                set_xla_flags(compile_flags())  # half the compilation, the same run time
+                set_xla_flags(default_flags())  # as `import ppr_jax` sets them
         except PPRError:  # JAX started already (the command called from Python): keep it
             pass
     if os.environ.get("PPR_JAX_CACHE", "1") != "0":
