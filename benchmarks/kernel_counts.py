@@ -761,6 +761,12 @@ def _subprocess_profile(tree, args) -> dict:
                    ["--batch", str(args.batch)] if args.batch else []) + (
                    ["--batch-rtol", str(args.batch_rtol)] if args.batch_rtol else [])
         env = dict(os.environ, PYTHONPATH=os.path.abspath(tree))
+        try:  # the tree's own XLA settings, not the ones this process's import added
+            from ppr_jax._devices import environment_without_defaults
+
+            env = environment_without_defaults(env)
+        except ImportError:  # a library without them
+            pass
         print(f"-- {tree}", flush=True)
         proc = subprocess.run(cmd, env=env, cwd=d)
         if proc.returncode != 0:

@@ -120,11 +120,31 @@ def apply_defaults() -> list[str]:
 
     if "jax" in sys.modules and _backend_started():
         return []
-    current = os.environ.get("XLA_FLAGS", "").split()
+    global _FLAGS_BEFORE_DEFAULTS
+    before = os.environ.get("XLA_FLAGS")
+    current = (before or "").split()
     new = _merged(current, default_flags())
     if new != current:
+        _FLAGS_BEFORE_DEFAULTS = (before,)
         os.environ["XLA_FLAGS"] = " ".join(new)
     return [f for f in new if f not in current]
+
+
+#: (XLA_FLAGS before `apply_defaults` changed it,), or () where it changed nothing
+_FLAGS_BEFORE_DEFAULTS: tuple = ()
+
+
+def environment_without_defaults(env: dict) -> dict:
+    """A copy of `env` (a child process's environment) with XLA_FLAGS as it was before
+    `import ppr_jax` added the defaults: a benchmark that starts another checkout compares it as
+    its own users run it."""
+    env = dict(env)
+    if _FLAGS_BEFORE_DEFAULTS:
+        (before,) = _FLAGS_BEFORE_DEFAULTS
+        env.pop("XLA_FLAGS", None)
+        if before is not None:
+            env["XLA_FLAGS"] = before
+    return env
 
 
 def cpu_flags(devices: Optional[int] = None, small_dots: bool = True,

@@ -151,7 +151,8 @@ if os.environ.get("PPR_TEST_COMPILE_STATS"):
 # at one sample or the next, a diverged solve's residual, a start solved on a short table that
 # agrees with a long table's to 5e-9 under XLA's default code (3.8e-9) but not under the suite's
 # (5.8e-9). They keep their tolerances and run, each module's marked tests in one subprocess,
-# under XLA's default settings (what the library's users get), with the suite's cache.
+# under the settings the library's users get (XLA's defaults and the flags `import ppr_jax`
+# adds), with the suite's cache.
 _XLA_DEFAULTS_RESULTS = {}
 
 

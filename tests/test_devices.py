@@ -159,3 +159,17 @@ def test_import_sets_the_defaults_before_jax_starts():
         imported, *flags = proc.stdout.split()
         assert imported == ("True" if when == "late" else "False")
         assert flags == want, (defaults, when, flags)
+
+
+def test_a_child_of_another_checkout_gets_the_flags_as_they_were(monkeypatch):
+    """Benchmarks that start another checkout hand it XLA_FLAGS as it was before the import
+    added the defaults."""
+    import ppr_jax._devices as devices
+
+    monkeypatch.setattr(devices, "_FLAGS_BEFORE_DEFAULTS", ("--xla_foo=1",))
+    env = devices.environment_without_defaults({"XLA_FLAGS": "--xla_foo=1 --bar", "A": "1"})
+    assert env == {"XLA_FLAGS": "--xla_foo=1", "A": "1"}
+    monkeypatch.setattr(devices, "_FLAGS_BEFORE_DEFAULTS", (None,))
+    assert devices.environment_without_defaults({"XLA_FLAGS": "--bar"}) == {}
+    monkeypatch.setattr(devices, "_FLAGS_BEFORE_DEFAULTS", ())
+    assert devices.environment_without_defaults({"XLA_FLAGS": "--bar"}) == {"XLA_FLAGS": "--bar"}
