@@ -785,7 +785,8 @@ def _ratios(before: dict, after: dict) -> dict:
         r = {}
         for key in ("run_s", "kernel_events", "kernels_per_step", "us_per_step", "steps",
                     "trajectories_per_s"):
-            if a.get(key) and b.get(key):
+            # 0 after is a value (a loop compiled as one kernel: no kernel a step), not missing
+            if a.get(key) is not None and b.get(key):
                 r[key] = a[key] / b[key]
         out[m] = r
     return out
