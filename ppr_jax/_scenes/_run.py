@@ -9,6 +9,7 @@ import diffrax
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._dispatch import FlatJit
 from .._models import get_model
 from .._params import RobotParams
 from .._programs import cached_program
@@ -21,9 +22,13 @@ from ._result import SceneResult, finish, result_template
 from ._solver_choice import choose_solver
 
 
-@eqx.filter_jit
-def scene_program(scene, model, robot, options):
+def _scene_program(scene, model, robot, options):
     return scene.run(model, robot, options)
+
+
+_scene_program.__name__ = _scene_program.__qualname__ = "scene_program"
+#: one robot's run, compiled as `eqx.filter_jit` would, with a cheaper call (`_dispatch.py`)
+scene_program = FlatJit(_scene_program)
 
 
 def _member(robot_dyn, scene, model, robot_static, options):
