@@ -27,11 +27,15 @@ this CPU), and a Runge-Kutta step of these models is hundreds of them: the runs 
 launches, not arithmetic. XLA compiles a while loop that accesses fewer than a threshold of bytes
 as one kernel instead (its `SmallWhileLoopHoistingPass`, which marks the loop a
 `xla_cpu_small_call`; dots and custom calls keep a loop out). Its default threshold, 1,024 bytes,
-takes none of the solver's loops; at 64 KiB (`loop_flags`) it takes the Runge-Kutta stages of a
-step and leaves the loops that carry a run's outputs or a batch's members, which ran slower as
-one kernel. Measured on the 2-core CPU (`paper-circle`'s program, minimum of 10 warm runs, one
-process each): L0 7.6 -> 3.2 ms, L1 5.2 -> 2.8 ms, L2 30.9 -> 11.6 ms, poses equal to 1.4e-12 m;
-a batch of 1,024 L1 robots and the quasi-static L3 unchanged (their loops stay as they were).
+takes none of the solver's loops; at 64 KiB (`loop_flags`) it takes a step's Runge-Kutta
+stages always, and a run's whole loop of steps where its outputs are few enough (the scenes'
+default 755 output times: a run is then a few hundred kernels instead of 100,000-1,000,000),
+but not a batch's loops, whose members would then run on one thread (a batch of 1,024 L1 robots
+at a 16 MiB threshold: 665 -> 620 trajectories/s), nor the loop of a run of many outputs, which
+ran slower as one kernel (L1 with 7,540 output times at 1 MiB: 15.3 -> 19.3 ms). Measured on the
+2-core CPU (`paper-circle`'s program, minimum of 10 warm runs, one process each): L0 7.6 -> 3.2
+ms, L1 5.2 -> 2.8 ms, L2 30.9 -> 11.6 ms, poses equal to 1.4e-12 m; batches and the quasi-static
+L3 (whose loop calls LAPACK) unchanged.
 
 All are process settings that XLA reads once, when JAX starts its backend. `import ppr_jax`
 adds the two that change no number beyond rounding, the loop emitters and the small-loop
