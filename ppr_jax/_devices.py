@@ -173,9 +173,11 @@ def configure_cpu(devices: Optional[int] = None, small_dots: bool = True,
                   fast_compile: bool = True) -> list[str]:
     """Set the XLA flags for fast batches on a CPU (module docstring): `devices` host devices
     (default: one per core; batched scenes split over them), with `small_dots` XLA's own code
-    for small matrix products, and with `fast_compile` a code generator that compiles in about
-    half the time for the same run time. Call it before JAX's first computation (right after
-    `import ppr_jax` is fine); flags already in `XLA_FLAGS` are kept, not overridden. Returns the
+    for small matrix products, with `fast_compile` a code generator that compiles in about
+    half the time for the same run time, and the small-loop threshold (a solver's loop as one
+    kernel; the last two are what `import ppr_jax` sets by itself). Call it before JAX's first
+    computation (right after `import ppr_jax` is fine); flags already in `XLA_FLAGS` are kept,
+    not overridden (XLA's backend options gain the keys they lack). Returns the
     flags now in force for these settings. Raises `PPRError` if JAX's backend has started and
     the flags differ from what it started with."""
     return set_xla_flags(cpu_flags(devices, small_dots, fast_compile), "configure_cpu")
