@@ -35,7 +35,7 @@ at a 16 MiB threshold: 665 -> 620 trajectories/s), nor the loop of a run of many
 ran slower as one kernel (L1 with 7,540 output times at 1 MiB: 15.3 -> 19.3 ms). Measured on the
 2-core CPU (`paper-circle`'s program, minimum of 10 warm runs, one process each): L0 7.6 -> 3.2
 ms, L1 5.2 -> 2.8 ms, L2 30.9 -> 11.6 ms, poses equal to 1.4e-12 m; batches and the quasi-static
-L3 (whose loop calls LAPACK) unchanged.
+L3 (its strip solves' small loops are taken, its solver's loop is not) about unchanged.
 
 All are process settings that XLA reads once, when JAX starts its backend. `import ppr_jax`
 adds the two that change no number beyond rounding, the loop emitters and the small-loop
