@@ -397,3 +397,23 @@ def raise_if(x, bad, message: str, what: str = "batch members"):
             raise PPRError(f"{message} ({len(members)} {what}: {shown})")
         raise PPRError(message)
     return x
+
+
+def raise_first(x, checks, what: str = "samples"):
+    """Return `x`, raising `PPRError` for the first member (in order along the leading axis)
+    that fails any of `checks`, [(bad (m,), message), ...] in order of precedence: the message
+    is that of the first check the member fails, listing the members that fail that check
+    (from the first failing one). A path's error then names where it first goes wrong, not the
+    first check some later sample fails (one failure at a sample leaves the warm start of the
+    samples after it anywhere). Traced flags: `raise_if` for each, in order."""
+    if any(is_traced(bad) for bad, _ in checks):
+        for bad, message in checks:
+            x = raise_if(x, bad, message, what)
+        return x
+    flags = [np.asarray(bad).reshape(np.shape(bad)[0], -1).any(axis=1) for bad, _ in checks]
+    failing = np.flatnonzero(np.any(flags, axis=0))
+    if failing.size:
+        first = failing[0]
+        bad, message = next((f, m) for f, (_, m) in zip(flags, checks) if f[first])
+        raise_if(x, bad, message, what)
+    return x

@@ -12,7 +12,7 @@ import numpy as np
 import optimistix as optx
 
 from ._custom_types import Array, Float
-from ._errors import RESIDUAL_TOL, PPRError, check_array, raise_if, result_code
+from ._errors import RESIDUAL_TOL, PPRError, check_array, raise_first, raise_if, result_code
 from ._geometry import home_pose, singularity_measure
 from ._linalg import SmallLU
 from ._models import AbstractModel, Reduced
@@ -368,7 +368,9 @@ def forward_kinematics_path(
     crosses a singularity or Newton jumped to another branch, which a warm start does not
     otherwise reveal (sample the path more finely if the jump is only too large a step); and no
     fold: angles that pass through a type-II singularity, where the solution turns back in its
-    own assembly mode with det S's sign unchanged (`fold_flags`).
+    own assembly mode with det S's sign unchanged (`fold_flags`). The error is that of the
+    first failing sample (after it, the warm start may be anywhere), with the samples that
+    fail the same check.
 
     **Arguments:**
 
@@ -398,32 +400,28 @@ def forward_kinematics_path(
     # singularity, not the solve, is the reason to name
     floor = 10.0 * float(jnp.finfo(Xs.dtype).eps) / max(min(rtol, atol), 1e-300)
     stuck = codes != 0
-    Xs = raise_if(
-        Xs, stuck & (res.singularity < floor),
-        f"forward kinematics along the path did not converge next to a singular configuration "
-        f"(S's inverse condition number below {floor:.2g} at the last iterate, where Newton's "
-        f"attainable accuracy is about its tolerance): a type-II singularity, or a chain "
-        f"stretched to its reach; keep the motion away from it", what="samples",
-    )
-    Xs = raise_if(
-        Xs, stuck,
-        "forward kinematics along the path did not converge (out of reach, singular, or a jump "
-        "between samples too large for the warm start)", what="samples",
-    )
-    Xs = raise_if(Xs, jnp.any(res.margin <= REACH_TOL, axis=-1),
-                  "unreachable pose along the path: a chain cannot close", what="samples")
-    Xs = raise_if(Xs, res.singularity < SINGULAR_TOL,
-                  f"singular configuration along the path (inverse condition number of S < "
-                  f"{SINGULAR_TOL:g})", what="samples")
     det = det3(res.S)
     sign = jnp.sign(det)
     flips = jnp.concatenate([jnp.zeros(1, bool), sign[1:] != sign[:-1]])
-    Xs = raise_if(Xs, flips,
-                  "the path changes assembly mode between consecutive samples (det S changes "
-                  "sign: a singularity is crossed, or Newton jumped to another branch)",
-                  what="samples")
-    Xs = raise_if(Xs, fold_flags(det), FOLD_MESSAGE, what="samples")
-    return Xs
+    return raise_first(Xs, [
+        (stuck & (res.singularity < floor),
+         f"forward kinematics along the path did not converge next to a singular configuration "
+         f"(S's inverse condition number below {floor:.2g} at the last iterate, where Newton's "
+         f"attainable accuracy is about its tolerance): a type-II singularity, or a chain "
+         f"stretched to its reach; keep the motion away from it"),
+        (stuck,
+         "forward kinematics along the path did not converge (out of reach, singular, or a jump "
+         "between samples too large for the warm start)"),
+        (jnp.any(res.margin <= REACH_TOL, axis=-1),
+         "unreachable pose along the path: a chain cannot close"),
+        (res.singularity < SINGULAR_TOL,
+         f"singular configuration along the path (inverse condition number of S < "
+         f"{SINGULAR_TOL:g})"),
+        (flips,
+         "the path changes assembly mode between consecutive samples (det S changes "
+         "sign: a singularity is crossed, or Newton jumped to another branch)"),
+        (fold_flags(det), FOLD_MESSAGE),
+    ])
 
 
 _ik_path_jit = eqx.filter_jit(eqx.filter_vmap(ik_solve, in_axes=(None, None, 0)))

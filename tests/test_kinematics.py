@@ -120,6 +120,23 @@ def test_forward_kinematics_round_trip(params):
     np.testing.assert_allclose(Xs, jnp.array(POSES), atol=1e-12)
 
 
+def test_a_paths_error_is_its_first_failing_samples():
+    """`raise_first`: the message of the check the earliest failing sample fails, though a
+    check of higher precedence fails later samples (after one failure the warm start of the
+    samples after it may be anywhere, and they fail any check by chance)."""
+    from ppr_jax._errors import raise_first
+
+    x = np.zeros(6)
+    early = np.array([False, False, True, True, False, False])
+    late = np.array([False, False, False, False, True, True])
+    with pytest.raises(pj.PPRError, match=r"^second \(2 samples: \[2, 3\]\)"):
+        raise_first(x, [(late, "first"), (early, "second")])
+    # where one sample fails two checks, the one of precedence names it
+    with pytest.raises(pj.PPRError, match=r"^first \(3 samples: \[2, 4, 5\]\)"):
+        raise_first(x, [(late | (np.arange(6) == 2), "first"), (early, "second")])
+    assert raise_first(x, [(np.zeros(6, bool), "never")]) is x
+
+
 def test_forward_kinematics_path_names_the_failing_samples(params):
     """Turning one actuator by up to 3 rad from home drives the platform out of reach; the
     error names the samples (from the first failing one), not just 'some member'."""
