@@ -89,7 +89,7 @@ def _ynn_supported() -> bool:
     return v is not None and v >= (0, 10)
 
 
-def _loop_emitters_measured() -> bool:
+def _measured_jaxlib() -> bool:
     """The jaxlib whose fusion-emitter flag was measured (module docstring): 0.10."""
     return _jaxlib_version() == (0, 10)
 
@@ -97,14 +97,14 @@ def _loop_emitters_measured() -> bool:
 def compile_flags() -> list[str]:
     """The XLA flag `fast_compile` sets: the CPU's loop emitters instead of its fusion emitters
     (module docstring) on jaxlib 0.10; none elsewhere."""
-    return [f"{_EMITTERS_FLAG}=false"] if _loop_emitters_measured() else []
+    return [f"{_EMITTERS_FLAG}=false"] if _measured_jaxlib() else []
 
 
 def loop_flags() -> list[str]:
     """The XLA flag that compiles a Runge-Kutta step's stages as one kernel (module docstring):
     the small-loop threshold at `SMALL_LOOP_BYTES`, on the jaxlib it was measured with (0.10);
     none elsewhere."""
-    if not _loop_emitters_measured():
+    if not _measured_jaxlib():
         return []
     return [f"{_BACKEND_OPTIONS_FLAG}=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"]
 
@@ -126,12 +126,10 @@ def apply_defaults() -> list[str]:
         return []
     global _FLAGS_BEFORE_DEFAULTS
     before = os.environ.get("XLA_FLAGS")
-    current = (before or "").split()
-    new = _merged(current, default_flags())
-    if new != current:
+    added = _add_flags(default_flags())
+    if added:
         _FLAGS_BEFORE_DEFAULTS = (before,)
-        os.environ["XLA_FLAGS"] = " ".join(new)
-    return [f for f in new if f not in current]
+    return added
 
 
 #: (XLA_FLAGS before `apply_defaults` changed it,), or () where it changed nothing
@@ -187,20 +185,32 @@ def set_xla_flags(wanted: list[str], caller: str = "set_xla_flags") -> list[str]
     """Add `wanted` to `XLA_FLAGS`, keeping the flags already there (`configure_cpu`'s rules;
     XLA's backend options, a map, gain the keys they lack). Returns the flags of `wanted`'s
     names now in force; raises `PPRError` if the backend has started and one is missing."""
-    current = os.environ.get("XLA_FLAGS", "").split()
-    new = _merged(current, wanted)
-    if new != current:
-        if _backend_started():
-            from ._errors import PPRError
+    if _merged(_xla_flags(), wanted) != _xla_flags() and _backend_started():
+        from ._errors import PPRError
 
-            raise PPRError(
-                f"{caller} must run before JAX's first computation (XLA reads its flags once); "
-                f"call it right after import, or start Python with "
-                f"XLA_FLAGS='{' '.join(wanted)}'"
-            )
-        os.environ["XLA_FLAGS"] = " ".join(new)
+        raise PPRError(
+            f"{caller} must run before JAX's first computation (XLA reads its flags once); "
+            f"call it right after import, or start Python with "
+            f"XLA_FLAGS='{' '.join(wanted)}'"
+        )
+    _add_flags(wanted)
     wanted_names = {_name(f) for f in wanted}
-    return [f for f in new if _name(f) in wanted_names]
+    return [f for f in _xla_flags() if _name(f) in wanted_names]
+
+
+def _xla_flags() -> list[str]:
+    return os.environ.get("XLA_FLAGS", "").split()
+
+
+def _add_flags(wanted: list[str]) -> list[str]:
+    """Write `wanted` into `XLA_FLAGS` by `_merged`'s rules; returns what changed (flags new or
+    merged), [] when nothing did (then `XLA_FLAGS` is left as it was, even unset)."""
+    current = _xla_flags()
+    new = _merged(current, wanted)
+    if new == current:
+        return []
+    os.environ["XLA_FLAGS"] = " ".join(new)
+    return [f for f in new if f not in current]
 
 
 def _name(flag: str) -> str:
