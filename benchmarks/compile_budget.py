@@ -19,7 +19,7 @@ SceneOptions())`: one robot, the scene's defaults) and measures
 - the attribution of the whole program's lines, right-hand-side copies and loops to the parts
   of `AbstractScene.run` (`_scenes/_base.py`), from each op's source location (the frame of
   `AbstractScene.run` it was traced under): `input` (`scene.commands`: the input table
-  `tabulated` and the path checks `path_singular_at` / `path_out_of_reach`), `start`
+  `tabulated` with its node checks and `path_out_of_reach`), `start`
   (`quasi_static_core` and the loop check at the start), `integration` (`simulate_core`, the
   diffrax solve), `kinematics` (motion-driven L0/L1: forward kinematics and inverse dynamics,
   no ODE), `outputs` (`_result`: `_metrics.outputs`, the nominal path, the status), `checks`

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 
 from ._custom_types import Array, Float
 from ._dynamics import inverse_dynamics
+from ._kinematics import relative_det
 from ._models import AbstractModel
 from ._robot import Robot, RobotLike, as_robot
 from ._trajectory import derivatives
@@ -106,6 +107,13 @@ class _AlongPath(eqx.Module):
     def with_residual(self, t):
         """(the value at t, the largest loop-closure residual (m) of the inverse kinematics)."""
 
+    def with_checks(self, t):
+        """(the value at t, (the residual of `with_residual`, the relative determinant of
+        S = d th_a/dX at t (`relative_det`) or None where the value does not need S, t)): what
+        a scene's input table checks the nominal path by, from its own evaluations."""
+        value, resid = self.with_residual(t)
+        return value, (resid, None, t)
+
 
 class InverseDynamicsTorque(_AlongPath):
     """tau_a(t) of `model` (L0 or L1) moving its platform along `trajectory` (eq 54 solved for
@@ -114,9 +122,18 @@ class InverseDynamicsTorque(_AlongPath):
     def with_residual(self, t):
         """(tau_a (3,), the largest loop-closure residual (m) of the inverse kinematics at t):
         the scenes check the nominal path's reach from the same evaluation."""
-        X, Xd, Xdd = derivatives(self.trajectory, t)
-        tau, eom = inverse_dynamics(self.model, self.robot, X, Xd, Xdd)
+        tau, eom = self._solve(t)
         return tau, _max_residual(self.model, self.robot, eom.kin)
+
+    def with_checks(self, t):
+        # S is the matrix the torques were solved with (eq 54): its determinant costs nothing
+        tau, eom = self._solve(t)
+        return tau, (_max_residual(self.model, self.robot, eom.kin),
+                     relative_det(eom.Jth, self.robot.r1), t)
+
+    def _solve(self, t):
+        X, Xd, Xdd = derivatives(self.trajectory, t)
+        return inverse_dynamics(self.model, self.robot, X, Xd, Xdd)
 
 
 class InverseKinematicsAngles(_AlongPath):

@@ -291,9 +291,25 @@ class PathMargins(eqx.Module):
         changed sign since the sample before: the path crossed a type-II singularity between
         the two (det S is continuous in the pose). A pose out of reach (NaN) is not flagged
         here. Two crossings between one pair of samples cancel: sample finely."""
-        sign = jnp.sign(self.det)
-        crossed = jnp.concatenate([jnp.zeros(1, bool), sign[1:] * sign[:-1] < 0])
-        return crossed | (jnp.abs(self.det) < SINGULAR_TOL)
+        return singular_flags(self.det)
+
+
+def relative_det(S, r1):
+    """(...,) det S over the product of its column norms, S (..., 3, 3) = d th_a/dX with its
+    translation columns scaled by r1 (m): 0 singular, +-1 isotropic, signed."""
+    r1 = jnp.asarray(r1, dtype=S.dtype)
+    scale = jnp.stack([r1, r1, jnp.ones_like(r1)])
+    Sn = S * jnp.broadcast_to(scale, S.shape)  # each row's translation entries times r1
+    return det3(Sn) / jnp.prod(jnp.linalg.norm(Sn, axis=-2), axis=-1)
+
+
+def singular_flags(det):
+    """(m,) bool from relative determinants (m,) (`relative_det`) along a path in time order:
+    singular at a sample (|det| below `SINGULAR_TOL`) or crossed since the sample before (a
+    sign change; det S is continuous in the pose). NaN (out of reach) is not flagged."""
+    sign = jnp.sign(det)
+    crossed = jnp.concatenate([jnp.zeros(1, bool), sign[1:] * sign[:-1] < 0])
+    return crossed | (jnp.abs(det) < SINGULAR_TOL)
 
 
 def path_margins(model: AbstractModel, robot: RobotLike, X) -> PathMargins:
@@ -324,10 +340,8 @@ def path_margins(model: AbstractModel, robot: RobotLike, X) -> PathMargins:
 
     reach, residual, th_a = jax.vmap(closure)(X)
     S = jax.vmap(jax.jacfwd(lambda x: kin(x).th_a))(X)
-    r1 = jnp.asarray(robot.r1, dtype=S.dtype)
-    Sn = S * jnp.stack([r1, r1, jnp.ones_like(r1)])[None, None, :]
-    det = det3(Sn) / jnp.prod(jnp.linalg.norm(Sn, axis=-2), axis=-1)
-    return PathMargins(reach=reach, residual=residual, det=det, th_a=th_a)
+    return PathMargins(reach=reach, residual=residual, det=relative_det(S, robot.r1),
+                       th_a=th_a)
 
 
 def path_singular(model: AbstractModel, robot: RobotLike, X) -> Array:

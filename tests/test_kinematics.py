@@ -326,3 +326,29 @@ def test_servo_circle_L0_near_the_singularity_is_its_own_regular_motion():
     assert np.all(det < -0.2) and float(np.min(ik0.singularity)) > 0.02
     fine = pj.servo_circle(p, model="rigid", trajectory=through, t_end=2.0, n_out=801)
     np.testing.assert_allclose(fine.X[::4], r.X, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("name", ["rigid", "reduced"])
+def test_the_input_tables_determinant_is_the_path_checks(name):
+    """A torque-driven scene checks its path for type-II singularities from its input table's
+    own evaluations (`with_checks`: det S of the matrix the torques are solved with). That S
+    against the path check's, a forward-mode Jacobian of the inverse kinematics
+    (`path_margins`), on an off-centre circle that crosses L1's singularity and stays clear of
+    L0's: equal to rounding, and the crossing (L1) or none (L0) found from the nodes as from
+    the path check."""
+    from ppr_jax._actuation import InverseDynamicsTorque
+    from ppr_jax._kinematics import path_margins
+    from ppr_jax._scenes._base import singular_at_nodes
+
+    p = pj.scene_params("paper-circle")
+    model = pj.get_model(name)
+    through = pj.Circle(center=jnp.asarray([0.43, 0.27]), radius=jnp.asarray(0.02),
+                        phi_amp=jnp.asarray(0.85))
+    ts = jnp.linspace(0.0, 2.0, 41)
+    _, (_, det, t) = jax.vmap(InverseDynamicsTorque(model, p, through).with_checks)(ts[::-1])
+    ref = path_margins(model, p, jax.vmap(through)(ts)).det
+    np.testing.assert_allclose(det[::-1], ref, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(t[::-1], ts)
+    crossed = bool(jnp.any(path_margins(model, p, jax.vmap(through)(ts)).singular()))
+    assert crossed == (name == "reduced")
+    assert bool(singular_at_nodes(det, t)) == crossed

@@ -28,7 +28,7 @@ from .._actuation import (
 from .._custom_types import Array
 from .._dynamics import inverse_dynamics
 from .._errors import RESIDUAL_TOL, RESULTS, PPRError, first_failure
-from .._kinematics import det3, fold_flags, path_margins
+from .._kinematics import det3, fold_flags, path_margins, singular_flags
 from .._metrics import outputs
 from .._models import AbstractModel
 from .._params import RobotParams, params_invalid, table1_with_thickness
@@ -45,7 +45,7 @@ class SceneInput(eqx.Module):
     """A scene's input for one robot: the actuation, and what building it found (traced bools,
     None where not checked): `out_of_reach`, the nominal path leaves the reach of the model that
     computed the input; `singular`, the nominal path meets a type-II singularity of that model
-    (`path_singular_at`); `coarse`, its table is too coarse for the horizon. `step_ts`: times
+    (`singular_at_nodes`); `coarse`, its table is too coarse for the horizon. `step_ts`: times
     (k,) (s) the integrator steps to, where the input is less smooth (the knots of the spline
     path it is computed from, or of a command log: a kink of the torques or of the prescribed
     accelerations), so that no step straddles one (a Runge-Kutta step across a kink loses its
@@ -77,14 +77,31 @@ def step_times(fn, traj) -> Optional[Array]:
 
 
 def tabulated(fn, ts, panels: int):
-    """(table, coarse, out_of_reach): the input `fn` (an `InverseDynamicsTorque` or
+    """(table, coarse, out_of_reach, singular): the input `fn` (an `InverseDynamicsTorque` or
     `InverseKinematicsAngles`) tabulated over the output times `ts` and the quasi-static
     start's reach about ts[0] (`_tabulated.scene_input`; with the path's breakpoints among the
-    panel boundaries, `_tabulated.breakpoints`), whether the table is too coarse, and whether
-    the nominal path leaves the chains' reach at a node (from the table's own evaluations)."""
-    table, resid = scene_input(fn.with_residual, ts, panels, aux=True,
-                               breaks=breakpoints(fn.trajectory))
-    return table, input_too_coarse(table), ~(jnp.max(resid) <= RESIDUAL_TOL)
+    panel boundaries, `_tabulated.breakpoints`), whether the table is too coarse, whether the
+    nominal path leaves the chains' reach at a node, and whether it meets a type-II singularity
+    of fn's model (`singular_at_nodes`; None for an input that does not solve with S), all from
+    the table's own evaluations (`with_checks`)."""
+    table, (resid, det, t) = scene_input(fn.with_checks, ts, panels, aux=True,
+                                         breaks=breakpoints(fn.trajectory))
+    singular = None if det is None else singular_at_nodes(det, t)
+    return table, input_too_coarse(table), ~(jnp.max(resid) <= RESIDUAL_TOL), singular
+
+
+def singular_at_nodes(det, t):
+    """Whether a path meets a type-II singularity, from det S (relative, `relative_det`) at an
+    input table's nodes t (any order): S singular at a node, or det S changing sign between
+    two nodes adjacent in time (`singular_flags`). Where the inverse-dynamics torques are
+    unbounded the table cannot hold them: two crossings between two nodes, which cancel in
+    the signs, leave a pole inside a panel, which the table's own error estimate reports as
+    too coarse. The nodes span the table, the horizon and the start's margin before ts[0]
+    (`START_MARGIN`), where the quasi-static start reads the torques too. On the scenes'
+    default 755 output times this check by the output times cost about a fifth of an L1
+    `paper-circle` program (1.1 of 5.7 ms on a 2-core CPU); by the nodes it costs nothing."""
+    order = jnp.argsort(t)
+    return jnp.any(singular_flags(det[order]))
 
 
 def path_out_of_reach(ref_model, robot, traj, ts):
@@ -93,25 +110,13 @@ def path_out_of_reach(ref_model, robot, traj, ts):
     return jnp.any(path_margins(ref_model, robot, jax.vmap(traj)(ts)).out_of_reach())
 
 
-def path_singular_at(ref_model, robot, traj, ts):
-    """The nominal path meets a type-II singularity of `ref_model` (L0 or L1, whose inverse
-    dynamics or kinematics gives the input) over [ts[0], ts[-1]]: det S changes sign between
-    two output times, or S is singular at one (`PathMargins.singular`). There the inverse-dynamics
-    torques are unbounded, and the input table would only be judged too coarse. The output
-    times suffice (det S is continuous: a crossing changes its sign) unless the path crosses
-    twice within one output interval; four samples per output time cost 4.2 ms a run against
-    1.0 ms (755 output times, 2-core CPU), on every paper-circle run."""
-    return jnp.any(path_margins(ref_model, robot, jax.vmap(traj)(ts)).singular())
-
-
 def torque_input(input_model, robot, traj, ts, panels: int) -> SceneInput:
     """`input_model`'s inverse-dynamics torques along `traj`, tabulated over `ts`, with the
     path's reach, the table's fineness and the path's type-II singularities checked (where
-    the torques are unbounded)."""
+    the torques are unbounded) at the table's nodes."""
     fn = InverseDynamicsTorque(input_model, robot, traj)
-    torque, coarse, out = tabulated(fn, ts, panels)
-    return SceneInput(TorqueDriven(torque), out_of_reach=out, coarse=coarse,
-                      singular=path_singular_at(input_model, robot, traj, ts),
+    torque, coarse, out, singular = tabulated(fn, ts, panels)
+    return SceneInput(TorqueDriven(torque), out_of_reach=out, coarse=coarse, singular=singular,
                       step_ts=step_times(fn, traj))
 
 
@@ -123,7 +128,7 @@ def motion_input(model, input_model, robot, traj, ts, panels: int) -> SceneInput
     if model.actuated_index is None:
         return SceneInput(MotionDriven(angles),
                           out_of_reach=path_out_of_reach(input_model, robot, traj, ts))
-    table, coarse, out = tabulated(angles, ts, panels)
+    table, coarse, out, _ = tabulated(angles, ts, panels)
     return SceneInput(MotionDriven(table), out_of_reach=out, coarse=coarse,
                       step_ts=step_times(angles, traj), start=MotionDriven(angles))
 
