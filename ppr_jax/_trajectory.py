@@ -51,6 +51,18 @@ class Circle(eqx.Module):
         )
 
 
+def _read_only(tree):
+    for leaf in jax.tree_util.tree_leaves(tree):
+        if isinstance(leaf, np.ndarray):
+            leaf.flags.writeable = False
+    return tree
+
+
+#: The default circle of eq 55, one object for the circle scenes: a scene's options are
+#: prepared once per default trajectory (`SceneOptions.prepared`). Its arrays are read-only.
+CIRCLE = _read_only(Circle())
+
+
 class Hold(eqx.Module):
     """A constant value (e.g. zero torque or locked actuators)."""
 

@@ -438,3 +438,25 @@ def test_options_enter_run_scene_as_one_object(line_report):
         pj.run_scene(LineScene(), model="reduced", t_stop=1.0)
     with pytest.raises(pj.PPRError, match="must be a SceneOptions"):
         pj.paper_circle(options={"t_end": 1.0})
+
+
+def test_prepared_options_are_built_once_and_follow_every_field():
+    """`SceneOptions.prepared` gives back one object for equal options, model and default
+    trajectory (a warm call builds no modules), and a different one where any of them differs;
+    options holding arrays are prepared afresh, with the same values."""
+    from ppr_jax._scenes._options import SceneOptions
+    from ppr_jax._scenes._registry import get_scene
+
+    L1, L2 = pj.get_model("reduced"), pj.get_model("double1r")
+    traj = get_scene("paper-circle").trajectory()
+    a = SceneOptions(t_end=1.0).prepared(L1, traj)
+    assert SceneOptions(t_end=1.0).prepared(L1, traj) is a
+    assert float(a.t_end) == 1.0 and a.panels == 8 and a.trajectory is traj
+    for other in (SceneOptions(t_end=2.0).prepared(L1, traj),
+                  SceneOptions(t_end=1.0, rtol=1e-7).prepared(L1, traj),
+                  SceneOptions(t_end=1.0).prepared(L2, traj),
+                  SceneOptions(t_end=1.0).prepared(L1, pj.Circle())):
+        assert other is not a
+    assert float(SceneOptions(t_end=1.0, rtol=1e-7).prepared(L1, traj).rtol) == 1e-7
+    b = SceneOptions(t_end=jnp.asarray(1.0)).prepared(L1, traj)
+    assert b is not a and float(b.t_end) == 1.0 and b.panels == a.panels

@@ -131,7 +131,29 @@ class SceneOptions(eqx.Module):
         """The options with every choice made, in Python before tracing: the solver an instance
         (the model's default where None), the tolerances and horizon arrays (so that changing
         them reuses a compiled program), the controller, adjoint and trajectory built, and the
-        input table's panel count fixed."""
+        input table's panel count fixed.
+
+        Options of Python numbers (hashable: a scene's defaults, the command line's) are
+        prepared once per process for each model and default trajectory (by identity) and
+        given back from a cache (`_PREPARED`): building the
+        controller, solver, adjoint and options is a dozen equinox modules, about a tenth of a
+        warm L1 `paper-circle` call. Options that hold arrays are prepared afresh each time."""
+        # the default trajectory by identity (a scene's is one object; the circle's holds
+        # arrays, which do not hash), kept in the entry so that its id is not reused
+        key = (self, model, id(default_trajectory))
+        try:
+            hit = _PREPARED.get(key)
+        except TypeError:  # an array among the options' fields: not hashable
+            return self._prepare(model, default_trajectory)
+        if hit is not None and hit[0] is default_trajectory:
+            return hit[1]
+        if len(_PREPARED) >= _PREPARED_MAX:
+            _PREPARED.clear()
+        out = self._prepare(model, default_trajectory)
+        _PREPARED[key] = (default_trajectory, out)
+        return out
+
+    def _prepare(self, model, default_trajectory: Optional[Callable]) -> "SceneOptions":
         rtol, atol = self.tolerances(model)
         traj = self.trajectory
         if traj is None:
@@ -165,6 +187,11 @@ class SceneOptions(eqx.Module):
         s = default_solver(model) if self.solver is None or self.auto_solver else self.solver
         return str(s) if isinstance(s, str) else type(s).__name__
 
+
+#: {(options, model, id(default trajectory)): (default trajectory, prepared options)}
+#: (`SceneOptions.prepared`)
+_PREPARED: dict = {}
+_PREPARED_MAX = 256
 
 #: the `SceneOptions` fields that the scene functions also took as keywords
 OPTION_KEYWORDS = ("t_end", "n_out", "solver", "rtol", "atol", "max_steps", "trajectory",

@@ -7,7 +7,7 @@ from typing import ClassVar
 import equinox as eqx
 
 from .._models import AbstractModel, Reduced
-from .._trajectory import Circle
+from .._trajectory import CIRCLE
 from ._base import AbstractScene, torque_input
 
 
@@ -43,7 +43,7 @@ class PaperCircle(AbstractScene):
         return self.torque_model
 
     def trajectory(self):
-        return Circle()
+        return CIRCLE
 
     def commands(self, model, robot, traj, ts, panels):
         return torque_input(self.torque_model, robot, traj, ts, panels)

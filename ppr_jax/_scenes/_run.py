@@ -27,7 +27,8 @@ def _scene_program(scene, model, robot, options):
 
 
 _scene_program.__name__ = _scene_program.__qualname__ = "scene_program"
-#: one robot's run, compiled as `eqx.filter_jit` would, with a cheaper call (`_dispatch.py`)
+#: one robot's run, compiled as `eqx.filter_jit` would, with a cheaper call (`_dispatch.py`);
+#: a batch's runs likewise
 scene_program = FlatJit(_scene_program)
 
 
@@ -41,7 +42,7 @@ def scene_batch_program(scene, model, robot, options):
     return map_members(_member)(dyn, scene, model, static, options)
 
 
-_JIT_BATCH = eqx.filter_jit(scene_batch_program)
+_JIT_BATCH = FlatJit(scene_batch_program)
 _SHARDED: dict = {}
 
 
@@ -52,7 +53,7 @@ def _sharded(devices: tuple):
             dyn, static = eqx.partition(robot, eqx.is_array)
             return map_members(_member, devices)(dyn, scene, model, static, options)
 
-        _SHARDED[devices] = eqx.filter_jit(fn)
+        _SHARDED[devices] = FlatJit(fn)
     return _SHARDED[devices]
 
 
@@ -77,25 +78,30 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
             options: SceneOptions, torque_model=None) -> SceneCall:
     """Check the options, decide every structural choice in Python and pick the compiled run:
     one robot, a batch (`RobotParams` with a leading axis), or a batch split over devices."""
-    options.check()
+    # Methods are called through the class on this path: equinox builds a bound-method
+    # module on every method access of a module (about 30 us each, a few percent of a warm
+    # L1 call, `_dispatch.py`).
+    Options = type(options)
+    Options.check(options)
     scene = get_scene(scene, torque_model)
+    Scene = type(scene)
     model = get_model(model)
     # Built here, outside any trace when params are concrete: the derived quantities once and
     # the structural choices (equal links, elbow) static, so a batch is branch-free. A scene's
     # default robot is built once per process.
-    robot = scene.default_robot() if params is None else Robot(params)
+    robot = Scene.default_robot(scene) if params is None else Robot(params)
     params = robot.params
-    if not scene.needs_integrator(model):
+    if not Scene.needs_integrator(scene, model):
         solver_name = "none (kinematics + inverse dynamics)"
     elif options.auto_solver:
         # decided here, on the concrete parameters, before anything is traced
-        name, why = choose_solver(model, params, options.tolerances(model)[0],
+        name, why = choose_solver(model, params, Options.tolerances(options, model)[0],
                                   default_solver(model))
         options = dataclasses.replace(options, solver=name)
         solver_name = f"{name} (auto: {why})"
     else:
-        solver_name = options.solver_name(model)
-    opts = options.prepared(model, scene.trajectory())
+        solver_name = Options.solver_name(options, model)
+    opts = Options.prepared(options, model, Scene.trajectory(scene))
     # the commands a scene is given, against the robot and the path run (before any trace)
     check_scene_commands(scene, params, opts.trajectory, options.t_end)
     batched = jnp.ndim(params.a) == 1

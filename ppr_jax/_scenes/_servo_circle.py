@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 from .._models import AbstractModel, Reduced
-from .._trajectory import Circle
+from .._trajectory import CIRCLE
 from ._base import AbstractScene, motion_input
 
 
@@ -32,7 +32,7 @@ class ServoCircle(AbstractScene):
         return Reduced()
 
     def trajectory(self):
-        return Circle()
+        return CIRCLE
 
     def commands(self, model, robot, traj, ts, panels):
         return motion_input(model, self.input_model, robot, traj, ts, panels)
