@@ -86,8 +86,13 @@ def test_paper_circle_with_measured_torques_recovers_t():
     assert abs(fo.estimate[0] - fit.estimate[0]) < 0.1 * fit.std[0], (fo.table(), fit.table())
 
 
+@pytest.mark.slow
 def test_multi_start_escapes_the_minimum_of_a_far_start():
-    """A torque-driven fit of t (L1 open loop under the file's torques) from a start 30 times
+    """The slowest test of the default suite (130 s on a 2-core CPU), so with -m slow: the
+    default suite's `test_auto_starts_escape_the_far_start_and_leave_a_good_fit_alone` runs
+    the same trap through the same multi-start fit.
+
+    A torque-driven fit of t (L1 open loop under the file's torques) from a start 30 times
     off, 9 mm against 0.3 mm, ends in a distant minimum (s about 1e4) and is reported as a poor
     fit. With `starts=3` (the given start and two points of a Latin hypercube of log t within
     its bounds, on the same compiled function) both hypercube points reach the truth: the

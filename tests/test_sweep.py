@@ -253,8 +253,12 @@ def test_sharded_sweep_equals_unsharded(swept, tmp_path):
                 np.testing.assert_allclose(r[m], ref[m], rtol=1e-10, atol=1e-12, err_msg=m)
 
 
+@pytest.mark.slow
 def test_chunked_members_equal_the_plain_vmap(swept, monkeypatch):
-    """With chunks of members smaller than a sweep chunk (the scenes' `MEMBER_CHUNK`, here 3 of
+    """With -m slow (70 s on a 2-core CPU): test_batch's `test_chunked_batch_equals_single_runs`
+    checks the members' chunks in the default suite, on the scenes' batch that a sweep runs.
+
+    With chunks of members smaller than a sweep chunk (the scenes' `MEMBER_CHUNK`, here 3 of
     a sweep chunk of 4: a loop over a chunk of 3 and a remainder of 1), every member, failures
     included, equals the plain-vmap sweep of the fixture."""
     import ppr_jax._programs as programs
