@@ -191,7 +191,7 @@ class SceneOptions(eqx.Module):
 #: {(options, model, id(default trajectory)): (default trajectory, prepared options)}
 #: (`SceneOptions.prepared`)
 _PREPARED: dict = {}
-_PREPARED_MAX = 256
+_PREPARED_MAX = 32  # each entry holds its trajectory (a path scene's samples)
 
 #: the `SceneOptions` fields that the scene functions also took as keywords
 OPTION_KEYWORDS = ("t_end", "n_out", "solver", "rtol", "atol", "max_steps", "trajectory",
