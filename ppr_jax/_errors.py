@@ -111,13 +111,14 @@ class RESULTS(diffrax.RESULTS):
         "leave the workspace or cross a singularity"
     )
     singular_path = (
-        "the scene's path passes through (or within one output interval of) a type-II "
-        "singularity (det S = 0, S = d th_a/dX): the inverse-dynamics torques along it are "
-        "unbounded, and under prescribed angles forward kinematics folds back in its assembly "
-        "mode instead of following the motion (det S extrapolated from the output times before "
-        "changes sign, the solved pose's does not: the pose would be wrong); keep the "
-        "trajectory away from the singularity (smaller radius or phi amplitude), or ask for "
-        "more output times (n_out) if it only passes near one"
+        "the scene's path passes through a type-II singularity (det S = 0, S = d th_a/dX): the "
+        "inverse-dynamics torques along it are unbounded (det S changes sign between two nodes "
+        "of the input table), and under prescribed angles forward kinematics folds back in its "
+        "assembly mode instead of following the motion (det S extrapolated from the output "
+        "times before changes sign, the solved pose's does not: the pose would be wrong); keep "
+        "the trajectory away from the singularity (smaller radius or phi amplitude); under "
+        "prescribed angles, ask for more output times (n_out) if it only passes within one "
+        "output interval of one"
     )
 
 

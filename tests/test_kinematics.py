@@ -352,3 +352,28 @@ def test_the_input_tables_determinant_is_the_path_checks(name):
     crossed = bool(jnp.any(path_margins(model, p, jax.vmap(through)(ts)).singular()))
     assert crossed == (name == "reduced")
     assert bool(singular_at_nodes(det, t)) == crossed
+
+
+def test_a_spline_path_through_the_singularity_is_refused_at_the_table_nodes():
+    """A torque-driven `PathScene` on a spline through 21 waypoints (its knots are panel
+    boundaries of the input table), once through L1's type-II singularity and once short of
+    it: the scene's verdict from its table's nodes equals an independent check of the spline at
+    4,001 samples (`path_margins`), and the path short of it is followed."""
+    from ppr_jax._kinematics import path_margins
+
+    p = pj.scene_params("paper-circle")
+    ts = np.linspace(0.0, 2.0, 21)
+    fine = jnp.linspace(0.0, 2.0, 4001)
+    for amp, crosses in ((0.85, True), (0.3, False)):
+        c = pj.Circle(center=jnp.asarray([0.43, 0.27]), radius=jnp.asarray(0.02),
+                      phi_amp=jnp.asarray(amp))
+        wp = pj.Waypoints(ts, np.asarray(jax.vmap(c)(jnp.asarray(ts))))
+        ref = bool(jnp.any(path_margins(pj.Reduced(), p, jax.vmap(wp)(fine)).singular()))
+        assert ref == crosses
+        r = pj.solve_scene(pj.PathScene(wp, drive="torque"), p, model="reduced",
+                           options=pj.SceneOptions(t_end=2.0, n_out=41), throw=False)
+        singular = int(r.result._value) == int(pj.RESULTS.singular_path._value)
+        assert singular == crosses, pj.RESULTS[r.result]
+        if not crosses:
+            assert bool(r.ok)
+            np.testing.assert_allclose(r.X, r.X_nominal, rtol=0, atol=1e-8)
