@@ -183,13 +183,13 @@ def check_scene_commands(scene, params, traj: Callable, t_end) -> None:
     from .._errors import is_traced
     from .._params import unstack_params
 
-    if is_traced(params) or is_traced(t_end):
-        return
     kind = type(scene)
     if (kind.check_commands is AbstractScene.check_commands
             and kind.check_members is AbstractScene.check_members):
         # nothing to check (a built-in scene computes its input from its path): a batch is not
         # cut into its members for it, which for 1,024 robots cost as long as their simulation
+        return
+    if is_traced(params) or is_traced(t_end):
         return
     t_end = None if t_end is None else float(t_end)
     if jnp.ndim(params.a) >= 1:

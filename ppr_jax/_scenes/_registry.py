@@ -51,13 +51,29 @@ def get_scene(scene: Union[str, AbstractScene], torque_model=None) -> AbstractSc
     if not isinstance(scene, str) or scene not in SCENES:
         raise PPRError(f"unknown scene {scene!r}; allowed: {', '.join(SCENES)} (or an "
                        f"AbstractScene, such as a PathScene)")
-    obj = SCENES[scene]()
+    factory = SCENES[scene]
+    # A registered scene class builds the same immutable module every time: built once per
+    # (class, torque model named), as a warm call's scene took 50-120 us to build on a 2-core
+    # CPU. A factory function is called every time (it may build a different scene).
+    key = (scene, factory, torque_model) if (
+        isinstance(factory, type) and (torque_model is None or isinstance(torque_model, str))
+    ) else None
+    obj = _BUILT.get(key) if key is not None else None
+    if obj is not None:
+        return obj
+    obj = factory()
     if not isinstance(obj, AbstractScene):
         raise PPRError(f"the scene registered as {scene!r} made a {type(obj).__name__}, "
                        f"not an AbstractScene")
     if torque_model is not None and "torque_model" in {f.name for f in dataclasses.fields(obj)}:
         obj = dataclasses.replace(obj, torque_model=get_model(torque_model))
+    if key is not None:
+        _BUILT[key] = obj
     return obj
+
+
+#: the registered scene classes' instances (`get_scene`), keyed by (name, class, torque model)
+_BUILT: dict = {}
 
 
 def scene_params(scene: Union[str, AbstractScene], **overrides) -> RobotParams:
