@@ -303,7 +303,8 @@ class Waypoints(eqx.Module):
 
     Boundary condition `"clamped"` (the default): zero velocity at the first and last sample,
     the robot at rest before and after the motion, as a commanded move starts and ends; the
-    scene's quasi-static start then needs no initial velocity. `"natural"`: zero acceleration
+    scene's quasi-static start then needs no initial velocity, and as the acceleration jumps
+    at those two samples (`kinks`) it differentiates one-sided there. `"natural"`: zero acceleration
     at the ends instead, for samples cut out of a motion (a clamped spline would stop the path
     there, within one sample interval). Outside [ts[0], ts[-1]] the path continues with its end
     pose and velocity (a hold when clamped): C1 there, keep simulations inside the samples.
@@ -355,6 +356,16 @@ class Waypoints(eqx.Module):
         panel boundaries there): the sample times."""
         return self.spline.ts
 
+    @property
+    def kinks(self) -> Optional[Float[Array, "2"]]:
+        """The times (s) where the path's acceleration jumps: a clamped spline's first and last
+        sample (at rest outside, accelerating inside), where a scene's quasi-static start
+        differentiates one-sided (`_statics.start_stencil`); None for the other ends (C2)."""
+        if self.bc != "clamped":
+            return None
+        ts = self.spline.ts
+        return jnp.stack([ts[0], ts[-1]])
+
     def __call__(self, t) -> Float[Array, " k"]:
         t = jnp.asarray(t, dtype=jnp.float64)
         if self.bc == "not-a-knot":  # the end pieces continue: smooth across the ends
@@ -404,6 +415,11 @@ class CommandLog(eqx.Module):
     def breakpoints(self) -> Float[Array, " n"]:
         """The spline's knots (s), the sample times: the integrator steps to them."""
         return self.spline.ts
+
+    @property
+    def kinks(self) -> Optional[Float[Array, "2"]]:
+        """The times (s) where the logged commands' second derivative jumps (`Waypoints.kinks`)."""
+        return self.spline.kinks
 
     def __call__(self, t) -> Float[Array, "3"]:
         return self.spline(t)

@@ -55,6 +55,10 @@ START_MARGIN = 1e-2
 #: node for the inverse dynamics (a path file of 1e6 samples asked XLA for 54 GB after 97 s of
 #: compiling); 50,000 keep it under 3 GB.
 MAX_BREAKS = 50_000
+#: Shortest live panel of a table with breakpoints, as a fraction of its equal panels' length
+#: (`scene_input`: closer bounds join; the paper's horizon's panels are 0.16 s, so samples
+#: closer than 16 us share a panel): a panel's k-th derivative carries rounding / length^k.
+SNAP = 1e-4
 #: Chebyshev-Lobatto nodes per panel (the panel's polynomial has degree PANEL_NODES - 1).
 PANEL_NODES = 16
 #: Panel length in radians of the nominal motion where the horizon is known: the paper's torques
@@ -224,8 +228,25 @@ def scene_input(fn: Callable, ts, panels: Optional[int] = None, aux: bool = Fals
     t1 = jnp.maximum(ts[-1], t0 + START_MARGIN)
     if breaks is not None:
         lo = t0 - START_MARGIN
-        equal = t0 + (t1 - t0) * jnp.arange(P + 1, dtype=float) / P
-        bounds = jnp.sort(jnp.concatenate([lo[None], equal, jnp.clip(breaks, lo, t1)]))
+        equal = (t0 + (t1 - t0) * jnp.arange(P + 1, dtype=float) / P).at[-1].set(t1)
+        br = jnp.sort(jnp.clip(breaks, lo, t1))
+        # A break a rounding away from an equal bound (a sample at 0.6000000000000001 s against
+        # the bound 0.6, a sample just below t1 against t1) left a live panel of 1e-16 s whose
+        # derivatives (a prescribed motion's accelerations) are rounding / 1e-32: the step size
+        # collapsed there. An equal bound within SNAP of its panel from a break moves onto it
+        # (the break is where fn kinks), then any bound that close to the one before joins it
+        # (an empty panel), so that every live panel is longer than that.
+        tiny = SNAP * (t1 - t0) / P
+        if br.shape[0] > 1:
+            i = jnp.clip(jnp.searchsorted(br, equal), 1, br.shape[0] - 1)
+            left, right = br[i - 1], br[i]
+            nearest = jnp.where(jnp.abs(equal - left) <= jnp.abs(right - equal), left, right)
+        else:
+            nearest = jnp.broadcast_to(br[0], equal.shape)
+        equal = jnp.where(jnp.abs(equal - nearest) < tiny, nearest, equal)
+        bounds = jnp.sort(jnp.concatenate([lo[None], equal, br]))
+        keep = jnp.concatenate([jnp.ones(1, bool), bounds[1:] - bounds[:-1] >= tiny])
+        bounds = jax.lax.cummax(jnp.where(keep, bounds, -jnp.inf))
         length = bounds[1:] - bounds[:-1]
         local = jnp.asarray((_lobatto(m) + 1.0) / 2.0)
         nodes = bounds[:-1, None] + length[:, None] * local[None, :]

@@ -135,6 +135,9 @@ def test_get_model_and_cli_pass_strip_loss(capsys):
     assert get_model("beam", 4, "full").strip_loss == 0.0
     with pytest.raises(PPRError, match="strip_loss"):
         get_model("beam", 4, "quasi-static", strip_loss=TAU)
+    # an array for the number is named, not a TypeError of the model cache's key
+    with pytest.raises(PPRError, match=r"strip_loss.*\[0, inf\)"):
+        get_model("beam", 4, "full", strip_loss=np.array([TAU]))
     args = argparse.Namespace(elements=3, strip_dynamics="full", strip_loss=2e-5)
     assert model_from_args(args, "beam") == Beam(3, strip_loss=2e-5)
     assert model_from_args(args, "reduced") == pj.Reduced()  # L0-L2 beside the beam: no strips

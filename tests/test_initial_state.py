@@ -161,3 +161,64 @@ def test_full_l3_starts_its_strips_on_their_slow_path():
     # mismatch / omega^2 ~ 1e-11 rad, far below any tolerance.
     mismatch = np.max(np.abs(acc[strips] - path[strips]))
     assert mismatch < 0.3 * scale, (mismatch, scale)
+
+
+# A path nobody here chose: waypoints drawn from a seeded generator about the home pose,
+# clamped (the `Waypoints` default), so the robot is at rest before the first sample and
+# accelerates after it: the path's acceleration, and with it the torques, jump at t = 0.
+KINK_T_END = 0.3  # s
+KINK_N_OUT = 31
+
+
+@pytest.fixture(scope="module")
+def clamped_start():
+    """(params, path, torque-driven L2 `PathScene` result over [0, KINK_T_END])."""
+    params = pj.scene_params("paper-circle")
+    rng = np.random.default_rng(20261130)
+    ts = np.linspace(0.0, 0.8, 9)
+    home = np.array([0.45, 0.15 * np.sqrt(3.0), 0.0])  # eq 55's centre
+    X = home + rng.uniform(-1.0, 1.0, (ts.size, 3)) * np.array([0.01, 0.01, 0.03])
+    path = pj.Waypoints(ts, X)  # clamped
+    res = pj.run_scene(pj.PathScene(path, drive="torque"), params, model="double1r",
+                       options=pj.SceneOptions(t_end=KINK_T_END, n_out=KINK_N_OUT)).result
+    return params, path, res
+
+
+def test_start_on_a_clamped_spline_differentiates_after_its_kink(clamped_start):
+    """Torque-driven L2 on a clamped spline starts (it found no balance when the start's
+    stencil straddled the jump: its second pass took the balance's rates from a quartic
+    through the jump, 1e2 rad/s), its internal rates those of its balance after t = 0 (a
+    one-sided difference of the balances at 0, h, 2h, each found on its own), and the run
+    from it is the independent scipy L2's under the exact inverse-dynamics torques."""
+    from benchmarks.contenders import library
+
+    params, path, res = clamped_start
+    assert res.ok, res.result
+    z0, zd0 = np.asarray(res.z[0]), np.asarray(res.zdot[0])
+    np.testing.assert_allclose(zd0[:3], 0.0, atol=1e-15)  # at rest on the nominal pose
+    fn = library.scene_torque_fn(params, path)
+    act = pj.TorqueDriven(fn)
+    h = 1e-3
+    zs = [np.asarray(pj.quasi_static_state(pj.Double1R(), pj.Robot(params), path, t, act)[0])
+          for t in (0.0, h, 2 * h, 4 * h)]
+    np.testing.assert_allclose(zs[0], z0, rtol=0, atol=1e-9)  # the scene's table: 1e-10
+    # Richardson over the one-sided second-order differences of steps h and 2h
+    d_h = (-3 * zs[0] + 4 * zs[1] - zs[2]) / (2 * h)
+    d_2h = (-3 * zs[0] + 4 * zs[2] - zs[3]) / (4 * h)
+    rate = (4 * d_h - d_2h) / 3
+    scale = np.abs(rate[3:]).max()
+    assert scale > 1e-2, rate  # rad/s: the balance moves, so the check has teeth
+    # observed 1.0e-4 of the scale: each balance carries its own stencil's O(dt^2) error in
+    # the accelerations it balances at, which the difference reads; a stencil of 5 ms was
+    # 2e-3 off, one across the jump 1e2 rad/s
+    assert np.abs(zd0[3:] - rate[3:]).max() < 5e-4 * scale, (zd0[3:], rate[3:])
+
+    exact = jax.jit(lambda t: fn(t))
+    m = scipy_l2.L2Model(params, lambda t: np.asarray(exact(jnp.asarray(t, dtype=jnp.float64))))
+    ts = np.asarray(res.ts)
+    ref = scipy_l2.simulate(m, m.state_from_library(z0, zd0), ts, "DOP853", 1e-11, 1e-13)
+    assert ref.status == 0
+    pos = np.linalg.norm(ref.y[9:11].T - np.asarray(res.X)[:, :2], axis=1)
+    assert pos.max() < 1e-8, pos.max()
+    # and L2 left the path (it is driven by L1's torques), so the agreement is not trivial
+    assert np.abs(np.asarray(res.X) - np.asarray(res.X_nominal)).max() > 1e-6

@@ -321,3 +321,34 @@ def test_a_table_on_knots_is_differentiable_in_time_and_in_the_samples():
     _, g = jax.jit(lambda X, dX: jax.jvp(f, (X,), (dX,)))(jnp.asarray(X0), jnp.asarray(dX))
     fd = (float(f(jnp.asarray(X0 + h * dX))) - float(f(jnp.asarray(X0 - h * dX)))) / (2 * h)
     assert abs(float(g) - fd) <= 1e-6 * abs(fd) and abs(fd) > 0, (float(g), fd)
+
+
+@pytest.mark.parametrize("where", ["interior", "end"])
+def test_a_break_a_rounding_from_a_panel_bound_leaves_no_sliver_panel(where):
+    """A path's sample a rounding away from an equal panel bound (a knot at
+    0.6000000000000001 s against the bound 0.6, or the horizon's end t1 against the last
+    equal bound) left a live panel of 1e-16 s, whose polynomial's second derivative, a
+    prescribed motion's acceleration, is rounding / 1e-32: a motion-driven L2 on a spline
+    stalled there for max_steps. Now no live panel is shorter than `SNAP` of the equal ones,
+    and the table's second derivative about that time is the function's."""
+    from ppr_jax._tabulated import SNAP, scene_input
+
+    def f(t):
+        return jnp.stack([jnp.sin(3.0 * t), jnp.cos(2.0 * t)])
+
+    ts = jnp.linspace(0.0, 1.5, 151)
+    P = scene_panels(ts.shape[0])
+    t0, t1 = 0.0, 1.5
+    j = P // 2 if where == "interior" else P
+    bound = t0 + (t1 - t0) * np.arange(P + 1, dtype=float)[j] / P  # the table's own arithmetic
+    knot = np.nextafter(bound, np.inf) if where == "interior" else np.nextafter(t1, -np.inf)
+    breaks = jnp.asarray(np.array([0.0, 0.25, knot, 1.7]))
+    tab = scene_input(f, ts, breaks=breaks)
+    length = np.diff(np.asarray(tab.bounds))
+    live = length[length > 0]
+    assert live.min() >= SNAP * (t1 - t0) / P * (1 - 1e-9), live.min()
+    t = jnp.asarray(knot) + jnp.array([-1e-3, -1e-15, 0.0, 1e-15, 1e-3])
+    t = jnp.minimum(t, t1)
+    d2 = jax.vmap(jax.jacfwd(jax.jacfwd(tab)))(t)
+    # observed 2e-7 (the table's accuracy in a second derivative); a sliver: rounding / 1e-32
+    np.testing.assert_allclose(d2, jax.vmap(jax.jacfwd(jax.jacfwd(f)))(t), rtol=0, atol=2e-6)

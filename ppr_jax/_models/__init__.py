@@ -69,11 +69,15 @@ def get_model(
     # the levels without options are built once (an immutable module; building one took
     # 25-60 us of a warm scene call on a 2-core CPU)
     key = (model, n_elements, strip_dynamics, strip_loss)
-    hit = _BUILT.get(key) if isinstance(model, str) else None
+    try:
+        cached = isinstance(model, str) and hash(key) is not None
+    except TypeError:  # an array for a number: `_build`'s checks name the parameter
+        cached = False
+    hit = _BUILT.get(key) if cached else None
     if hit is not None:
         return hit
     out = _build(model, n_elements, strip_dynamics, strip_loss)
-    if isinstance(model, str) and len(_BUILT) < 64:
+    if cached and len(_BUILT) < 64:
         _BUILT[key] = out
     return out
 

@@ -32,6 +32,8 @@ class PathScene(AbstractScene):
     - `path`: the nominal pose path t -> X (3,) (m, m, rad), an `equinox.Module` that is C2 in
       t (the quasi-static start and inverse dynamics differentiate it twice): `Circle`, or
       any path of `ppr_jax` (a line, waypoints, a Fourier series, a CSV of commanded poses).
+      A path whose acceleration jumps somewhere (a clamped `Waypoints` at its ends) names
+      those times in a `kinks` attribute (s); a start there differentiates one-sided.
     - `drive`: `"torque"`: the actuators apply `input_model`'s inverse-dynamics torques along
       the path (open loop, as `paper-circle`), or the torques of `command_log`; `"motion"`: the
       actuated angles follow `input_model`'s inverse kinematics of the path (as
