@@ -589,7 +589,8 @@ def inverse_path(model: AbstractModel, robot: RobotLike, path: Callable, ts, wre
     L2, a pair growing at about 76 1/s: the inverse is non-minimum-phase), so they are not
     integrated. The bounded solution, the slow manifold, is found as the quasi-static start
     finds its own (`quasi_static_core`): balances on a uniform grid of step `QS_DT` over the
-    times (two steps beyond either end), `INVERSE_PASSES` passes, each at the previous pass's
+    times (two steps beyond either end; within them for a path with `kinks`, a clamped
+    spline), `INVERSE_PASSES` passes, each at the previous pass's
     own rates and accelerations (5-point differences; the first pass at the L1 manifold's).
     The torques are the actuated rows. Values at the times ts are the quartic through the five
     nearest grid points (exact where ts lies on the grid: a rate of 200 Hz / k from ts[0]).
@@ -630,8 +631,16 @@ def inverse_path(model: AbstractModel, robot: RobotLike, path: Callable, ts, wre
     act = tuple(model.actuated_index)
     rows = jnp.array(tuple(i for i in range(n) if i not in act))
     ia = jnp.array(act)
-    size = int(np.ceil((ts[-1] - ts[0]) / QS_DT - 1e-9)) + 5
-    grid = jnp.asarray(ts[0] + QS_DT * (np.arange(size) - 2.0))
+    # The grid reaches two steps beyond either end, unless the path's acceleration jumps (a
+    # clamped spline at rest before its first and after its last sample, `Waypoints.kinks`):
+    # differences across the jump made the balances there diverge ("no inverse at t = 0") or
+    # 2 % off, so the grid then starts at ts[0] and ends within ts[-1] (the last times a
+    # fraction of a step beyond its last point take the end quartic; a span under four steps,
+    # a single time, gets the four steps after ts[0]), its end rows one-sided.
+    span = (ts[-1] - ts[0]) / QS_DT
+    pad = 2 if getattr(path, "kinks", None) is None else 0
+    size = (int(np.ceil(span - 1e-9)) + 5 if pad else max(int(np.floor(span + 1e-9)) + 1, 5))
+    grid = jnp.asarray(ts[0] + QS_DT * (np.arange(size) - float(pad)))
     # 5-point differences on the grid: central inside, one-sided at the two ends of either side
     rows1 = np.zeros((size, size))
     rows2 = np.zeros((size, size))
@@ -668,7 +677,7 @@ def inverse_path(model: AbstractModel, robot: RobotLike, path: Callable, ts, wre
     (zus, zud, _), (outs, changes) = jax.lax.scan(
         one_pass, (zero, zero, zero), jnp.array([False] + [True] * (INVERSE_PASSES - 1)))
     _, bad, (tau, margin, th_a), z_r, zd_r = jax.tree.map(lambda a: a[-1], outs)
-    j0, wts = _lagrange_weights(ts, float(ts[0]) - 2 * QS_DT, QS_DT, size)
+    j0, wts = _lagrange_weights(ts, float(ts[0]) - pad * QS_DT, QS_DT, size)
     idx = jnp.asarray(j0[:, None] + np.arange(5))
     wts = jnp.asarray(wts)
 

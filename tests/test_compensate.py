@@ -81,6 +81,44 @@ def test_scipy_l2_follows_the_compensated_commands(setting, drive):
     assert phi_after * 100 < phi_before, (phi_after, phi_before)
 
 
+def test_the_inverse_of_a_clamped_move_holds_from_its_start(setting):
+    """A rest-to-rest move (a cosine time law: its acceleration jumps at both ends) sampled at
+    100 Hz and splined clamped, as `load_path` splines a file at rest at both ends: its
+    inverse was refused at t = 0 ("no inverse") while the inverse's grid reached across the
+    jump (`Waypoints.kinks`), or 2 % off. Now the independent scipy L2, at the inverse's states
+    under its torques, accelerates the platform as the path does from the first sample on,
+    and driven by its angles from its first state follows the path 100 times closer than
+    under the nominal angles."""
+    params, _ = setting
+    u = (1.0 - np.cos(np.pi * TS / T_END)) / 2.0
+    X = np.array([0.42, 0.24, -0.01]) + u[:, None] * np.array([0.05, 0.03, 0.03])
+    path = pj.Waypoints(TS, X)  # clamped
+    l2, robot = pj.get_model("double1r"), Robot(params)
+    z, zd, _, tau, change, failed = (np.asarray(a) for a in inverse_path(l2, robot, path, TS))
+    assert not failed.any()
+    Xdd = np.asarray(jax.vmap(jax.jacfwd(jax.jacfwd(path)))(jnp.asarray(TS)))
+    assert np.abs(Xdd[0, :2]).max() > 0.1  # m/s^2: the jump at t = 0 is real
+    err = []
+    for k in range(TS.shape[0]):
+        m = scipy_l2.L2Model(params, lambda t, k=k: tau[k])
+        acc = m.rhs(TS[k], m.state_from_library(z[k], zd[k]))[21:23]
+        err.append(np.abs(acc - Xdd[k, :2]).max())
+    err = np.array(err)
+    # observed 6e-8 m/s^2 at the first samples (2 % of the path's 0.25 m/s^2 while the grid
+    # reached across the jump), 5e-8 after them
+    assert err[:3].max() < 1e-5 * np.abs(Xdd[0, :2]).max(), err[:3]
+    assert err[3:-3].max() < 1e-5 * np.abs(Xdd[:, :2]).max(), err[3:-3].max()
+    # and its angles, replayed from its start, follow the path: 2.7e-7 m against 9.5e-5 m
+    # under the nominal angles (with the start of a grid across the jump: 3e-4 m)
+    after = _scipy_run(params, (z[0], zd[0]), angles=scipy_l2.AnglesSpline(TS, z[:, 3:]))
+    nominal = pj.InverseKinematicsAngles(pj.Reduced(), robot, path)
+    zb, zdb = pj.quasi_static_state(l2, params, path, 0.0, pj.MotionDriven(nominal))
+    before = _scipy_run(params, (np.asarray(zb), np.asarray(zdb)), angles=scipy_l2.AnglesSpline(
+        TS, np.asarray(jax.vmap(nominal)(jnp.asarray(TS)))))
+    miss_after, miss_before = _miss(X, after)[0], _miss(X, before)[0]
+    assert miss_after * 100 < miss_before, (miss_after, miss_before)
+
+
 @pytest.fixture(scope="module")
 def eight_csv(tmp_path_factory):
     """The figure eight's samples as a path file (a cubic spline through them, as a user's)."""
@@ -235,3 +273,18 @@ def test_refusals_name_the_argument():
         pj.compensate(EIGHT, "rigid", p, drive="servo")
     with pytest.raises(pj.PPRError, match="times must be at least 4"):
         pj.compensate(EIGHT, "rigid", p, times=[0.1, 0.2, 0.3, 0.4])
+
+
+def test_commands_at_a_rate_span_a_sampled_path():
+    """At a `rate`, a sampled path's commands span its samples (they spanned the scenes'
+    default 7.54 s, beyond a 2 s path, and the replay refused the log as not covering it);
+    options' horizon, where given, decides."""
+    from ppr_jax._studies._compensate import _grid
+
+    ts = np.linspace(0.0, 2.0, 5)
+    path = pj.Waypoints(ts, np.array([0.45, 0.26, 0.0]) + 1e-3 * ts[:, None])
+    np.testing.assert_array_equal(_grid(path, None, 50.0), np.linspace(0.0, 2.0, 101))
+    np.testing.assert_array_equal(_grid(path, None, None), ts)
+    np.testing.assert_array_equal(_grid(path, pj.SceneOptions(t_end=1.0), 50.0),
+                                  np.linspace(0.0, 1.0, 51))
+    assert _grid(EIGHT, None, 10.0)[-1] == pj.SceneOptions().t_end  # no samples of its own

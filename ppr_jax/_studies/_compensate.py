@@ -161,9 +161,10 @@ def _size(ts, u) -> dict:
     return {"max": float(np.abs(u).max()), "rate_max": float(np.abs(rate).max())}
 
 
-def _grid(path, options: SceneOptions, rate: Optional[float], times=None):
+def _grid(path, options: Optional[SceneOptions], rate: Optional[float], times=None):
     """Command times: `times` where given, else the path's own samples where it has them from
-    t = 0, else `rate` Hz over the options' horizon."""
+    t = 0, else `rate` Hz over the options' horizon (without options, over a sampled path's
+    own span from t = 0, else the scenes' default horizon)."""
     if times is not None:
         ts = np.asarray(times, dtype=np.float64).reshape(-1)
         if (ts.shape[0] < 4 or not np.all(np.isfinite(ts)) or ts[0] != 0.0
@@ -178,7 +179,10 @@ def _grid(path, options: SceneOptions, rate: Optional[float], times=None):
         if ts[0] == 0.0:
             return ts
     r = RATE if rate is None else check_number("rate", rate, 1e-3, 1e6)
-    t_end = float(options.t_end)
+    if options is None and own is not None and float(own[0]) == 0.0:
+        t_end = float(own[-1])
+    else:
+        t_end = float((SceneOptions() if options is None else options).t_end)
     return np.linspace(0.0, t_end, int(round(t_end * r)) + 1)
 
 
@@ -245,7 +249,8 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
     - `options`: a `SceneOptions` for the two runs (horizon when the path has no samples of
       its own, tolerances, solver); its `n_out` is replaced by the command times.
     - `rate`: command rate (Hz); None: the path's own sample times (a `Waypoints` starting at
-      t = 0), else 100 Hz.
+      t = 0), else 100 Hz. At a rate, the commands span `options.t_end`, or without options
+      a sampled path's own span (else the scenes' default horizon).
     - `times`: the command times (n,) (s) instead, from t = 0, increasing (a controller's own
       clock); the replays then run to its last time.
     - `limits`: optional bounds {"angle": rad, "rate": rad/s, "torque": N m} on |commands|:
@@ -285,8 +290,8 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
     if np.ndim(robot_params.t) != 0:
         raise PPRError(f"params: one robot, not a batch of {np.shape(robot_params.t)[0]} "
                        f"(compensate one robot at a time: each has its own commands)")
-    options = SceneOptions() if options is None else options
     ts = _grid(path, options, rate, times)
+    options = SceneOptions() if options is None else options
     opts = dataclasses.replace(options, t_end=float(ts[-1]), n_out=int(ts.shape[0]))
     robot = Robot(robot_params)
 
