@@ -177,6 +177,17 @@ def _differentiation_matrices(s):
 
 
 D1, D2 = _differentiation_matrices(STENCIL)
+#: `STENCILS`' differentiation matrices (3, 5, 5) each (unit step)
+D1S, D2S = (np.stack(m) for m in zip(*(_differentiation_matrices(s) for s in STENCILS)))
+
+
+def path_kinks(*fns):
+    """The times (k,) (s) where the functions' second derivatives jump, from their optional
+    `kinks` attribute (a clamped `Waypoints` or `CommandLog`: its first and last sample), or
+    None where none of them declares any."""
+    found = [getattr(f, "kinks", None) for f in fns]
+    found = [jnp.asarray(k, dtype=jnp.float64).reshape(-1) for k in found if k is not None]
+    return jnp.concatenate(found) if found else None
 
 
 def start_stencil(trajectory: Callable, t, actuation: Optional[AbstractActuation] = None):
@@ -196,23 +207,18 @@ def start_stencil(trajectory: Callable, t, actuation: Optional[AbstractActuation
     1 cm samples 0.1 s apart, 6.6 m/s^2 from rest: 2e-3 of the actuated angles' rates at 5 ms,
     2e-5 at 1 ms, against a Richardson difference of the balances). The kinks are the path's
     and those of the function `actuation` holds (a clamped `CommandLog`'s ends)."""
-    fns = (trajectory, getattr(actuation, "torque", None), getattr(actuation, "angles", None))
-    found = [getattr(f, "kinks", None) for f in fns]
-    found = [jnp.asarray(k, dtype=jnp.float64).reshape(-1) for k in found if k is not None]
-    if not found:
+    kinks = path_kinks(trajectory, getattr(actuation, "torque", None),
+                       getattr(actuation, "angles", None))
+    if kinks is None:
         return (jnp.asarray(STENCIL), jnp.asarray(D1), jnp.asarray(D2), STENCIL.shape[0] // 2,
                 QS_DT)
-    kinks = jnp.concatenate(found)
     reach = 2.0 * QS_DT * (1.0 + 1e-9)
     before = jnp.any((kinks <= t) & (kinks > t - reach))
     after = jnp.any((kinks > t) & (kinks < t + reach))
     k = jnp.where(before, 1, jnp.where(after, 2, 0))
-    mats = [_differentiation_matrices(s) for s in STENCILS]
-    D1s = jnp.asarray(np.stack([m[0] for m in mats]))
-    D2s = jnp.asarray(np.stack([m[1] for m in mats]))
     centre = jnp.asarray([STENCIL.shape[0] // 2, 0, STENCIL.shape[0] - 1])[k]
     dt = jnp.asarray([QS_DT, QS_DT_ONE_SIDED, QS_DT_ONE_SIDED])[k]
-    return jnp.asarray(STENCILS)[k], D1s[k], D2s[k], centre, dt
+    return jnp.asarray(STENCILS)[k], jnp.asarray(D1S)[k], jnp.asarray(D2S)[k], centre, dt
 
 
 #: relative step of the central differences that give the quasi-static Newton iteration's
@@ -638,7 +644,7 @@ def inverse_path(model: AbstractModel, robot: RobotLike, path: Callable, ts, wre
     # fraction of a step beyond its last point take the end quartic; a span under four steps,
     # a single time, gets the four steps after ts[0]), its end rows one-sided.
     span = (ts[-1] - ts[0]) / QS_DT
-    pad = 2 if getattr(path, "kinks", None) is None else 0
+    pad = 2 if path_kinks(path) is None else 0
     size = (int(np.ceil(span - 1e-9)) + 5 if pad else max(int(np.floor(span + 1e-9)) + 1, 5))
     grid = jnp.asarray(ts[0] + QS_DT * (np.arange(size) - float(pad)))
     # 5-point differences on the grid: central inside, one-sided at the two ends of either side

@@ -171,6 +171,17 @@ class SmoothLine(eqx.Module):
         return self.start + u**3 * (10 - 15 * u + 6 * u**2) * (self.end - self.start)
 
 
+class OneSidedStart(eqx.Module):
+    """`path` declaring a kink at t = 0 (`Waypoints.kinks`): a scene's start there takes the
+    rates of the motion after t = 0 (tests/test_scene_interface.py)."""
+
+    path: eqx.Module
+    kinks: tuple = (0.0,)
+
+    def __call__(self, t):
+        return self.path(t)
+
+
 # Random states of the closed-loop levels, for the equations of motion and their derivatives
 # (test_fused_eom.py, test_forward_dynamics.py)
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from tests.helpers import SmoothLine
+from tests.helpers import OneSidedStart, SmoothLine
 
 
 class Line(eqx.Module):
@@ -303,17 +303,6 @@ def _write_experiment_file(path, scene, rate=1000.0):
     np.savetxt(path, np.column_stack([ts, X, th]), delimiter=",", fmt="%.17g", comments="",
                header="time,x,y,phi,th_1,th_2,th_3")
     return path
-
-
-class OneSidedStart(eqx.Module):
-    """A path that declares a kink at t = 0 (`Waypoints.kinks`): a scene's start there takes
-    the rates of the motion after t = 0."""
-
-    path: eqx.Module
-    kinks: tuple = (0.0,)
-
-    def __call__(self, t):
-        return self.path(t)
 
 
 def test_cli_simulate_your_own_experiment(tmp_path):
