@@ -255,6 +255,13 @@ class Line(eqx.Module):
         input table has panel boundaries there)."""
         return jnp.stack([jnp.zeros_like(self.duration), self.duration])
 
+    @property
+    def kinks(self) -> Float[Array, "2"]:
+        """The ends of the holds (s), t = 0 and `duration`, where the jerk jumps: a scene
+        started at t = 0 starts at rest in the hold's balance (`_statics.start_stencil`), not
+        across the jump."""
+        return self.breakpoints
+
     def __call__(self, t) -> Float[Array, "3"]:
         u = jnp.clip(jnp.asarray(t, dtype=jnp.float64) / self.duration, 0.0, 1.0)
         s = u**3 * (10.0 + u * (-15.0 + 6.0 * u))
@@ -360,7 +367,8 @@ class Waypoints(eqx.Module):
     def kinks(self) -> Optional[Float[Array, "2"]]:
         """The times (s) where the path's acceleration jumps: a clamped spline's first and last
         sample (at rest outside, accelerating inside), where a scene's quasi-static start
-        differentiates one-sided (`_statics.start_stencil`); None for the other ends (C2)."""
+        differentiates one-sided (`_statics.start_stencil`: started at the first sample, at
+        rest in the hold's balance); None for the other ends (C2)."""
         if self.bc != "clamped":
             return None
         ts = self.spline.ts

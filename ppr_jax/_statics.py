@@ -152,8 +152,8 @@ QS_DT_ONE_SIDED = 1e-3
 #: the quasi-static solves' times, in steps of QS_DT about t
 STENCIL = np.arange(-2.0, 3.0)
 #: the stencils a start may take, in steps of QS_DT from t: central (`STENCIL`), forward (a
-#: path whose acceleration jumps at or just before t: a clamped `Waypoints` at its first
-#: sample, a motion from rest) and backward (a jump just after t); `start_stencil` chooses
+#: path that kinks just before t: the stencil must not reach back across it) and backward (a
+#: kink at t, the end of a hold, or just after t: the motion up to t); `start_stencil` chooses
 STENCILS = np.stack([STENCIL, STENCIL + 2.0, STENCIL - 2.0])
 
 #: passes of the quasi-static start (`quasi_static_core`): the first balances the unknowns at
@@ -182,8 +182,9 @@ D1S, D2S = (np.stack(m) for m in zip(*(_differentiation_matrices(s) for s in STE
 
 
 def path_kinks(*fns):
-    """The times (k,) (s) where the functions' second derivatives jump, from their optional
-    `kinks` attribute (a clamped `Waypoints` or `CommandLog`: its first and last sample), or
+    """The times (k,) (s) where the functions move from a hold to a motion or back (their
+    second or third derivatives jump), from their optional `kinks` attribute (a clamped
+    `Waypoints` or `CommandLog`: its first and last sample; `Line`: 0 and its duration), or
     None where none of them declares any."""
     found = [getattr(f, "kinks", None) for f in fns]
     found = [jnp.asarray(k, dtype=jnp.float64).reshape(-1) for k in found if k is not None]
@@ -191,34 +192,55 @@ def path_kinks(*fns):
 
 
 def start_stencil(trajectory: Callable, t, actuation: Optional[AbstractActuation] = None):
-    """(offsets (5,), D1 (5, 5), D2 (5, 5), centre, dt): the quasi-static start's stencil
-    about t in steps of dt (s), its differentiation matrices (unit step: divide by dt and
-    dt^2) and the index of t in it.
+    """(offsets (5,), D1 (5, 5), D2 (5, 5), centre, dt, t_at): the quasi-static start's
+    stencil about t in steps of dt (s), its differentiation matrices (unit step: divide by dt
+    and dt^2), the index of t in it, and the time (s) the stencil is laid from (t, or t's left
+    limit: below).
 
-    Central (`STENCIL` in steps of `QS_DT`) unless the path declares times where its
-    acceleration jumps (an optional `kinks` attribute (k,) (s); a path is otherwise C2, as a
-    scene requires): a clamped `Waypoints` is at rest before its first sample and accelerates
-    after it, so its input (inverse-dynamics torques, prescribed angles) jumps there, and a
-    quartic through values on both sides differentiates the jump (rates of the balance ~
-    jump / QS_DT, a second pass that diverges: no start was found). Where a kink lies in
-    (t - 2 QS_DT, t] the stencil is forward, the motion from t on; where one lies in
-    (t, t + 2 QS_DT) it is backward, the motion up to t. A one-sided stencil steps by
-    `QS_DT_ONE_SIDED`: its error is O(dt^2) in the rates (a random clamped spline through
-    1 cm samples 0.1 s apart, 6.6 m/s^2 from rest: 2e-3 of the actuated angles' rates at 5 ms,
-    2e-5 at 1 ms, against a Richardson difference of the balances). The kinks are the path's
-    and those of the function `actuation` holds (a clamped `CommandLog`'s ends)."""
+    Central (`STENCIL` in steps of `QS_DT`) unless the path declares kinks (an optional
+    `kinks` attribute (k,) (s): the times where its acceleration or jerk jumps between a hold
+    and a motion; a path is otherwise C2, as a scene requires): a clamped `Waypoints` is at
+    rest before its first sample and accelerates after it, so its input (inverse-dynamics
+    torques, prescribed angles) jumps there, and a quartic through values on both sides
+    differentiates the jump (rates of the balance ~ jump / QS_DT, a second pass that diverges:
+    no start was found; across `Line`'s jump of jerk at t = 0, the mean of the rates on either
+    side: 2.5 mm off in the run).
+
+    - A kink at t (the scene starts where a hold ends): backward, the hold's balance at rest. A
+      robot that starts a move at t0 has been at rest before it, and it is that robot's state
+      the start stands for: against the same `Line` move (0.5 s, motion-driven L2) started 0.1
+      s earlier in the hold, so that the robot lives through the move's start, the backward
+      start's run is 1.8e-11 m off, a forward one (the motion's quasi-static state after t)
+      4.3e-4 m, the central one 2.5e-3 m. The stencil then ends at t's left limit `t_at`, a
+      hair before t (max(1e-12 s, 64 roundings of t)): there the input table's panel before
+      the kink holds the hold's values (at t itself the path, and the torques computed from
+      it, read the motion's one-sided acceleration).
+    - A kink in (t - 2 QS_DT, t): forward, the motion since that kink, which the stencil must
+      not reach back across.
+    - A kink in (t, t + 2 QS_DT): backward, the motion up to t.
+
+    A one-sided stencil steps by `QS_DT_ONE_SIDED`: its error is O(dt^2) in the rates (a random
+    clamped spline through 1 cm samples 0.1 s apart, 6.6 m/s^2 from rest: 2e-3 of the actuated
+    angles' rates at 5 ms, 2e-5 at 1 ms, against a Richardson difference of the balances). The
+    kinks are the path's and those of the function `actuation` holds (a clamped `CommandLog`'s
+    ends)."""
     kinks = path_kinks(trajectory, getattr(actuation, "torque", None),
                        getattr(actuation, "angles", None))
     if kinks is None:
         return (jnp.asarray(STENCIL), jnp.asarray(D1), jnp.asarray(D2), STENCIL.shape[0] // 2,
-                QS_DT)
+                QS_DT, t)
     reach = 2.0 * QS_DT * (1.0 + 1e-9)
-    before = jnp.any((kinks <= t) & (kinks > t - reach))
-    after = jnp.any((kinks > t) & (kinks < t + reach))
-    k = jnp.where(before, 1, jnp.where(after, 2, 0))
+    roundings = 8.0 * jnp.spacing(jnp.abs(t))
+    at = jnp.any(jnp.abs(kinks - t) <= roundings)
+    before = jnp.any((kinks < t - roundings) & (kinks > t - reach))
+    after = jnp.any((kinks > t + roundings) & (kinks < t + reach))
+    k = jnp.where(at, 2, jnp.where(before, 1, jnp.where(after, 2, 0)))
     centre = jnp.asarray([STENCIL.shape[0] // 2, 0, STENCIL.shape[0] - 1])[k]
     dt = jnp.asarray([QS_DT, QS_DT_ONE_SIDED, QS_DT_ONE_SIDED])[k]
-    return jnp.asarray(STENCILS)[k], jnp.asarray(D1S)[k], jnp.asarray(D2S)[k], centre, dt
+    left = t - jnp.maximum(1e-12, 8.0 * roundings)
+    t_at = jnp.where(at, left, t)
+    return (jnp.asarray(STENCILS)[k], jnp.asarray(D1S)[k], jnp.asarray(D2S)[k], centre, dt,
+            t_at)
 
 
 #: relative step of the central differences that give the quasi-static Newton iteration's
@@ -433,8 +455,8 @@ def quasi_static_core(model: AbstractModel, robot: RobotLike, trajectory: Callab
     # quasi-static path's wherever the robot is not the reference (another model's commands:
     # phi'' 4e-3 rad/s^2 off, 12 % of its scale); one pass more leaves (omega/omega_mode)^2,
     # about 1e-4, of that.
-    offsets, d1, d2, c, dt = start_stencil(trajectory, t, actuation)
-    ts = t + offsets * dt
+    offsets, d1, d2, c, dt, t_at = start_stencil(trajectory, t, actuation)
+    ts = t_at + offsets * dt
     nu = len(unknown)
 
     def one_pass(carry, own):
@@ -459,7 +481,8 @@ def quasi_static_core(model: AbstractModel, robot: RobotLike, trajectory: Callab
     fast = fast_coordinates(model)
     if fast:
         pos = jnp.array([unknown.index(i) for i in fast])
-        z = onto_slow_manifold(model, robot, actuation, w, t, z, zd, fast, zudd[c][pos])
+        # at the stencil's time: a start at a hold's end takes the hold's accelerations
+        z = onto_slow_manifold(model, robot, actuation, w, t_at, z, zd, fast, zudd[c][pos])
     # A balance found outside the chains' reach is no state: there the closed-form closure works
     # on clipped values, is locally flat, and the balance equations can hold spuriously (a strip
     # too thin to carry the loads collapses the chain).

@@ -172,8 +172,8 @@ class SmoothLine(eqx.Module):
 
 
 class OneSidedStart(eqx.Module):
-    """`path` declaring a kink at t = 0 (`Waypoints.kinks`): a scene's start there takes the
-    rates of the motion after t = 0 (tests/test_scene_interface.py)."""
+    """`path` declaring a kink at t = 0 (`Waypoints.kinks`), the end of a hold: a scene's
+    start there is the hold's balance at rest (tests/test_scene_interface.py)."""
 
     path: eqx.Module
     kinks: tuple = (0.0,)

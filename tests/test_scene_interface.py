@@ -325,10 +325,10 @@ def test_cli_simulate_your_own_experiment(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["drive"] == "motion" and summary["t_end_s"] == 1.0
     got = summary["models"]["double1r"]
-    # The file's splines are clamped: at rest before t = 0, so the start differentiates
-    # one-sided there (`Waypoints.kinks`); the exact line's jerk jumps at t = 0, and its start
-    # is taken the same way (a central stencil across that jump gives the mean of the rates
-    # before and after it: position_error_max 8.6 % higher).
+    # The file's splines are clamped: at rest before t = 0, so the start is the hold's balance
+    # (`Waypoints.kinks`); the exact line's jerk jumps at t = 0, and its start is taken the
+    # same way (a central stencil across that jump gives the mean of the rates before and
+    # after it: position_error_max 8.6 % higher).
     line = OneSidedStart(SmoothLine())
     exact = pj.InverseKinematicsAngles(pj.Reduced(), pj.Robot(scene.default_params()), line)
     ref = pj.run_scene(pj.PathScene(line, drive="motion", command_log=exact,
