@@ -50,7 +50,8 @@ from .._params import RobotParams
 from .._paths import CommandLog, Waypoints
 from .._robot import Robot
 from .._scenes import AbstractScene, PathScene, SceneOptions, run_scene, scene_params
-from .._statics import inverse_path
+from .._statics import QS_DT, inverse_path
+from .._tabulated import breakpoints
 from ._compensate_fit import JACOBIANS, fit_commands
 
 #: the drives, and the command log's kind for each
@@ -302,8 +303,8 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
         check_int("max_iter", max_iter, 1)
         if jacobian not in JACOBIANS:
             raise PPRError(f"jacobian must be one of {', '.join(JACOBIANS)}, got {jacobian!r}")
-    z, zd, th_a, tau, change, failed = (np.asarray(a) for a in
-                                        _invert(model, robot, path, ts))
+    z, zd, th_a, tau, change, change_t, failed = (np.asarray(a) for a in
+                                                  _invert(model, robot, path, ts))
     bad = failed | ~np.isfinite(th_a).all(1) | ~np.isfinite(tau).all(1)
     kind = DRIVES[drive]
     if bad.any() and method == "optimise":
@@ -328,8 +329,7 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
     flags = _limit_flags(ts, u, kind, limits)
     change = float(np.max(change))
     if change > CHANGE_TOL:
-        flags.append(f"the inversion had not settled (last change {change:.2g} rad > "
-                     f"{CHANGE_TOL:g}): the path is fast for the inverse's own dynamics")
+        flags.append(_unsettled(path, change, float(change_t)))
     growth = amplification = None
     if drive == "torque":
         pick = np.unique(np.linspace(0, ts.shape[0] - 1, GROWTH_SAMPLES).astype(int))
@@ -368,6 +368,26 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
         band = error_band(ident, model, path, drive, log, opts, after, band_level)
     return Compensation(nominal=nominal, before=before, after=after, error=error, size=size,
                         flags=tuple(flags), band=band, **common)
+
+
+def _unsettled(path, change: float, t: float) -> str:
+    """The flag of an inversion whose last pass still changed the unknowns by `change` (rad),
+    most at the time t (s). Near a knot of the path (a cubic spline's sample, `breakpoints`)
+    the cause is the knot, not the path's speed: the path's jerk jumps there, and the
+    balances' accelerations, differences of the balances, read its fourth derivative, which a
+    cubic spline does not have (a slow 9-sample spline: 4-7e-4 rad; a formula path or a
+    quintic time law: 3e-6 rad or less)."""
+    head = (f"the inversion had not settled (last change {change:.2g} rad > {CHANGE_TOL:g}, "
+            f"largest at t = {t:.4g} s)")
+    knots = breakpoints(path)
+    if knots is not None:
+        knots = np.asarray(knots)
+        k = knots[np.argmin(np.abs(knots - t))]
+        if abs(k - t) <= 2.0 * QS_DT * (1.0 + 1e-9):
+            return (f"{head}: the path's jerk jumps at its knot t = {k:.4g} s, and the inverse "
+                    f"reads the path's fourth derivative; about its knots the commands are the "
+                    f"best pass's (a path smooth to its fourth derivative settles)")
+    return f"{head}: the path is fast for the inverse's own dynamics"
 
 
 def _invert(model, robot, path, ts):
