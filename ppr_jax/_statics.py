@@ -636,11 +636,10 @@ def inverse_path(model: AbstractModel, robot: RobotLike, path: Callable, ts, wre
     - `wrench`: (3,) a constant platform wrench (N, N, N m); None: none.
 
     **Returns:** (z (n, nd), zdot (n, nd), th_a (n, 3) (rad), tau (n, 3) (N m), change,
-    change_t, failed (n,)): the states on the path, the actuated angles and torques, the last
-    pass's largest change of the unknowns (rad; the iteration's own error estimate; the
-    returned pass's: the one that changed least), the grid
-    time where it was largest (s), and where the inverse failed (no balance, or the chains out
-    of reach).
+    change_t, failed (n,)): the states on the path, the actuated angles and torques (all of
+    the pass that changed least), that pass's largest change of the unknowns from the pass
+    before (rad; the iteration's own error estimate), the grid time where it was largest (s),
+    and where the inverse failed (no balance, or the chains out of reach).
     """
     robot = as_robot(robot)
     w = jnp.zeros(3) if wrench is None else jnp.asarray(wrench, dtype=jnp.float64)
