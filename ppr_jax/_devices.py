@@ -1,11 +1,12 @@
 """Use every core: host devices and XLA settings for batches of small models on a CPU.
 
-A batch of robots is one vmapped program. On a CPU, XLA runs that program on one device, which
-keeps about 1.5 of this machine's two cores busy (it overlaps independent kernels). Asked for one
-host device per core (`--xla_force_host_platform_device_count`), JAX can split the batch over
-them with `shard_map`, each device running a local vmap over its members so that adaptive steps
+A batch of robots is one program. On a CPU, XLA runs that program on one device: there the
+members of L0-L2 run one after another, on one core, and those of L3 vmapped, which keeps about
+1.5 of this machine's two cores busy (it overlaps independent kernels; `_scenes/_batch.py`).
+Asked for one host device per core (`--xla_force_host_platform_device_count`), JAX can split the
+batch over them with `shard_map`, each device running its own members so that adaptive steps
 never synchronise across devices; the batched scenes do this by themselves when more than one
-local device is present (`_scenes/_batch.py`). Measured on the 2-core CPU (L1 `paper-circle`, a
+local device is present. Measured on the 2-core CPU with vmapped members (L1 `paper-circle`, a
 batch of 1,024 at rtol 1e-6): 489 trajectories/s on one device, 731 on two; 4 or 8 host devices
 give no more than 2.
 

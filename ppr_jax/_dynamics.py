@@ -97,7 +97,7 @@ def _has_fused_terms(model: AbstractModel) -> bool:
 
 
 def for_batch(model: AbstractModel) -> AbstractModel:
-    """`model` as a batch's program takes it: with the generic projection's terms
+    """`model` as a vmapped batch's program takes it: with the generic projection's terms
     (`AbstractModel.fused`), which `vmap` runs faster on a CPU than the fused arithmetic, and
     marked as a batch member (`AbstractModel.batch_member`: diffrax's loop, not the lean one).
     A structural choice, made in Python before tracing."""

@@ -39,9 +39,10 @@ this shows there.
 `lean_applies` decides, in Python before tracing, whether a solve is this case; anything else
 (another solver or controller, a controller with options, steps clipped to given times, `throw`,
 a progress meter, other saving) runs on `diffeqsolve` as before, and so does every member of a
-mapped batch (`AbstractModel.batch_member`, `_simulate._solve`): under `vmap` this loop
+vmapped batch (`AbstractModel.batch_member`, `_simulate._solve`): under `vmap` this loop
 measured slower than diffrax's (L1 `paper-circle` x256: 530 against 652 trajectories/s; a
-block of one output time 393, of four 509, of sixteen 484).
+block of one output time 393, of four 509, of sixteen 484). On a CPU a batch of L0-L2 is not
+vmapped: its members run this loop one after another (`_scenes/_batch.py`).
 """
 
 from __future__ import annotations

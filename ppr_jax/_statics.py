@@ -147,6 +147,10 @@ def static_equilibrium(
 QS_DT = 5e-3
 #: the step (s) of a one-sided start stencil (`start_stencil`), at a kink of the path
 QS_DT_ONE_SIDED = 1e-3
+#: how far (s) from a kink of the path the central stencil of `QS_DT` would reach across it:
+#: within this, a start takes a one-sided stencil (`start_stencil`) and an inversion that did not
+#: settle is put down to the kink (`_studies/_compensate.py`)
+STENCIL_REACH = 2.0 * QS_DT * (1.0 + 1e-9)
 
 
 #: the quasi-static solves' times, in steps of QS_DT about t
@@ -229,7 +233,7 @@ def start_stencil(trajectory: Callable, t, actuation: Optional[AbstractActuation
     if kinks is None:
         return (jnp.asarray(STENCIL), jnp.asarray(D1), jnp.asarray(D2), STENCIL.shape[0] // 2,
                 QS_DT, t)
-    reach = 2.0 * QS_DT * (1.0 + 1e-9)
+    reach = STENCIL_REACH
     roundings = 8.0 * jnp.spacing(jnp.abs(t))
     at = jnp.any(jnp.abs(kinks - t) <= roundings)
     before = jnp.any((kinks < t - roundings) & (kinks > t - reach))

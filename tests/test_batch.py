@@ -83,19 +83,24 @@ def test_raise_if_traced_uses_equinox_runtime_error():
         jax.block_until_ready(f(-1.0))
 
 
-def test_chunked_batch_equals_single_runs(params, monkeypatch):
-    """A batch larger than `MEMBER_CHUNK` runs as a loop over chunks of vmapped members
-    (here chunks of 2, 2 and a remainder of 1): every member equals its own single run, an
-    unreachable member fails alone."""
+@pytest.mark.parametrize("loop", [False, True], ids=["vmapped-chunks", "one-after-another"])
+def test_chunked_batch_equals_single_runs(params, monkeypatch, loop):
+    """Vmapped (forced here by leaving no loop platform), a batch larger than `MEMBER_CHUNK`
+    runs as a loop over chunks of vmapped members (here chunks of 2, 2 and a remainder of 1);
+    on a CPU, by default, L1's members run one after another (`loops_members`). Either way
+    every member equals its own single run, with its own steps, and an unreachable member
+    fails alone."""
     import ppr_jax._scenes._batch as scenes
 
     monkeypatch.setattr(scenes, "MEMBER_CHUNK", 2)
-    ts = [0.3e-3, 0.32e-3, 0.34e-3, 0.36e-3]
+    monkeypatch.setattr(scenes, "LOOP_PLATFORMS", ("cpu",) if loop else ())
+    ts = [0.3e-3, 0.32e-3, 0.34e-3, 0.36e-3] + ([0.38e-3] if loop else [])
     robots = [params.replace(t=t) for t in ts] + [params.replace(a=3.0)]
-    # a fresh batch size (5), so the patched chunk is traced rather than taken from a cache
+    # a fresh batch size (5 vmapped, 6 one after another), so the patched mapping is traced
+    # rather than taken from a cache
     res = pj.paper_circle(pj.stack_params(robots), model="reduced", t_end=0.4, n_out=9,
                           throw=False)
-    assert list(res.failures()) == [4]
+    assert list(res.failures()) == [len(ts)]
     for i, t in enumerate(ts):
         single = pj.paper_circle(params.replace(t=t), model="reduced", t_end=0.4, n_out=9)
         np.testing.assert_allclose(res.X[i], single.X, rtol=0, atol=1e-12)

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
+import ppr_jax._scenes._batch as scenes_batch
 from ppr_jax._dynamics import (
     EOM,
     _eom_terms,
@@ -118,8 +119,8 @@ def test_the_simulator_uses_the_fused_terms():
         z = model.coords_from_pose(robot, home_pose(robot))
         assert model.fused_eom(robot, z, jnp.zeros_like(z)) is not None
     assert pj.get_model("beam").fused_eom(robot, None, None) is None
-    # a batch's program takes the generic terms (faster under vmap; test_batch.py compares its
-    # members with single runs, which take the fused ones), decided before tracing
+    # a vmapped batch's program takes the generic terms (faster under vmap; test_batch.py
+    # compares its members with single runs, which take the fused ones), decided before tracing
     for name in MODELS:
         model = pj.get_model(name)
         assert _has_fused_terms(model) and not _has_fused_terms(for_batch(model))
@@ -130,15 +131,29 @@ def test_the_simulator_uses_the_fused_terms():
     assert for_batch(beam).fused == beam.fused and for_batch(beam).batch_member
     assert not beam.batch_member
     # the one batch mapper hands every member the batch's model, wherever it sits in the shared
-    # arguments (a scene's batch passes the model, a sweep its `Evaluation`'s context)
-    seen = []
+    # arguments (a scene's batch passes the model, a sweep its `Evaluation`'s context): on a
+    # CPU, members of fused models run one after another with the models unchanged; with L3
+    # among them, or where members are vmapped (here: no loop platform), every model as a
+    # vmapped batch takes it
+    def seen_by(shared, loop_platforms=("cpu",)):
+        seen = []
 
-    def member(one, shared):
-        seen.extend(shared)
-        return one
+        def member(one, shared):
+            seen.extend(shared)
+            return one
 
-    map_members(member)(jnp.zeros(2), [pj.get_model("double1r"), {"m": pj.get_model("rigid")}])
-    assert [_has_fused_terms(m) for m in (seen[0], seen[1]["m"])] == [False, False]
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(scenes_batch, "LOOP_PLATFORMS", loop_platforms)
+            map_members(member)(jnp.zeros(2), shared)
+        return [s["m"] if isinstance(s, dict) else s for s in seen]
+
+    fused = [pj.get_model("double1r"), {"m": pj.get_model("rigid")}]
+    assert jax.default_backend() == "cpu"
+    assert [_has_fused_terms(m) for m in seen_by(fused)] == [True, True]
+    assert [m.batch_member for m in seen_by(fused)] == [False, False]
+    assert [_has_fused_terms(m) for m in seen_by(fused, ())] == [False, False]
+    with_l3 = seen_by([pj.get_model("double1r"), {"m": beam}])
+    assert not _has_fused_terms(with_l3[0]) and all(m.batch_member for m in with_l3)
 
 
 #: what a batch's members differ in: their state, or one parameter

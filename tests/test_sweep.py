@@ -260,11 +260,13 @@ def test_chunked_members_equal_the_plain_vmap(swept, monkeypatch):
 
     With chunks of members smaller than a sweep chunk (the scenes' `MEMBER_CHUNK`, here 3 of
     a sweep chunk of 4: a loop over a chunk of 3 and a remainder of 1), every member, failures
-    included, equals the plain-vmap sweep of the fixture."""
+    included, equals the sweep of the fixture (whose L1 members, on a CPU, run one after
+    another)."""
     import ppr_jax._programs as programs
     import ppr_jax._scenes._batch as scenes
 
     monkeypatch.setattr(scenes, "MEMBER_CHUNK", 3)
+    monkeypatch.setattr(scenes, "LOOP_PLATFORMS", ())  # vmapped, though L1 on a CPU loops
     monkeypatch.setattr(programs, "_CACHED", {})  # trace again with the patched chunk
     again = pj.sweep("paper-circle", vary=VARY, chunk_size=CHUNK, max_steps=MAX_STEPS, **KW)
     assert len(again.rows) == len(swept.rows)
@@ -272,7 +274,7 @@ def test_chunked_members_equal_the_plain_vmap(swept, monkeypatch):
         assert (r["status"], r["reason"], r["num_steps"]) == (
             ref["status"], ref["reason"], ref["num_steps"])
         if ref["status"] == "ok":
-            # rounding differences only: a chunk of 3 is vectorised differently from one of 4
+            # rounding differences only: vectorised, on the generic terms
             for m in METRICS:
                 np.testing.assert_allclose(r[m], ref[m], rtol=1e-10, atol=1e-12, err_msg=m)
 
@@ -403,11 +405,15 @@ def test_a_member_whose_path_crosses_a_singularity_is_refused_before_running():
         "singular configuration along the nominal path"), reasons
 
 
-def test_a_members_run_takes_the_generic_terms(monkeypatch):
-    """A sweep's members are vmapped, so they take the generic equations of motion as a scene's
-    batch does (`for_batch`: faster under vmap; `test_sweep_members_equal_single_runs` compares
-    them with single runs, which take the fused ones). The run itself is replaced here: only
-    the model it is handed is checked."""
+@pytest.mark.parametrize("loop", [True, False], ids=["one-after-another", "vmapped"])
+def test_a_members_run_takes_the_batch_mappers_terms(monkeypatch, loop):
+    """A sweep's members are mapped as a scene's batch is (`map_members`): on a CPU, members of
+    L1 run one after another on the fused equations of motion, as single runs do; vmapped (here
+    forced by leaving no loop platform), they take the generic ones (`for_batch`: faster under
+    vmap; `test_sweep_members_equal_single_runs` compares the members with single runs). The
+    run itself is replaced here: only the model it is handed is checked."""
+    import ppr_jax._programs as programs
+    import ppr_jax._scenes._batch as scenes_batch
     from ppr_jax._dynamics import _has_fused_terms
     from ppr_jax._studies._evaluation import Evaluation
 
@@ -418,7 +424,11 @@ def test_a_members_run_takes_the_generic_terms(monkeypatch):
         return {m: robot.params.t * 0.0 for m in self.metrics}, 0, 0
 
     monkeypatch.setattr(Evaluation, "run", run)
-    res = pj.sweep("paper-circle", vary={"t": [0.3e-3]}, chunk_size=1, **KW)
-    assert [r["status"] for r in res.rows] == ["ok"]
-    assert seen and all(m.name == "reduced" and not _has_fused_terms(m) for m in seen)
+    monkeypatch.setattr(scenes_batch, "LOOP_PLATFORMS", ("cpu",) if loop else ())
+    monkeypatch.setattr(programs, "_CACHED", {})
+    # chunks of one and of two members: each traced afresh, with the patched mapping
+    ts = [0.3e-3] if loop else [0.3e-3, 0.31e-3]
+    res = pj.sweep("paper-circle", vary={"t": ts}, chunk_size=len(ts), **KW)
+    assert [r["status"] for r in res.rows] == ["ok"] * len(ts)
+    assert seen and all(m.name == "reduced" and _has_fused_terms(m) == loop for m in seen)
     assert _has_fused_terms(pj.get_model("reduced"))

@@ -51,11 +51,11 @@ class AbstractModel(eqx.Module):
     """A model level: its coordinates z and their kinematics; the dynamics are generic."""
 
     #: whether the equations of motion take the model's fused terms where it has them
-    #: (`fused_eom`); a batch's program sets it False (`for_batch`): under `vmap` the generic
-    #: projection's batched dots run faster on a CPU than the fused arithmetic (L2 x64 on
-    #: `paper-circle`: 6.1 against 8.9 s), while a single run is faster fused.
+    #: (`fused_eom`); a vmapped batch's program sets it False (`for_batch`): under `vmap` the
+    #: generic projection's batched dots run faster on a CPU than the fused arithmetic (L2 x64
+    #: on `paper-circle`: 6.1 against 8.9 s), while a single run is faster fused.
     fused: bool = eqx.field(static=True, default=True, kw_only=True, repr=False)
-    #: whether the model runs as a member of a mapped batch (`for_batch` sets it): such a
+    #: whether the model runs as a member of a vmapped batch (`for_batch` sets it): such a
     #: member integrates with `diffeqsolve`, whose loop `vmap` runs faster than the lean one
     #: (`_lean.py`; L1 x256 on `paper-circle`: 652 against 530 trajectories/s)
     batch_member: bool = eqx.field(static=True, default=False, kw_only=True, repr=False)

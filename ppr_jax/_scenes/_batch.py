@@ -1,9 +1,25 @@
-"""The one batch mapper: members in vmapped chunks on a device, split over devices by shard_map.
+"""The one batch mapper: members one after another or in vmapped chunks on a device, split over
+devices by shard_map.
 
 Scenes, sweeps, sensitivities and identification map their members through `map_members`.
-Adaptive steps never synchronise across devices (`_devices.py`): each device runs a plain local
-vmap over its members, a chunk at a time. Every model among the shared arguments takes the
-generic equations of motion there (`_dynamics.for_batch`: faster under vmap on a CPU).
+Adaptive steps never synchronise across devices (`_devices.py`). On a device, how the members
+run is a structural choice made in Python before tracing (`loops_members`):
+
+- On a CPU, when every model among the shared arguments has fused equations of motion (L0-L2),
+  the members run one after another (`jax.lax.map`), each as a single run is compiled: the fused
+  terms and the lean loop (`_lean.py`), whose whole loop of steps XLA's CPU backend runs as one
+  kernel (`_devices.py`), and each member with its own steps. Under `vmap` that loop is not one
+  kernel: every fused operation of a step is a kernel over the chunk's members, and every member
+  takes the steps of the chunk's slowest. Measured on the 2-core CPU (`paper-circle`, one
+  device, minimum of 2-3 warm runs; trajectories/s, vmapped chunks against one after another):
+  L0 x256 151 -> 198; L1 x1,024 at the scenes' defaults 198 -> 246, at rtol 1e-6 323 -> 439;
+  L2 x64 at the scenes' defaults 15 -> 35. The first call compiled in less time too (L1 x1,024
+  24 -> 16 s, L2 x64 30 -> 19 s): the program is a single run's inside one loop.
+- Otherwise (a GPU, where one member at a time would leave the device idle, or L3, whose
+  quasi-static strip solves vectorise: x16 1.0 against 0.7 trajectories/s one after another) a
+  plain local vmap over the members, a chunk at a time. Every model among the shared arguments
+  takes the generic equations of motion there (`_dynamics.for_batch`: faster under vmap on a
+  CPU).
 
 A batch over some parameters leaves the rest equal in every member (a sweep of the strip
 thickness leaves 43 of a robot's 49 arrays alone). `compress_shared` keeps one copy of such an
@@ -21,12 +37,14 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._dynamics import for_batch
+from .._dynamics import _has_fused_terms, for_batch
 from .._models import AbstractModel
 
 #: members vectorised together on one device at most: a larger local batch runs as a loop over
 #: chunks of this size (`chunked_vmap`)
 MEMBER_CHUNK = 64
+#: the platforms on which the members of fused models run one after another (`loops_members`)
+LOOP_PLATFORMS = ("cpu",)
 
 
 def chunked_vmap(f: Callable, xs):
@@ -86,19 +104,40 @@ def _split_shared(batched):
     return varying, jax.tree_util.tree_map(lambda x: x[0], shared)
 
 
+def _models_in(tree) -> list:
+    """Every `AbstractModel` anywhere in the pytree `tree`."""
+    is_model = lambda x: isinstance(x, AbstractModel)  # noqa: E731
+    return [x for x in jax.tree_util.tree_leaves(tree, is_leaf=is_model) if is_model(x)]
+
+
+def loops_members(shared, devices: Sequence = ()) -> bool:
+    """Whether a device runs a batch's members one after another (`jax.lax.map`, the models
+    unchanged) rather than in vmapped chunks (`chunked_vmap`, the models `for_batch`): on a
+    platform of `LOOP_PLATFORMS` (`devices`' own, else JAX's default backend), when the shared
+    arguments hold at least one model and every model among them has fused equations of motion
+    (module docstring). Decided in Python before tracing."""
+    platform = devices[0].platform if devices else jax.default_backend()
+    models = _models_in(shared)
+    return (platform in LOOP_PLATFORMS and bool(models)
+            and all(_has_fused_terms(m) for m in models))
+
+
 def map_members(member: Callable, devices: Sequence = ()) -> Callable:
     """`fn(batched, *shared)`: `member(one, *shared)` for every member of the pytree `batched`
-    (leading axis), traceable. Without `devices` (or one), a chunked vmap; with several, the
-    batch axis split over a 1-D mesh by `shard_map`, `shared` replicated. An array of `batched`
-    whose leading axis has length 1 in a batch of more members (`compress_shared`) is the same
-    for every member: it is handed to each unbatched. Every model in `shared` (an
-    `AbstractModel` anywhere in its pytrees) is handed to `member` as a batch takes it
-    (`for_batch`), a structural choice made before tracing."""
+    (leading axis), traceable. Without `devices` (or one), the members on one device; with
+    several, the batch axis split over a 1-D mesh by `shard_map`, `shared` replicated. On a
+    device, the members run one after another with the models of `shared` unchanged, or in
+    vmapped chunks with every model (an `AbstractModel` anywhere in `shared`'s pytrees) as a
+    vmapped batch takes it (`for_batch`): `loops_members` decides, before tracing. An array of
+    `batched` whose leading axis has length 1 in a batch of more members (`compress_shared`) is
+    the same for every member: it is handed to each unbatched."""
 
     def one_member(varying, common, *shared):
         return member(varying if common is None else eqx.combine(varying, common), *shared)
 
     def local(varying, common, *shared):
+        if loops_members(shared, devices):
+            return jax.lax.map(lambda one: one_member(one, common, *shared), varying)
         shared = jax.tree_util.tree_map(
             lambda x: for_batch(x) if isinstance(x, AbstractModel) else x, shared,
             is_leaf=lambda x: isinstance(x, AbstractModel))

@@ -33,7 +33,7 @@ scene_program = FlatJit(_scene_program)
 
 
 def _member(robot_dyn, scene, model, robot_static, options):
-    # `map_members` hands a member the model with the generic terms (`for_batch`)
+    # `map_members` hands a member the model as it maps the members (`loops_members`)
     return scene.run(model, eqx.combine(robot_dyn, robot_static), options)
 
 

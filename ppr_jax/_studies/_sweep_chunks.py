@@ -1,7 +1,7 @@
-"""A sweep's chunks: the compiled program over a chunk's members (a vmap, split over devices by
-`shard_map` where there are several), each member's row from its metrics, and the chunks run in
-turn, a chunk that raises retried member by member, the first chunk of each program timed apart
-(it compiles)."""
+"""A sweep's chunks: the compiled program over a chunk's members (`map_members`, split over
+devices by `shard_map` where there are several), each member's row from its metrics, and the
+chunks run in turn, a chunk that raises retried member by member, the first chunk of each
+program timed apart (it compiles)."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def _member(robot_dyn, robot_static, ev: Evaluation, rtol, atol):
     options = ev.ctx.options
     opts = eqx.tree_at(lambda o: o.controller, options,
                        default_controller(options.solver, rtol, atol))
-    # `map_members` hands the member its models with the generic terms (`for_batch`)
+    # `map_members` hands the member its models as it maps them (`loops_members`)
     return ev.run(eqx.combine(robot_dyn, robot_static), opts)
 
 
@@ -42,10 +42,10 @@ def _chunk_program(robot, ev, rtol, atol, devices):
 
     `ev`: the sweep's `Evaluation` (its context's prepared `SceneOptions`, their tolerances
     replaced by the program's inputs `rtol`, `atol`). Members are mapped as the scenes' batches
-    are (`map_members`: vmapped chunks, split over `devices` by `shard_map` when there are
-    several): adaptive steps never synchronise across devices. Every array of the arguments is
-    an input, so one program serves any values of the same shapes; the command line keeps it in
-    its program store."""
+    are (`map_members`: one after another or in vmapped chunks, split over `devices` by
+    `shard_map` when there are several): adaptive steps never synchronise across devices. Every
+    array of the arguments is an input, so one program serves any values of the same shapes; the
+    command line keeps it in its program store."""
     dyn, static = eqx.partition(robot, eqx.is_array)
     return map_members(_member, devices)(dyn, static, ev, rtol, atol)
 
