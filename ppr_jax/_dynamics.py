@@ -81,12 +81,12 @@ def _eom_terms_jit(model, robot, z, zdot) -> EOM:
     # Jitted although mostly called inside other traces: a scene traces the equations of motion
     # several times (the quasi-static solve's shape probe and loop, the right-hand side), and a
     # cached jaxpr is traced once (tracing is a third of a scene's compilation).
-    if _has_fused_terms(model):
+    if has_fused_terms(model):
         return _fused_terms(robot, z, zdot, model=model)
     return _eom_terms(model, robot, z, zdot, implicit=True)
 
 
-def _has_fused_terms(model: AbstractModel) -> bool:
+def has_fused_terms(model: AbstractModel) -> bool:
     """Whether `model.fused_eom` gives terms (L0-L2), decided from its class before tracing."""
     kind = type(model)
     if not model.fused or kind.fused_eom is AbstractModel.fused_eom:
@@ -101,7 +101,7 @@ def for_batch(model: AbstractModel) -> AbstractModel:
     (`AbstractModel.fused`), which `vmap` runs faster on a CPU than the fused arithmetic, and
     marked as a batch member (`AbstractModel.batch_member`: diffrax's loop, not the lean one).
     A structural choice, made in Python before tracing."""
-    if _has_fused_terms(model):
+    if has_fused_terms(model):
         model = dataclasses.replace(model, fused=False)
     return dataclasses.replace(model, batch_member=True)
 
@@ -144,7 +144,7 @@ def _fused_terms_jvp(primals, tangents, *, model):
 def _has_fused_balance(model: AbstractModel) -> bool:
     """Whether the model's fused terms come from a `chain_spec` (L0-L2), which also gives the
     balance (`AbstractClosedLoop.fused_balance`); decided before tracing."""
-    return (_has_fused_terms(model) and isinstance(model, AbstractClosedLoop)
+    return (has_fused_terms(model) and isinstance(model, AbstractClosedLoop)
             and type(model).chain_spec is not AbstractClosedLoop.chain_spec)
 
 

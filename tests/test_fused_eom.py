@@ -18,10 +18,10 @@ import ppr_jax._scenes._batch as scenes_batch
 from ppr_jax._dynamics import (
     EOM,
     _eom_terms,
-    _has_fused_terms,
     accelerations,
     eom_terms,
     for_batch,
+    has_fused_terms,
 )
 from ppr_jax._geometry import home_pose
 from ppr_jax._scenes import map_members
@@ -123,7 +123,7 @@ def test_the_simulator_uses_the_fused_terms():
     # compares its members with single runs, which take the fused ones), decided before tracing
     for name in MODELS:
         model = pj.get_model(name)
-        assert _has_fused_terms(model) and not _has_fused_terms(for_batch(model))
+        assert has_fused_terms(model) and not has_fused_terms(for_batch(model))
         assert for_batch(model) != model and type(for_batch(model)) is type(model)
     beam = pj.get_model("beam")
     # a model without fused terms keeps its terms; every batch member integrates with diffrax
@@ -149,11 +149,11 @@ def test_the_simulator_uses_the_fused_terms():
 
     fused = [pj.get_model("double1r"), {"m": pj.get_model("rigid")}]
     assert jax.default_backend() == "cpu"
-    assert [_has_fused_terms(m) for m in seen_by(fused)] == [True, True]
+    assert [has_fused_terms(m) for m in seen_by(fused)] == [True, True]
     assert [m.batch_member for m in seen_by(fused)] == [False, False]
-    assert [_has_fused_terms(m) for m in seen_by(fused, ())] == [False, False]
+    assert [has_fused_terms(m) for m in seen_by(fused, ())] == [False, False]
     with_l3 = seen_by([pj.get_model("double1r"), {"m": beam}])
-    assert not _has_fused_terms(with_l3[0]) and all(m.batch_member for m in with_l3)
+    assert not has_fused_terms(with_l3[0]) and all(m.batch_member for m in with_l3)
 
 
 #: what a batch's members differ in: their state, or one parameter

@@ -414,7 +414,7 @@ def test_a_members_run_takes_the_batch_mappers_terms(monkeypatch, loop):
     run itself is replaced here: only the model it is handed is checked."""
     import ppr_jax._programs as programs
     import ppr_jax._scenes._batch as scenes_batch
-    from ppr_jax._dynamics import _has_fused_terms
+    from ppr_jax._dynamics import has_fused_terms
     from ppr_jax._studies._evaluation import Evaluation
 
     seen = []
@@ -430,5 +430,5 @@ def test_a_members_run_takes_the_batch_mappers_terms(monkeypatch, loop):
     ts = [0.3e-3] if loop else [0.3e-3, 0.31e-3]
     res = pj.sweep("paper-circle", vary={"t": ts}, chunk_size=len(ts), **KW)
     assert [r["status"] for r in res.rows] == ["ok"] * len(ts)
-    assert seen and all(m.name == "reduced" and _has_fused_terms(m) == loop for m in seen)
-    assert _has_fused_terms(pj.get_model("reduced"))
+    assert seen and all(m.name == "reduced" and has_fused_terms(m) == loop for m in seen)
+    assert has_fused_terms(pj.get_model("reduced"))

@@ -37,7 +37,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._dynamics import _has_fused_terms, for_batch
+from .._dynamics import for_batch, has_fused_terms
 from .._models import AbstractModel
 
 #: members vectorised together on one device at most: a larger local batch runs as a loop over
@@ -119,7 +119,7 @@ def loops_members(shared, devices: Sequence = ()) -> bool:
     platform = devices[0].platform if devices else jax.default_backend()
     models = _models_in(shared)
     return (platform in LOOP_PLATFORMS and bool(models)
-            and all(_has_fused_terms(m) for m in models))
+            and all(has_fused_terms(m) for m in models))
 
 
 def map_members(member: Callable, devices: Sequence = ()) -> Callable:
