@@ -233,11 +233,10 @@ def start_stencil(trajectory: Callable, t, actuation: Optional[AbstractActuation
     if kinks is None:
         return (jnp.asarray(STENCIL), jnp.asarray(D1), jnp.asarray(D2), STENCIL.shape[0] // 2,
                 QS_DT, t)
-    reach = STENCIL_REACH
     roundings = 8.0 * jnp.spacing(jnp.abs(t))
     at = jnp.any(jnp.abs(kinks - t) <= roundings)
-    before = jnp.any((kinks < t - roundings) & (kinks > t - reach))
-    after = jnp.any((kinks > t + roundings) & (kinks < t + reach))
+    before = jnp.any((kinks < t - roundings) & (kinks > t - STENCIL_REACH))
+    after = jnp.any((kinks > t + roundings) & (kinks < t + STENCIL_REACH))
     k = jnp.where(at, 2, jnp.where(before, 1, jnp.where(after, 2, 0)))
     centre = jnp.asarray([STENCIL.shape[0] // 2, 0, STENCIL.shape[0] - 1])[k]
     dt = jnp.asarray([QS_DT, QS_DT_ONE_SIDED, QS_DT_ONE_SIDED])[k]

@@ -104,10 +104,13 @@ def _split_shared(batched):
     return varying, jax.tree_util.tree_map(lambda x: x[0], shared)
 
 
+def _is_model(x) -> bool:
+    return isinstance(x, AbstractModel)
+
+
 def _models_in(tree) -> list:
     """Every `AbstractModel` anywhere in the pytree `tree`."""
-    is_model = lambda x: isinstance(x, AbstractModel)  # noqa: E731
-    return [x for x in jax.tree_util.tree_leaves(tree, is_leaf=is_model) if is_model(x)]
+    return [x for x in jax.tree_util.tree_leaves(tree, is_leaf=_is_model) if _is_model(x)]
 
 
 def loops_members(shared, devices: Sequence = ()) -> bool:
@@ -138,9 +141,8 @@ def map_members(member: Callable, devices: Sequence = ()) -> Callable:
     def local(varying, common, *shared):
         if loops_members(shared, devices):
             return jax.lax.map(lambda one: one_member(one, common, *shared), varying)
-        shared = jax.tree_util.tree_map(
-            lambda x: for_batch(x) if isinstance(x, AbstractModel) else x, shared,
-            is_leaf=lambda x: isinstance(x, AbstractModel))
+        shared = jax.tree_util.tree_map(lambda x: for_batch(x) if _is_model(x) else x, shared,
+                                        is_leaf=_is_model)
         return chunked_vmap(lambda one: one_member(one, common, *shared), varying)
 
     if len(devices) <= 1:
