@@ -83,7 +83,8 @@ def test_raise_if_traced_uses_equinox_runtime_error():
         jax.block_until_ready(f(-1.0))
 
 
-@pytest.mark.parametrize("loop", [False, True], ids=["vmapped-chunks", "one-after-another"])
+@pytest.mark.parametrize("loop", [pytest.param(False, marks=pytest.mark.slow), True],
+                         ids=["vmapped-chunks", "one-after-another"])
 def test_chunked_batch_equals_single_runs(params, monkeypatch, loop):
     """Vmapped (forced here by leaving no loop platform), a batch larger than `MEMBER_CHUNK`
     runs as a loop over chunks of vmapped members (here chunks of 2, 2 and a remainder of 1);

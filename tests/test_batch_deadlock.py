@@ -57,6 +57,7 @@ def _run(cases):
     assert r.stdout.strip().endswith("ok"), r.stdout
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 @pytest.mark.timeout(DEADLINE_S + 60)
 def test_batched_scenes_finish_unpinned():
     # Before the fix a batch of 64 hung every time, in the post-processing of its 755 outputs

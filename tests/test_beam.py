@@ -224,6 +224,7 @@ def test_strip_geometry_prb_matches_l3_compliance(params, equilibria):
     assert np.all((0.88 < ratio_s) & (ratio_s < 1.0)), ratio_s
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_gradient_of_static_pose_vs_finite_differences(params, static_locked):
     """d X_eq / d (log t, log E) under a platform wrench, N = 4, locked actuators: implicit
     differentiation through the Newton solve against central differences."""
@@ -256,6 +257,7 @@ def beam_modes(params):
     return {N: pj.modes(Beam(N), params, actuators="locked") for N in (4, 8)}
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_modes_locked_converge(params, beam_modes):
     f2 = np.asarray(pj.modes(pj.Double1R(), params, actuators="locked").freq_hz)
     f4, f8 = (np.asarray(beam_modes[N].freq_hz) for N in (4, 8))

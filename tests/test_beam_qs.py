@@ -33,7 +33,8 @@ def test_registry_and_layout():
         pj.get_model("beam", 6, strip_dynamics="implicit")
 
 
-@pytest.mark.parametrize("sigma", [pytest.param(-1, marks=pytest.mark.slow), 1])
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
+@pytest.mark.parametrize("sigma", [-1, 1])
 def test_statics_equal_full_l3(static_locked, sigma):
     """Locked equilibrium under a platform wrench away from home: the quasi-static strips and the
     full L3 find the same pose and the same strip shapes (one potential, two formulations)."""
@@ -133,6 +134,7 @@ def _strip_derivatives(q, v, w):
             jax.jvp(jax.grad(f), (q,), (v,))[1], fd_jvp(jax.grad(f), q, v, h=1e-5))
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_envelope_forces_match_the_deflection_jacobian(params):
     """`spring_force` (envelope theorem, no Jacobian of the shape) against -J_d^T (k d) - c J_d^T
     J_d z' from the Jacobian of the deflections through the implicit solve; its derivatives in z

@@ -156,6 +156,7 @@ def test_modes_json_equals_a_finite_difference_linearization_of_the_paper_equati
     np.testing.assert_allclose(lam[1], lam[2], rtol=1e-9)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_simulate_runs_the_full_l3_on_its_own_defaults(tmp_path, capsys):
     """`simulate --model beam --strip-dynamics full` with no solver options runs the full L3 on
     its defaults (KeptKvaerno5 at rtol 1e-4, atol 1e-6: the scenes' rtol 1e-8 would resolve
@@ -311,6 +312,7 @@ def test_prb_derived_quantities_do_not_print_the_deprecation_notice(capsys):
     assert "derived" in json.loads(cap.out) and "deprecated" not in cap.err
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_modes_of_the_beam_model_from_the_cli(capsys):
     """Quasi-static strips by default (9 coordinates, 6 free when locked, for every N); the full
     strip dynamics on request (3 + 3N coordinates); the robot's modes agree."""

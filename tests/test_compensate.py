@@ -50,7 +50,7 @@ def _miss(X, Xs):
     return np.linalg.norm(Xs[:, :2] - X[:, :2], axis=1).max(), np.abs(Xs[:, 2] - X[:, 2]).max()
 
 
-@pytest.mark.parametrize("drive", ["motion", "torque"])
+@pytest.mark.parametrize("drive", ["motion", pytest.param("torque", marks=pytest.mark.slow)])
 def test_scipy_l2_follows_the_compensated_commands(setting, drive):
     params, X = setting
     comp = pj.compensate(EIGHT, "double1r", params, drive=drive,
@@ -81,6 +81,7 @@ def test_scipy_l2_follows_the_compensated_commands(setting, drive):
     assert phi_after * 100 < phi_before, (phi_after, phi_before)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_the_inverse_of_a_clamped_move_holds_from_its_start(setting):
     """A rest-to-rest move (a cosine time law: its acceleration jumps at both ends) sampled at
     100 Hz and splined clamped, as `load_path` splines a file at rest at both ends: its
@@ -164,6 +165,7 @@ def eight_csv(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_command_line_round_trip(eight_csv, tmp_path):
     """`compensate --path F` writes torques.csv; `simulate --path F --torques` replays it and
     reports the compensated error (L0: cheap to compile; its nominal torques, L1's, take it
@@ -213,6 +215,7 @@ def test_band_holds_sampled_robots():
     assert np.abs(e - band["error"]).max() > 0.3 * band["half_width"].max()
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_optimisation_refines_the_inversion(eight_csv):
     """On a path of cubic samples the inverse's torques, splined again, leave L0 3e-5 m off;
     Levenberg-Marquardt on a smooth correction through the simulation takes that at least 3

@@ -147,7 +147,10 @@ def test_modes_table_is_complete():
     assert pj.modes(pj.Reduced(), pj.RobotParams(), actuators="locked").freq_hz.size == 0
 
 
-@pytest.mark.parametrize("row", MODE_ROWS, ids=[f"{r[0]}-{r[1]}" for r in MODE_ROWS])
+@pytest.mark.parametrize("row", [
+    # the L3 rows at N = 32 (about 25 s each) in the second tier
+    pytest.param(r, id=f"{r[0]}-{r[1]}", marks=[pytest.mark.slow] if "N = 32" in r[0] else [])
+    for r in MODE_ROWS])
 def test_modes_table_row(row):
     """Each row with frequencies, L3 at N = 32 included (about 15 s each on 2 cores)."""
     cell, actuators, tokens = row

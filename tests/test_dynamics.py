@@ -126,6 +126,7 @@ def test_max_steps_is_a_clear_error(params):
                     jnp.array([0.1, 0.0, 0.3]), TS, max_steps=3)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_implicit_solver_agrees_with_explicit_on_l0(params):
     """The default suite's implicit run: Kvaerno5 (diffrax's Newton on the Jacobian of the L0
     right-hand side) against Tsit5 on a free vibration, 0.3 s."""

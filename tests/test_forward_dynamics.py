@@ -130,7 +130,9 @@ def test_central_differences():
     assert err < 1e-6, err
 
 
-@pytest.mark.parametrize("batched", ["state", "t", "drive"])
+@pytest.mark.parametrize("batched", [  # one in the default tier: the others share its code
+    "state", pytest.param("t", marks=pytest.mark.slow),
+    pytest.param("drive", marks=pytest.mark.slow)])
 def test_batched_inside_a_derivative(batched):
     """vmap inside a derivative (a sweep's sensitivities, identification's experiments): the
     rule's tangents are batched as its primal (JAX requires it). Traced in forward and reverse

@@ -74,6 +74,7 @@ def test_gradient_reverse_and_forward_vs_finite_differences(pexp, fns, name):
     np.testing.assert_allclose(g_fwd, g_rev, rtol=1e-8)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_reverse_mode_does_not_depend_on_the_checkpoint_schedule(pexp, fns):
     """diffrax's backward pass recomputes steps from its checkpoints; where it decided them
     again, a recomputed error estimate rounding differently from the forward pass's could

@@ -300,6 +300,7 @@ def lagging(truth):
     return pj.experiment(ts, Xn, th=th, name="lagging servo"), X[0]
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_measured_angles_and_initial_state(truth, lagging, fits):
     """With the measured angles as actuation and the initial pose and velocity estimated, the
     fit explains the data to the noise, recovers t^3 K_theta and the release offsets within
@@ -350,6 +351,7 @@ def test_measured_angles_and_initial_state(truth, lagging, fits):
     assert at_start.sigma2 > fit.sigma2
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_profile_likelihood(truth, clean, fits):
     """One determined unknown (K_theta, t fixed at the truth): the profile-likelihood interval
     has the linearised one's width to 3 % (a wrong Jacobian changes the linearised width), its
@@ -460,6 +462,7 @@ def test_solver_arguments_checked_before_compiling(kw, match, monkeypatch):
                     fit_options=pj.FitOptions(**kw))
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_cli_synth_then_identify(tmp_path, truth, capsys):
     """`ppr-jax synth` writes a tracker file that `ppr-jax identify` reads back and fits; the
     outputs exist and the JSON holds the estimates with intervals. Same shapes and options as
@@ -698,6 +701,7 @@ def test_recovers_truth_from_data_of_an_independent_formulation(truth):
     assert wrong.history["stop"] == "poor fit" and not wrong.quality["ok"]
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_tracker_bias_and_delay_estimated_as_nuisance(truth):
     """A tracker whose frame is offset by (0.3 mm, -0.2 mm, 2 mrad) and whose samples lag the
     actuation by 4 ms: samples of the independent scipy L2 (benchmarks/contenders) at t - 4 ms,

@@ -58,13 +58,19 @@ def no_compile(monkeypatch):
     monkeypatch.setattr(_run, "_residual_and_jacobian", guard)
 
 
-def test_identifies_gamma_of_independent_data_on_own_path(data_file):
+@pytest.fixture(scope="module")
+def own_fit(data_file):
+    """The L2 fit of gamma to the file, with no scene."""
+    _, exp = data_file
+    return pj.identify(exp, ("gamma",), model="double1r", params=pj.RobotParams(**BASE),
+                       noise=NOISE)
+
+
+def test_identifies_gamma_of_independent_data_on_own_path(own_fit):
     """No scene: the file's angles drive L2 along the file's poses; gamma is recovered within
     two standard deviations, the residuals are the noise, and the report says what drove the
     fit. The start is the file's: the paper's circle starts 27 mm away."""
-    _, exp = data_file
-    fit = pj.identify(exp, ("gamma",), model="double1r", params=pj.RobotParams(**BASE),
-                      noise=NOISE)
+    fit = own_fit
     assert fit.history["stop"] == "converged", fit.table()
     est, std = fit.estimate[0], fit.std[0]
     assert std > 0 and abs(est - GAMMA) < 2 * std, fit.table()
@@ -72,8 +78,13 @@ def test_identifies_gamma_of_independent_data_on_own_path(data_file):
     assert 0.8 < math.sqrt(fit.sigma2) < 1.25, fit.table()
     assert "own measured actuated angles" in fit.actuation and "own path" in fit.actuation
     assert fit.scene == "experiment's own"
-    # the identification compensates a path: its robot, and the band over its covariance
-    # (L1 motion: the kinematics move with gamma; the band's coverage: test_compensate.py)
+
+
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
+def test_the_fit_compensates_its_path(own_fit):
+    """The identification compensates a path: its robot, and the band over its covariance
+    (L1 motion: the kinematics move with gamma; the band's coverage: test_compensate.py)."""
+    fit = own_fit
     comp = pj.compensate(fourier_path(), "reduced", fit, drive="motion",
                          options=pj.SceneOptions(t_end=0.5))
     assert float(comp.before.params.gamma) == float(fit.params.gamma)

@@ -16,6 +16,7 @@ T_END = 0.6
 NOISE = (5e-6, 5e-5)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_cli_validation_by_experiment_runs_to_the_end(tmp_path, capsys):
     """`identify --validation NAME` holds one file out of the fit and predicts it. It crashed
     after the fit before (the held-out experiment had no fitted sample: "zero-size array ...
@@ -119,6 +120,7 @@ def test_multi_start_escapes_the_minimum_of_a_far_start():
             pj.identify(exp, ("t",), fit_options=pj.FitOptions(starts=bad), **kw)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_auto_starts_escape_the_far_start_and_leave_a_good_fit_alone():
     """The default `starts="auto"`: the same trap (t from 30 times the truth, torque-driven L1)
     ends in the distant minimum from the given start, which does not explain the data
@@ -160,6 +162,7 @@ def test_auto_starts_escape_the_far_start_and_leave_a_good_fit_alone():
     assert lo <= float(truth.t) <= hi, good.table()
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_channel_of_infinite_noise_is_not_counted_as_residuals():
     """noise = (inf, phi): x and y are not fitted (weight 0) and are no degrees of freedom. The
     reported s and std are the closed form of one unknown over the phi residuals alone,

@@ -134,6 +134,7 @@ def test_a_failed_implicit_step_is_rejected_never_accepted(make):
     np.testing.assert_allclose(sol.ys[0][-1], ref.ys[0][-1], atol=1e-4)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_kvaerno5_rejects_few_steps_on_l2_servo_circle():
     """L2 `double1r` on `servo-circle`, t = 4 mm (modes up to 355 Hz) over 0.2 s, rtol 1e-6:
     with diffrax's own root finder and I controller half of Kvaerno5's steps were rejected
@@ -289,9 +290,10 @@ def quasi_static_l3_start():
 
 
 @pytest.mark.parametrize("name, max_steps", [
-    # the plain Kvaerno5 (75-170 s on the 2-core machine) with -m slow: the kept one is the
-    # full L3's default and shares the plain one's stages (test_kept_kvaerno5_*)
-    pytest.param("kvaerno5", 200, marks=pytest.mark.slow), ("kvaerno5-kept", 200),
+    # all in the second tier (75-170 s each on the 2-core machine); the default tier keeps the
+    # kept Kvaerno5's order (test_kept_kvaerno5_*) and the full L3 on its defaults (test_cli)
+    pytest.param("kvaerno5", 200, marks=pytest.mark.slow),
+    pytest.param("kvaerno5-kept", 200, marks=pytest.mark.slow),
     pytest.param("ros34pw2", 300, marks=pytest.mark.slow)])
 def test_full_l3_on_the_stiff_path_matches_the_quasi_static_l3(quasi_static_l3_start, name,
                                                                max_steps):

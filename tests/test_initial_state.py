@@ -234,6 +234,7 @@ class _Delayed(eqx.Module):
         return self.path(t - self.delay)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_move_from_rest_starts_as_the_robot_held_before_it():
     """A scene on `Line` (a path nobody here chose: 0.5 s, motion-driven L2) starts at the end
     of the hold before the move. Its reference is the same move delayed by 0.1 s, started

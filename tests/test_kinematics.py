@@ -307,6 +307,7 @@ def test_paper_circle_through_a_type2_singularity_names_the_singular_path():
     np.testing.assert_allclose(ok.X, ok.X_nominal, atol=1e-8)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_servo_circle_L0_near_the_singularity_is_its_own_regular_motion():
     """The issue also saw L0 on the circle through L1's singularity end "ok with phi 0.13 rad
     off". That is L0's motion, not a fold: L0's pins sit elsewhere, so L1's angles there are a
@@ -354,6 +355,7 @@ def test_the_input_tables_determinant_is_the_path_checks(name):
     assert bool(singular_at_nodes(det, t)) == crossed
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_spline_path_through_the_singularity_is_refused_at_the_table_nodes():
     """A torque-driven `PathScene` on a spline through 21 waypoints (its knots are panel
     boundaries of the input table), once through L1's type-II singularity and once short of

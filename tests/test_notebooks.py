@@ -24,7 +24,9 @@ NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 #: notebooks run by `test_notebooks_more.py`; every other one runs here
 MORE = ("identification", "which_model")
 #: notebooks of the long studies, run with `-m slow`
-SLOW = ("compensation", "design", "identification", "sensitivity")
+#: (second tier: docs/getting_started.md, "The two tiers"), each notebook a fresh process that
+#: compiles its own programs
+SLOW = ("compensation", "design", "identification", "quickstart", "sensitivity", "which_model")
 
 
 def _params(paths):

@@ -391,6 +391,7 @@ def test_an_executable_with_lapack_calls_loads_in_a_fresh_process(tmp_path):
     np.testing.assert_allclose(second["x"], np.linalg.solve(a, [1.0, 2.0, 3.0]), rtol=1e-14)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_identification_program_is_stored_and_loaded(tmp_path, monkeypatch):
     """`identify(program_dir=...)` (the command line passes its store): the fit's
     residual-and-Jacobian program is exported once; a later fit of the same structure and
@@ -426,6 +427,7 @@ def test_identification_program_is_stored_and_loaded(tmp_path, monkeypatch):
     assert abs(usual[1].estimate[0] - usual[0].estimate[0]) > 1e-3 * usual[0].std[0]
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_sensitivity_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     """`sensitivity(program_dir=...)` (the command line passes its store): the Jacobian's
     program (which gives the metrics' values too) is exported once, and the metrics' own
@@ -522,6 +524,7 @@ def _path_scene(d, amp):
     return pj.PathScene(pj.load_path(path, bc="natural"), drive="torque", name="file")
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_design_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     """`design(program_dir=...)` (the command line passes its store): the metrics with their
     Jacobian, the batch and the metrics' sizes are stored once; a design on another path of
@@ -569,6 +572,7 @@ def test_design_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     assert abs(loaded[1].x["l1"] / loaded[0].x["l1"] - 1) > 0.1
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_modes_torques_and_synth_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     """`ppr-jax modes`, `torques` and `synth` store their programs too (`program_dir`): a
     second call at other parameter values loads them without tracing (export made to fail),

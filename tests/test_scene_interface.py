@@ -227,6 +227,7 @@ def test_register_scene_runs_by_name(path_report):
         SCENES.pop("my-line")
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_sweep_of_a_path_scene_matches_single_runs(path_report):
     """A sweep of the line over t: the member at the scene's thickness reproduces the single
     run's metrics (batched program against one robot's), a thinner strip leaves the line
@@ -245,6 +246,7 @@ def test_sweep_of_a_path_scene_matches_single_runs(path_report):
     assert far.rows[0]["status"] == "failed" and "nominal path" in far.rows[0]["reason"]
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_sensitivity_of_a_path_scene_against_finite_differences():
     """d(position_error_rms)/dt and d(phi_error_rms)/dt by forward mode through the path scene
     equal central differences of single runs (RMS: smooth in t, no arg-max switching). The
@@ -305,6 +307,7 @@ def _write_experiment_file(path, scene, rate=1000.0):
     return path
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_cli_simulate_your_own_experiment(tmp_path):
     """`ppr-jax simulate --path F --angles F`: the commanded poses and the commanded angles of
     a file drive L2 (no scene of the paper's); the result agrees with the same experiment as
@@ -347,6 +350,7 @@ def test_cli_simulate_your_own_experiment(tmp_path):
     assert (out / "trajectory.csv").read_text().splitlines()[0].split(",")[5] == "e_pos"
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_cli_simulate_a_file_cut_out_of_a_motion(tmp_path):
     """`ppr-jax simulate --path F` on a figure eight sampled at 100 Hz that starts and ends
     mid-motion (nobody here chose it: not a circle, not at rest). With the loaders' default

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import textwrap
 
+import jax
 import numpy as np
 import pytest
 
@@ -54,6 +55,7 @@ def _same_rows(rows, ref_rows):
             assert r[k] == v or (isinstance(v, float) and np.isnan(v) and np.isnan(r[k])), k
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_stored_sweep_program_is_loaded_not_traced(swept, program_dir, monkeypatch):
     """The fixture stored one program per group (equal links or not). A later sweep of the
     same setting loads them without tracing (export made to fail): the same rows, bit for bit
@@ -144,6 +146,7 @@ def test_latin_hypercube_design():
         design_members({"sigma": [1, -1]})
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_cli_sweep_writes_files_and_resumes(tmp_path, swept, capsys):
     out = tmp_path / "sw"
     argv = ["sweep", "--scene", "paper-circle", "--model", "reduced", "--torque-model", "rigid",
@@ -229,6 +232,7 @@ SHARDED = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_sharded_sweep_equals_unsharded(swept, tmp_path):
     """The same sweep split over two host devices (shard_map, a local vmap on each) in a fresh
     process, through a program store as the command line runs it (its two-device programs
@@ -265,10 +269,22 @@ def test_chunked_members_equal_the_plain_vmap(swept, monkeypatch):
     import ppr_jax._programs as programs
     import ppr_jax._scenes._batch as scenes
 
+    vmapped = []
+
+    def for_batch(model):
+        vmapped.append(model)
+        return scenes_for_batch(model)
+
+    scenes_for_batch = scenes.for_batch
+    monkeypatch.setattr(scenes, "for_batch", for_batch)  # called on the vmapped path alone
     monkeypatch.setattr(scenes, "MEMBER_CHUNK", 3)
     monkeypatch.setattr(scenes, "LOOP_PLATFORMS", ())  # vmapped, though L1 on a CPU loops
-    monkeypatch.setattr(programs, "_CACHED", {})  # trace again with the patched chunk
+    # trace again with the patched mapper: the stored programs and JAX's traces of the
+    # fixture's sweep (same shapes) would hand back the fixture's own program
+    monkeypatch.setattr(programs, "_CACHED", {})
+    jax.clear_caches()
     again = pj.sweep("paper-circle", vary=VARY, chunk_size=CHUNK, max_steps=MAX_STEPS, **KW)
+    assert vmapped, "the sweep did not trace the vmapped path: it compared a program with itself"
     assert len(again.rows) == len(swept.rows)
     for r, ref in zip(again.rows, swept.rows):
         assert (r["status"], r["reason"], r["num_steps"]) == (

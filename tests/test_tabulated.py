@@ -243,7 +243,7 @@ def _lissajous_waypoints(hz, T=2.0):
     return pj.Waypoints(ts, X)
 
 
-@pytest.mark.parametrize("hz", [20, 100])
+@pytest.mark.parametrize("hz", [20, pytest.param(100, marks=pytest.mark.slow)])
 def test_spline_path_torques_with_panels_at_the_knots(hz):
     """L1 inverse-dynamics torques along a C2 spline path (its third derivative jumps at every
     knot, so the torques have a kink there): with the knots among the panel boundaries the

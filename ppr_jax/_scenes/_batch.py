@@ -1,7 +1,8 @@
 """The one batch mapper: members one after another or in vmapped chunks on a device, split over
 devices by shard_map.
 
-Scenes, sweeps, sensitivities and identification map their members through `map_members`.
+A scene's batch (`solve_scene` on stacked parameters) and a sweep's chunks map their members
+through `map_members`; sensitivities and identification differentiate single runs.
 Adaptive steps never synchronise across devices (`_devices.py`). On a device, how the members
 run is a structural choice made in Python before tracing (`loops_members`):
 
