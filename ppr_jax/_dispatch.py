@@ -80,6 +80,11 @@ class _Lowered:
     def __init__(self, entry: _Entry, lowered):
         self._entry, self._lowered = entry, lowered
 
+    @property
+    def lowered(self):
+        """JAX's lowered program (as equinox's `Lowered.lowered`)."""
+        return self._lowered
+
     def as_text(self, *a, **kw):
         return self._lowered.as_text(*a, **kw)
 
@@ -92,6 +97,11 @@ class _Compiled:
 
     def __init__(self, entry: _Entry, compiled):
         self._entry, self._compiled = entry, compiled
+
+    @property
+    def compiled(self):
+        """JAX's compiled program (as equinox's `Compiled.compiled`)."""
+        return self._compiled
 
     def as_text(self, *a, **kw):
         return self._compiled.as_text(*a, **kw)
