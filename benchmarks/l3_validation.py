@@ -54,8 +54,7 @@ def run(scene, params, model, t_end, n_out, repeats=1, **solve):
         params,
         model=model,
         repeats=repeats,
-        **solve,
-        options=pj.SceneOptions(t_end=t_end, n_out=n_out, max_steps=400_000),
+        options=pj.SceneOptions(t_end=t_end, n_out=n_out, max_steps=400_000, **solve),
     )
     m = {k: float(r.metrics[k]) for k in METRICS + ("num_steps",)}
     return r, m, r.timing
