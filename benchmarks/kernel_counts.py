@@ -888,8 +888,8 @@ def reverse_mode(args) -> None:
     robot = Robot(explicit_params(scene_params("paper-circle")))
     traj, t_end = Circle(), 7.54
     ts = jnp.linspace(0.0, t_end, 755)
-    torque, _, _ = _tabulated_input(InverseDynamicsTorque(torque_model, robot, traj), ts,
-                                    input_panels(traj, t_end, 755))
+    torque, *_ = _tabulated_input(InverseDynamicsTorque(torque_model, robot, traj), ts,
+                                  input_panels(traj, t_end, 755))
     act = TorqueDriven(torque)
     z0, zd0, _ = quasi_static_core(model, robot, traj, ts[0], act)
     y0, w = (z0, zd0), jnp.zeros(3)
