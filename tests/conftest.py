@@ -64,8 +64,8 @@ if _CACHE != "0":
 # Tracing a program makes millions of short-lived Python objects, and each of the collector's
 # full passes walks every object the worker holds (the libraries' modules, JAX's caches, the
 # fixtures' results). Freezing what is imported and collecting less often: one process, no
-# compilation cache, test_dynamics 105 -> 93 s, identification's fits 76 -> 66 s, test_fused_eom
-# 130 -> 127 s. `PPR_TEST_GC=0` keeps Python's defaults.
+# compilation cache, one run a side, test_dynamics 105 -> 93 s, identification's fits 76 -> 66 s,
+# test_fused_eom 130 -> 127 s. `PPR_TEST_GC=0` keeps Python's defaults.
 if os.environ.get("PPR_TEST_GC", "1") != "0":
     import gc  # noqa: E402
 
@@ -82,8 +82,8 @@ def _release_compiled_code():
     (vm.max_map_count), and LLVM then segfaults while compiling. Session fixtures hold results,
     not executables, so nothing shared is lost. Keeping them for a worker's next files until it
     held 20,000 mappings (the scenes at their defaults, which many files run, traced and
-    compiled once a worker) made the default tier slower, not faster: 898 -> 972 s, nearly
-    every file slower by 5-30 %."""
+    compiled once a worker) did not show a gain: one run a side, 898 against 972 s for the
+    default tier, on a 2-core machine whose speed moved by as much between runs of one tree."""
     yield
     jax.clear_caches()
     from ppr_jax._programs import clear_cached_programs
