@@ -10,6 +10,7 @@ from ppr_jax._errors import raise_if
 from tests.helpers import raises_in_compiled_code
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_vmapped_scene_equals_python_loop(params, paper_circle_L1):
     ts = [0.3e-3, 0.35e-3, 0.4e-3]
     batch = pj.stack_params([params.replace(t=t) for t in ts])
@@ -27,6 +28,7 @@ def test_vmapped_scene_equals_python_loop(params, paper_circle_L1):
     assert float(jnp.abs(res.tau[0] - res.tau[2]).max()) > 1e-3
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_scene_under_user_vmap_equals_batched_call(params):
     """The public scene entry is traceable: jax.vmap over it gives the batched call's result."""
     ts = jnp.array([0.3e-3, 0.4e-3])

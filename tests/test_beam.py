@@ -182,6 +182,7 @@ def equilibria(params, static_locked):
     return res
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_statics_converge_in_N_and_compare_with_L2(params, equilibria):
     robot = pj.Robot(params)
     Xh = np.asarray(pj.home_pose(params))
@@ -210,6 +211,7 @@ def test_statics_converge_in_N_and_compare_with_L2(params, equilibria):
         assert 0.2 < dX[16][j] / dX["L2"][j] < 1.0, (j, dX[16], dX["L2"])
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_strip_geometry_prb_matches_l3_compliance(params, equilibria):
     """The platform's static compliance at home (locked actuators): the paper's centre-line PRB
     joint (L2) is about 2.3 times softer than the converged beam L3 (Richardson from N = 8, 16);

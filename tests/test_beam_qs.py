@@ -180,6 +180,7 @@ def test_envelope_forces_match_the_deflection_jacobian(params):
     np.testing.assert_allclose(wD @ v, w @ Dv, rtol=1e-10)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_unreachable_strip_is_reported(params):
     """A platform pulled beyond the strips' length: margin <= 0 (the scenes then fail with
     loop_not_closed / kinematics_failed), never a silent shape."""
@@ -218,6 +219,7 @@ def test_modes_match_full_l3(params):
     np.testing.assert_allclose(f_qs, f_full[:6], rtol=2e-3)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_damping_derivative_in_c_spring_at_zero(params):
     """The strips' damping is skipped at c_spring = 0 for speed, but its derivative there is
     still -J_d^T J_d z' (forward and reverse mode), not 0."""

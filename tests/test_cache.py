@@ -8,6 +8,8 @@ import subprocess
 import sys
 import zlib
 
+import pytest
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 SCRIPT = """
@@ -37,6 +39,7 @@ print(float(jax.jit(lambda a: jnp.sum(jnp.sin(a) @ a.T))(x)))
 """
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_damaged_persistent_cache_entry_is_deleted_and_stored_afresh(tmp_path):
     """JAX alone warns about a damaged entry and recompiles on every run, never replacing it:
     the entry is named once, deleted and stored again, and the next run is silent."""

@@ -68,6 +68,7 @@ def test_one_entry_is_allowed_by_every_study(added):
     assert "x_error_max_m" not in design_metrics()  # it needs a scene's run
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_one_entry_is_computed_by_every_study(added):
     rep = pj.run_scene("paper-circle", **KW)
     X, Xn = np.asarray(rep.result.X), np.asarray(rep.result.X_nominal)

@@ -330,6 +330,7 @@ def test_modes_of_the_beam_model_from_the_cli(capsys):
         main(["modes", "--model", "beam", "--strip-dynamics", "implicit"])
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_prb_table_fit(capsys):
     """--fit refits the one curvature from the elastica; it reproduces the shipped table row."""
     assert main(["prb-table", "--kappa0", "0", "--fit", "--json"]) == 0
@@ -432,6 +433,7 @@ def test_ctrl_c_where_it_cannot_propagate_prints_no_traceback(tmp_path, capsys, 
     assert sys.unraisablehook is sys.__unraisablehook__
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_sigint_ends_a_running_command_with_one_line(tmp_path):
     """The real signal: `ppr-jax identify` in a subprocess, sent SIGINT once it says it is
     compiling: exit 130, the one line, no traceback. The data must pass identification's checks
@@ -470,6 +472,7 @@ def test_sigint_ends_a_running_command_with_one_line(tmp_path):
     assert err.strip().splitlines() == ["ppr-jax: interrupted; kept: nothing written"], err
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_sigint_while_compiling_exits_130_with_one_line(tmp_path):
     """The issue's reproducer: `simulate --model double1r` interrupted while its program is
     traced, lowered and compiled, three processes at once, 0.2, 1 and 2 s after each says it

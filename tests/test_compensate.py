@@ -188,6 +188,7 @@ def test_command_line_round_trip(eight_csv, tmp_path):
     np.testing.assert_allclose(replay["position_error_max_m"], after, rtol=0.01)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_band_holds_sampled_robots():
     """The linearised band over a thickness uncertainty (2 %) holds the whole tracking error
     of at least 90 % of robots drawn from it (L1, torque drive: the compensated torques of the
@@ -240,6 +241,7 @@ def test_optimisation_refines_the_inversion(eight_csv):
             pj.compensate(path, "rigid", None, method="optimise", **kw)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_jacobian_by_differences_is_forward_modes(eight_csv):
     """The optimisation's default Jacobian, forward differences of one vmapped batch of replays,
     is forward mode's through the solve (L0, the torque drive, 12 knots: 36 columns) to 1e-5

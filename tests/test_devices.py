@@ -39,6 +39,7 @@ TWO_DEVICES = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_split_batch_equals_one_device():
     """Four robots, one of them out of reach (a = 3 m), on two host devices in a fresh process
     against the same batch here on one device: the same trajectories to rounding, the same step
@@ -94,6 +95,7 @@ def test_loop_emitters_only_on_the_measured_jaxlib(monkeypatch):
         assert cpu_flags(1, small_dots=False)[1:] == want + loops, v
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_the_command_line_sets_the_compile_flag_before_jax_starts():
     """A fresh `ppr-jax` process adds the library's default flags (the loop emitters and the
     small-loop threshold) to the user's XLA_FLAGS (kept) before JAX's backend starts;

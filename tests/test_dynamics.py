@@ -1,3 +1,4 @@
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -85,6 +86,7 @@ def test_double1r_accelerations_rotational_symmetry(robot):
     np.testing.assert_allclose(ar[3:], jnp.roll(a[3:], 1), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_motion_driven_reaction_torques_drive_torque_driven_model(params):
     """L2 motion-driven along L1's angles; its reaction torques, fed back torque-driven
     (interpolated), reproduce the same motion: a consistency check of the partitioned EOM."""
@@ -100,6 +102,7 @@ def test_motion_driven_reaction_torques_drive_torque_driven_model(params):
     np.testing.assert_allclose(s2.z[:, :3], s1.z[:201, :3], atol=2e-7)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_pd_servo_converges_to_motion_driven(params):
     model = pj.Double1R()
     traj = pj.Circle()
@@ -180,7 +183,7 @@ def test_explicit_and_implicit_solvers_agree(params):
     np.testing.assert_allclose(b.z, ref.y[:3].T, rtol=0, atol=2e-9)
 
 
-@pytest.mark.parametrize("motion_driven", [False, True])
+@pytest.mark.parametrize("motion_driven", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_quasi_static_state_balances_and_its_velocity_is_its_time_derivative(params,
                                                                              motion_driven):
     model, traj = pj.Double1R(), pj.Circle()
@@ -213,9 +216,20 @@ def test_quasi_static_state_balances_and_its_velocity_is_its_time_derivative(par
     assert float(jnp.abs(z - ref(1.0)).max()) > 1e-6
 
 
-@pytest.mark.parametrize("geometry", ["centerline", "strip"])
-@pytest.mark.parametrize("unequal", [False, True])
-@pytest.mark.parametrize("model", [pj.Rigid(), pj.Reduced(), pj.Double1R()])
+def _closure_cases():
+    # The default tier covers each model, both joint geometries, and L1's closed form (equal
+    # links) and Newton path (unequal); the other eight combinations run in the second tier.
+    kept = {("rigid", False, "strip"), ("reduced", False, "centerline"),
+            ("reduced", True, "strip"), ("double1r", True, "centerline")}
+    for i, model in enumerate([pj.Rigid(), pj.Reduced(), pj.Double1R()]):
+        for unequal in (False, True):
+            for geometry in ("centerline", "strip"):
+                key = (("rigid", "reduced", "double1r")[i], unequal, geometry)
+                yield pytest.param(model, geometry, unequal, id=f"model{i}-{unequal}-{geometry}",
+                                   marks=[] if key in kept else [pytest.mark.slow])
+
+
+@pytest.mark.parametrize(("model", "geometry", "unequal"), list(_closure_cases()))
 def test_implicit_closure_derivatives_equal_autodiff_of_closed_form(params, model, geometry,
                                                                      unequal):
     """A second formulation: the equations of motion from implicit differentiation of the loop
@@ -232,8 +246,10 @@ def test_implicit_closure_derivatives_equal_autodiff_of_closed_form(params, mode
     z = model.coords_from_pose(robot, X)
     z = z + 1e-2 * rng.standard_normal(z.shape) * (np.arange(z.shape[0]) >= 3)
     zd = jnp.asarray(rng.standard_normal(z.shape))
-    a = _eom_terms(model, robot, z, zd, implicit=True)
-    b = _eom_terms(model, robot, z, zd, implicit=False)
+    # compiled, one program per formulation, not op by op (the default tier's four: 24 -> 17 s)
+    terms = eqx.filter_jit(_eom_terms)
+    a = terms(model, robot, z, zd, implicit=True)
+    b = terms(model, robot, z, zd, implicit=False)
     for name in ("M", "h", "Q_passive", "Jth", "JX"):
         x, y = getattr(a, name), getattr(b, name)
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-13 * float(jnp.max(jnp.abs(y))),

@@ -100,6 +100,7 @@ def test_gradients_match_finite_differences(mode, p0, jac_fd):
     np.testing.assert_allclose(J, jac_fd, rtol=1e-7, atol=1e-8)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_vmap_equals_loop():
     F = jnp.linspace(-3.0, 4.0, 6)
     k0 = jnp.linspace(0.0, 1.5, 6)

@@ -64,12 +64,12 @@ def _program(model):
 
 
 def _cases():
-    # In the default suite: L2 with both robots (its chains' own coordinates, every term of the
-    # balance) and L0 (the platform's coordinates only); L1 shares L0's balance code and L2's
-    # bodies, and runs with the slow tests.
+    # In the default tier: L2 on the all-terms robot (its chains' own coordinates, every term of
+    # the balance); L0 (the platform's coordinates only), L1 (L0's balance code, L2's bodies)
+    # and L2 on the default robot run in the second tier.
     for m in MODELS:
         for r in ROBOTS:
-            fast = m == "double1r" or (m == "rigid" and r == "default")
+            fast = m == "double1r" and r != "default"
             yield pytest.param((m, r), id=f"{m}-{r}",
                                marks=[] if fast else [pytest.mark.slow])
 

@@ -151,6 +151,7 @@ def test_one_right_hand_side_computes_each_sine_once(name):
                                rtol=1e-11, atol=1e-11)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_cos_sin_derivatives_read_the_values_once():
     """`cos_sin`'s values and derivatives (first and second order, both modes) are jnp's, and a
     derivative reads the sines computed once instead of evaluating them again."""

@@ -56,6 +56,7 @@ def test_too_thin_a_strip_names_the_cause():
         pj.paper_circle(p, model="double1r", t_end=0.5, n_out=N_OUT)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_start_whose_stencil_collapses_is_refused_not_run(tmp_path):
     """L2 motion-driven along a figure eight read from a file, strips 0.333 mm x 10 mm: the
     balance holds at t = 0, but the start's neighbours 10 ms either side (its rates are their

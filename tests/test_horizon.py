@@ -41,8 +41,11 @@ def test_the_table_reaches_the_start_stencil():
 
 
 @pytest.fixture(scope="module", params=[
-    ("paper-circle", "double1r"), ("paper-circle", "reduced"),
-    # second tier: the same start code under the other drive and L0
+    # second tier: the start on L2, L1 and L0 and under the other drive (the default tier checks
+    # the start's commands at t0 above, and the start against an independent one in
+    # tests/test_sensitivity_reference.py)
+    pytest.param(("paper-circle", "double1r"), marks=pytest.mark.slow),
+    pytest.param(("paper-circle", "reduced"), marks=pytest.mark.slow),
     pytest.param(("servo-circle", "double1r"), marks=pytest.mark.slow),
     pytest.param(("servo-circle", "rigid"), marks=pytest.mark.slow),
     pytest.param(("paper-circle", "rigid"), marks=pytest.mark.slow)],

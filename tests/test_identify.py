@@ -229,6 +229,7 @@ def test_covariance_against_finite_difference_jacobian(fits):
     assert np.all(fit.ci95_log >= 0)  # [0, inf] for the direction the data do not see
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_robust_loss_resists_outliers(truth, clean, fits):
     """Ten gross outliers (1 mm, 200 noise standard deviations) on x: the linear fit's residual
     scale blows up and its stiffness moves; Huber's and Cauchy's stay near the clean fit. The

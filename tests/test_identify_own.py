@@ -202,6 +202,7 @@ def test_refuses_a_paper_scene_that_starts_elsewhere(data_file, no_compile):
                    r"from where the servo-circle scene starts", scene="servo-circle")
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_refuses_torques_that_cannot_hold_the_first_pose(no_compile):
     """A torque log 0.5 N m above the torques that move L1 along the poses: refused (it would
     throw the platform off within 0.1 s); the consistent log passes the same check."""

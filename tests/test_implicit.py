@@ -146,6 +146,7 @@ def test_kvaerno5_rejects_few_steps_on_l2_servo_circle():
     assert rejected <= 0.15 * steps, (steps, rejected)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_auto_solver_follows_the_work_precision_measurements():
     """`solver="auto"` picks the solver that `benchmarks/implicit_l2.py` measured faster on the
     L2 servo-circle: Kvaerno5 at t = 4 mm for rtol 1e-3 to 1e-5 (31 against 154 ms at 1e-4),
@@ -176,6 +177,7 @@ def _forced_pendulum(t, y, args):
     return v, -4.0 * jnp.sin(x) - 0.3 * v + jnp.cos(3.0 * t)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_ros34pw2_is_third_order_with_a_fresh_and_a_lagged_jacobian():
     """ROS34PW2 on a forced, damped pendulum (nonlinear and non-autonomous) with constant steps,
     against Dopri8 at rtol 1e-13: the error falls as h^3 with a Jacobian evaluated at every step
@@ -200,6 +202,7 @@ def test_ros34pw2_rejects_an_invalid_jacobian_age():
         pj.Ros34PW2(jacobian_every=0)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_kept_kvaerno5_is_fifth_order_with_a_fresh_and_a_kept_jacobian():
     """KeptKvaerno5 on the forced, damped pendulum with constant steps, against Dopri8 at rtol
     1e-13: the error falls as h^5 whether the Jacobian is fresh at every step or kept over 8

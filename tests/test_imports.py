@@ -8,6 +8,8 @@ import pathlib
 import subprocess
 import sys
 
+import pytest
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 HEAVY = ("scipy.optimize", "scipy.interpolate", "ppr_jax._prb_fit", "ppr_jax.elastica")
@@ -46,6 +48,7 @@ print("ok", ppr_jax.__file__)
 """
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_import_ppr_jax_does_not_load_the_offline_fit():
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)

@@ -66,6 +66,7 @@ def test_kinematic_models_start_at_the_forward_kinematics(case):
     assert np.max(np.abs(np.asarray(X - pj.Circle()(0.0)))) > 1e-6  # not the nominal pose
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_start_is_in_balance_and_does_not_ring(case):
     truth, robot, act, angles, spline, z0, zd0 = case
     m = _scipy_model(truth, spline)

@@ -1,5 +1,6 @@
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -44,6 +45,7 @@ _ik_l3_grad_rev = jax.jit(jax.grad(lambda p, X, l3: jnp.sum(jnp.sin(_ik_l3_eager
                                    argnums=2))
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 @pytest.mark.parametrize("l1,l3", [(0.3, 0.33), (0.2, 0.5)])
 def test_newton_path_for_unequal_links(params, l1, l3):
     """Unequal links: Newton to convergence (three fixed steps left 0.8 mm for 0.2 / 0.5 m), with
@@ -81,6 +83,7 @@ def test_jacobian_against_finite_differences_and_eq47(params, X):
     np.testing.assert_allclose(r.S, r.J[jnp.array([0, 3, 6])], rtol=0, atol=0)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_newton_path_higher_derivatives_equal_the_closed_form(params):
     """The equations of motion differentiate the inverse kinematics twice in X (convective terms)
     and once more for parameter gradients: with l1 == l3 the general (Newton) path must match the
@@ -206,6 +209,7 @@ def test_equal_links_fast_path_keeps_exact_derivatives_in_l1_alone(params):
 
     X = jnp.array([0.46, 0.25, 0.02])
 
+    @functools.partial(jax.jit, static_argnums=1)  # one program each, not op by op
     def th(l1, equal):
         return ik_reduced(pj.Robot(params.replace(l1=l1), equal_links=equal), X)[0]
 
@@ -235,6 +239,7 @@ def _base_centre_path(params, phi_end, n=41):
     return X, pj.inverse_kinematics(params, X).th_a
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 @pytest.mark.xla_defaults  # which sample meets the fold is a matter of rounding
 def test_forward_kinematics_path_through_a_type2_singularity_is_refused(params):
     """The issue's reproducer: forward kinematics of the L1 angles of 41 poses through the
@@ -270,6 +275,7 @@ def test_fold_flags_on_synthetic_determinants():
     assert not np.any(fold_flags(jnp.asarray(-1.0 - (ts - 1.2) ** 2), ts))
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_servo_circle_through_a_type2_singularity_is_a_status_code():
     """L1 motion-driven (warm-started forward kinematics, no ODE) on a circle whose phi passes
     the singularity: before, phi folded back and the scene reported ok; now `singular_path`.
@@ -329,7 +335,7 @@ def test_servo_circle_L0_near_the_singularity_is_its_own_regular_motion():
     np.testing.assert_allclose(fine.X[::4], r.X, rtol=0, atol=1e-10)
 
 
-@pytest.mark.parametrize("name", ["rigid", "reduced"])
+@pytest.mark.parametrize("name", [pytest.param("rigid", marks=pytest.mark.slow), "reduced"])
 def test_the_input_tables_determinant_is_the_path_checks(name):
     """A torque-driven scene checks its path for type-II singularities from its input table's
     own evaluations (`with_checks`: det S of the matrix the torques are solved with). That S
@@ -346,11 +352,13 @@ def test_the_input_tables_determinant_is_the_path_checks(name):
     through = pj.Circle(center=jnp.asarray([0.43, 0.27]), radius=jnp.asarray(0.02),
                         phi_amp=jnp.asarray(0.85))
     ts = jnp.linspace(0.0, 2.0, 41)
-    _, (_, det, t) = jax.vmap(InverseDynamicsTorque(model, p, through).with_checks)(ts[::-1])
-    ref = path_margins(model, p, jax.vmap(through)(ts)).det
-    np.testing.assert_allclose(det[::-1], ref, rtol=0, atol=1e-12)
+    # each side compiled as one program, not op by op
+    torque = InverseDynamicsTorque(model, p, through)
+    _, (_, det, t) = eqx.filter_jit(lambda s: jax.vmap(torque.with_checks)(s))(ts[::-1])
+    margins = eqx.filter_jit(path_margins)(model, p, jax.vmap(through)(ts))
+    np.testing.assert_allclose(det[::-1], margins.det, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(t[::-1], ts)
-    crossed = bool(jnp.any(path_margins(model, p, jax.vmap(through)(ts)).singular()))
+    crossed = bool(jnp.any(margins.singular()))
     assert crossed == (name == "reduced")
     assert bool(singular_at_nodes(det, t)) == crossed
 

@@ -229,7 +229,7 @@ def _rev(p, ts, g, rtol=1e-9, max_steps=100_000):
 P = jnp.array([1.5, 0.0, 2.0, 1.3])
 
 
-@pytest.mark.parametrize("rtol", [1e-9, 1e-7])
+@pytest.mark.parametrize("rtol", [pytest.param(1e-9, marks=pytest.mark.slow), 1e-7])
 def test_reverse_mode_equals_forward_mode(rtol):
     """Parameters, the initial state and the output times against `jax.jacfwd` through the
     loop (but the first: in forward mode it moves every step with it, on the recorded steps
@@ -294,6 +294,7 @@ def test_reverse_mode_without_the_output_times():
     np.testing.assert_allclose(g, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_scenes_stages_compile_as_one_kernel():
     """Under the library's XLA settings (`_devices.loop_flags`, which the suite sets too) the
     Runge-Kutta stages of L1's and L2's scene programs are a loop that XLA compiles as one

@@ -12,6 +12,7 @@ def L2_locked(params):
     return pj.modes(pj.Double1R(), params, actuators="locked")
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_symmetric_pairs_and_stability(params, L2_locked):
     f = np.asarray(L2_locked.freq_hz)
     assert f.shape == (3,) and np.all(f > 0)

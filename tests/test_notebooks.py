@@ -5,8 +5,8 @@ The notebooks are split over two test files (this one and `test_notebooks_more.p
 `NOTEBOOK_GROUPS`): the suite distributes whole files over its workers, and the notebooks
 together take about five minutes, too long a tail for one worker.
 
-The notebooks of the studies (`SLOW`: each 55-135 s on the 2-core machine, a sixth of the default
-suite together) run with `-m slow`: their studies have tests of their own in the default suite,
+The notebooks in `SLOW` (each 55-135 s on the 2-core machine, a sixth of the default suite
+together) run with `-m slow`: their studies have tests of their own in the default suite,
 and every notebook's code is checked there for the public names it calls
 (`test_notebooks_call_only_public_names`)."""
 
@@ -23,9 +23,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 #: notebooks run by `test_notebooks_more.py`; every other one runs here
 MORE = ("identification", "which_model")
-#: notebooks of the long studies, run with `-m slow`
-#: (second tier: docs/getting_started.md, "The two tiers"), each notebook a fresh process that
-#: compiles its own programs
+#: notebooks run with `-m slow` (second tier: docs/getting_started.md, "The two tiers"): the
+#: studies' notebooks, and quickstart and which_model for their cost; each notebook is a fresh
+#: process that compiles its own programs
 SLOW = ("compensation", "design", "identification", "quickstart", "sensitivity", "which_model")
 
 

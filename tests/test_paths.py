@@ -498,6 +498,7 @@ def _eight_file(tmp_path, hz=20):
                   _pose_rows_mm_deg(ts, X))
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_torque_driven_scene_on_a_loaded_spline_runs_at_defaults(tmp_path):
     """A `PathScene` on a non-circular path read with `load_path` (a C2 spline through 20 Hz
     samples, clamped: its torques have a kink at every knot), torque-driven, runs at the scene

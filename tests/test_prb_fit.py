@@ -63,7 +63,7 @@ def test_table_row_kappa0_0_matches_fresh_fit(fit0):
     _assert_row_matches(fit0, 0.0)
 
 
-@pytest.mark.parametrize("kappa0", [1.0, 2.0])  # ~2 s each after compilation
+@pytest.mark.parametrize("kappa0", [1.0, pytest.param(2.0, marks=pytest.mark.slow)])  # ~2 s each
 def test_table_rows_match_fresh_fit(kappa0):
     _assert_row_matches(prb.fit_prb(kappa0), kappa0)
 

@@ -102,6 +102,7 @@ def _repaired(d, direct, path):
     _same(again, direct[0.3e-3])
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_damaged_program_is_named_deleted_and_exported_afresh(tmp_path, direct):
     d = str(tmp_path / "programs")
     pj.run_scene("paper-circle", **KW, program_dir=d)
@@ -191,6 +192,7 @@ def test_a_stored_executable_is_loaded_and_a_damaged_one_repaired(tmp_path, dire
         assert new.read_bytes().startswith(_programs.EXEC_MAGIC)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_read_only_store_with_a_damaged_executable(tmp_path, direct, fresh_compiles,
                                                      monkeypatch):
     """A store that cannot be written (read-only) holding a damaged executable: every run says
@@ -256,6 +258,7 @@ def test_a_program_that_cannot_be_stored_is_traced_once(tmp_path, direct, monkey
     _same(r, direct[0.3e-3])
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_no_executable_from_a_persistent_cache_hit(tmp_path, direct, fresh_compiles):
     """An executable read from JAX's persistent cache serialises incompletely (it then fails
     when run): a program whose compilation was a cache hit stores none, and later runs load the
@@ -289,6 +292,7 @@ def test_key_holds_the_versions_of_ppr_jax_and_its_numerical_dependencies(monkey
     monkeypatch.undo()
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_key_is_the_same_in_a_fresh_process():
     script = ("from ppr_jax._scenes import SceneOptions, prepare; "
               "from ppr_jax._programs import program_key; "
@@ -363,6 +367,7 @@ print(json.dumps({"how": how, "x": np.asarray(run(a, b)).tolist()}))
 """
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_an_executable_with_lapack_calls_loads_in_a_fresh_process(tmp_path):
     """A program with LAPACK custom calls (jnp.linalg.solve): its executable, loaded in a
     process that has lowered nothing (so jaxlib has not initialised LAPACK; without

@@ -169,6 +169,7 @@ def test_path_scene_l1_follows_its_own_tabulated_torques():
     np.testing.assert_allclose(r.result.X, ref, rtol=0, atol=1e-8)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_given_log_steps_to_its_knots_as_the_scenes_own_log():
     """`AbstractScene.run` with a given actuation (identification's route: the measured
     torques or angles of a log) steps to the log's knots, as the scene run by its own
@@ -193,6 +194,7 @@ def test_a_given_log_steps_to_its_knots_as_the_scenes_own_log():
     np.testing.assert_allclose(X_own, _smooth_closed_form(np.asarray(opts.times())), atol=5e-4)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_path_that_is_not_c2_is_refused():
     """The cosine law's acceleration jumps at the horizon's ends (t = 0 and t = duration): the
     tabulated torques jump too, and the scene says so instead of integrating them."""
@@ -269,6 +271,7 @@ def test_sensitivity_of_a_path_scene_against_finite_differences():
     assert abs(fd[0]) > 0
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_path_scene_motion_drive_and_synthesize():
     """The motion drive: L1's angles along the line prescribed; L0 and L1 need no integrator
     (kinematics), L2 integrates. `synthesize` samples the scene object like a registered one."""

@@ -45,6 +45,7 @@ def fwd(base):
                           **SCENE)
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_metric_values_equal_independent_runs(base, fwd):
     dv = pj.derived(base)
     # the explicit PRB parameters are the fitted table's values at theta_c

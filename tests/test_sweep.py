@@ -406,6 +406,7 @@ def test_damaged_sweep_settings_are_rewritten_and_chunks_still_checked(tmp_path,
         _sweep._ChunkStore(str(d), dict(info, scene="servo-circle"))
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_member_whose_path_crosses_a_singularity_is_refused_before_running():
     """The sweep's validation is the scenes' check of a path (`_kinematics.path_margins`): on
     servo-circle with a = 0.6 m, l1 = l3 = 0.45 m, the path of the platform side h = 0.15 m

@@ -208,6 +208,7 @@ def test_spline_pieces_cubic_exact_smooth_fourth_order_and_padding():
     assert 10 < errs[0] / errs[1] < 24, errs
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_scene_input_reaches_before_the_start_with_a_panel_boundary_at_t0():
     """The start reads the input 10 ms on both sides of t0: the table holds it there, exact to
     interpolation accuracy, and a motion that starts from rest at t0 (max(t, 0)^3: a jump of
@@ -282,6 +283,7 @@ def test_spline_path_torques_with_panels_at_the_knots(hz):
     assert np.asarray(bounds).min() == -0.01 and np.asarray(bounds).max() == 0.7
 
 
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_a_table_on_knots_is_differentiable_in_time_and_in_the_samples():
     """Derivatives through a table with knots: d/dt of the tabulated prescribed angles
     (the servo's rate) matches the exact inverse kinematics' rate between the knots, and the
