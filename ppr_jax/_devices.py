@@ -38,6 +38,21 @@ ran slower as one kernel (L1 with 7,540 output times at 1 MiB: 15.3 -> 19.3 ms).
 ms, L1 5.2 -> 2.8 ms, L2 30.9 -> 11.6 ms, poses equal to 1.4e-12 m; batches and the quasi-static
 L3 (its strip solves' small loops are taken, its solver's loop is not) about unchanged.
 
+A derivative's loops stay above 64 KiB: the loop of steps of a forward-mode sensitivity carries
+every parameter's tangent, and XLA splits a step's JVP into about ten times the kernels of the
+step itself (an L2 right-hand side 30 kernels, its JVP 293); in reverse mode the transposed
+replay of a segment's recorded steps is larger still (the replay forward is taken).
+`configure_cpu(derivatives=True)` sets the threshold at `DERIVATIVE_LOOP_BYTES` (4 MiB), which
+takes them. Measured on the 2-core CPU, three processes a setting, interleaved
+(`benchmarks/results/loop_threshold.json`, minima over the processes): the sensitivity of L2
+`paper-circle` over 1 s to all 19 parameters 65.9 -> 36.4 ms in forward mode and 91.2 -> 40.7 ms
+in reverse mode; L2 runs (755 and 7,540 output times, 1 s) and batches (L1 x1,024, L0 x256)
+within 4 %; single L0 and L1 runs 1.1 and 1.4 times slower (4.1 -> 4.5 ms, 2.9 -> 4.0 ms). An
+earlier interleaved pair had batches 3-9 % slower and L1 unchanged: the machine's noise is of
+that size. XLA reads the threshold for the whole process, not per program (a program's compile
+options cannot set a backend option), so it is a choice for a process that runs sensitivities
+or designs, not the default.
+
 All are process settings that XLA reads once, when JAX starts its backend. `import ppr_jax`
 adds the two that change no number beyond rounding, the loop emitters and the small-loop
 threshold (`default_flags`), to `XLA_FLAGS` when JAX's backend has not started yet: the
@@ -61,6 +76,10 @@ _EMITTERS_FLAG = "--xla_cpu_use_fusion_emitters"
 _BACKEND_OPTIONS_FLAG = "--xla_backend_extra_options"
 #: bytes: XLA compiles a while loop that accesses fewer as one kernel (module docstring)
 SMALL_LOOP_BYTES = 65536
+#: the threshold of `configure_cpu(derivatives=True)`: a derivative's loops too (module
+#: docstring)
+DERIVATIVE_LOOP_BYTES = 4 << 20
+_THRESHOLD_KEY = "xla_cpu_small_while_loop_byte_threshold"
 
 
 def _backend_started() -> bool:
@@ -101,13 +120,13 @@ def compile_flags() -> list[str]:
     return [f"{_EMITTERS_FLAG}=false"] if _measured_jaxlib() else []
 
 
-def loop_flags() -> list[str]:
+def loop_flags(loop_bytes: int = SMALL_LOOP_BYTES) -> list[str]:
     """The XLA flag that compiles a Runge-Kutta step's stages as one kernel (module docstring):
-    the small-loop threshold at `SMALL_LOOP_BYTES`, on the jaxlib it was measured with (0.10);
-    none elsewhere."""
+    the small-loop threshold at `loop_bytes` (default `SMALL_LOOP_BYTES`), on the jaxlib it was
+    measured with (0.10); none elsewhere."""
     if not _measured_jaxlib():
         return []
-    return [f"{_BACKEND_OPTIONS_FLAG}=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"]
+    return [f"{_BACKEND_OPTIONS_FLAG}={_THRESHOLD_KEY}={int(loop_bytes)}"]
 
 
 def default_flags() -> list[str]:
@@ -151,10 +170,11 @@ def environment_without_defaults(env: dict) -> dict:
 
 
 def cpu_flags(devices: Optional[int] = None, small_dots: bool = True,
-              fast_compile: bool = True) -> list[str]:
+              fast_compile: bool = True, derivatives: bool = False) -> list[str]:
     """The XLA flags `configure_cpu` sets: `devices` host devices (default: one per core), with
     `small_dots` on a jaxlib that has them no YNNPACK fusions, with `fast_compile` the loop
-    emitters (`compile_flags`), and the small-loop threshold (`loop_flags`)."""
+    emitters (`compile_flags`), and the small-loop threshold (`loop_flags`:
+    `DERIVATIVE_LOOP_BYTES` with `derivatives`, else `SMALL_LOOP_BYTES`)."""
     from ._errors import PPRError
 
     n = (os.cpu_count() or 1) if devices is None else int(devices)
@@ -165,21 +185,48 @@ def cpu_flags(devices: Optional[int] = None, small_dots: bool = True,
         flags.append(f"{_YNN_FLAG}=")
     if fast_compile:
         flags += compile_flags()
-    return flags + loop_flags()
+    return flags + loop_flags(DERIVATIVE_LOOP_BYTES if derivatives else SMALL_LOOP_BYTES)
 
 
 def configure_cpu(devices: Optional[int] = None, small_dots: bool = True,
-                  fast_compile: bool = True) -> list[str]:
+                  fast_compile: bool = True, derivatives: bool = False) -> list[str]:
     """Set the XLA flags for fast batches on a CPU (module docstring): `devices` host devices
     (default: one per core; batched scenes split over them), with `small_dots` XLA's own code
     for small matrix products, with `fast_compile` a code generator that compiles in about
     half the time for the same run time, and the small-loop threshold (a solver's loop as one
-    kernel; the last two are what `import ppr_jax` sets by itself). Call it before JAX's first
+    kernel; the last two are what `import ppr_jax` sets by itself). With `derivatives`, the
+    threshold is `DERIVATIVE_LOOP_BYTES`, for a process that runs sensitivities or designs:
+    their derivatives' loops then run as one kernel too (about twice as fast), and batches and
+    runs of many output times a little slower (module docstring). Call it before JAX's first
     computation (right after `import ppr_jax` is fine); flags already in `XLA_FLAGS` are kept,
-    not overridden (XLA's backend options gain the keys they lack). Returns the
-    flags now in force for these settings. Raises `PPRError` if JAX's backend has started and
-    the flags differ from what it started with."""
-    return set_xla_flags(cpu_flags(devices, small_dots, fast_compile), "configure_cpu")
+    not overridden (XLA's backend options gain the keys they lack), except the threshold that
+    `import ppr_jax` added, which `derivatives` replaces. Returns the flags now in force for
+    these settings. Raises `PPRError` if JAX's backend has started and the flags differ from
+    what it started with."""
+    if derivatives and not _backend_started():
+        _drop_default_threshold()
+    return set_xla_flags(cpu_flags(devices, small_dots, fast_compile, derivatives),
+                         "configure_cpu")
+
+
+def _drop_default_threshold() -> None:
+    """Take the small-loop threshold out of `XLA_FLAGS` where `apply_defaults` put it there (not
+    where the user's own `XLA_FLAGS` held it), so that another value can take its place."""
+    if not _FLAGS_BEFORE_DEFAULTS:
+        return
+    (before,) = _FLAGS_BEFORE_DEFAULTS
+    if before is not None and f"{_THRESHOLD_KEY}=" in before:
+        return
+    out = []
+    for flag in _xla_flags():
+        if _name(flag) == _BACKEND_OPTIONS_FLAG:
+            kvs = [kv for kv in flag.partition("=")[2].split(",")
+                   if kv and kv != f"{_THRESHOLD_KEY}={SMALL_LOOP_BYTES}"]
+            if not kvs:
+                continue
+            flag = f"{_BACKEND_OPTIONS_FLAG}=" + ",".join(kvs)
+        out.append(flag)
+    os.environ["XLA_FLAGS"] = " ".join(out)
 
 
 def set_xla_flags(wanted: list[str], caller: str = "set_xla_flags") -> list[str]:

@@ -735,6 +735,20 @@ def start_sensitivity(d) -> str:
     return "\n\n".join(parts) + "\n\n" + _machine(d)
 
 
+@_from_json("loop_threshold.json")
+def loop_threshold(d) -> str:
+    """XLA's small-loop threshold, the import's against `configure_cpu(derivatives=True)`'s
+    (benchmarks/loop_threshold.py): per quantity the minimum over the processes of each setting,
+    and the ratios of the minima and of the medians."""
+    a, b = list(d["settings"])
+    rows = [[r["quantity"].replace(" (s)", ""), _ms(r[a]["min"]), _ms(r[b]["min"]),
+             f"{r['derivatives / import (min)']:.2f}",
+             f"{r['derivatives / import (median)']:.2f}"] for r in d["rows"]]
+    return (_table(["warm, minimum of the processes' minima", a, b, "ratio of minima",
+                    "ratio of medians"], rows)
+            + f"\n\n{d['repeats']} processes a setting, interleaved. " + _machine(d))
+
+
 @_from_json("path_cost.json")
 def path_cost(d) -> str:
     """Cost per integrator step of a path read from a file against the circle
@@ -868,6 +882,7 @@ def tables() -> dict:
         "known-truth": known_truth(),
         "start-sensitivity": start_sensitivity(),
         "path-cost": path_cost(),
+        "loop-threshold": loop_threshold(),
         "identify-own": identify_own(),
         "compensate": compensate(),
     }

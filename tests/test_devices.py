@@ -95,6 +95,40 @@ def test_loop_emitters_only_on_the_measured_jaxlib(monkeypatch):
         assert cpu_flags(1, small_dots=False)[1:] == want + loops, v
 
 
+def test_derivatives_replace_the_imports_threshold_not_the_users(monkeypatch):
+    """`configure_cpu(derivatives=True)` asks for `DERIVATIVE_LOOP_BYTES`: it replaces the
+    small-loop threshold that `import ppr_jax` added (`_drop_default_threshold`), keeping the
+    other flags and backend options, and keeps a threshold the user set before the import."""
+    import ppr_jax._devices as devices
+
+    if not loop_flags():
+        pytest.skip("no small-loop threshold on this jaxlib")
+    key = "xla_cpu_small_while_loop_byte_threshold"
+    opts = "--xla_backend_extra_options"
+    want = cpu_flags(1, small_dots=False, fast_compile=False, derivatives=True)
+    assert want[-1] == f"{opts}={key}={devices.DERIVATIVE_LOOP_BYTES}"
+    # the import's threshold beside another backend option and another flag
+    user = f"--xla_cpu_use_thunk_runtime=true {opts}=other_key=1"
+    monkeypatch.setattr(devices, "_FLAGS_BEFORE_DEFAULTS", (user,))
+    monkeypatch.setenv("XLA_FLAGS", f"--xla_cpu_use_thunk_runtime=true "
+                                    f"{opts}=other_key=1,{key}={devices.SMALL_LOOP_BYTES}")
+    devices._drop_default_threshold()
+    assert _merged(devices._xla_flags(), want) == [
+        "--xla_cpu_use_thunk_runtime=true", f"{opts}=other_key=1,{key}={4 << 20}",
+        "--xla_force_host_platform_device_count=1"]
+    # the import's threshold alone: the option goes, and comes back with the new value
+    monkeypatch.setattr(devices, "_FLAGS_BEFORE_DEFAULTS", (None,))
+    monkeypatch.setenv("XLA_FLAGS", f"{opts}={key}={devices.SMALL_LOOP_BYTES}")
+    devices._drop_default_threshold()
+    assert devices._xla_flags() == []
+    # the user's own threshold, even at the import's value, stays
+    own = f"{opts}={key}={devices.SMALL_LOOP_BYTES}"
+    monkeypatch.setattr(devices, "_FLAGS_BEFORE_DEFAULTS", (own,))
+    monkeypatch.setenv("XLA_FLAGS", own)
+    devices._drop_default_threshold()
+    assert _merged(devices._xla_flags(), want)[0] == own
+
+
 @pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
 def test_the_command_line_sets_the_compile_flag_before_jax_starts():
     """A fresh `ppr-jax` process adds the library's default flags (the loop emitters and the

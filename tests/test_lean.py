@@ -318,3 +318,59 @@ def test_a_scenes_stages_compile_as_one_kernel():
         small = [line for line in text.splitlines()
                  if " call(" in line and "xla_cpu_small_call" in line]
         assert small, model
+
+
+_DERIVATIVE_LOOPS = """
+import json, re, sys
+import ppr_jax as pj
+pj.configure_cpu(1, derivatives=True)  # before the first computation
+import diffrax
+import jax.numpy as jnp
+from ppr_jax._studies._sensitivity import _jacobian_fwd, _jacobian_rev, _metric_function
+*_, (base, ev) = _metric_function(
+    "paper-circle", None, model="double1r", torque_model=None, frequency_model="double1r",
+    parameters=None, options=pj.SceneOptions(t_end=0.05, n_out=6), metrics=None)
+x0 = jnp.array([float(getattr(base, n)) for n in ev.names])
+def small_calls(text):
+    return [re.search(r'op_name="([^"]*)"', line).group(1) for line in text.splitlines()
+            if " call(" in line and "xla_cpu_small_call" in line and "op_name" in line]
+adjoint = diffrax.RecursiveCheckpointAdjoint()
+print(json.dumps({
+    "fwd": small_calls(_jacobian_fwd.lower(x0, base, ev).compile().compiled.as_text()),
+    "rev": small_calls(
+        _jacobian_rev.lower(x0, base, ev, adjoint).compile().compiled.as_text())}))
+"""
+
+
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
+def test_a_sensitivitys_loops_compile_as_one_kernel_with_derivatives_set():
+    """With `configure_cpu(derivatives=True)` (a fresh process) the solver's loop of steps of a
+    forward-mode sensitivity of every float parameter (19 tangents) is a loop that XLA compiles
+    as one kernel, and so is reverse mode's replay of the recorded steps. Under the import's
+    64 KiB threshold neither is: a step of the forward derivative was about 300 kernels
+    (docs/performance.md)."""
+    import json
+    import os
+    import re
+    import subprocess
+    import sys
+
+    from ppr_jax._devices import loop_flags
+
+    if not loop_flags():
+        pytest.skip("no small-loop threshold on this jaxlib")
+    # the suite's XLA settings without its threshold, which the child then sets itself
+    key = "--xla_backend_extra_options"
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if f.split("=")[0] != key]
+    env = dict(os.environ, XLA_FLAGS=" ".join(flags))
+    proc = subprocess.run([sys.executable, "-c", _DERIVATIVE_LOOPS], capture_output=True,
+                          text=True, timeout=900, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    # forward: the loop of steps itself, not only loops inside its body; reverse: the replay
+    # of a segment's recorded steps, transposed (`_lean.lean_vjp`)
+    steps = re.compile(r"jvp\(jit\(simulate_core\)\)+/while$")
+    assert any(steps.search(n) for n in out["fwd"]), out["fwd"]
+    replay = re.compile(r"transpose\(jvp\(jit\(simulate_core\)\)\)+/while/body/"
+                        r"transpose\(jvp\(\)\)/while$")
+    assert any(replay.search(n) for n in out["rev"]), out["rev"]

@@ -1,0 +1,140 @@
+"""Benchmark XLA's small-loop threshold: the import's (64 KiB) against `configure_cpu(derivatives=
+True)`'s (4 MiB), on what users run: single scenes, batches, a run of many output times and the
+sensitivities in both modes.
+
+Protocol: one process per setting and repetition, the settings interleaved (import, derivatives,
+import, ...), each process with the threshold in `XLA_FLAGS` (the import's other setting, the
+loop emitters, added as usual) and a persistent compilation cache of its own setting in a
+temporary folder, so that later processes skip most compilation. In each process, warm runs:
+the minimum of 15 (scenes), 10 (7,540 output times), 3 (batches) and 6 (sensitivities: the
+derivative's one run a call, `Sensitivity.timing['run_s']`). Reported: every process's numbers,
+and per quantity the minimum and the median over the processes. Single runs and batches are
+`paper-circle` at the scenes' defaults unless named: L1 x1,024 "bench" at rtol 1e-6, atol 1e-8
+(the batch benchmark's settings), L2 over 1 s with 101 output times (the sensitivities' scene).
+Writes benchmarks/results/loop_threshold.json.
+
+Run: python benchmarks/loop_threshold.py [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+OUT = os.path.join(HERE, "results", "loop_threshold.json")
+ROOT = os.path.dirname(HERE)
+
+_CHILD = r"""
+import json, sys, time
+import numpy as np, jax
+import ppr_jax as pj
+pj.enable_compilation_cache(sys.argv[1])
+
+def best(f, n):
+    ts = []
+    for _ in range(n):
+        t = time.perf_counter(); r = f(); jax.block_until_ready(r)
+        ts.append(time.perf_counter() - t)
+    return min(ts)
+
+out = {}
+for m in ("rigid", "reduced", "double1r"):
+    pj.solve_scene("paper-circle", model=m)
+    out[f"{m} run (s)"] = best(lambda: pj.solve_scene("paper-circle", model=m), 15)
+o = pj.SceneOptions(n_out=7540)
+pj.solve_scene("paper-circle", model="double1r", options=o)
+out["double1r run, 7,540 outputs (s)"] = best(
+    lambda: pj.solve_scene("paper-circle", model="double1r", options=o), 10)
+base = pj.scene_params("paper-circle")
+ps = pj.stack_params([base.replace(t=float(t)) for t in np.linspace(0.28e-3, 0.40e-3, 1024)])
+o = pj.SceneOptions(rtol=1e-6, atol=1e-8, max_steps=400_000)
+out["reduced x1024 bench (s)"] = best(
+    lambda: pj.solve_scene("paper-circle", ps, model="reduced", options=o), 3)
+out["reduced x1024 defaults (s)"] = best(
+    lambda: pj.solve_scene("paper-circle", ps, model="reduced"), 3)
+ps = pj.stack_params([base.replace(t=float(t)) for t in np.linspace(0.28e-3, 0.40e-3, 256)])
+out["rigid x256 defaults (s)"] = best(lambda: pj.solve_scene("paper-circle", ps, model="rigid"), 3)
+o = pj.SceneOptions(t_end=1.0, n_out=101)
+out["double1r run, 1 s (s)"] = best(
+    lambda: pj.solve_scene("paper-circle", model="double1r", options=o), 20)
+for mode in ("fwd", "rev"):
+    runs = [pj.sensitivity("paper-circle", model="double1r", mode=mode, options=o)
+            for _ in range(6)]
+    out[f"sensitivity {mode}, L2 1 s, 19 parameters (s)"] = min(
+        s.timing["run_s"] for s in runs)
+print(json.dumps(out))
+"""
+
+
+def _settings() -> dict:
+    sys.path.insert(0, ROOT)
+    from ppr_jax._devices import DERIVATIVE_LOOP_BYTES, SMALL_LOOP_BYTES
+
+    return {"import (64 KiB)": SMALL_LOOP_BYTES, "derivatives (4 MiB)": DERIVATIVE_LOOP_BYTES}
+
+
+def _jax_version() -> str:
+    from importlib.metadata import version
+
+    return version("jax")
+
+
+def _process(threshold: int, cache: str) -> dict:
+    env = dict(os.environ, PYTHONPATH=ROOT, EQX_ON_ERROR="nan", JAX_ENABLE_X64="1",
+               XLA_FLAGS=("--xla_backend_extra_options="
+                          f"xla_cpu_small_while_loop_byte_threshold={threshold}"))
+    env.pop("PPR_JAX_CACHE_DIR", None)
+    p = subprocess.run([sys.executable, "-c", _CHILD, cache], capture_output=True, text=True,
+                       env=env, timeout=1800, cwd=ROOT)
+    if p.returncode != 0:
+        return {"failed": (p.stderr.strip().splitlines() or ["?"])[-1]}
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def main(repeats: int):
+    settings = _settings()
+    raw = {name: [] for name in settings}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(repeats):
+            for name, threshold in settings.items():
+                raw[name].append(_process(threshold, os.path.join(tmp, str(threshold))))
+                print(name, raw[name][-1], flush=True)
+    names = list(settings)
+    rows = []
+    for q in raw[names[0]][0]:
+        row = {"quantity": q}
+        for name in names:
+            vals = [r[q] for r in raw[name] if q in r]
+            row[name] = {"min": min(vals), "median": statistics.median(vals)}
+        row["derivatives / import (min)"] = row[names[1]]["min"] / row[names[0]]["min"]
+        row["derivatives / import (median)"] = row[names[1]]["median"] / row[names[0]]["median"]
+        rows.append(row)
+    db = {"what": "XLA's small-loop threshold: the import's against configure_cpu(derivatives="
+                  "True)'s, interleaved processes (module docstring of benchmarks/"
+                  "loop_threshold.py)",
+          "machine": {"system": platform.platform(), "cpus": os.cpu_count(),
+                      "jax": _jax_version(), "date": time.strftime("%Y-%m-%d")},
+          "settings": settings, "repeats": repeats, "rows": rows, "raw": raw,
+          "wall_s": time.perf_counter() - t0,
+          "command": f"python benchmarks/loop_threshold.py --repeats {repeats}"}
+    os.makedirs(os.path.dirname(OUT), exist_ok=True)
+    with open(OUT, "w") as f:
+        json.dump(db, f, indent=1)
+    for r in rows:
+        print(f"{r['quantity']:48s} {r['derivatives / import (min)']:.2f} "
+              f"{r['derivatives / import (median)']:.2f}")
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    main(ap.parse_args().repeats)
