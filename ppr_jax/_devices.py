@@ -50,8 +50,8 @@ in reverse mode; L2 runs (755 and 7,540 output times, 1 s) and batches (L1 x1,02
 within 4 %; single L0 and L1 runs 1.1 and 1.4 times slower (4.1 -> 4.5 ms, 2.9 -> 4.0 ms). An
 earlier interleaved pair had batches 3-9 % slower and L1 unchanged: the machine's noise is of
 that size. XLA reads the threshold for the whole process, not per program (a program's compile
-options cannot set a backend option), so it is a choice for a process that runs sensitivities
-or designs, not the default.
+options cannot set a backend option), so it is a choice for a process that runs sensitivities,
+not the default. (An identification's fit, one process a setting, was not faster with it.)
 
 All are process settings that XLA reads once, when JAX starts its backend. `import ppr_jax`
 adds the two that change no number beyond rounding, the loop emitters and the small-loop
@@ -76,7 +76,7 @@ _EMITTERS_FLAG = "--xla_cpu_use_fusion_emitters"
 _BACKEND_OPTIONS_FLAG = "--xla_backend_extra_options"
 #: bytes: XLA compiles a while loop that accesses fewer as one kernel (module docstring)
 SMALL_LOOP_BYTES = 65536
-#: the threshold of `configure_cpu(derivatives=True)`: a derivative's loops too (module
+#: the threshold of `configure_cpu(derivatives=True)`: a sensitivity's loops too (module
 #: docstring)
 DERIVATIVE_LOOP_BYTES = 4 << 20
 _THRESHOLD_KEY = "xla_cpu_small_while_loop_byte_threshold"
@@ -171,10 +171,20 @@ def environment_without_defaults(env: dict) -> dict:
 
 def cpu_flags(devices: Optional[int] = None, small_dots: bool = True,
               fast_compile: bool = True, derivatives: bool = False) -> list[str]:
-    """The XLA flags `configure_cpu` sets: `devices` host devices (default: one per core), with
-    `small_dots` on a jaxlib that has them no YNNPACK fusions, with `fast_compile` the loop
-    emitters (`compile_flags`), and the small-loop threshold (`loop_flags`:
-    `DERIVATIVE_LOOP_BYTES` with `derivatives`, else `SMALL_LOOP_BYTES`)."""
+    """The XLA flags `configure_cpu` sets (module docstring).
+
+    **Arguments:**
+
+    - `devices`: host devices; None (default): one per core.
+    - `small_dots`: no YNNPACK fusions, on a jaxlib that has them.
+    - `fast_compile`: the CPU's loop emitters (`compile_flags`).
+    - `derivatives`: the small-loop threshold at `DERIVATIVE_LOOP_BYTES` instead of
+      `SMALL_LOOP_BYTES` (`loop_flags`).
+
+    **Returns:** the flags, a list of `--name=value` strings.
+
+    **Raises:** `PPRError` for fewer than one device.
+    """
     from ._errors import PPRError
 
     n = (os.cpu_count() or 1) if devices is None else int(devices)
@@ -190,19 +200,29 @@ def cpu_flags(devices: Optional[int] = None, small_dots: bool = True,
 
 def configure_cpu(devices: Optional[int] = None, small_dots: bool = True,
                   fast_compile: bool = True, derivatives: bool = False) -> list[str]:
-    """Set the XLA flags for fast batches on a CPU (module docstring): `devices` host devices
-    (default: one per core; batched scenes split over them), with `small_dots` XLA's own code
-    for small matrix products, with `fast_compile` a code generator that compiles in about
-    half the time for the same run time, and the small-loop threshold (a solver's loop as one
-    kernel; the last two are what `import ppr_jax` sets by itself). With `derivatives`, the
-    threshold is `DERIVATIVE_LOOP_BYTES`, for a process that runs sensitivities or designs:
-    their derivatives' loops then run as one kernel too (about twice as fast), and batches and
-    runs of many output times a little slower (module docstring). Call it before JAX's first
-    computation (right after `import ppr_jax` is fine); flags already in `XLA_FLAGS` are kept,
-    not overridden (XLA's backend options gain the keys they lack), except the threshold that
-    `import ppr_jax` added, which `derivatives` replaces. Returns the flags now in force for
-    these settings. Raises `PPRError` if JAX's backend has started and the flags differ from
-    what it started with."""
+    """Set the XLA flags for fast batches on a CPU (module docstring). Call it before JAX's
+    first computation (right after `import ppr_jax` is fine): XLA reads them once. Flags
+    already in `XLA_FLAGS` are kept, not overridden (XLA's backend options gain the keys they
+    lack), except the small-loop threshold that `import ppr_jax` added, which `derivatives`
+    replaces.
+
+    **Arguments:**
+
+    - `devices`: host devices; None (default): one per core. Batched scenes split over them.
+    - `small_dots`: XLA's own code for small matrix products (no YNNPACK fusions).
+    - `fast_compile`: a code generator that compiles in about half the time for the same run
+      time (what `import ppr_jax` sets by itself, with the small-loop threshold: a solver's
+      loop as one kernel).
+    - `derivatives`: the small-loop threshold at `DERIVATIVE_LOOP_BYTES`, for a process that
+      runs sensitivities: their loops then run as one kernel too, about twice as fast. The
+      setting is the process's, so other programs' loops are taken too, some of them (single
+      L0 and L1 runs) a little slower (module docstring).
+
+    **Returns:** the flags now in force for these settings.
+
+    **Raises:** `PPRError` if JAX's backend has started and the flags differ from what it
+    started with.
+    """
     if derivatives and not _backend_started():
         _drop_default_threshold()
     return set_xla_flags(cpu_flags(devices, small_dots, fast_compile, derivatives),
