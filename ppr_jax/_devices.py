@@ -27,7 +27,8 @@ XLA's CPU runtime runs a program as one kernel launch per fused operation (about
 this CPU), and a Runge-Kutta step of these models is hundreds of them: the runs were bound by
 launches, not arithmetic. XLA compiles a while loop that accesses fewer than a threshold of bytes
 as one kernel instead (its `SmallWhileLoopHoistingPass`, which marks the loop a
-`xla_cpu_small_call`; dots and custom calls keep a loop out). Its default threshold, 1,024 bytes,
+`xla_cpu_small_call`; custom calls keep a loop out, and on jaxlib 0.10.2 a dot does not: a
+`lax.map` whose body holds a 2 x 2 product was taken whole). Its default threshold, 1,024 bytes,
 takes none of the solver's loops; at 64 KiB (`loop_flags`) it takes a step's Runge-Kutta
 stages always, and a run's whole loop of steps where its outputs are few enough (the scenes'
 default 755 output times: a run is then a few hundred kernels instead of 100,000-1,000,000),
