@@ -1,5 +1,6 @@
-"""Benchmark XLA's small-loop threshold: the import's (64 KiB) against `configure_cpu(derivatives=
-True)`'s (4 MiB), on what users run: single scenes, batches, a run of many output times and the
+"""Benchmark XLA's small-loop threshold: two settings, by default the import's
+(`SMALL_LOOP_BYTES`) against `configure_cpu(derivatives=True)`'s (`DERIVATIVE_LOOP_BYTES`), on
+what users run: single scenes, batches, a run of many output times, the quasi-static L3 and the
 sensitivities in both modes.
 
 Protocol: one process per setting and repetition, the settings interleaved (import, derivatives,
@@ -10,10 +11,14 @@ the minimum of 15 (scenes), 10 (7,540 output times), 3 (batches) and 6 (sensitiv
 derivative's one run a call, `Sensitivity.timing['run_s']`). Reported: every process's numbers,
 and per quantity the minimum and the median over the processes. Single runs and batches are
 `paper-circle` at the scenes' defaults unless named: L1 x1,024 "bench" at rtol 1e-6, atol 1e-8
-(the batch benchmark's settings), L2 over 1 s with 101 output times (the sensitivities' scene).
-Writes benchmarks/results/loop_threshold.json.
+(the batch benchmark's settings), L2 over 1 s with 101 output times (the sensitivities' scene),
+the quasi-static L3 at N = 4 and 8 (minimum of 4). Writes benchmarks/results/loop_threshold.json;
+`--bytes A B` compares two thresholds of one's choice (the second column's ratios are B / A),
+`--out` elsewhere.
 
 Run: python benchmarks/loop_threshold.py [--repeats 3]
+     python benchmarks/loop_threshold.py --bytes 65536 262144 --repeats 2 \
+         --out benchmarks/results/loop_threshold_default.json   # the import's, before and now
 """
 
 from __future__ import annotations
@@ -62,6 +67,10 @@ out["reduced x1024 defaults (s)"] = best(
     lambda: pj.solve_scene("paper-circle", ps, model="reduced"), 3)
 ps = pj.stack_params([base.replace(t=float(t)) for t in np.linspace(0.28e-3, 0.40e-3, 256)])
 out["rigid x256 defaults (s)"] = best(lambda: pj.solve_scene("paper-circle", ps, model="rigid"), 3)
+for N in (4, 8):
+    beam = pj.QuasiStaticBeam(N)
+    pj.solve_scene("paper-circle", model=beam)
+    out[f"beam_qs N={N} run (s)"] = best(lambda: pj.solve_scene("paper-circle", model=beam), 4)
 o = pj.SceneOptions(t_end=1.0, n_out=101)
 out["double1r run, 1 s (s)"] = best(
     lambda: pj.solve_scene("paper-circle", model="double1r", options=o), 20)
@@ -74,11 +83,19 @@ print(json.dumps(out))
 """
 
 
-def _settings() -> dict:
+def _size(n: int) -> str:
+    return f"{n >> 20} MiB" if n % (1 << 20) == 0 else f"{n >> 10} KiB"
+
+
+def _settings(pair=None) -> dict:
+    """{label: bytes}: the two settings compared, the first the reference."""
+    if pair is not None:
+        return {_size(int(b)): int(b) for b in pair}
     sys.path.insert(0, ROOT)
     from ppr_jax._devices import DERIVATIVE_LOOP_BYTES, SMALL_LOOP_BYTES
 
-    return {"import (64 KiB)": SMALL_LOOP_BYTES, "derivatives (4 MiB)": DERIVATIVE_LOOP_BYTES}
+    return {f"import ({_size(SMALL_LOOP_BYTES)})": SMALL_LOOP_BYTES,
+            f"derivatives ({_size(DERIVATIVE_LOOP_BYTES)})": DERIVATIVE_LOOP_BYTES}
 
 
 def _jax_version() -> str:
@@ -99,8 +116,8 @@ def _process(threshold: int, cache: str) -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
-def main(repeats: int):
-    settings = _settings()
+def main(repeats: int, pair=None, out: str = OUT):
+    settings = _settings(pair)
     raw = {name: [] for name in settings}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -115,26 +132,31 @@ def main(repeats: int):
         for name in names:
             vals = [r[q] for r in raw[name] if q in r]
             row[name] = {"min": min(vals), "median": statistics.median(vals)}
-        row["derivatives / import (min)"] = row[names[1]]["min"] / row[names[0]]["min"]
-        row["derivatives / import (median)"] = row[names[1]]["median"] / row[names[0]]["median"]
+        row["second / first (min)"] = row[names[1]]["min"] / row[names[0]]["min"]
+        row["second / first (median)"] = row[names[1]]["median"] / row[names[0]]["median"]
         rows.append(row)
-    db = {"what": "XLA's small-loop threshold: the import's against configure_cpu(derivatives="
-                  "True)'s, interleaved processes (module docstring of benchmarks/"
-                  "loop_threshold.py)",
+    db = {"what": f"XLA's small-loop threshold: {names[1]} against {names[0]}, interleaved "
+                  "processes (module docstring of benchmarks/loop_threshold.py)",
           "machine": {"system": platform.platform(), "cpus": os.cpu_count(),
                       "jax": _jax_version(), "date": time.strftime("%Y-%m-%d")},
           "settings": settings, "repeats": repeats, "rows": rows, "raw": raw,
           "wall_s": time.perf_counter() - t0,
-          "command": f"python benchmarks/loop_threshold.py --repeats {repeats}"}
-    os.makedirs(os.path.dirname(OUT), exist_ok=True)
-    with open(OUT, "w") as f:
+          "command": "python benchmarks/loop_threshold.py --repeats " + str(repeats)
+                     + (f" --bytes {pair[0]} {pair[1]}" if pair else "")
+                     + ("" if out == OUT else f" --out {os.path.relpath(out, ROOT)}")}
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+    with open(out, "w") as f:
         json.dump(db, f, indent=1)
     for r in rows:
-        print(f"{r['quantity']:48s} {r['derivatives / import (min)']:.2f} "
-              f"{r['derivatives / import (median)']:.2f}")
+        print(f"{r['quantity']:48s} {r['second / first (min)']:.2f} "
+              f"{r['second / first (median)']:.2f}")
 
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
-    main(ap.parse_args().repeats)
+    ap.add_argument("--bytes", nargs=2, default=None, metavar=("A", "B"),
+                    help="two thresholds (bytes) instead of the import's and derivatives'")
+    ap.add_argument("--out", default=OUT)
+    a = ap.parse_args()
+    main(a.repeats, a.bytes, os.path.abspath(a.out))

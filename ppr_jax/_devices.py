@@ -27,25 +27,33 @@ XLA's CPU runtime runs a program as one kernel launch per fused operation (about
 this CPU), and a Runge-Kutta step of these models is hundreds of them: the runs were bound by
 launches, not arithmetic. XLA compiles a while loop that accesses fewer than a threshold of bytes
 as one kernel instead (its `SmallWhileLoopHoistingPass`, which marks the loop a
-`xla_cpu_small_call`; custom calls keep a loop out, and on jaxlib 0.10.2 a dot does not: a
-`lax.map` whose body holds a 2 x 2 product was taken whole). Its default threshold, 1,024 bytes,
-takes none of the solver's loops; at 64 KiB (`loop_flags`) it takes a step's Runge-Kutta
-stages always, and a run's whole loop of steps where its outputs are few enough (the scenes'
-default 755 output times: a run is then a few hundred kernels instead of 100,000-1,000,000),
-but not a batch's loops, whose members would then run on one thread (a batch of 1,024 L1 robots
-at a 16 MiB threshold: 665 -> 620 trajectories/s), nor the loop of a run of many outputs, which
-ran slower as one kernel (L1 with 7,540 output times at 1 MiB: 15.3 -> 19.3 ms). Measured on the
-2-core CPU (`paper-circle`'s program, minimum of 10 warm runs, one process each): L0 7.6 -> 3.2
-ms, L1 5.2 -> 2.8 ms, L2 30.9 -> 11.6 ms, poses equal to 1.4e-12 m; batches and the quasi-static
-L3 (its strip solves' small loops are taken, its solver's loop is not) about unchanged.
+`xla_cpu_small_call`; custom calls keep a loop out, and so do the larger dots: on jaxlib 0.10.2
+a loop holding a 2 x 2 product or a 9 x 9 matrix-vector product was taken whole, one holding an
+(8, 14) x (14, 18) product was not, which kept the quasi-static L3's loop out until its
+right-hand side and Dopri8's interpolant were written without dots: `_lean.Method.interpolate`,
+`_dynamics._eom_terms`). Its default threshold, 1,024 bytes,
+takes none of the solver's loops; at 64 KiB it took a step's Runge-Kutta stages always, and a
+run's whole loop of steps (a run is then a few hundred kernels instead of 100,000-1,000,000;
+since the lean loop saves its outputs in blocks, also with 7,540 output times), but not a
+batch's loops, whose members would then run on one thread (a batch of 1,024 L1 robots at a 16
+MiB threshold: 665 -> 620 trajectories/s). Measured on the 2-core CPU (`paper-circle`'s
+program, minimum of 10 warm runs, one process each): L0 7.6 -> 3.2 ms, L1 5.2 -> 2.8 ms, L2 30.9
+-> 11.6 ms, poses equal to 1.4e-12 m. The quasi-static L3's loop of steps (Dopri8's 14 stages,
+the strips' solves) accesses more: between 64 and 128 KiB at N = 4, between 128 and 256 KiB at
+N = 8 (the default), more than 256 KiB at N = 16. `SMALL_LOOP_BYTES` is 256 KiB (`loop_flags`):
+L3 `paper-circle` 523 -> 178 ms at N = 4 and 726 -> 348 ms at N = 8, while the scene programs
+of L0 and L1 compile to the same programs as at 64 KiB (L2's gains two loops, in its start), and
+their runs, batches and L2's sensitivities measured within this machine's noise, two
+processes a setting, interleaved (`benchmarks/results/loop_threshold_default.json`).
 
-A derivative's loops stay above 64 KiB: the loop of steps of a forward-mode sensitivity carries
+A derivative's loops stay above that: the loop of steps of a forward-mode sensitivity carries
 every parameter's tangent, and XLA splits a step's JVP into about ten times the kernels of the
 step itself (an L2 right-hand side 30 kernels, its JVP 293); in reverse mode the transposed
 replay of a segment's recorded steps is larger still (the replay forward is taken).
 `configure_cpu(derivatives=True)` sets the threshold at `DERIVATIVE_LOOP_BYTES` (4 MiB), which
 takes them. Measured on the 2-core CPU, three processes a setting, interleaved
-(`benchmarks/results/loop_threshold.json`, minima over the processes): the sensitivity of L2
+(`benchmarks/results/loop_threshold.json`, minima over the processes, against 64 KiB, the
+import's threshold then): the sensitivity of L2
 `paper-circle` over 1 s to all 19 parameters 65.9 -> 36.4 ms in forward mode and 91.2 -> 40.7 ms
 in reverse mode; L2 runs (755 and 7,540 output times, 1 s) and batches (L1 x1,024, L0 x256)
 within 4 %; single L0 and L1 runs 1.1 and 1.4 times slower (4.1 -> 4.5 ms, 2.9 -> 4.0 ms). An
@@ -76,7 +84,7 @@ _YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type"
 _EMITTERS_FLAG = "--xla_cpu_use_fusion_emitters"
 _BACKEND_OPTIONS_FLAG = "--xla_backend_extra_options"
 #: bytes: XLA compiles a while loop that accesses fewer as one kernel (module docstring)
-SMALL_LOOP_BYTES = 65536
+SMALL_LOOP_BYTES = 262144
 #: the threshold of `configure_cpu(derivatives=True)`: a sensitivity's loops too (module
 #: docstring)
 DERIVATIVE_LOOP_BYTES = 4 << 20

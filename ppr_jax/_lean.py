@@ -1,52 +1,61 @@
-"""The default explicit solve in one loop: Tsit5 under diffrax's I controller, saved in blocks.
+"""The default explicit solve in one loop: Tsit5 or Dopri8 under diffrax's I controller, saved in
+blocks.
 
-Every scene of L0-L2 integrates with Tsit5 (diffrax's) under diffrax's default adaptive
-controller (`PIDController` with only its integral term). `diffeqsolve` runs that as a general
-loop: a Runge-Kutta step written for any tableau and any state pytree (its stages in a loop with
-a buffer of increments), a controller that handles every option, and saving that visits the
-output times one at a time in a loop of its own. At the sizes of these models (6-12 states)
-that machinery is a third of a step's kernels, and the saving loop alone several kernels per
-output time: an L1 `paper-circle` run (160 steps, 755 output times) spent about a third of its
-time saving.
+Every scene of L0-L2 integrates with Tsit5 (diffrax's), and the quasi-static L3 with Dopri8,
+under diffrax's default adaptive controller (`PIDController` with only its integral term).
+`diffeqsolve` runs that as a general loop: a Runge-Kutta step written for any tableau and any
+state pytree (its stages in a loop with a buffer of increments), a controller that handles every
+option, and saving that visits the output times one at a time in a loop of its own. At the sizes
+of these models (6-12 states) that machinery is a third of a step's kernels, and the saving loop
+alone several kernels per output time: an L1 `paper-circle` run (160 steps, 755 output times)
+spent about a third of its time saving.
 
-`lean_solve` is the same algorithm written for this one case on a flat state: diffrax's
-tableau, its interpolant (`Tsit5.interpolation_cls`) and the controller's own
-`adapt_step_size`, the same first step and clipping of the last step to the end (within 100
-ulp); the stages written out on a (7, n) array of increments, and output times saved a block
-of `BLOCK` at a time, each block one vectorised interpolation.
-Its solutions equal `diffeqsolve`'s to rounding (the sums are taken in another order), with
-the same step counts; it is forward-differentiable (`jax.jvp`, `jax.jacfwd`: the step sizes
-carry no derivative, as diffrax's controller stops them) and maps under `vmap`.
+`lean_solve` is the same algorithm written for this one case on a flat state: diffrax's tableau,
+its interpolant (`interpolation_cls`; Dopri8's evaluated without a dot, `Method.interpolate`)
+and the controller's own `adapt_step_size`, the same first step and clipping of the last step to
+the end (within 100 ulp); the stages written out on an (s, n) array of increments (s = 7 for
+Tsit5, 14 for Dopri8: `Method`), and output times saved a block of `BLOCK` at a time, each block
+one vectorised interpolation. Its solutions equal `diffeqsolve`'s to rounding (the sums are
+taken in another order), with the same step counts; it is forward-differentiable (`jax.jvp`,
+`jax.jacfwd`: the step sizes carry no derivative, as diffrax's controller stops them) and maps
+under `vmap`.
 
 Reverse mode (`lean_vjp`, through `_simulate._solve_recorded`) differentiates the steps this
 loop accepted: recorded (`record=True`), the loop also keeps each accepted step's end (a
 `max_steps + 1` grid) and the state at every `SEGMENT`-th accepted step (the `Tape`). The
 backward pass takes the segments from the last: it replays one from its recorded state under
-`jax.vjp` and transposes it. Each stage is rematerialised (`jax.checkpoint`), so a segment
-keeps only its stages' increments, not every intermediate of every right-hand side: kept,
-their stacking was most of the backward pass's kernels (L1 `paper-circle` gradient 24.5 ms,
-with the stages rematerialised 12.3 ms). Before, reverse mode ran diffrax's `diffeqsolve`
-twice (recording, then on the recorded grid under its checkpointed loop); its result is the
-same to rounding (`tests/test_lean.py`), and a chosen number of checkpoints still runs it.
+`jax.vjp` and transposes it. Each stage is rematerialised (`jax.checkpoint`), so a segment keeps
+only its stages' increments, not every intermediate of every right-hand side: kept, their
+stacking was most of the backward pass's kernels (L1 `paper-circle` gradient 24.5 ms, with the
+stages rematerialised 12.3 ms). Before, reverse mode ran diffrax's `diffeqsolve` twice
+(recording, then on the recorded grid under its checkpointed loop); its result is the same to
+rounding (`tests/test_lean.py`), and a chosen number of checkpoints still runs it.
+
+Dopri8 joined for the quasi-static L3, whose run was bound by kernel launches: its right-hand
+side (the strips' solves, the generic equations of motion) is thousands of kernels a step, and
+diffrax's loop of steps is not one that XLA compiles as one kernel (`_devices`). On the lean
+loop, with no dot left in it, it is, for N up to 8 at the import's threshold
+(`_devices.SMALL_LOOP_BYTES`): L3 `paper-circle` at N = 4 on the 2-core CPU 650 -> 180 ms.
 
 The first step is 0.01 s, which is what diffrax 0.7 takes, not the Hairer estimate its
-controller means to take: `PIDController.init` estimates a first step only for an `ODETerm`,
-and `diffeqsolve` hands it the terms wrapped (`WrapTerm`), so it falls back to 0.01 for every
-solve (found when this loop, with the estimate, took other steps than `diffeqsolve`).
-`tests/test_lean.py` compares the two loops' steps and solutions, so a diffrax that changes
-this shows there.
+controller means to take: `PIDController.init` estimates a first step only for an `ODETerm`, and
+`diffeqsolve` hands it the terms wrapped (`WrapTerm`), so it falls back to 0.01 for every solve
+(found when this loop, with the estimate, took other steps than `diffeqsolve`).
+`tests/test_lean.py` compares the two loops' steps and solutions, so a diffrax that changes this
+shows there.
 
 `lean_applies` decides, in Python before tracing, whether a solve is this case; anything else
 (another solver or controller, a controller with options, steps clipped to given times, `throw`,
 a progress meter, other saving) runs on `diffeqsolve` as before, and so does every member of a
 vmapped batch (`AbstractModel.batch_member`, `_simulate._solve`): under `vmap` this loop
-measured slower than diffrax's (L1 `paper-circle` x256: 530 against 652 trajectories/s; a
-block of one output time 393, of four 509, of sixteen 484). On a CPU a batch of L0-L2 is not
-vmapped: its members run this loop one after another (`_scenes/_batch.py`).
+measured slower than diffrax's (L1 `paper-circle` x256: 530 against 652 trajectories/s; a block
+of one output time 393, of four 509, of sixteen 484). On a CPU a batch of L0-L2 is not vmapped:
+its members run this loop one after another (`_scenes/_batch.py`).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import diffrax
@@ -54,14 +63,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from diffrax._solver.tsit5 import _tsit5_tableau as _TABLEAU
 
 from ._custom_types import Array
 
 #: the first step (s): what diffrax 0.7's controller takes (module docstring)
 FIRST_STEP = 0.01
-#: the order of Tsit5's error estimate, as `diffeqsolve` gives it to the controller
-ERROR_ORDER = 5
 #: output times saved per block (one vectorised interpolation each; a step that passes more
 #: output times takes several blocks)
 BLOCK = 8
@@ -69,22 +75,75 @@ BLOCK = 8
 #: at every SEGMENT-th step, and the backward pass holds one segment's residuals at a time
 SEGMENT = 16
 
-# The tableau as (7, 7) stage weights (row i: the increments that stage i adds), the stage
-# times and the 5th-order weights and the error weights, from diffrax's own Tsit5.
-_A = np.zeros((7, 7))
-for _i, _row in enumerate(_TABLEAU.a_lower):
-    _A[_i + 1, : _i + 1] = _row
-_C = np.concatenate([[0.0], np.asarray(_TABLEAU.c)])
-_B_SOL = np.asarray(_TABLEAU.b_sol)
-_B_ERR = np.asarray(_TABLEAU.b_error)
+class Method(NamedTuple):
+    """An explicit first-same-as-last Runge-Kutta method as the lean loop runs it, from
+    diffrax's own solver class: `A` (s, s) stage weights (row i: the increments that stage i
+    adds), `C` (s,) stage times, `B_SOL` and `B_ERR` (s,) the solution's and the error
+    estimate's weights, `error_order` as `diffeqsolve` gives it to the controller, and the
+    solver's interpolant (`interpolation_cls(t0=, t1=, y0=, y1=, k=)`)."""
+
+    A: np.ndarray
+    C: np.ndarray
+    B_SOL: np.ndarray
+    B_ERR: np.ndarray
+    error_order: int
+    interpolation_cls: type
+
+    @property
+    def stages(self) -> int:
+        return self.C.shape[0]
+
+    def interpolate(self, t0, t1, y0, y1, k, t):
+        """The solver's dense output on the step (t0, t1) from y0 to y1 with increments k
+        (s, n), at t: diffrax's interpolant. Dopri8's is evaluated here with the same
+        coefficients as a sum of weighted rows (`_weighted`): diffrax's evaluates it as a
+        product of (14,) coefficients with k, which under the saving block's `vmap` is a
+        (BLOCK, 14) x (14, n) dot, and a dot of that size keeps XLA's CPU compiler from
+        compiling the loop that holds it as one kernel (`_devices`)."""
+        if self.interpolation_cls is not _DOPRI8_INTERPOLATION:
+            return self.interpolation_cls(t0=t0, t1=t1, y0=y0, y1=y1, k=k).evaluate(t)
+        # (t - t0) / (t1 - t0), 0 on a step of zero length (diffrax's `linear_rescale`)
+        same = t0 == t1
+        x = jnp.where(same, 0.0, t - t0) / jnp.where(same, 1.0, t1 - t0)
+        coeffs = jnp.asarray(_DOPRI8_INTERPOLATION.eval_coeffs, dtype=x.dtype)
+        w = jnp.polyval(coeffs.T, x) * x  # Horner's rule on every row at once: (14,)
+        return y0 + _weighted([w[i] for i in range(w.shape[0])], k)
+
+
+_DOPRI8_INTERPOLATION = diffrax.Dopri8.interpolation_cls
+
+
+@functools.cache
+def method_of(solver_cls: type) -> Method:
+    """The `Method` of one of diffrax's explicit FSAL solver classes (`LEAN_SOLVERS`)."""
+    tab = solver_cls.tableau
+    s = len(tab.b_sol)
+    A = np.zeros((s, s))
+    for i, row in enumerate(tab.a_lower):
+        A[i + 1, : i + 1] = row
+    C = np.concatenate([[0.0], np.asarray(tab.c)])
+    # the error order `diffeqsolve` hands the controller: the solver's own for an ODE
+    order = solver_cls().error_order(diffrax.ODETerm(lambda t, y, args: y))
+    return Method(A, C, np.asarray(tab.b_sol), np.asarray(tab.b_error), int(order),
+                  solver_cls.interpolation_cls)
+
+
+#: the solvers the lean loop runs: Tsit5 (L0-L2's default) and Dopri8 (the quasi-static L3's),
+#: both explicit and first same as last (the last stage is f(t1, y1))
+LEAN_SOLVERS = (diffrax.Tsit5, diffrax.Dopri8)
+#: Tsit5's method: the default of `lean_solve` and `lean_vjp`
+TSIT5 = method_of(diffrax.Tsit5)
+#: the order of Tsit5's error estimate, as `diffeqsolve` gives it to the controller
+ERROR_ORDER = TSIT5.error_order
 
 
 def lean_applies(solver, controller, dt0, throw, progress_meter, saveat) -> bool:
     """Whether a solve is the one `lean_solve` computes (module docstring): diffrax's `Tsit5`
+    or `Dopri8` (`LEAN_SOLVERS`)
     under a `PIDController` with only its integral term (pcoeff 0, dcoeff 0: its state then
     does not enter the step size) and no dtmin or dtmax; the first step chosen by the
     controller (dt0 None); no `throw`, no progress meter; output at given times only."""
-    if type(solver) is not diffrax.Tsit5 or type(controller) is not diffrax.PIDController:
+    if type(solver) not in LEAN_SOLVERS or type(controller) is not diffrax.PIDController:
         return False
     c = controller
     if not all(isinstance(x, (int, float)) and x == 0 for x in (c.pcoeff, c.dcoeff)):
@@ -95,7 +154,7 @@ def lean_applies(solver, controller, dt0, throw, progress_meter, saveat) -> bool
 
 def _weighted(weights, k):
     """sum_i weights[i] k[i] over the nonzero weights (Python numbers or arrays broadcasting
-    against k's rows); k (7, n)."""
+    against k's rows); k (s, n)."""
     out = None
     for i, w in enumerate(weights):
         if isinstance(w, (int, float, np.floating)) and w == 0:
@@ -119,7 +178,7 @@ def ulps_below(x: Array, n: int) -> Array:
     return jnp.where(jnp.abs(x) >= 1e-290, below, x - n * jnp.finfo(x.dtype).tiny)
 
 
-def _adapt(tprev, tn, y, y1, err, controller, t1, floor):
+def _adapt(tprev, tn, y, y1, err, controller, t1, floor, error_order=ERROR_ORDER):
     """(keep, next t0, next t1): the controller's own decision on the step (tprev, tn) from y to
     y1 with error estimate err (NaN read as inf, as `diffeqsolve` does), then `diffeqsolve`'s
     clipping of a step that ends within 100 ulp (`floor`) of t1."""
@@ -128,35 +187,36 @@ def _adapt(tprev, tn, y, y1, err, controller, t1, floor):
     # state `PIDController.init` returns serves every step
     state = (jnp.ones((), y.dtype), jnp.ones((), y.dtype), False)
     keep, nt0, nt1, _, _, _ = controller.adapt_step_size(tprev, tn, y, y1, None, err,
-                                                          ERROR_ORDER, state)
+                                                          error_order, state)
     nt0 = jnp.minimum(nt0, t1)
     nt1 = jnp.where(nt1 > floor, jnp.where(keep, t1, nt0 + 0.5 * (t1 - nt0)), nt1)
     return keep, nt0, nt1
 
 
-def _stage_f(vf, tprev, h, y, k, i):
-    """Stage i's derivative vf(tprev + c_i h, y + sum_j a_ij k_j); i traced, k (7, n)."""
-    yi = y + jnp.sum(jnp.asarray(_A)[i][:, None] * k, axis=0)
-    return vf(tprev + jnp.asarray(_C)[i] * h, yi)
+def _stage_f(vf, tprev, h, y, k, i, method: Method = TSIT5):
+    """Stage i's derivative vf(tprev + c_i h, y + sum_j a_ij k_j); i traced, k (s, n)."""
+    yi = y + jnp.sum(jnp.asarray(method.A)[i][:, None] * k, axis=0)
+    return vf(tprev + jnp.asarray(method.C)[i] * h, yi)
 
 
-def _stages(vf, tprev, h, y, fy, remat=False):
-    """Tsit5's step from (tprev, y) over h: (k (7, n) the stages' increments, y1 (n,)); fy is
-    vf(tprev, y) (first same as last)."""
+def _stages(vf, tprev, h, y, fy, remat=False, method: Method = TSIT5):
+    """`method`'s step from (tprev, y) over h: (k (s, n) the stages' increments, y1 (n,)); fy
+    is vf(tprev, y) (first same as last)."""
     def stage(k, i):
-        return k.at[i].set(_stage_f(vf, tprev, h, y, k, i) * h), None
+        return k.at[i].set(_stage_f(vf, tprev, h, y, k, i, method) * h), None
 
     if remat:
         stage = jax.checkpoint(stage, policy=jax.checkpoint_policies.nothing_saveable,
                                prevent_cse=False)
-    k = jnp.zeros((7, y.shape[0]), y.dtype).at[0].set(fy * h)
+    s = method.stages
+    k = jnp.zeros((s, y.shape[0]), y.dtype).at[0].set(fy * h)
     # the stages in a loop, as diffrax runs them: unrolled, XLA fuses the right-hand sides
     # of neighbouring stages into each other and compiles for longer
-    k, _ = jax.lax.scan(stage, k, jnp.arange(1, 7))
-    return k, y + _weighted(_B_SOL, k)
+    k, _ = jax.lax.scan(stage, k, jnp.arange(1, s))
+    return k, y + _weighted(method.B_SOL, k)
 
 
-def _stages_from(vf, tprev, h, y, fy, first):
+def _stages_from(vf, tprev, h, y, fy, first, method: Method = TSIT5):
     """`_stages`, where on the `first` step (a traced bool) the loop also computes fy =
     vf(tprev, y), its stage 0 (A's row 0 and c_0 are zero), instead of taking it: the solve
     then compiles its right-hand side once, in the loop, not a second time for the start
@@ -164,15 +224,16 @@ def _stages_from(vf, tprev, h, y, fy, first):
     fy)."""
     def stage(i, c):
         k, f0 = c
-        f = _stage_f(vf, tprev, h, y, k, i)
+        f = _stage_f(vf, tprev, h, y, k, i, method)
         return k.at[i].set(f * h), jnp.where(i == 0, f, f0)
 
     # on the first step fy is a placeholder of zeros: k[0] = 0 until stage 0 sets it, and
     # stage 0 reads y + 0
-    k = jnp.zeros((7, y.shape[0]), y.dtype).at[0].set(fy * h)
+    s = method.stages
+    k = jnp.zeros((s, y.shape[0]), y.dtype).at[0].set(fy * h)
     lo = jnp.where(first, 0, 1)
-    k, f0 = jax.lax.fori_loop(lo, 7, stage, (k, fy))
-    return k, y + _weighted(_B_SOL, k), jnp.where(first, f0, fy)
+    k, f0 = jax.lax.fori_loop(lo, s, stage, (k, fy))
+    return k, y + _weighted(method.B_SOL, k), jnp.where(first, f0, fy)
 
 
 class Tape(NamedTuple):
@@ -187,7 +248,7 @@ class Tape(NamedTuple):
 
 
 def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_steps: int,
-               record: bool = False):
+               record: bool = False, method: Method = TSIT5):
     """Solve y' = vf(t, y) from (ts[0], y0) to ts[-1], saving at `ts` (module docstring).
 
     **Arguments:**
@@ -215,11 +276,10 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
         tprev, tn, y, fy, steps, accepted, ys, saved = state[:8]
         h = tn - tprev
         first = steps == 0
-        k, y1, fy = _stages_from(vf, tprev, h, y, fy, first)
-        keep, nt0, nt1 = _adapt(tprev, tn, y, y1, _weighted(_B_ERR, k), controller, t1, floor)
+        k, y1, fy = _stages_from(vf, tprev, h, y, fy, first, method)
+        keep, nt0, nt1 = _adapt(tprev, tn, y, y1, _weighted(method.B_ERR, k), controller, t1,
+                                floor, method.error_order)
 
-        # diffrax's own Tsit5 interpolant on this step
-        dense = diffrax.Tsit5.interpolation_cls(t0=tprev, t1=tn, y0=y, y1=y1, k=k)
 
         def more(c):
             j, _ = c
@@ -229,13 +289,15 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
             j, ys = c
             tt = jax.lax.dynamic_slice(padded, (j,), (BLOCK,))
             due = (tt <= tn) & (rows + j < m)
-            vals = jax.vmap(dense.evaluate)(jnp.where(due, tt, tprev))
+            # the solver's own interpolant on this step
+            vals = jax.vmap(lambda t: method.interpolate(tprev, tn, y, y1, k, t))(
+                jnp.where(due, tt, tprev))
             old = jax.lax.dynamic_slice(ys, (j, 0), (BLOCK, n))
             ys = jax.lax.dynamic_update_slice(ys, jnp.where(due[:, None], vals, old), (j, 0))
             return j + jnp.sum(due, dtype=j.dtype), ys
 
         saved, ys = jax.lax.while_loop(more, save, (saved, ys))
-        y_next, f_next = jnp.where(keep, y1, y), jnp.where(keep, k[6] / h, fy)
+        y_next, f_next = jnp.where(keep, y1, y), jnp.where(keep, k[-1] / h, fy)
         new = accepted + keep.astype(accepted.dtype)
         out = (nt0, nt1, y_next, f_next, steps + 1, new, ys, saved)
         if record:
@@ -273,7 +335,8 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
     return ys[:m], times, result, stats
 
 
-def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool = True):
+def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool = True,
+             method: Method = TSIT5):
     """Reverse mode of `lean_solve` on its own accepted steps: the cotangents of (d, y0, ts)
     given the cotangent `g_ys` (m, n) of its saved states (module docstring).
 
@@ -316,7 +379,7 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool =
 
     def segment(dd, y, fy, t0, t1, start, count):
         """The segment's `count` steps from accepted step `start`: its end (y, fy) and each
-        step's start state and increments (SEGMENT, n), (SEGMENT, 7, n)."""
+        step's start state and increments (SEGMENT, n), (SEGMENT, s, n)."""
         def one(c, i):
             y, fy = c
             # a step past the segment's end is a step of zero size from a finite time: the
@@ -326,9 +389,10 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool =
                               grid[start])
             tn = jnp.where(start + i == last, t1, grid[start + i + 1])
             h = jnp.where(active, tn - tprev, 0.0)
-            k, y1 = _stages(lambda t, yy: vf(dd, t, yy), tprev, h, y, fy, remat=True)
+            k, y1 = _stages(lambda t, yy: vf(dd, t, yy), tprev, h, y, fy, remat=True,
+                            method=method)
             nxt = (jnp.where(active, y1, y),
-                   jnp.where(active, k[6] / jnp.where(active, h, 1.0), fy))
+                   jnp.where(active, k[-1] / jnp.where(active, h, 1.0), fy))
             return nxt, (y, k)
 
         (y, fy), (ys, ks) = jax.lax.scan(one, (y, fy), lanes)
@@ -341,7 +405,7 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool =
         hi = jnp.searchsorted(owner, start + count, side="left").astype(start.dtype)
 
         def interp(y, k, tprev, tn, t):
-            return diffrax.Tsit5.interpolation_cls(t0=tprev, t1=tn, y0=y, y1=y, k=k).evaluate(t)
+            return method.interpolate(tprev, tn, y, y, k, t)
 
         def more(c):
             return c[0] < hi

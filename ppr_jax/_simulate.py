@@ -31,7 +31,7 @@ from ._errors import (
     is_traced,
 )
 from ._esdirk import KeptKvaerno5
-from ._lean import Tape, lean_applies, lean_solve, lean_vjp
+from ._lean import Tape, lean_applies, lean_solve, lean_vjp, method_of
 from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
@@ -390,7 +390,7 @@ def _solve(diff, model, solver, stepsize_controller, dt0, max_steps, throw, prog
     if not model.batch_member and lean_applies(solver, stepsize_controller, dt0, throw,
                                                progress_meter, saveat):
         out = lean_solve(lambda t, y: vf(t, y, None), y0, ts, stepsize_controller, max_steps,
-                         record=record)
+                         record=record, method=method_of(type(solver)))
         return (_LeanSolution(*out[:4]), out[4]) if record else _LeanSolution(*out)
     return diffrax.diffeqsolve(
         diffrax.ODETerm(vf), solver, ts[0], ts[-1], dt0, y0,
@@ -457,7 +457,8 @@ def _solve_recorded_bwd(grid, g_out, perturbed, diff, model, solver, stepsize_co
         dyn, const = eqx.partition(diff[:3], perturbed[:3])
         field = _flat_field(model, skip)
         g_d, g_y0, g_ts = lean_vjp(lambda d, t, y: field(eqx.combine(d, const), t, y), dyn, y0,
-                                   ts, grid, g_ys, times=bool(perturbed[4]))
+                                   ts, grid, g_ys, times=bool(perturbed[4]),
+                                   method=method_of(type(solver)))
         return (*g_d, g_y0, g_ts)
     del perturbed, stepsize_controller, dt0, throw, progress_meter
 

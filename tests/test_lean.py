@@ -1,10 +1,11 @@
 """The lean solve (`ppr_jax/_lean.py`) against diffrax's `diffeqsolve` with the same solver and
 controller, an independent implementation of the same algorithm: a forced Van der Pol
 oscillator at three tolerances (the same steps, accepted and rejected, and the same solution to
-rounding), a budget that runs out (the status code and the rows not reached), forward-mode
-derivatives in a parameter and the initial state, a batch under `vmap`, and which solves take
-the lean loop; its reverse mode (`lean_vjp`) against forward mode and against diffrax's own
-backward pass on the same steps."""
+rounding; Tsit5 and Dopri8, with Dopri8's interpolant against diffrax's own), a budget that
+runs out (the status code and the rows not reached), forward-mode derivatives in a parameter
+and the initial state, a batch under `vmap`, and which solves take the lean loop; its reverse
+mode (`lean_vjp`) against forward mode and against diffrax's own backward pass on the same
+steps."""
 
 import functools
 
@@ -15,7 +16,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ppr_jax._lean import SEGMENT, lean_applies, lean_solve, lean_vjp, ulps_below
+from ppr_jax._lean import (
+    SEGMENT,
+    lean_applies,
+    lean_solve,
+    lean_vjp,
+    method_of,
+    ulps_below,
+)
 from ppr_jax._simulate import RecordedGrid
 
 TS = jnp.linspace(0.0, 10.0, 101)
@@ -26,24 +34,30 @@ def _vf(t, y, mu):
     return jnp.stack([y[1], mu * (1 - y[0] ** 2) * y[1] - y[0] + jnp.sin(3 * t)])
 
 
-def _diffrax(y0, mu, rtol, max_steps=100_000, adjoint=None, **ctrl):
+def _diffrax(y0, mu, rtol, max_steps=100_000, adjoint=None, solver=diffrax.Tsit5, **ctrl):
     c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2, **ctrl)
     kw = {} if adjoint is None else {"adjoint": adjoint}
-    sol = diffrax.diffeqsolve(diffrax.ODETerm(lambda t, y, a: _vf(t, y, mu)), diffrax.Tsit5(),
+    sol = diffrax.diffeqsolve(diffrax.ODETerm(lambda t, y, a: _vf(t, y, mu)), solver(),
                               TS[0], TS[-1], None, y0, saveat=diffrax.SaveAt(ts=TS),
                               stepsize_controller=c, max_steps=max_steps, throw=False, **kw)
     return sol.ys, sol.ts, sol.result, sol.stats
 
 
-def _lean(y0, mu, rtol, max_steps=100_000, **ctrl):
+def _lean(y0, mu, rtol, max_steps=100_000, solver=diffrax.Tsit5, **ctrl):
     c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2, **ctrl)
-    return lean_solve(lambda t, y: _vf(t, y, mu), y0, TS, c, max_steps)
+    return lean_solve(lambda t, y: _vf(t, y, mu), y0, TS, c, max_steps,
+                      method=method_of(solver))
 
 
-@pytest.mark.parametrize("rtol", [1e-6, 1e-8, 1e-10])
-def test_same_steps_and_solution_as_diffeqsolve(rtol):
-    ys_d, ts_d, res_d, st_d = jax.jit(_diffrax, static_argnums=2)(Y0, 2.0, rtol)
-    ys_l, ts_l, res_l, st_l = jax.jit(_lean, static_argnums=2)(Y0, 2.0, rtol)
+@pytest.mark.parametrize("solver, rtol", [(diffrax.Tsit5, 1e-6), (diffrax.Tsit5, 1e-8),
+                                          (diffrax.Tsit5, 1e-10), (diffrax.Dopri8, 1e-8),
+                                          (diffrax.Dopri8, 1e-11)])
+def test_same_steps_and_solution_as_diffeqsolve(solver, rtol):
+    run = functools.partial(jax.jit, static_argnums=(2, 3))
+    ys_d, ts_d, res_d, st_d = run(lambda y, mu, r, n: _diffrax(y, mu, r, n, solver=solver))(
+        Y0, 2.0, rtol, 100_000)
+    ys_l, ts_l, res_l, st_l = run(lambda y, mu, r, n: _lean(y, mu, r, n, solver=solver))(
+        Y0, 2.0, rtol, 100_000)
     # the same structure: reverse mode swaps one for the other (`_simulate._solve_recorded`)
     assert jax.tree_util.tree_structure(st_l) == jax.tree_util.tree_structure(st_d)
     for key in st_d:
@@ -157,10 +171,29 @@ def test_a_batch_equals_its_members():
         assert int(batch[3]["num_steps"][i]) == int(one[3]["num_steps"])
 
 
+def test_dopri8s_interpolant_is_diffraxs():
+    """The loop evaluates Dopri8's dense output as a sum of weighted rows (no dot, which would
+    keep the loop from compiling as one kernel): diffrax's interpolant to rounding, on a step
+    of random increments, at its ends and inside."""
+    rng = np.random.default_rng(5)
+    k = jnp.asarray(rng.normal(size=(14, 5)))
+    y0 = jnp.asarray(rng.normal(size=5))
+    t0, t1 = 0.3, 0.3 + 2e-3
+    ts = jnp.asarray(np.concatenate([[t0, t1], t0 + (t1 - t0) * rng.uniform(size=20)]))
+    method = method_of(diffrax.Dopri8)
+    ours = jax.vmap(lambda t: method.interpolate(t0, t1, y0, y0, k, t))(ts)
+    dense = diffrax.Dopri8.interpolation_cls(t0=t0, t1=t1, y0=y0, y1=y0, k=k)
+    theirs = jax.vmap(dense.evaluate)(ts)
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-14 * float(jnp.abs(theirs).max()))
+    # a step of zero length: y0, as diffrax's `linear_rescale` gives it
+    np.testing.assert_array_equal(method.interpolate(t0, t0, y0, y0, k, t0), y0)
+
+
 def test_which_solves_take_it():
     pid = diffrax.PIDController(rtol=1e-8, atol=1e-10)
     none = diffrax.NoProgressMeter()
     assert lean_applies(diffrax.Tsit5(), pid, None, False, none, None)
+    assert lean_applies(diffrax.Dopri8(), pid, None, False, none, None)
     assert not lean_applies(diffrax.Dopri5(), pid, None, False, none, None)
     assert not lean_applies(diffrax.Tsit5(), diffrax.PIDController(rtol=1e-8, atol=1e-10,
                                                                    pcoeff=0.2, icoeff=0.4),
@@ -209,20 +242,23 @@ def _vf_d(d, t, y):
     return _vf(t, y, d["mu"]) + jnp.stack([0.0 * t, (d["a"] - 1.0) * jnp.sin(3 * t)])
 
 
-def _loss_fwd(p, ts, rtol, max_steps=100_000):
+def _loss_fwd(p, ts, rtol, max_steps=100_000, solver=diffrax.Tsit5):
     """sum(W * ys) through the lean loop, for forward mode."""
     d = {"mu": p[2], "a": p[3]}
     c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2)
-    ys = lean_solve(lambda t, y: _vf_d(d, t, y), p[:2], ts, c, max_steps)[0]
+    ys = lean_solve(lambda t, y: _vf_d(d, t, y), p[:2], ts, c, max_steps,
+                    method=method_of(solver))[0]
     return jnp.sum(jnp.where(jnp.isfinite(ys), W * ys, 0.0))
 
 
-@functools.partial(jax.jit, static_argnums=(3, 4))
-def _rev(p, ts, g, rtol=1e-9, max_steps=100_000):
+@functools.partial(jax.jit, static_argnums=(3, 4, 5))
+def _rev(p, ts, g, rtol=1e-9, max_steps=100_000, solver=diffrax.Tsit5):
     d = {"mu": p[2], "a": p[3]}
     c = diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2)
-    *_, tape = lean_solve(lambda t, y: _vf_d(d, t, y), p[:2], ts, c, max_steps, record=True)
-    gd, gy0, gts = lean_vjp(_vf_d, d, p[:2], ts, tape, g)
+    method = method_of(solver)
+    *_, tape = lean_solve(lambda t, y: _vf_d(d, t, y), p[:2], ts, c, max_steps, record=True,
+                          method=method)
+    gd, gy0, gts = lean_vjp(_vf_d, d, p[:2], ts, tape, g, method=method)
     return jnp.concatenate([gy0, jnp.stack([gd["mu"], gd["a"]])]), gts, tape
 
 
@@ -263,6 +299,17 @@ def test_reverse_mode_equals_diffrax_on_the_recorded_steps():
     g_d, gts_d = jax.jit(jax.grad(loss, argnums=(0, 1)))(P, TS)
     np.testing.assert_allclose(g, g_d, rtol=0, atol=1e-12 * np.abs(g_d).max())
     np.testing.assert_allclose(gts, gts_d, rtol=0, atol=1e-12 * np.abs(gts_d).max())
+
+
+def test_reverse_mode_of_dopri8_equals_forward_mode():
+    """Dopri8 (the quasi-static L3's solver) in both modes through the lean loop: the
+    parameters', the initial state's and the output times' cotangents are forward mode's."""
+    g, gts, tape = _rev(P, TS, W, 1e-9, 100_000, diffrax.Dopri8)
+    assert int(tape.accepted) > SEGMENT
+    g_f = jax.jacfwd(_loss_fwd)(P, TS, 1e-9, 100_000, diffrax.Dopri8)
+    np.testing.assert_allclose(g, g_f, rtol=0, atol=1e-12 * np.abs(g_f).max())
+    gts_f = jax.jacfwd(_loss_fwd, argnums=1)(P, TS, 1e-9, 100_000, diffrax.Dopri8)
+    np.testing.assert_allclose(gts[1:], gts_f[1:], rtol=0, atol=1e-12 * np.abs(gts_f).max())
 
 
 def test_reverse_mode_of_a_solve_that_stops_short():
@@ -318,6 +365,35 @@ def test_a_scenes_stages_compile_as_one_kernel():
         small = [line for line in text.splitlines()
                  if " call(" in line and "xla_cpu_small_call" in line]
         assert small, model
+
+
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
+def test_the_quasi_static_l3s_loop_of_steps_compiles_as_one_kernel():
+    """The quasi-static L3 at its default N = 8 runs Dopri8 on the lean loop, and under the
+    library's threshold XLA compiles its whole loop of steps as one kernel. A dot in it (a
+    product that XLA hands to its matrix library: Dopri8's interpolant or the mass matrix as
+    einsums, `_lean.Method.interpolate`, `_dynamics._eom_terms`) or a loop grown past
+    `SMALL_LOOP_BYTES` keeps it out, and the run is 2-3 times slower."""
+    import os
+    import re
+
+    import equinox as eqx
+
+    import ppr_jax as pj
+    from ppr_jax._devices import loop_flags
+    from ppr_jax._scenes._options import SceneOptions
+    from ppr_jax._scenes._run import prepare, scene_program
+
+    if not loop_flags() or loop_flags()[0] not in os.environ.get("XLA_FLAGS", ""):
+        pytest.skip("the small-loop threshold is not set in this process")
+    c = prepare("paper-circle", None, pj.QuasiStaticBeam(8), SceneOptions(t_end=0.05, n_out=6))
+    dyn, static = eqx.partition(c.args, eqx.is_array)
+    text = jax.jit(lambda d: scene_program(*eqx.combine(d, static))).lower(dyn).compile(
+    ).as_text()
+    steps = [line for line in text.splitlines()
+             if " call(" in line and "xla_cpu_small_call" in line
+             and re.search(r'jit\(simulate_core\)/while"', line)]
+    assert steps
 
 
 _DERIVATIVE_LOOPS = """
