@@ -309,7 +309,10 @@ def test_reverse_mode_of_dopri8_equals_forward_mode():
     g_f = jax.jacfwd(_loss_fwd)(P, TS, 1e-9, 100_000, diffrax.Dopri8)
     np.testing.assert_allclose(g, g_f, rtol=0, atol=1e-12 * np.abs(g_f).max())
     gts_f = jax.jacfwd(_loss_fwd, argnums=1)(P, TS, 1e-9, 100_000, diffrax.Dopri8)
-    np.testing.assert_allclose(gts[1:], gts_f[1:], rtol=0, atol=1e-12 * np.abs(gts_f).max())
+    # the output times' cotangents go through the interpolant's derivative in t: a polynomial of
+    # degree 6 whose coefficients sum to hundreds in magnitude, over h, so the two modes'
+    # orders of summation differ by more rounding than Tsit5's (3e-11 of the largest seen)
+    np.testing.assert_allclose(gts[1:], gts_f[1:], rtol=0, atol=1e-10 * np.abs(gts_f).max())
 
 
 def test_reverse_mode_of_a_solve_that_stops_short():
