@@ -241,20 +241,35 @@ def _jvp_residuals_once(fn, primals, tangents):
     return lin(dt)
 
 
+#: the most coordinates whose generic equations of motion form their products as elementwise
+#: sums (`_eom_terms`): L0-L2 and the quasi-static L3 (3-9); the full L3's (tens) as dots
+SUMS_MAX_DOF = 12
+
+
 def _eom_terms(model, robot, z, zdot, implicit: bool) -> EOM:
     k, Q, (Jp, Ja, Jth, JX), (acc_p, acc_a) = _derivatives(
         model, robot, z, zdot, convective=True, implicit=implicit
     )
     m, I = model.masses(robot)
-    # Jp (nb, 2, n), Ja (nb, n). Sums of products, not einsums: XLA's CPU compiler makes an
-    # einsum a dot, and the (n, n) mass matrix's dot kept the quasi-static L3's loop of steps
-    # from compiling as one kernel (`_devices`); as elementwise sums it fuses (L3 `paper-circle`
-    # at N = 4 on 2 cores: 606 -> 516 ms before its loop was one kernel, 182 ms after).
-    M = (jnp.sum(m[:, None, None, None] * Jp[:, :, :, None] * Jp[:, :, None, :], axis=(0, 1))
-         + jnp.sum(I[:, None, None] * Ja[:, :, None] * Ja[:, None, :], axis=0))
-    h = (jnp.sum(m[:, None, None] * Jp * acc_p[:, :, None], axis=(0, 1))
-         + jnp.sum(I[:, None] * Ja * acc_a[:, None], axis=0))
-    Q = Q - robot.c_act * jnp.sum(Jth * jnp.sum(Jth * zdot[None, :], axis=1)[:, None], axis=0)
+    # Jp (nb, 2, n), Ja (nb, n)
+    if Jp.shape[-1] <= SUMS_MAX_DOF:
+        # Sums of products, not einsums: XLA's CPU compiler makes an einsum a dot, and the
+        # (n, n) mass matrix's dot kept the quasi-static L3's loop of steps from compiling as
+        # one kernel (`_devices`); as elementwise sums it fuses (L3 `paper-circle` at N = 4 on
+        # 2 cores: 606 -> 516 ms before its loop was one kernel, 182 ms after).
+        M = (jnp.sum(m[:, None, None, None] * Jp[:, :, :, None] * Jp[:, :, None, :], axis=(0, 1))
+             + jnp.sum(I[:, None, None] * Ja[:, :, None] * Ja[:, None, :], axis=0))
+        h = (jnp.sum(m[:, None, None] * Jp * acc_p[:, :, None], axis=(0, 1))
+             + jnp.sum(I[:, None] * Ja * acc_a[:, None], axis=0))
+        damping = jnp.sum(Jth * jnp.sum(Jth * zdot[None, :], axis=1)[:, None], axis=0)
+    else:
+        # the full L3's tens of coordinates: the products as dots, which its implicit solver's
+        # loop holds anyway (as sums, the full L3 at N = 16 ran 0.5 s of `paper-circle` in 3.7
+        # instead of 2.3 s: the (nb, 2, n, n) products are a large temporary)
+        M = jnp.einsum("b,bki,bkj->ij", m, Jp, Jp) + jnp.einsum("b,bi,bj->ij", I, Ja, Ja)
+        h = jnp.einsum("b,bki,bk->i", m, Jp, acc_p) + jnp.einsum("b,bi,b->i", I, Ja, acc_a)
+        damping = Jth.T @ (Jth @ zdot)
+    Q = Q - robot.c_act * damping
     return EOM(M=M, h=h, Q_passive=Q, Jth=Jth, JX=JX, kin=k)
 
 
