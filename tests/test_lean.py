@@ -426,7 +426,7 @@ def test_a_sensitivitys_loops_compile_as_one_kernel_with_derivatives_set():
     """With `configure_cpu(derivatives=True)` (a fresh process) the solver's loop of steps of a
     forward-mode sensitivity of every float parameter (19 tangents) is a loop that XLA compiles
     as one kernel, and so is reverse mode's transposed replay of a segment's recorded steps.
-    Under the import's 64 KiB threshold neither is: a step of the forward derivative was about
+    Under the import's threshold (256 KiB) neither is: a step of the forward derivative was about
     300 kernels (docs/performance.md)."""
     import json
     import os
