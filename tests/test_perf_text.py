@@ -109,3 +109,21 @@ def test_engine_profile_batch_section_is_generated_from_the_json():
             if "error" in row:
                 continue
             assert f"{row['trajectories_per_s']:,.0f} trajectories/s" in text, (side, m)
+
+
+def test_readme_contenders_row_quotes_the_benchmark():
+    """README's headline row of L2 at 2e-8 m (ppr_jax, MuJoCo and scipy) quotes the matched
+    times of `cpu/contenders.json` (`gen_perf.headline`), each to its printed digit."""
+    readme = (ROOT / "README.md").read_text()
+    row = re.search(r"\| L2 `paper-circle` \(7\.54 s\) at 2e-8 m error \| ([\d.]+) ms \(([^)]+)\) "
+                    r"\| MuJoCo ([\d.]+) ms, scipy (\w+) ([\d.]+) ms \|", readme)
+    assert row, "the README's contenders row is not where this test reads it"
+    ours, method, mujoco, scipy_method, scipy = row.groups()
+    times = _gen_perf().headline()
+    d = json.loads((ROOT / "benchmarks/results/cpu/contenders.json").read_text())
+    fastest = {r["tool"]: r["method"] for r in d["matched"] if r["error_m"] == 2e-8}
+    assert method.lower() == fastest["ppr_jax"].lower()
+    assert scipy_method == fastest["scipy"]
+    for tok, key in ((ours, "ppr_jax@2e-08"), (mujoco, "mujoco@2e-08"), (scipy, "scipy@2e-08")):
+        digits = len(tok.partition(".")[2])
+        assert abs(1e3 * times[key] - float(tok)) <= 0.5 * 10.0 ** -digits, (key, tok)
