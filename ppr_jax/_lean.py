@@ -133,8 +133,6 @@ def method_of(solver_cls: type) -> Method:
 LEAN_SOLVERS = (diffrax.Tsit5, diffrax.Dopri8)
 #: Tsit5's method: the default of `lean_solve` and `lean_vjp`
 TSIT5 = method_of(diffrax.Tsit5)
-#: the order of Tsit5's error estimate, as `diffeqsolve` gives it to the controller
-ERROR_ORDER = TSIT5.error_order
 
 
 def lean_applies(solver, controller, dt0, throw, progress_meter, saveat) -> bool:
@@ -178,10 +176,11 @@ def ulps_below(x: Array, n: int) -> Array:
     return jnp.where(jnp.abs(x) >= 1e-290, below, x - n * jnp.finfo(x.dtype).tiny)
 
 
-def _adapt(tprev, tn, y, y1, err, controller, t1, floor, error_order=ERROR_ORDER):
+def _adapt(tprev, tn, y, y1, err, controller, t1, floor, error_order):
     """(keep, next t0, next t1): the controller's own decision on the step (tprev, tn) from y to
-    y1 with error estimate err (NaN read as inf, as `diffeqsolve` does), then `diffeqsolve`'s
-    clipping of a step that ends within 100 ulp (`floor`) of t1."""
+    y1 with error estimate err (NaN read as inf, as `diffeqsolve` does) of the method's
+    `error_order`, then `diffeqsolve`'s clipping of a step that ends within 100 ulp (`floor`)
+    of t1."""
     err = jnp.where(jnp.isnan(err), jnp.inf, err)
     # an I controller's state (its previous error ratios) does not enter its step size, so the
     # state `PIDController.init` returns serves every step
@@ -193,13 +192,13 @@ def _adapt(tprev, tn, y, y1, err, controller, t1, floor, error_order=ERROR_ORDER
     return keep, nt0, nt1
 
 
-def _stage_f(vf, tprev, h, y, k, i, method: Method = TSIT5):
+def _stage_f(vf, tprev, h, y, k, i, method: Method):
     """Stage i's derivative vf(tprev + c_i h, y + sum_j a_ij k_j); i traced, k (s, n)."""
     yi = y + jnp.sum(jnp.asarray(method.A)[i][:, None] * k, axis=0)
     return vf(tprev + jnp.asarray(method.C)[i] * h, yi)
 
 
-def _stages(vf, tprev, h, y, fy, remat=False, method: Method = TSIT5):
+def _stages(vf, tprev, h, y, fy, method: Method, remat=False):
     """`method`'s step from (tprev, y) over h: (k (s, n) the stages' increments, y1 (n,)); fy
     is vf(tprev, y) (first same as last)."""
     def stage(k, i):
@@ -216,7 +215,7 @@ def _stages(vf, tprev, h, y, fy, remat=False, method: Method = TSIT5):
     return k, y + _weighted(method.B_SOL, k)
 
 
-def _stages_from(vf, tprev, h, y, fy, first, method: Method = TSIT5):
+def _stages_from(vf, tprev, h, y, fy, first, method: Method):
     """`_stages`, where on the `first` step (a traced bool) the loop also computes fy =
     vf(tprev, y), its stage 0 (A's row 0 and c_0 are zero), instead of taking it: the solve
     then compiles its right-hand side once, in the loop, not a second time for the start
@@ -389,8 +388,7 @@ def lean_vjp(vf, d, y0: Array, ts: Array, tape: Tape, g_ys: Array, times: bool =
                               grid[start])
             tn = jnp.where(start + i == last, t1, grid[start + i + 1])
             h = jnp.where(active, tn - tprev, 0.0)
-            k, y1 = _stages(lambda t, yy: vf(dd, t, yy), tprev, h, y, fy, remat=True,
-                            method=method)
+            k, y1 = _stages(lambda t, yy: vf(dd, t, yy), tprev, h, y, fy, method, remat=True)
             nxt = (jnp.where(active, y1, y),
                    jnp.where(active, k[-1] / jnp.where(active, h, 1.0), fy))
             return nxt, (y, k)
