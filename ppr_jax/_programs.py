@@ -70,6 +70,7 @@ import jax
 
 from ._errors import RepairWarning
 from ._files import write_file
+from ._host_split import HostSplit
 from ._labels import LABEL
 
 #: bump when the stored layout changes
@@ -491,7 +492,11 @@ def compiled_program(fn: Callable, args: tuple, out_template, directory: Optiona
                      label: str):
     """`load_or_export` where `directory` is given and the program can be stored, otherwise the
     usual ahead-of-time compile of `fn` (an `eqx.filter_jit` function). Returns (run, how) with
-    how "loaded", "exported" or "compiled"."""
+    how "loaded", "exported" or "compiled". A batch split over host threads (`HostSplit`)
+    compiles (or stores) one slice's program and runs it on every slice."""
+    if isinstance(fn, HostSplit):
+        run, how = compiled_program(fn.fn, fn.slices(args)[0], out_template, directory, label)
+        return fn.over(run), how
     if directory is not None:
         try:
             return load_or_export(fn, args, out_template, directory, label)

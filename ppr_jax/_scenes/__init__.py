@@ -17,6 +17,7 @@ from ._batch import (
     chunked_vmap,
     compress_shared,
     map_members,
+    on_host_threads,
     shared_mask,
 )
 from ._modes_scene import modes_scene
@@ -52,7 +53,7 @@ __all__ = [
     "check_scene_commands", "chunked_vmap",
     "failure_detail", "finish", "get_scene", "input_panels", "input_panels_at",
     "compress_shared", "experiment_drive", "experiment_scene", "kinematic_motion",
-    "map_members", "modes_scene", "motion_input", "nominal_torques",
+    "map_members", "on_host_threads", "modes_scene", "motion_input", "nominal_torques",
     "paper_circle",
     "path_out_of_reach", "prepare", "result_template", "run_scene", "scene_metrics",
     "register_scene", "scene_names", "scene_params", "servo_circle", "shared_mask",

@@ -15,7 +15,7 @@ from .._params import RobotParams
 from .._programs import cached_program
 from .._robot import Robot
 from ._base import AbstractScene, check_scene_commands
-from ._batch import batch_devices, compress_shared, map_members
+from ._batch import batch_devices, compress_shared, map_members, on_host_threads
 from ._options import SceneOptions, default_solver, options_from
 from ._registry import get_scene, scene_params
 from ._result import SceneResult, finish, result_template
@@ -108,10 +108,16 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
     # the commands a scene is given, against the robot and the path run (before any trace)
     check_scene_commands(scene, params, opts.trajectory, options.t_end)
     batched = jnp.ndim(params.a) == 1
-    devices = batch_devices(int(jnp.shape(params.a)[0])) if batched else ()
+    B = int(jnp.shape(params.a)[0]) if batched else 1
+    devices = batch_devices(B) if batched else ()
     if batched:
         robot = compress_shared(robot)  # what the members share, computed once (`_batch.py`)
-    fn = _sharded(devices) if devices else (_JIT_BATCH if batched else scene_program)
+    if devices:
+        fn = _sharded(devices)
+    elif batched:
+        fn = on_host_threads(_JIT_BATCH, B, (scene, model, opts), argnum=2)
+    else:
+        fn = scene_program
     return SceneCall(fn=fn, args=(scene, model, robot, opts), scene=scene.name,
                      batched=batched, solver_name=solver_name, devices=len(devices))
 

@@ -17,7 +17,7 @@ from .._errors import result_message
 from .._params import stack_params
 from .._programs import cached_program
 from .._robot import Robot
-from .._scenes import compress_shared, map_members
+from .._scenes import compress_shared, map_members, on_host_threads
 from .._simulate import default_controller
 from ._catalogue import SceneContext
 from ._evaluation import Evaluation
@@ -151,8 +151,11 @@ class Chunks:
                                 self.masks[equal])
         args = (robot, ev, *self.tol, self.devices)
         template = ({m: 0 for m in self.metrics}, 0, 0)
-        # one compilation per group (equal links or not) and shape, kept for later chunks
-        fn = cached_program(_chunk_program, args, template, self.program_dir, self.label)
+        # on one device, the chunk's members in slices on host threads (`HostSplit`); one
+        # compilation per group (equal links or not) and shape, kept for later chunks
+        prog = (_chunk_program if self.devices else
+                on_host_threads(_chunk_program, self.chunk_size, (ev,), argnum=0))
+        fn = cached_program(prog, args, template, self.program_dir, self.label)
         out, codes, steps = fn(*args)
         return {k: np.asarray(v) for k, v in out.items()}, np.asarray(codes), np.asarray(steps)
 
