@@ -23,7 +23,7 @@ FLOORS = [
     ("robot and joint", ["_robot", "_prb", "_params", "_params_file", "_prb_table", "_prb_fit",
                          "elastica"]),
     ("infrastructure", ["_errors", "_custom_types", "_data", "_cache", "_devices", "_programs",
-                        "_labels", "_names", "_files", "_dispatch"]),
+                        "_labels", "_names", "_files", "_dispatch", "_host_split"]),
 ]
 FLOOR = {room: len(FLOORS) - i for i, (_, rooms) in enumerate(FLOORS) for room in rooms}
 
