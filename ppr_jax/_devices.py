@@ -1,14 +1,14 @@
 """Use every core: host devices and XLA settings for batches of small models on a CPU.
 
 A batch of robots is one program. On a CPU, XLA runs that program on one device: there the
-members of L0-L2 run one after another, on one core, and those of L3 vmapped, which keeps about
-1.5 of this machine's two cores busy (it overlaps independent kernels; `_scenes/_batch.py`).
-Asked for one host device per core (`--xla_force_host_platform_device_count`), JAX can split the
-batch over them with `shard_map`, each device running its own members so that adaptive steps
-never synchronise across devices; the batched scenes do this by themselves when more than one
-local device is present. Measured on the 2-core CPU with vmapped members (L1 `paper-circle`, a
-batch of 1,024 at rtol 1e-6): 489 trajectories/s on one device, 731 on two; 4 or 8 host devices
-give no more than 2.
+members of L0-L2 run one after another and those of L3 vmapped, on about one core
+(`_scenes/_batch.py`), so the batched scenes and sweeps run one device's batch in slices on
+host threads, one a core (`_host_split.py`). Asked for one host device per core
+(`--xla_force_host_platform_device_count`), JAX can split the batch over them with `shard_map`,
+each device running its own members so that adaptive steps never synchronise across devices;
+the batched scenes do this by themselves when more than one local device is present. Measured
+on the 2-core CPU with vmapped members (L1 `paper-circle`, a batch of 1,024 at rtol 1e-6): 489
+trajectories/s on one device, 731 on two; 4 or 8 host devices give no more than 2.
 
 XLA's YNNPACK fusions (jaxlib 0.10) turn the batched 2 x 2 to 6 x 6 products of the equations of
 motion into library calls that are slower than XLA's own loops: switching them off

@@ -1,20 +1,24 @@
 """A batch's members split over the host's cores: one slice of members a thread, one program.
 
-On a CPU, XLA runs a program on one thread where its operations are small, and the members of
-L0-L2 run one after another there (`_scenes/_batch.py`): a batch keeps one core busy, whatever
-the machine has. JAX runs a compiled program from several Python threads at once, each call on
-its own thread. `HostSplit` cuts a batch into as many equal slices as the process may use cores
-(its CPU affinity), member j into slice j mod slices (a sweep's members are ordered, and their
-steps with them: strided slices share the work evenly), runs one compiled program (of one
-slice's shape) on each slice from a thread of its own, and joins the results in the members'
-order. Measured on the 2-core CPU, L1 `paper-circle` at the scene's defaults, 1,024 members
-(strip thickness 0.28-0.40 mm): one program over the whole batch 1.27-1.32 s; two slices of 512
-one after the other 1.29 s, dispatched asynchronously from one thread 1.28 s (no overlap),
-from two threads 0.69 s in contiguous halves, 0.68 s strided. Joining the 130 MB of results
-took 54 ms on one thread; the joins run on the threads too.
+On a CPU, XLA runs a program on one thread where its operations are small: the members of L0-L2
+run one after another there, those of L3 in vmapped chunks (`_scenes/_batch.py`), and a batch
+keeps about one core busy, whatever the machine has. JAX runs a compiled program from several
+Python threads at once, each call on its own thread. `HostSplit` cuts a batch into as many
+equal slices as the process may use cores (its CPU affinity), member j into slice j mod slices
+(a sweep's members are ordered, and their steps with them: strided slices share the work
+evenly), runs one compiled program (of one slice's shape) on each slice from a thread of its
+own, and joins the results in the members' order. Measured on the 2-core CPU, L1 `paper-circle`
+at the scene's defaults, 1,024 members (strip thickness 0.28-0.40 mm): one program over the
+whole batch 1.27-1.32 s; two slices of 512 one after the other 1.29 s, dispatched
+asynchronously from one thread 1.28 s (no overlap), from two threads 0.69 s in contiguous
+halves, 0.68 s strided. Joining the 130 MB of results took 54 ms on one thread; the joins run
+on the threads too. Sixteen quasi-static L3 (N = 4) robots over 1 s (vmapped chunks): 0.92 s
+whole, 0.44 s in two slices.
 
-Each member's computation is the one it has in an unsplit batch (the same program body, the
-members independent), so the results equal the unsplit batch's exactly, member by member; a
+A member that runs alone in the program's loop (L0-L2 on a CPU) computes what it computes in
+an unsplit batch (the same program body, the members independent): the results equal the
+unsplit batch's exactly, member by member. Vmapped members (L3) may round differently in a
+chunk of another size, as in any batch of another size. A
 batch whose size the slices do not divide is padded with repeats of its last member, which
 are dropped. Several host devices (`configure_cpu`) split a batch by `shard_map` instead, and the
 slices are not used then. Under a JAX transformation (traced arguments) the whole batch runs as

@@ -97,6 +97,7 @@ def test_chunked_batch_equals_single_runs(params, monkeypatch, loop):
 
     monkeypatch.setattr(scenes, "MEMBER_CHUNK", 2)
     monkeypatch.setattr(scenes, "LOOP_PLATFORMS", ("cpu",) if loop else ())
+    monkeypatch.setattr(scenes, "host_cores", lambda: 1)  # the whole batch in one program
     ts = [0.3e-3, 0.32e-3, 0.34e-3, 0.36e-3] + ([0.38e-3] if loop else [])
     robots = [params.replace(t=t) for t in ts] + [params.replace(a=3.0)]
     # a fresh batch size (5 vmapped, 6 one after another), so the patched mapping is traced

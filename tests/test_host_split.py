@@ -94,15 +94,36 @@ def test_a_split_batch_names_its_failing_member(params, monkeypatch, tmp_path):
                          program_dir=str(tmp_path))
 
 
-def test_only_members_that_run_one_after_another_are_split(monkeypatch):
-    """L0-L2 on a CPU run their members one after another: one slice a core (at most one a
-    member). L3's vmapped chunks keep the cores busy by themselves: not split."""
+def test_a_cpu_splits_one_slice_a_core_and_a_gpu_not(monkeypatch):
+    """On a CPU, one slice a core this process may use, at most one a member; any model (L3's
+    vmapped chunks run on about one core too). A GPU takes the whole batch at once."""
     from ppr_jax._scenes import _batch
 
+    class Device:
+        def __init__(self, platform):
+            self.platform = platform
+
     monkeypatch.setattr(_batch, "host_cores", lambda: 4)
-    assert _batch.host_parts(64, (pj.Reduced(),)) == 4
-    assert _batch.host_parts(3, (pj.Double1R(),)) == 3
-    assert _batch.host_parts(1, (pj.Reduced(),)) == 1
-    assert _batch.host_parts(64, (pj.QuasiStaticBeam(4),)) == 1
+    cpu = (Device("cpu"),)
+    assert _batch.host_parts(64, cpu) == 4
+    assert _batch.host_parts(3, cpu) == 3
+    assert _batch.host_parts(1, cpu) == 1
+    assert _batch.host_parts(64, (Device("gpu"),)) == 1
     monkeypatch.setattr(_batch, "host_cores", lambda: 1)
-    assert _batch.host_parts(64, (pj.Reduced(),)) == 1
+    assert _batch.host_parts(64, cpu) == 1
+
+
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
+def test_a_split_l3_batch_equals_single_runs(params, monkeypatch):
+    """Quasi-static L3 (N = 4), whose members run vmapped in each slice: three robots in two
+    slices (the second padded) equal their single runs."""
+    from ppr_jax._scenes import _batch
+
+    monkeypatch.setattr(_batch, "host_cores", lambda: 2)
+    robots = [params.replace(t=t) for t in (0.3e-3, 0.34e-3, 0.38e-3)]
+    model, opts = pj.QuasiStaticBeam(4), pj.SceneOptions(t_end=0.05, n_out=6)
+    res = pj.paper_circle(pj.stack_params(robots), model=model, options=opts)
+    for i, robot in enumerate(robots):
+        single = pj.paper_circle(robot, model=model, options=opts)
+        np.testing.assert_allclose(res.X[i], single.X, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(res.z[i], single.z, rtol=0, atol=1e-9)

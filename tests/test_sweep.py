@@ -443,7 +443,9 @@ def test_a_members_run_takes_the_batch_mappers_terms(monkeypatch, loop):
     monkeypatch.setattr(Evaluation, "run", run)
     monkeypatch.setattr(scenes_batch, "LOOP_PLATFORMS", ("cpu",) if loop else ())
     monkeypatch.setattr(programs, "_CACHED", {})
-    # chunks of one and of two members: each traced afresh, with the patched mapping
+    # one slice (no host threads), chunks of one and of two members: each traced afresh, with
+    # the patched mapping
+    monkeypatch.setattr(scenes_batch, "host_cores", lambda: 1)
     ts = [0.3e-3] if loop else [0.3e-3, 0.31e-3]
     res = pj.sweep("paper-circle", vary={"t": ts}, chunk_size=len(ts), **KW)
     assert [r["status"] for r in res.rows] == ["ok"] * len(ts)

@@ -22,12 +22,13 @@ run is a structural choice made in Python before tracing (`loops_members`):
   takes the generic equations of motion there (`_dynamics.for_batch`: faster under vmap on a
   CPU).
 
-On one CPU device, a batch whose members run one after another keeps one core busy: the
-scenes' batches and a sweep's chunks run it in slices on host threads instead, one a core
-(`host_parts`, `on_host_threads`, `_host_split.HostSplit`), the same program on every slice and
-the results equal to the unsplit batch's exactly. L1 `paper-circle` x1,024 at the scene's
-defaults on the 2-core CPU: 1.27-1.32 -> 0.68 s. Several host devices (`configure_cpu`) split
-the batch by `shard_map` instead.
+On one CPU device a batch keeps about one core busy, whether its members run one after
+another or vmapped: the scenes' batches and a sweep's chunks run it in slices on host threads
+instead, one a core (`host_parts`, `on_host_threads`, `_host_split.HostSplit`), the same
+program on every slice. Measured on the 2-core CPU (`paper-circle`): L1 x1,024 at the scene's
+defaults 1.27-1.32 -> 0.68 s, its results equal to the unsplit batch's exactly; quasi-static L3
+(N = 4) x16 over 1 s 0.92 -> 0.44 s. Several host devices (`configure_cpu`) split the batch by
+`shard_map` instead.
 
 A batch over some parameters leaves the rest equal in every member (a sweep of the strip
 thickness leaves 43 of a robot's 49 arrays alone). `compress_shared` keeps one copy of such an
@@ -54,6 +55,8 @@ from .._models import AbstractModel
 MEMBER_CHUNK = 64
 #: the platforms on which the members of fused models run one after another (`loops_members`)
 LOOP_PLATFORMS = ("cpu",)
+#: the platforms on which one device's batch runs in slices on host threads (`host_parts`)
+THREAD_PLATFORMS = ("cpu",)
 
 
 def chunked_vmap(f: Callable, xs):
@@ -75,12 +78,13 @@ def batch_devices(batch: int) -> tuple:
     return ()
 
 
-def host_parts(batch: int, shared) -> int:
-    """The slices a batch of `batch` members runs in side by side on one CPU device, one host
-    thread each (`_host_split.HostSplit`): one a core this process may use, at most one a
-    member, where the members run one after another (`loops_members`); else 1 (not split: L3's
-    vmapped chunks keep the cores busy by themselves). Decided in Python before tracing."""
-    if batch < 2 or not loops_members(shared):
+def host_parts(batch: int, devices: Sequence = ()) -> int:
+    """The slices a batch of `batch` members runs in side by side on one device of a platform
+    of `THREAD_PLATFORMS` (`devices`' own, else JAX's default backend), one host thread each
+    (`_host_split.HostSplit`): one a core this process may use, at most one a member; else 1
+    (not split: a GPU takes the whole batch at once). Decided in Python before tracing."""
+    platform = devices[0].platform if devices else jax.default_backend()
+    if batch < 2 or platform not in THREAD_PLATFORMS:
         return 1
     return min(host_cores(), batch)
 
@@ -88,11 +92,11 @@ def host_parts(batch: int, shared) -> int:
 _SPLITS: dict = {}
 
 
-def on_host_threads(fn: Callable, batch: int, shared, argnum: int) -> Callable:
+def on_host_threads(fn: Callable, batch: int, argnum: int) -> Callable:
     """`fn`, a batched program whose argument `argnum` holds `batch` members, run in
-    `host_parts(batch, shared)` slices on host threads (`HostSplit`), or `fn` itself where that
-    is one. One object per (fn, slices, batch, argnum), so that `cached_program` keys it once."""
-    parts = host_parts(batch, shared)
+    `host_parts(batch)` slices on host threads (`HostSplit`), or `fn` itself where that is
+    one. One object per (fn, slices, batch, argnum), so that `cached_program` keys it once."""
+    parts = host_parts(batch)
     if parts < 2:
         return fn
     key = (fn, parts, batch, argnum)

@@ -115,7 +115,7 @@ def prepare(scene: Union[str, AbstractScene], params: Optional[RobotParams], mod
     if devices:
         fn = _sharded(devices)
     elif batched:
-        fn = on_host_threads(_JIT_BATCH, B, (scene, model, opts), argnum=2)
+        fn = on_host_threads(_JIT_BATCH, B, argnum=2)
     else:
         fn = scene_program
     return SceneCall(fn=fn, args=(scene, model, robot, opts), scene=scene.name,

@@ -154,7 +154,7 @@ class Chunks:
         # on one device, the chunk's members in slices on host threads (`HostSplit`); one
         # compilation per group (equal links or not) and shape, kept for later chunks
         prog = (_chunk_program if self.devices else
-                on_host_threads(_chunk_program, self.chunk_size, (ev,), argnum=0))
+                on_host_threads(_chunk_program, self.chunk_size, argnum=0))
         fn = cached_program(prog, args, template, self.program_dir, self.label)
         out, codes, steps = fn(*args)
         return {k: np.asarray(v) for k, v in out.items()}, np.asarray(codes), np.asarray(steps)
