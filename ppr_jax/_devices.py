@@ -40,27 +40,25 @@ MiB threshold: 665 -> 620 trajectories/s). Measured on the 2-core CPU (`paper-ci
 program, minimum of 10 warm runs, one process each): L0 7.6 -> 3.2 ms, L1 5.2 -> 2.8 ms, L2 30.9
 -> 11.6 ms, poses equal to 1.4e-12 m. The quasi-static L3's loop of steps (Dopri8's 14 stages,
 the strips' solves) accesses more: between 64 and 128 KiB at N = 4, between 128 and 256 KiB at
-N = 8 (the default), more than 256 KiB at N = 16. `SMALL_LOOP_BYTES` is 256 KiB (`loop_flags`):
-L3 `paper-circle` 523 -> 178 ms at N = 4 and 726 -> 348 ms at N = 8, while the scene programs
-of L0 and L1 compile to the same programs as at 64 KiB (L2's gains two loops, in its start), and
-their runs, batches and L2's sensitivities measured within this machine's noise, two
-processes a setting, interleaved (`benchmarks/results/loop_threshold_default.json`).
+N = 8 (the default), more than 256 KiB at N = 16. At 256 KiB L3 `paper-circle` ran 523 -> 178
+ms at N = 4 and 726 -> 348 ms at N = 8 against 64 KiB, while the scene programs of L0 and L1
+compiled to the same programs.
 
-A derivative's loops stay above that: the loop of steps of a forward-mode sensitivity carries
-every parameter's tangent, and XLA splits a step's JVP into about ten times the kernels of the
-step itself (an L2 right-hand side 30 kernels, its JVP 293); in reverse mode the transposed
-replay of a segment's recorded steps is larger still (the replay forward is taken).
-`configure_cpu(derivatives=True)` sets the threshold at `DERIVATIVE_LOOP_BYTES` (4 MiB), which
-takes them. Measured on the 2-core CPU, three processes a setting, interleaved
-(`benchmarks/results/loop_threshold.json`, minima over the processes, against 64 KiB, the
-import's threshold then): the sensitivity of L2
-`paper-circle` over 1 s to all 19 parameters 65.9 -> 36.4 ms in forward mode and 91.2 -> 40.7 ms
-in reverse mode; L2 runs (755 and 7,540 output times, 1 s) and batches (L1 x1,024, L0 x256)
-within 4 %; single L0 and L1 runs 1.1 and 1.4 times slower (4.1 -> 4.5 ms, 2.9 -> 4.0 ms). An
-earlier interleaved pair had batches 3-9 % slower and L1 unchanged: the machine's noise is of
-that size. XLA reads the threshold for the whole process, not per program (a program's compile
-options cannot set a backend option), so it is a choice for a process that runs sensitivities,
-not the default. (An identification's fit, one process a setting, was not faster with it.)
+A derivative's loop of steps carries every parameter's tangent, and XLA splits a step's JVP into
+about ten times the kernels of the step itself (an L2 right-hand side 30 kernels, its JVP 293).
+`SMALL_LOOP_BYTES` is 1 MiB (`loop_flags`): the loops of steps of a forward-mode sensitivity of
+L2 (in slices of 10 tangents on two cores, `_studies/_jacobian.forward_jacobian`) and of reverse
+mode's transposed replay are one kernel each. Measured on the 2-core CPU, two processes a
+setting, interleaved (`benchmarks/results/loop_threshold_default.json`): the sensitivity of L2
+`paper-circle` over 1 s to all 19 parameters 42-47 -> 21 ms in forward mode and 58-60 -> 28 ms
+in reverse mode, against 256 KiB; runs of L0-L2 and the quasi-static L3, L2 with 7,540 output
+times, and batches (L1 x1,024, L0 x256) within 3 %. `configure_cpu(derivatives=True)` sets the
+threshold at `DERIVATIVE_LOOP_BYTES` (4 MiB), for larger models' derivatives. Against 64 KiB,
+the import's threshold then (`benchmarks/results/loop_threshold.json`): the 19-parameter L2
+sensitivity 65.9 -> 36.4 ms in forward mode and 91.2 -> 40.7 ms in reverse mode; single L0 and
+L1 runs 1.1 and 1.4 times slower (4.1 -> 4.5 ms, 2.9 -> 4.0 ms); an identification's fit, one
+process a setting, was not faster. XLA reads the threshold for the whole process, not per
+program (a program's compile options cannot set a backend option).
 
 All are process settings that XLA reads once, when JAX starts its backend. `import ppr_jax`
 adds the two that change no number beyond rounding, the loop emitters and the small-loop
@@ -84,7 +82,7 @@ _YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type"
 _EMITTERS_FLAG = "--xla_cpu_use_fusion_emitters"
 _BACKEND_OPTIONS_FLAG = "--xla_backend_extra_options"
 #: bytes: XLA compiles a while loop that accesses fewer as one kernel (module docstring)
-SMALL_LOOP_BYTES = 262144
+SMALL_LOOP_BYTES = 1 << 20
 #: the threshold of `configure_cpu(derivatives=True)`: a sensitivity's loops too (module
 #: docstring)
 DERIVATIVE_LOOP_BYTES = 4 << 20

@@ -215,24 +215,25 @@ def _torque_driven_fused_jvp(primals, tangents, *, model):
 
 def _jvp_residuals_once(fn, primals, tangents):
     """The tangent of `fn(*primals)` along `tangents` (None: zero), with every primal value the
-    tangent reads computed once: `jax.linearize` splits the derivative into the primal values
-    it needs (its residuals) and arithmetic linear in the tangents, and the residuals go
-    through one `materialize`. Straight-line arithmetic differentiated in one piece let XLA's
-    CPU fusion recompute primal products inside every fusion of the tangents, once per tangent
-    entry (19 parameters' tangents of L2's balance: 292,000 primal operations a right-hand
-    side inside tangent kernels, against 145,000 tangent operations)."""
+    tangent reads computed once: `jax.linearize` splits the derivative into the primal
+    values it needs (its residuals) and arithmetic linear in the tangents, and each
+    residual goes through a `materialize` of its own. Straight-line arithmetic
+    differentiated in one piece let XLA's CPU fusion recompute primal products inside every
+    fusion of the tangents, once per tangent entry (19 parameters' tangents of L2's
+    balance: 292,000 primal operations a right-hand side inside tangent kernels, against
+    145,000 tangent operations)."""
     diff, nondiff = eqx.partition(primals, eqx.is_inexact_array)
     _, lin = jax.linearize(lambda d: fn(*eqx.combine(d, nondiff)), diff)
     leaves, treedef = jax.tree_util.tree_flatten(lin)
     floats = [i for i, x in enumerate(leaves)
               if eqx.is_inexact_array(x) and x.dtype == jnp.float64]
-    if floats:
-        flat = materialize(jnp.concatenate([jnp.ravel(leaves[i]) for i in floats]))
-        start = 0
-        for i in floats:
-            size = leaves[i].size
-            leaves[i] = flat[start:start + size].reshape(leaves[i].shape)
-            start += size
+    for i in floats:
+        # each residual its own `materialize`: one concatenated vector (1,073 values for L2's
+        # balance), read whole by every kernel that reads one of them, counted some 60 times in
+        # the bytes XLA's small-loop pass weighs a loop by, and kept the loop of steps of a
+        # forward-mode sensitivity out of one kernel even for one parameter (`_devices`; L2
+        # over 1 s, one parameter: 34 -> 6.2 ms)
+        leaves[i] = materialize(leaves[i])
     lin = jax.tree_util.tree_unflatten(treedef, leaves)
     dt = jax.tree_util.tree_map(
         lambda p, t: None if p is None else (jnp.zeros_like(p) if t is None else t), diff,

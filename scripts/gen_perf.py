@@ -759,7 +759,7 @@ def loop_threshold(d) -> str:
 
 @_from_json("loop_threshold_default.json")
 def loop_threshold_default(d) -> str:
-    """The import's small-loop threshold, 64 KiB before and 256 KiB now
+    """The import's small-loop threshold, 256 KiB before and 1 MiB now
     (benchmarks/loop_threshold.py --bytes): as `loop_threshold`."""
     return _threshold_table(d)
 

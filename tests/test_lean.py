@@ -439,7 +439,8 @@ def small_calls(text):
             if " call(" in line and "xla_cpu_small_call" in line and "op_name" in line]
 adjoint = diffrax.RecursiveCheckpointAdjoint()
 print(json.dumps({
-    "fwd": small_calls(_jacobian_fwd.lower(x0, base, ev).compile().compiled.as_text()),
+    "fwd": small_calls(
+        _jacobian_fwd.lower(x0, jnp.eye(x0.size), base, ev).compile().compiled.as_text()),
     "rev": small_calls(
         _jacobian_rev.lower(x0, base, ev, adjoint).compile().compiled.as_text())}))
 """
@@ -450,8 +451,8 @@ def test_a_sensitivitys_loops_compile_as_one_kernel_with_derivatives_set():
     """With `configure_cpu(derivatives=True)` (a fresh process) the solver's loop of steps of a
     forward-mode sensitivity of every float parameter (19 tangents) is a loop that XLA compiles
     as one kernel, and so is reverse mode's transposed replay of a segment's recorded steps.
-    Under the import's threshold (256 KiB) neither is: a step of the forward derivative was about
-    300 kernels (docs/performance.md)."""
+    Under a threshold of 256 KiB neither was: a step of the forward derivative was about 300
+    kernels (docs/performance.md)."""
     import json
     import os
     import re
@@ -480,3 +481,38 @@ def test_a_sensitivitys_loops_compile_as_one_kernel_with_derivatives_set():
     replay = re.compile(r"transpose\(jvp\(jit\(simulate_core\)\)\)+/while/body/"
                         r"transpose\(jvp\(\)\)/while$")
     assert any(replay.search(n) for n in out["rev"]), out["rev"]
+
+
+@pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
+def test_a_sensitivitys_loops_compile_as_one_kernel_at_the_imports_threshold():
+    """Under the import's threshold (`SMALL_LOOP_BYTES`, which the suite sets too) the loop of
+    steps of a forward-mode sensitivity's slice of 10 tangents (19 parameters on two cores,
+    `_jacobian.forward_jacobian`) and reverse mode's transposed replay compile as one kernel
+    each. At 256 KiB neither was, and before each linearisation residual had its own
+    `materialize` (`_dynamics._jvp_residuals_once`) not even one tangent's loop was."""
+    import os
+    import re
+
+    import ppr_jax as pj
+    from ppr_jax._devices import loop_flags
+    from ppr_jax._studies._sensitivity import _jacobian_fwd, _jacobian_rev, _metric_function
+
+    if not loop_flags() or loop_flags()[0] not in os.environ.get("XLA_FLAGS", ""):
+        pytest.skip("the small-loop threshold is not set in this process")
+    *_, (base, ev) = _metric_function(
+        "paper-circle", None, model="double1r", torque_model=None, frequency_model="double1r",
+        parameters=None, options=pj.SceneOptions(t_end=0.05, n_out=6), metrics=None)
+    x0 = jnp.array([float(getattr(base, n)) for n in ev.names])
+
+    def small_calls(text):
+        return [re.search(r'op_name="([^"]*)"', line).group(1) for line in text.splitlines()
+                if " call(" in line and "xla_cpu_small_call" in line and "op_name" in line]
+
+    V = jnp.eye(x0.size)[:10]
+    fwd = small_calls(_jacobian_fwd.lower(x0, V, base, ev).compile().compiled.as_text())
+    assert any(re.search(r"jvp\(jit\(simulate_core\)\)+/while$", n) for n in fwd), fwd
+    adjoint = diffrax.RecursiveCheckpointAdjoint()
+    rev = small_calls(_jacobian_rev.lower(x0, base, ev, adjoint).compile().compiled.as_text())
+    replay = re.compile(r"transpose\(jvp\(jit\(simulate_core\)\)\)+/while/body/"
+                        r"transpose\(jvp\(\)\)/while$")
+    assert any(replay.search(n) for n in rev), rev
