@@ -25,9 +25,10 @@ import numpy as np
 from ..._files import write_file
 from ..._params import RobotParams
 from ..._programs import NotExportable, cached_program, export_tracing, program_key
+from ..._scenes import on_host_threads
 from .._catalogue import SceneContext, metric_values, sampled_metrics
 from .._evaluation import Evaluation, equal_links
-from .._jacobian import jacobian_with_values
+from .._jacobian import derivatives_along, forward_jacobian, jacobian_with_values
 
 #: the raw rows of each metric (`Problem.sizes`), by the values program's key
 _SIZES: dict = {}
@@ -53,9 +54,9 @@ def _adjoint(st: Evaluation, mode: str):
 
 
 @eqx.filter_jit
-def _value_and_jacobian_fwd(x, base, stroke, st: Evaluation):
-    J, v = jacobian_with_values(_raw, "fwd", x, base, stroke, st, _adjoint(st, "fwd"))
-    return v, J
+def _derivatives_fwd(x, V, base, stroke, st: Evaluation):
+    # along the rows of V (the identity's, a slice of them a core: `forward_jacobian`)
+    return derivatives_along(_raw, x, V, base, stroke, st, _adjoint(st, "fwd"))
 
 
 @eqx.filter_jit
@@ -209,8 +210,11 @@ class Problem:
         if self._last is not None and np.array_equal(self._last[0], x):
             return self._last[1], self._last[2]
         args = self._args(x)
-        fn = _value_and_jacobian_fwd if self.mode == "fwd" else _value_and_jacobian_rev
-        v, J = self._program(fn, self.mode, args, (0, 0))(*args)
+        if self.mode == "fwd":
+            J, v = forward_jacobian(_derivatives_fwd, *args,
+                                    run=lambda fn, a: self._program(fn, "fwd", a, (0, 0))(*a))
+        else:
+            v, J = self._program(_value_and_jacobian_rev, "rev", args, (0, 0))(*args)
         v, J = np.asarray(v), np.asarray(J)
         self.evaluations += 1
         self.jacobians += 1
@@ -235,7 +239,9 @@ class Problem:
         Xp = np.concatenate([X, np.repeat(X[:1], padded_size(m) - m, axis=0)], axis=0)
         self.evaluations += m
         args = self._args(Xp)
-        return np.asarray(self._program(_batch, "batch", args, 0)(*args))[:m]
+        # the points in slices on host threads, one a core (`on_host_threads`)
+        fn = on_host_threads(_batch, Xp.shape[0], argnum=0)
+        return np.asarray(self._program(fn, "batch", args, 0)(*args))[:m]
 
     def batch(self, X) -> np.ndarray:
         """The metrics (m, k) at m points X (m, p), in one batched call (`batch_raw`)."""
