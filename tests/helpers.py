@@ -228,3 +228,29 @@ def relative_close(a, b, what):
     scale = max(np.abs(b).max(), 1e-300)
     err = np.abs(a - b).max() / scale
     assert err <= EOM_TOL, f"{what}: relative difference {err:.2e}"
+
+
+def sensitivity_small_calls(rows=None) -> dict:
+    """{"fwd": [...], "rev": [...]}: the op names of the loops XLA compiles as one kernel (calls
+    marked `xla_cpu_small_call`) in L2 `paper-circle`'s sensitivity programs over 0.05 s:
+    forward mode along the first `rows` parameters' directions (None: all 19), reverse mode."""
+    import re
+
+    import diffrax
+
+    from ppr_jax._studies._sensitivity import _jacobian_fwd, _jacobian_rev, _metric_function
+
+    *_, (base, ev) = _metric_function(
+        "paper-circle", None, model="double1r", torque_model=None, frequency_model="double1r",
+        parameters=None, options=pj.SceneOptions(t_end=0.05, n_out=6), metrics=None)
+    x0 = jnp.array([float(getattr(base, n)) for n in ev.names])
+    V = jnp.eye(x0.size)[:rows]
+
+    def small_calls(program, *args):
+        text = program.lower(*args).compile().compiled.as_text()
+        return [re.search(r'op_name="([^"]*)"', line).group(1) for line in text.splitlines()
+                if " call(" in line and "xla_cpu_small_call" in line and "op_name" in line]
+
+    adjoint = diffrax.RecursiveCheckpointAdjoint()
+    return {"fwd": small_calls(_jacobian_fwd, x0, V, base, ev),
+            "rev": small_calls(_jacobian_rev, x0, base, ev, adjoint)}

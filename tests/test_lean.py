@@ -424,25 +424,11 @@ def test_the_quasi_static_l3_on_the_lean_loop_equals_diffeqsolve():
 
 
 _DERIVATIVE_LOOPS = """
-import json, re, sys
+import json
 import ppr_jax as pj
 pj.configure_cpu(1, derivatives=True)  # before the first computation
-import diffrax
-import jax.numpy as jnp
-from ppr_jax._studies._sensitivity import _jacobian_fwd, _jacobian_rev, _metric_function
-*_, (base, ev) = _metric_function(
-    "paper-circle", None, model="double1r", torque_model=None, frequency_model="double1r",
-    parameters=None, options=pj.SceneOptions(t_end=0.05, n_out=6), metrics=None)
-x0 = jnp.array([float(getattr(base, n)) for n in ev.names])
-def small_calls(text):
-    return [re.search(r'op_name="([^"]*)"', line).group(1) for line in text.splitlines()
-            if " call(" in line and "xla_cpu_small_call" in line and "op_name" in line]
-adjoint = diffrax.RecursiveCheckpointAdjoint()
-print(json.dumps({
-    "fwd": small_calls(
-        _jacobian_fwd.lower(x0, jnp.eye(x0.size), base, ev).compile().compiled.as_text()),
-    "rev": small_calls(
-        _jacobian_rev.lower(x0, base, ev, adjoint).compile().compiled.as_text())}))
+from tests.helpers import sensitivity_small_calls
+print(json.dumps(sensitivity_small_calls()))
 """
 
 
@@ -455,7 +441,6 @@ def test_a_sensitivitys_loops_compile_as_one_kernel_with_derivatives_set():
     kernels (docs/performance.md)."""
     import json
     import os
-    import re
     import subprocess
     import sys
 
@@ -470,12 +455,18 @@ def test_a_sensitivitys_loops_compile_as_one_kernel_with_derivatives_set():
              for f in os.environ.get("XLA_FLAGS", "").split()]
     empty = "--xla_backend_extra_options="
     env = dict(os.environ, XLA_FLAGS=" ".join(f for f in flags if f != empty))
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # `tests` importable
     proc = subprocess.run([sys.executable, "-c", _DERIVATIVE_LOOPS], capture_output=True,
-                          text=True, timeout=900, env=env)
+                          text=True, timeout=900, env=env, cwd=root)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    out = json.loads(proc.stdout.strip().splitlines()[-1])
-    # forward: the loop of steps itself, not only loops inside its body; reverse: the replay
-    # of a segment's recorded steps, transposed (`_lean.lean_vjp`)
+    _assert_one_kernel_loops(json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
+def _assert_one_kernel_loops(out):
+    """Forward mode's loop of steps itself is one kernel, not only loops inside its body;
+    reverse mode's replay of a segment's recorded steps, transposed (`_lean.lean_vjp`), too."""
+    import re
+
     steps = re.compile(r"jvp\(jit\(simulate_core\)\)+/while$")
     assert any(steps.search(n) for n in out["fwd"]), out["fwd"]
     replay = re.compile(r"transpose\(jvp\(jit\(simulate_core\)\)\)+/while/body/"
@@ -491,28 +482,10 @@ def test_a_sensitivitys_loops_compile_as_one_kernel_at_the_imports_threshold():
     each. At 256 KiB neither was, and before each linearisation residual had its own
     `materialize` (`_dynamics._jvp_residuals_once`) not even one tangent's loop was."""
     import os
-    import re
 
-    import ppr_jax as pj
     from ppr_jax._devices import loop_flags
-    from ppr_jax._studies._sensitivity import _jacobian_fwd, _jacobian_rev, _metric_function
+    from tests.helpers import sensitivity_small_calls
 
     if not loop_flags() or loop_flags()[0] not in os.environ.get("XLA_FLAGS", ""):
         pytest.skip("the small-loop threshold is not set in this process")
-    *_, (base, ev) = _metric_function(
-        "paper-circle", None, model="double1r", torque_model=None, frequency_model="double1r",
-        parameters=None, options=pj.SceneOptions(t_end=0.05, n_out=6), metrics=None)
-    x0 = jnp.array([float(getattr(base, n)) for n in ev.names])
-
-    def small_calls(text):
-        return [re.search(r'op_name="([^"]*)"', line).group(1) for line in text.splitlines()
-                if " call(" in line and "xla_cpu_small_call" in line and "op_name" in line]
-
-    V = jnp.eye(x0.size)[:10]
-    fwd = small_calls(_jacobian_fwd.lower(x0, V, base, ev).compile().compiled.as_text())
-    assert any(re.search(r"jvp\(jit\(simulate_core\)\)+/while$", n) for n in fwd), fwd
-    adjoint = diffrax.RecursiveCheckpointAdjoint()
-    rev = small_calls(_jacobian_rev.lower(x0, base, ev, adjoint).compile().compiled.as_text())
-    replay = re.compile(r"transpose\(jvp\(jit\(simulate_core\)\)\)+/while/body/"
-                        r"transpose\(jvp\(\)\)/while$")
-    assert any(replay.search(n) for n in rev), rev
+    _assert_one_kernel_loops(sensitivity_small_calls(rows=10))
