@@ -264,7 +264,7 @@ def test_jacobian_by_differences_is_forward_modes(eight_csv):
     params = pj.PathScene(path, drive="torque").default_params()
     c = jnp.zeros((knots, 3))
     h = F.FD_STEP * float(np.abs(inv.commands).max())
-    Jd, code = F._differences(fit, c, params, jnp.asarray(h))
+    Jd, code = F._differences(fit, c, params, h)
     Jf = np.asarray(F._jacobian(fit, c, params)).reshape(Jd.shape)
     assert int(code) == 0
     assert np.abs(np.asarray(Jd) - Jf).max() < 1e-5 * np.abs(Jf).max()
