@@ -5,22 +5,23 @@ from __future__ import annotations
 from typing import Callable
 
 import jax
+import jax.numpy as jnp
+
+from .._scenes import on_host_threads
 
 
-def jacobian_with_values(f: Callable, mode: str, x, *args):
-    """(J (m, p), v (m,)) of `f(x, *args)` -> v (m,) with respect to x (p,).
+def jacobian_with_values(f: Callable, x, *args):
+    """(J (m, p), v (m,)) of `f(x, *args)` -> v (m,) with respect to x (p,), in reverse mode.
 
-    The values are the derivative's own primal (`jax.jacfwd`/`jax.jacrev` with `has_aux`):
-    forward mode's tangents ride on the same solve and reverse mode's pullback starts from it,
-    so one program gives both and the values need no program of their own. Measured on L1
-    paper-circle (three metrics, 2-core CPU): a separate values program was 2.0 s of tracing
-    and 2.0 s of XLA compilation beside the Jacobian's 6.2 s and 4.9 s.
+    The values are the derivative's own primal (`jax.jacrev` with `has_aux`): the pullback
+    starts from the same solve, so one program gives both and the values need no program of
+    their own. Measured on L1 paper-circle (three metrics, 2-core CPU): a separate values
+    program was 2.0 s of tracing and 2.0 s of XLA compilation beside the Jacobian's 6.2 s and
+    4.9 s. Forward mode: `derivatives_along` and `forward_jacobian`.
 
     **Arguments:**
 
     - `f`: a traceable function of (x, *args) returning a 1-D array.
-    - `mode`: 'fwd' (`jax.jacfwd`, one tangent per entry of x) or 'rev' (`jax.jacrev`, one
-      cotangent per value).
     - `x`: the point (p,); `args`: the rest of f's arguments (not differentiated).
 
     **Returns:** (J, v).
@@ -29,8 +30,7 @@ def jacobian_with_values(f: Callable, mode: str, x, *args):
         v = f(x, *a)
         return v, v
 
-    jac = jax.jacfwd if mode == "fwd" else jax.jacrev
-    return jac(both, has_aux=True)(x, *args)
+    return jax.jacrev(both, has_aux=True)(x, *args)
 
 
 def derivatives_along(f: Callable, x, V, *args):
@@ -44,7 +44,7 @@ def derivatives_along(f: Callable, x, V, *args):
     """
     v, jt = jax.vmap(lambda d: jax.jvp(lambda y: f(y, *args), (x,), (d,)),
                      out_axes=(None, 0))(V)
-    return jt, jax.numpy.broadcast_to(v, jt.shape)
+    return jt, jnp.broadcast_to(v, jt.shape)
 
 
 def forward_jacobian(program: Callable, x, *args, run: Callable = None):
@@ -57,10 +57,8 @@ def forward_jacobian(program: Callable, x, *args, run: Callable = None):
     the parameters while one core does it. In slices, each core solves the primal once more
     and carries its share of the tangents (L2 `paper-circle` over 1 s, 19 parameters, 2
     cores: see `sensitivity`)."""
-    from .._scenes import on_host_threads
-
     p = x.shape[0]
-    V = jax.numpy.eye(p, dtype=x.dtype)
+    V = jnp.eye(p, dtype=x.dtype)
     fn = on_host_threads(program, p, argnum=1)
     call_args = (x, V, *args)
     jt, vs = fn(*call_args) if run is None else run(fn, call_args)

@@ -180,7 +180,7 @@ def _jacobian_fwd(x, V, base, ev):
 
 @eqx.filter_jit
 def _jacobian_rev(x, base, ev, adjoint):
-    return jacobian_with_values(_metrics_at, "rev", x, base, ev, adjoint)
+    return jacobian_with_values(_metrics_at, x, base, ev, adjoint)
 
 
 def sensitivity(scene="paper-circle", params: Optional[RobotParams] = None, *,

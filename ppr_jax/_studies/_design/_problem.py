@@ -61,7 +61,7 @@ def _derivatives_fwd(x, V, base, stroke, st: Evaluation):
 
 @eqx.filter_jit
 def _value_and_jacobian_rev(x, base, stroke, st: Evaluation):
-    J, v = jacobian_with_values(_raw, "rev", x, base, stroke, st, _adjoint(st, "rev"))
+    J, v = jacobian_with_values(_raw, x, base, stroke, st, _adjoint(st, "rev"))
     return v, J
 
 
