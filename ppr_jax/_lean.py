@@ -44,9 +44,15 @@ controller means to take: `PIDController.init` estimates a first step only for a
 `tests/test_lean.py` compares the two loops' steps and solutions, so a diffrax that changes this
 shows there.
 
+Steps clipped to given times (a `ClipStepSizeController` with `step_ts`: the knots of a
+command log or a spline path, `_scenes._base.stepping_to`) are this case too: the loop clips as
+diffrax's controller does (`_clip_to_steps`), with the same steps (`tests/test_lean.py`). Such
+solves (an identification's runs, a `PathScene` on `Waypoints`, compensation's replays) ran on
+`diffeqsolve` before.
+
 `lean_applies` decides, in Python before tracing, whether a solve is this case; anything else
-(another solver or controller, a controller with options, steps clipped to given times, `throw`,
-a progress meter, other saving) runs on `diffeqsolve` as before, and so does every member of a
+(another solver or controller, a controller with options, jumps, `throw`, a progress meter,
+other saving) runs on `diffeqsolve` as before, and so does every member of a
 vmapped batch (`AbstractModel.batch_member`, `_simulate._solve`): under `vmap` this loop
 measured slower than diffrax's (L1 `paper-circle` x256: 530 against 652 trajectories/s; a block
 of one output time 393, of four 509, of sixteen 484). On a CPU a batch of L0-L2 is not vmapped:
@@ -60,6 +66,7 @@ from typing import NamedTuple
 
 import diffrax
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -135,12 +142,27 @@ LEAN_SOLVERS = (diffrax.Tsit5, diffrax.Dopri8)
 TSIT5 = method_of(diffrax.Tsit5)
 
 
+def clipped(controller):
+    """(the adaptive controller, step_ts (k,) or None): `controller` itself, or the one a
+    `diffrax.ClipStepSizeController` wraps and its `step_ts`."""
+    if type(controller) is diffrax.ClipStepSizeController:
+        return controller.controller, controller.step_ts
+    return controller, None
+
+
 def lean_applies(solver, controller, dt0, throw, progress_meter, saveat) -> bool:
     """Whether a solve is the one `lean_solve` computes (module docstring): diffrax's `Tsit5`
     or `Dopri8` (`LEAN_SOLVERS`)
     under a `PIDController` with only its integral term (pcoeff 0, dcoeff 0: its state then
-    does not enter the step size) and no dtmin or dtmax; the first step chosen by the
-    controller (dt0 None); no `throw`, no progress meter; output at given times only."""
+    does not enter the step size) and no dtmin or dtmax, itself or wrapped in a
+    `ClipStepSizeController` with `step_ts` only (no `jump_ts`, no stored rejections); the
+    first step chosen by the controller (dt0 None); no `throw`, no progress meter; output at
+    given times only."""
+    if type(controller) is diffrax.ClipStepSizeController:
+        if (controller.jump_ts is not None or controller.store_rejected_steps is not None
+                or controller.callback_on_reject is not None):
+            return False
+        controller = controller.controller
     if type(solver) not in LEAN_SOLVERS or type(controller) is not diffrax.PIDController:
         return False
     c = controller
@@ -176,20 +198,54 @@ def ulps_below(x: Array, n: int) -> Array:
     return jnp.where(jnp.abs(x) >= 1e-290, below, x - n * jnp.finfo(x.dtype).tiny)
 
 
-def _adapt(tprev, tn, y, y1, err, controller, t1, floor, error_order):
-    """(keep, next t0, next t1): the controller's own decision on the step (tprev, tn) from y to
-    y1 with error estimate err (NaN read as inf, as `diffeqsolve` does) of the method's
-    `error_order`, then `diffeqsolve`'s clipping of a step that ends within 100 ulp (`floor`)
-    of t1."""
+def _first_above(t, step_ts, i):
+    """The index of the first of `step_ts` (k,) (sorted) above t, searched from i: diffrax's
+    `_find_idx_with_hint` (k where none is)."""
+    k = step_ts.shape[0]
+    i = jax.lax.while_loop(lambda j: (j < k) & (step_ts[jnp.minimum(j, k - 1)] <= t),
+                           lambda j: j + 1, i)
+    return jax.lax.while_loop(lambda j: (j > 0) & (step_ts[jnp.maximum(j - 1, 0)] > t),
+                              lambda j: j - 1, i)
+
+
+def _at(step_ts, i):
+    """step_ts[i], inf for i = k (diffrax's `_get_t`)."""
+    k = step_ts.shape[0]
+    return jnp.where(i >= k, jnp.inf, step_ts[jnp.minimum(i, k - 1)])
+
+
+def _clip_to_steps(nt0, nt1, step_ts, i):
+    """(next t1, index): `ClipStepSizeController`'s clipping of the step (nt0, nt1) to the
+    first of `step_ts` after nt0 (after nt0 bumped past a step time it sits on or one ulp
+    before: its `_bump_next_t0`), searched from the index i of the previous step. diffrax
+    bumps by testing nt0 against every step time; here against the two about the first one
+    above nt0, the only ones that can equal nt0 or the float after it."""
+    up = eqxi.nextafter(nt0)
+    above = _first_above(nt0, step_ts, i)
+    on = (above > 0) & (_at(step_ts, above - 1) == nt0)
+    bumped = jnp.where(on, up, jnp.where(_at(step_ts, above) == up, eqxi.nextafter(up), nt0))
+    i = _first_above(bumped, step_ts, above)
+    return jnp.minimum(_at(step_ts, i), nt1), i
+
+
+def _adapt(tprev, tn, y, y1, err, controller, t1, floor, error_order, steps=None):
+    """(keep, next t0, next t1, step index): the controller's own decision on the step
+    (tprev, tn) from y to y1 with error estimate err (NaN read as inf, as `diffeqsolve` does)
+    of the method's `error_order`, clipped to the step times where there are (`steps` =
+    (step_ts, index of the first one above tprev); None: none; `_clip_to_steps`), then
+    `diffeqsolve`'s clipping of a step that ends within 100 ulp (`floor`) of t1."""
     err = jnp.where(jnp.isnan(err), jnp.inf, err)
     # an I controller's state (its previous error ratios) does not enter its step size, so the
     # state `PIDController.init` returns serves every step
     state = (jnp.ones((), y.dtype), jnp.ones((), y.dtype), False)
     keep, nt0, nt1, _, _, _ = controller.adapt_step_size(tprev, tn, y, y1, None, err,
                                                           error_order, state)
+    index = None
+    if steps is not None:
+        nt1, index = _clip_to_steps(nt0, nt1, *steps)
     nt0 = jnp.minimum(nt0, t1)
     nt1 = jnp.where(nt1 > floor, jnp.where(keep, t1, nt0 + 0.5 * (t1 - nt0)), nt1)
-    return keep, nt0, nt1
+    return keep, nt0, nt1, index
 
 
 def _stage_f(vf, tprev, h, y, k, i, method: Method):
@@ -255,7 +311,9 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
     - `vf`: (t, y (n,)) -> y' (n,).
     - `y0`: (n,) the initial state.
     - `ts`: (m,) output times, increasing, ts[0] the start.
-    - `controller`: the `PIDController` that decides the steps (`lean_applies`).
+    - `controller`: the `PIDController` that decides the steps, or a
+      `ClipStepSizeController` that wraps one and clips its steps to its `step_ts`
+      (`lean_applies`).
     - `max_steps`: the step budget (static).
     - `record`: also return the `Tape` that `lean_vjp` differentiates on (static).
 
@@ -266,8 +324,16 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
     """
     n, m = y0.shape[0], ts.shape[0]
     t0, t1 = ts[0], ts[-1]
+    controller, step_ts = clipped(controller)
     floor = ulps_below(t1, 100)  # diffrax clips a step that ends within 100 ulp of t1
-    tnext = jnp.minimum(t0 + FIRST_STEP, t1)
+    tnext = t0 + FIRST_STEP
+    clip = ()  # with step times, the index of the first one after the step's start
+    if step_ts is not None:
+        step_ts = jnp.asarray(step_ts, ts.dtype)
+        index = jnp.searchsorted(step_ts, t0, side="right")
+        tnext = jnp.minimum(_at(step_ts, index), tnext)
+        clip = (index,)
+    tnext = jnp.minimum(tnext, t1)
     padded = jnp.concatenate([ts, jnp.full((BLOCK,), jnp.inf, ts.dtype)])
     rows = jnp.arange(BLOCK)
 
@@ -276,8 +342,10 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
         h = tn - tprev
         first = steps == 0
         k, y1, fy = _stages_from(vf, tprev, h, y, fy, first, method)
-        keep, nt0, nt1 = _adapt(tprev, tn, y, y1, _weighted(method.B_ERR, k), controller, t1,
-                                floor, method.error_order)
+        c = len(clip)
+        keep, nt0, nt1, index = _adapt(
+            tprev, tn, y, y1, _weighted(method.B_ERR, k), controller, t1, floor,
+            method.error_order, (step_ts, state[8]) if c else None)
 
 
         def more(c):
@@ -298,9 +366,9 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
         saved, ys = jax.lax.while_loop(more, save, (saved, ys))
         y_next, f_next = jnp.where(keep, y1, y), jnp.where(keep, k[-1] / h, fy)
         new = accepted + keep.astype(accepted.dtype)
-        out = (nt0, nt1, y_next, f_next, steps + 1, new, ys, saved)
+        out = (nt0, nt1, y_next, f_next, steps + 1, new, ys, saved) + ((index,) if c else ())
         if record:
-            grid, tape = state[8:]
+            grid, tape = state[8 + c:]
             # an accepted step's end; every SEGMENT-th accepted step's state, and on the first
             # step the start's (its derivative comes from that step's loop), in one write
             grid = grid.at[new].set(jnp.where(keep, tn, grid[new]))
@@ -317,7 +385,7 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
     zero = jnp.asarray(0)
     ys0 = jnp.full((m + BLOCK, n), jnp.inf, y0.dtype)
     # vf(t0, y0) comes from the first step's loop (`_stages_from`)
-    init = (t0, tnext, y0, jnp.zeros_like(y0), zero, zero, ys0, zero)
+    init = (t0, tnext, y0, jnp.zeros_like(y0), zero, zero, ys0, zero) + clip
     if record:
         grid = jnp.full((max_steps + 1,), jnp.inf, ts.dtype).at[0].set(t0)
         tape = jnp.zeros((max_steps // SEGMENT + 1, 2 * n), y0.dtype)
@@ -330,7 +398,7 @@ def lean_solve(vf, y0: Array, ts: Array, controller: diffrax.PIDController, max_
     stats = {"num_steps": steps, "num_accepted_steps": accepted,
              "num_rejected_steps": steps - accepted, "max_steps": max_steps}
     if record:
-        return ys[:m], times, result, stats, Tape(*out[8:], accepted)
+        return ys[:m], times, result, stats, Tape(*out[8 + len(clip):], accepted)
     return ys[:m], times, result, stats
 
 

@@ -10,6 +10,7 @@ steps."""
 import functools
 
 import diffrax
+import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
@@ -18,6 +19,7 @@ import pytest
 
 from ppr_jax._lean import (
     SEGMENT,
+    _clip_to_steps,
     lean_applies,
     lean_solve,
     lean_vjp,
@@ -198,8 +200,15 @@ def test_which_solves_take_it():
     assert not lean_applies(diffrax.Tsit5(), diffrax.PIDController(rtol=1e-8, atol=1e-10,
                                                                    pcoeff=0.2, icoeff=0.4),
                             None, False, none, None)
-    assert not lean_applies(diffrax.Tsit5(), diffrax.ClipStepSizeController(
+    assert lean_applies(diffrax.Tsit5(), diffrax.ClipStepSizeController(
         pid, step_ts=jnp.array([0.5])), None, False, none, None)
+    assert not lean_applies(diffrax.Tsit5(), diffrax.ClipStepSizeController(
+        pid, jump_ts=jnp.array([0.5])), None, False, none, None)
+    assert not lean_applies(diffrax.Tsit5(), diffrax.ClipStepSizeController(
+        pid, step_ts=jnp.array([0.5]), store_rejected_steps=4), None, False, none, None)
+    assert not lean_applies(diffrax.Tsit5(), diffrax.ClipStepSizeController(
+        diffrax.PIDController(rtol=1e-8, atol=1e-10, pcoeff=0.2, icoeff=0.4),
+        step_ts=jnp.array([0.5])), None, False, none, None)
     assert not lean_applies(diffrax.Tsit5(), pid, 1e-3, False, none, None)
     assert not lean_applies(diffrax.Tsit5(), pid, None, True, none, None)
     assert not lean_applies(diffrax.Tsit5(), pid, None, False, diffrax.TextProgressMeter(),
@@ -489,3 +498,100 @@ def test_a_sensitivitys_loops_compile_as_one_kernel_at_the_imports_threshold():
     if not loop_flags() or loop_flags()[0] not in os.environ.get("XLA_FLAGS", ""):
         pytest.skip("the small-loop threshold is not set in this process")
     _assert_one_kernel_loops(sensitivity_small_calls(rows=10))
+
+
+_KNOTS = np.sort(np.random.default_rng(0).uniform(-1.0, 11.0, 40))
+_UP = np.nextafter(_KNOTS, np.inf)
+#: step times with the cases diffrax's clipping handles: outside (t0, t1), on t0 and t1, on
+#: output times, repeated, one and two ulp apart, denser than the steps, one alone
+STEP_TIMES = {
+    "random": _KNOTS,
+    "ends and outputs": np.concatenate([[0.0, 10.0], np.asarray(TS[3::7]), _KNOTS]),
+    "repeated": np.concatenate([_KNOTS, _KNOTS[:5], _KNOTS[:5]]),
+    "ulps apart": np.concatenate([_KNOTS, _UP, np.nextafter(_UP, np.inf)]),
+    "dense": np.linspace(0.0, 10.0, 2001),
+    "one": np.array([3.3]),
+}
+
+
+_PADDED = 2048
+
+
+@eqx.filter_jit
+def _clipped_pair(c, solver, rtol):
+    """(diffeqsolve's, the lean loop's) (ys, ts, result, stats) under `c`, and the spread of
+    diffeqsolve's own ys when rtol moves by 1e-13 (relative) either way."""
+    def dfx(cc):
+        sol = diffrax.diffeqsolve(diffrax.ODETerm(lambda t, y, a: _vf(t, y, 2.0)), solver(),
+                                  TS[0], TS[-1], None, Y0, saveat=diffrax.SaveAt(ts=TS),
+                                  stepsize_controller=cc, max_steps=100_000, throw=False)
+        return sol.ys, sol.ts, sol.result, sol.stats
+
+    def moved(eps):
+        pid = diffrax.PIDController(rtol=rtol * (1 + eps), atol=rtol * 1e-2)
+        return dfx(eqx.tree_at(lambda x: x.controller, c, pid))[0]
+
+    ref = dfx(c)
+    spread = jnp.maximum(jnp.max(jnp.abs(moved(1e-13) - ref[0])),
+                         jnp.max(jnp.abs(moved(-1e-13) - ref[0])))
+    lean = lean_solve(lambda t, y: _vf(t, y, 2.0), Y0, TS, c, 100_000,
+                      method=method_of(solver))
+    return ref, lean, spread
+
+
+@pytest.mark.parametrize("case", list(STEP_TIMES))
+@pytest.mark.parametrize("solver, rtol", [(diffrax.Tsit5, 1e-6), (diffrax.Tsit5, 1e-9),
+                                          (diffrax.Dopri8, 1e-9)])
+def test_steps_clipped_to_given_times_as_diffeqsolve_clips_them(case, solver, rtol):
+    """A `ClipStepSizeController` with `step_ts`: the same steps as `diffeqsolve`'s (the same
+    accepted steps; the rejected ones to one), and the same solution. Clipped steps make the
+    step sequence sensitive to rounding (a step that ends just past a step time leaves a
+    sliver, one that ends just before it does not): diffeqsolve's own solution moves by up to
+    1e-8 when rtol moves by 1e-13, where without step times it moves by 5e-14. The solutions
+    are compared within ten times that spread (and 1e-12)."""
+    # one shape for every case, so that one program per solver serves them: the padding lies
+    # past t1, where no step goes
+    st = STEP_TIMES[case]
+    st = np.concatenate([st, np.full(_PADDED - st.shape[0], 1e3)])
+    pid = diffrax.PIDController(rtol=jnp.asarray(rtol), atol=jnp.asarray(rtol * 1e-2))
+    c = diffrax.ClipStepSizeController(pid, step_ts=jnp.asarray(st))
+    (ys_d, ts_d, res_d, st_d), (ys_l, ts_l, res_l, st_l), spread = _clipped_pair(
+        c, solver, jnp.asarray(rtol))
+    assert int(st_l["num_accepted_steps"]) == int(st_d["num_accepted_steps"])
+    # a step whose error ratio is 1 to rounding is kept by one and rejected by the other (seen
+    # once: Dopri8 at 1e-9 with step times on the output times, 150 steps)
+    assert abs(int(st_l["num_rejected_steps"]) - int(st_d["num_rejected_steps"])) <= 1
+    np.testing.assert_array_equal(np.asarray(ts_l), np.asarray(ts_d))
+    np.testing.assert_allclose(ys_l, ys_d, rtol=0, atol=10 * float(spread) + 1e-12)
+    assert res_l == res_d == diffrax.RESULTS.successful
+    # the step times are stepped to: more steps than without them where they are dense
+    if case == "dense":
+        assert int(st_l["num_accepted_steps"]) >= 2000
+
+
+def test_the_clipping_of_a_step_is_diffraxs():
+    """`_clip_to_steps` against `ClipStepSizeController.adapt_step_size`'s own clipping (its
+    `_bump_next_t0`, `_find_idx_with_hint`, `_clip_t`) at step starts on, one and two ulp
+    before and after the step times, between them and outside, from every index hint that
+    the loop can hold: the same next t1 and index, exactly."""
+    clip = pytest.importorskip("diffrax._step_size_controller.clip")
+    st = jnp.asarray(np.sort(STEP_TIMES["ulps apart"].tolist() + _KNOTS[:3].tolist()))
+    base = np.concatenate([np.asarray(st), [-2.0, 12.0, 0.3, 5.0]])
+    starts = np.unique(np.concatenate([base, np.nextafter(base, np.inf),
+                                       np.nextafter(base, -np.inf)]))
+
+    @jax.jit
+    def both(nt0, nt1, i):
+        ours = _clip_to_steps(nt0, nt1, st, i)
+        bumped, _ = clip._bump_next_t0(nt0, st)
+        j = clip._find_idx_with_hint(bumped, st, i)
+        return ours, (clip._clip_t(nt1, j, st, False), j)
+
+    for nt0 in starts:
+        # the hint: the index the previous step left (the first step time above an earlier
+        # start), anywhere at or below the right one
+        right = int(np.searchsorted(np.asarray(st), nt0, side="right"))
+        for hint in {0, max(right - 2, 0), right, min(right + 1, st.shape[0])}:
+            for nt1 in (nt0 + 1e-3, nt0 + 5.0):
+                (a, i), (b, j) = both(nt0, nt1, hint)
+                assert float(a) == float(b) and int(i) == int(j), (nt0, hint, nt1)
