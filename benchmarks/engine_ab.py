@@ -15,6 +15,10 @@ tree interleaved, each pair twice; a row keeps the minimum of each side:
   benchmark's settings (rtol 1e-6, atol 1e-8) and at the scene's defaults: trajectories/s;
 - `sensitivity`: L2 `paper-circle` over 1 s, the default metrics with respect to every float
   parameter, forward and reverse mode, against the forward run of the same options;
+- `studies` (not by default): rows without a goal, what the studies wait for, two interleaved
+  processes a side: a quasi-static L3 batch, forward sensitivities, and one evaluation (residual
+  and Jacobian) of an identification from an experiment's angles (the fit's second run's
+  time over its evaluations after the first, the minimum of two fits);
 - `compile`: the first `solve_scene` of L0-L2 in a process with no persistent cache (tracing,
   lowering and XLA's compilation: what a user waits for before the first answer), the
   minimum of three processes a side: one process's first call moved by 15 % from run to run
@@ -113,6 +117,56 @@ print(json.dumps(dict(first_s=time.perf_counter() - t0)))
 
 #: the cores a probe may use (None: all); set per lane by `--lanes` (`_lane_cpus`)
 _CPUS = threading.local()
+
+
+_STUDIES = _PRELUDE + r"""
+part = sys.argv[1]
+out = {}
+if part == "l3-batch":
+    base = pj.scene_params("paper-circle")
+    ps = pj.stack_params([base.replace(t=float(t)) for t in np.linspace(0.28e-3, 0.40e-3, 16)])
+    r = pj.run_scene("paper-circle", ps, model=pj.QuasiStaticBeam(4), repeats=3,
+                     options=pj.SceneOptions(t_end=1.0, n_out=101))
+    out["run_s"] = r.timing["run_s"]
+elif part == "sens-t":
+    o = pj.SceneOptions(t_end=1.0, n_out=101)
+    out["run_s"] = min(pj.sensitivity("paper-circle", model="double1r", mode="fwd", options=o,
+                                      parameters=["t"]).timing["run_s"] for _ in range(6))
+elif part == "sens-servo":
+    out["run_s"] = min(pj.sensitivity("servo-circle", model="double1r", mode="fwd",
+                                      parameters=["t", "K_theta"],
+                                      metrics=["radial_error_max_m"]).timing["run_s"]
+                       for _ in range(3))
+else:  # identify-<k>: k unknowns from a servo-circle experiment's angles (7.54 s, 100 Hz)
+    k = int(part.split("-")[1])
+    truth = pj.scene_params("servo-circle")
+    truth = truth.replace(K_theta=float(pj.derived(truth).K_theta))
+    exp = pj.synthesize("servo-circle", "double1r", truth, noise_pos=1e-4, noise_phi=1e-3,
+                        rate=100.0, t_end=7.54, seed=0)
+    names = ("t", "K_theta", "E", "rho_m")[:k]
+    start = {n: (0.9 if i % 2 == 0 else 1.2) * float(getattr(truth, n))
+             for i, n in enumerate(names)}
+    evals = []
+    for _ in range(2):
+        fit = pj.identify(exp, names, model="double1r", scene="servo-circle", initial=start,
+                          fit_options=pj.FitOptions(force=True))
+        h = fit.history
+        evals.append(h["run_s"] / max(h["evaluations"] - 1, 1))
+    out["first_s"] = h["compile_s"]
+    out["run_s"] = min(evals)
+print(json.dumps(out))
+"""
+
+#: the studies' rows (`--parts studies`): (probe part, row)
+STUDIES = [
+    ("l3-batch", "paper-circle quasi-static L3 (N = 4) x16 batch, 1 s (s)"),
+    ("sens-t", "paper-circle L2 1 s, forward sensitivity to t (s)"),
+    ("sens-servo", "servo-circle L2 7.54 s, forward sensitivity to t and K_theta (s)"),
+    ("identify-2", "identification, L2 servo-circle experiment's angles (7.54 s), 2 unknowns: "
+                   "one evaluation (s)"),
+    ("identify-4", "identification, L2 servo-circle experiment's angles (7.54 s), 4 unknowns: "
+                   "one evaluation (s)"),
+]
 
 
 def _probe(checkout: str, snippet: str, *args, timeout=1800, platform_="cpu") -> dict:
@@ -219,6 +273,11 @@ def _jobs(args, base, new):
                     [_row(f"paper-circle {m} first call, no cache (s)", b, n, "first_s",
                           args.compile_goal)])
         jobs.append(("compile", compile_))
+    for part, name in STUDIES:
+        def studies(part=part, name=name):
+            b, n = _pair(base, new, _STUDIES, part, rounds=2)
+            return f"studies-{part}", {"base": b, "new": n}, [_row(name, b, n, "run_s")]
+        jobs.append(("studies", studies))
     # the GPU rows: one job, so that no two probes share the GPU
     sizes = [int(x) for x in args.gpu_sizes]
     if args.gpu:
@@ -234,7 +293,7 @@ def _jobs(args, base, new):
             return "gpu-batch", raw, rows
         jobs.append(("gpu", gpu))
     # the longest first, so that the lanes end together
-    order = ["gpu", "sensitivity", "run", "batch", "compile"]
+    order = ["gpu", "sensitivity", "studies", "run", "batch", "compile"]
     jobs.sort(key=lambda j: order.index(j[0]))
     return [(part, fn) for part, fn in jobs if part in args.parts]
 
@@ -255,7 +314,7 @@ def main(argv=None):
     ap.add_argument("--label-base", default=None, help="the base's commit (default: its HEAD)")
     ap.add_argument("--label-new", default=None, help="the new tree's commit (default: its HEAD)")
     ap.add_argument("--parts", nargs="+", default=["run", "batch", "sensitivity", "compile"],
-                    help="of run, batch, sensitivity, compile, gpu")
+                    help="of run, batch, sensitivity, compile, studies, gpu")
     ap.add_argument("--quick", action="store_true", help="L0-L1 only, small batches")
     ap.add_argument("--lanes", type=int, default=0,
                     help="run the jobs side by side in this many lanes, each pinned to its own "

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from ._custom_types import Array, Float
 from ._errors import PPRError
 from ._fusion import materialize, tangents_once
-from ._linalg import solve, solve_arrow, solve_spd
+from ._linalg import matvec, solve, solve_arrow, solve_spd
 from ._models import AbstractClosedLoop, AbstractModel, Kin
 from ._robot import Robot, RobotLike, as_robot
 
@@ -177,7 +177,7 @@ def torque_driven_accelerations(model, robot, actuation, wrench, t, z, zdot):
 
 def _torque_driven(model, robot, actuation, wrench, t, z, zdot):
     eom = eom_terms(model, robot, z, zdot)
-    tau = actuation.torque_at(t, eom.kin.th_a, eom.Jth @ zdot)
+    tau = actuation.torque_at(t, eom.kin.th_a, matvec(eom.Jth, zdot))
     zdd = mass_solve(model, eom.M, generalized_force(eom, tau, wrench) - eom.h)
     return zdd, tau, eom.M
 
@@ -195,7 +195,7 @@ def _torque_driven_fused_jvp(primals, tangents, *, model):
         # straight-line arithmetic differentiated recomputes a shared tangent in every fusion
         # that reads it (an L2 sensitivity 1.4 s against 0.11 s): `tangents_once`
         kin, r, Jth, JX = model.fused_balance(robot, z, zdot, zdd, once=tangents_once)
-        tau = actuation.torque_at(t, kin.th_a, Jth @ zdot)
+        tau = actuation.torque_at(t, kin.th_a, matvec(Jth, zdot))
         for k in range(3):
             r = r + Jth[k] * tau[k] + JX[k] * wrench[k]
         return r, tau
@@ -313,7 +313,7 @@ def _spring_force(model, robot, k, Jd, zdot):
     kk, cc = model.stiffness(robot), model.damping(robot)
     # kk and cc are scalars or one per spring (the beam's clamp half-springs differ; the full
     # beam's Kelvin-Voigt loss is proportional to each spring's stiffness).
-    return -(Jd.T @ (kk * k.deflection)) - Jd.T @ (cc * (Jd @ zdot))
+    return -matvec(Jd.T, kk * k.deflection) - matvec(Jd.T, cc * matvec(Jd, zdot))
 
 
 def passive_force(
@@ -322,7 +322,8 @@ def passive_force(
     """Q of springs, damping, friction, actuators and wrench only (first derivatives of the
     kinematics; no mass matrix): the stiffness part of the static and quasi-static balances."""
     _, Q, (_, _, Jth, JX), _ = _derivatives(model, robot, z, zdot, convective=False)
-    return Q - robot.c_act * (Jth.T @ (Jth @ zdot)) + Jth.T @ tau_a + JX.T @ wrench
+    return (Q - robot.c_act * matvec(Jth.T, matvec(Jth, zdot)) + matvec(Jth.T, tau_a)
+            + matvec(JX.T, wrench))
 
 
 def generalized_force(eom: EOM, tau_a, wrench) -> Array:

@@ -141,14 +141,14 @@ def solve_blocks(A: Float[Array, "b k k"], B: Float[Array, "b k m"]) -> Float[Ar
         adj = jnp.stack(
             [jnp.stack([A[:, 1, 1], -A[:, 0, 1]], -1), jnp.stack([-A[:, 1, 0], A[:, 0, 0]], -1)], 1
         )
-        return (adj @ B) / det[:, None, None]
+        return matmat(adj, B) / det[:, None, None]
     if k == 3:
         c0 = jnp.cross(A[:, :, 1], A[:, :, 2])
         c1 = jnp.cross(A[:, :, 2], A[:, :, 0])
         c2 = jnp.cross(A[:, :, 0], A[:, :, 1])
         adj = jnp.stack([c0, c1, c2], axis=1)  # rows: the adjugate's rows
         det = jnp.sum(A[:, :, 0] * c0, axis=-1)
-        return (adj @ B) / det[:, None, None]
+        return matmat(adj, B) / det[:, None, None]
     return jax.vmap(jax.vmap(solve, in_axes=(None, 1), out_axes=1))(A, B)
 
 
@@ -180,20 +180,44 @@ class SmallLU(lx.AbstractLinearSolver):
         return True
 
 
-def _mv(A, v):
-    """A v by columns (elementwise products of slices: no dot kernel for a 3 x 3)."""
-    out = A[:, 0] * v[0]
-    for k in range(1, A.shape[-1]):
-        out = out + A[:, k] * v[k]
+#: the longest contraction `matvec` and `matmat` write as elementwise sums (the generic
+#: equations of motion's up to 12 coordinates, `_dynamics.SUMS_MAX_DOF`); longer ones are dots
+SUMS_MAX = 12
+
+
+def matvec(A, v):
+    """A v (A (..., m, n), v (..., n)) by columns, as elementwise products of slices: no dot.
+
+    XLA's CPU compiler makes a product of small matrices a dot, and a dot that is not a
+    matrix-vector product (the one a forward-mode derivative makes of A v when it carries
+    several tangents, (m, n) x (n, k)) is a library call, which keeps the loop of steps that
+    holds it from compiling as one kernel (`_devices`). Contractions longer than `SUMS_MAX`
+    stay dots."""
+    n = A.shape[-1]
+    if n > SUMS_MAX:
+        return jnp.einsum("...mn,...n->...m", A, v)
+    # v's entries as A's columns' rank (explicit: promotion is strict in the tests)
+    v = v.reshape((1,) * (A.ndim - v.ndim - 1) + v.shape)[..., None, :] if v.ndim else v
+    out = A[..., :, 0] * v[..., 0]
+    for k in range(1, n):
+        out = out + A[..., :, k] * v[..., k]
     return out
 
 
-def _mm(A, B):
-    """A B by columns of A (see `_mv`)."""
-    out = A[:, 0:1] * B[0:1, :]
-    for k in range(1, A.shape[-1]):
-        out = out + A[:, k : k + 1] * B[k : k + 1, :]
+def matmat(A, B):
+    """A B (A (..., m, n), B (..., n, p)) by columns of A, as `matvec`."""
+    n = A.shape[-1]
+    if n > SUMS_MAX:
+        return A @ B
+    A = A.reshape((1,) * (B.ndim - A.ndim) + A.shape)
+    B = B.reshape((1,) * (A.ndim - B.ndim) + B.shape)
+    out = A[..., :, 0:1] * B[..., 0:1, :]
+    for k in range(1, n):
+        out = out + A[..., :, k : k + 1] * B[..., k : k + 1, :]
     return out
+
+
+_mv, _mm = matvec, matmat
 
 
 def _inverse3(A):

@@ -6,7 +6,7 @@ import numpy as np
 import optimistix as optx
 import pytest
 
-from ppr_jax._linalg import UNROLL_MAX, SmallLU, lu_factor, lu_solve, solve
+from ppr_jax._linalg import UNROLL_MAX, SmallLU, lu_factor, lu_solve, matmat, matvec, solve
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 6, UNROLL_MAX, UNROLL_MAX + 1, 27])
@@ -124,3 +124,23 @@ def test_arrow_solve_matches_numpy_with_derivatives(s, k):
     _, t = jax.jvp(lambda *a: loss(ours, *a), args, tangents)
     _, t_ref = jax.jvp(lambda *a: loss(jnp.linalg.solve, *a), args, tangents)
     np.testing.assert_allclose(t, t_ref, rtol=1e-9)
+
+
+@pytest.mark.parametrize("A, v", [((6, 6), (6,)), ((3, 2, 6), (6,)), ((3, 2, 6), (3, 6)),
+                                  ((4, 13), (13,))])
+def test_matvec_is_the_product(A, v):
+    """`matvec` (elementwise sums up to `SUMS_MAX` columns, an einsum above) against NumPy's
+    product, with the batch dimensions of either side."""
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=A), rng.normal(size=v)
+    np.testing.assert_allclose(matvec(jnp.asarray(a), jnp.asarray(b)),
+                               np.einsum("...mn,...n->...m", a, b), rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("A, B", [((3, 2, 2), (3, 2, 6)), ((3, 3), (3, 4)), ((2, 2), (3, 2, 5)),
+                                  ((2, 13), (13, 2))])
+def test_matmat_is_the_product(A, B):
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(size=A), rng.normal(size=B)
+    np.testing.assert_allclose(matmat(jnp.asarray(a), jnp.asarray(b)), a @ b, rtol=0,
+                               atol=1e-14)

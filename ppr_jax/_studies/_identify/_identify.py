@@ -62,10 +62,12 @@ Method, and why:
 - Unknowns are reparametrised for their bounds (default `PARAM_RANGES`): p = exp(log lo +
   (log hi - log lo) sigmoid(z)) for lo > 0 (relative steps, so t ~ 5e-4 and E ~ 7e10 are both
   O(1) in z), p = lo + (hi - lo) sigmoid(z) otherwise. Bounds are never crossed.
-- Experiments are padded to a common length and simulated in one vmapped call, so several
+- Experiments are padded to a common length and simulated in one program, as a batch's
+  members (`map_members`: on a CPU one after another, each on the lean loop), so several
   experiments cost one compilation.
-- Jacobian: forward mode through diffrax (`jax.jacfwd`, `diffrax.ForwardMode`), one compiled
-  function returning residuals and Jacobian together (one jvp per unknown). The default solver
+- Jacobian: forward mode through diffrax (`diffrax.ForwardMode`), one compiled function
+  returning residuals and Jacobian together (one jvp per unknown), the unknowns' directions in
+  slices on the host's cores (`forward_jacobian`). The default solver
   is a Levenberg-Marquardt loop on the host around that one compiled function: the same
   compilation then serves the covariance and any further fit on data of the same shapes.
   ``FitOptions(solver="optimistix-lm")`` / ``"optimistix-gn"`` run

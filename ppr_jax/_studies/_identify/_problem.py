@@ -25,8 +25,7 @@ from ..._names import (  # the choices the command line offers, written there
 from ..._params import RobotParams
 from ..._paths import StartPath
 from ..._robot import Robot
-from ..._scenes import PathScene, SceneOptions
-from ..._scenes._batch import map_members
+from ..._scenes import PathScene, SceneOptions, map_members
 from ..._trajectory import Interpolated, PiecewiseCubic
 from .._evaluation import Evaluation
 from .._jacobian import derivatives_along, forward_jacobian
