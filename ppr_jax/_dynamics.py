@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from ._custom_types import Array, Float
 from ._errors import PPRError
 from ._fusion import materialize, tangents_once
-from ._linalg import matvec, solve, solve_arrow, solve_spd
+from ._linalg import solve, solve_arrow, solve_spd
 from ._models import AbstractClosedLoop, AbstractModel, Kin
 from ._robot import Robot, RobotLike, as_robot
 
@@ -313,7 +313,7 @@ def _spring_force(model, robot, k, Jd, zdot):
     kk, cc = model.stiffness(robot), model.damping(robot)
     # kk and cc are scalars or one per spring (the beam's clamp half-springs differ; the full
     # beam's Kelvin-Voigt loss is proportional to each spring's stiffness).
-    return -matvec(Jd.T, kk * k.deflection) - matvec(Jd.T, cc * matvec(Jd, zdot))
+    return -(Jd.T @ (kk * k.deflection)) - Jd.T @ (cc * (Jd @ zdot))
 
 
 def passive_force(
@@ -322,8 +322,7 @@ def passive_force(
     """Q of springs, damping, friction, actuators and wrench only (first derivatives of the
     kinematics; no mass matrix): the stiffness part of the static and quasi-static balances."""
     _, Q, (_, _, Jth, JX), _ = _derivatives(model, robot, z, zdot, convective=False)
-    return (Q - robot.c_act * matvec(Jth.T, matvec(Jth, zdot)) + matvec(Jth.T, tau_a)
-            + matvec(JX.T, wrench))
+    return Q - robot.c_act * (Jth.T @ (Jth @ zdot)) + Jth.T @ tau_a + JX.T @ wrench
 
 
 def generalized_force(eom: EOM, tau_a, wrench) -> Array:

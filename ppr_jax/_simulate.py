@@ -32,7 +32,7 @@ from ._errors import (
 )
 from ._esdirk import KeptKvaerno5
 from ._lean import Tape, lean_applies, lean_solve, lean_vjp, method_of
-from ._linalg import matvec, solve_spd
+from ._linalg import solve_spd
 from ._models import AbstractModel
 from ._params import params_invalid
 from ._robot import RobotLike, as_robot
@@ -298,11 +298,10 @@ def accelerations(model, robot, actuation, wrench, t, zf, zfd):
     eom = eom_terms(model, robot, z, zd)
     rhs = generalized_force(eom, jnp.zeros(3), wrench) - eom.h
     Mf = _take(eom.M, free)
-    zdd_f = solve_spd(_take(Mf, free, axis=1),
-                      _take(rhs, free) - matvec(_take(Mf, pres, axis=1), thadd))
+    zdd_f = solve_spd(_take(Mf, free, axis=1), _take(rhs, free) - _take(Mf, pres, axis=1) @ thadd)
     zdd = _interleave([(free, zdd_f), (pres, thadd)])
     # The actuated coordinates are th_a themselves, so their rows give the reaction torques.
-    tau = _take(matvec(eom.M, zdd) - rhs, pres)
+    tau = _take(eom.M @ zdd - rhs, pres)
     return z, zd, zdd, tau
 
 

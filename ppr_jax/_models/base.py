@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from .._custom_types import Array, Float
-from .._linalg import matvec, solve_blocks
+from .._linalg import solve_blocks
 from .._names import ATOL, RTOL  # noqa: F401 (the non-stiff levels' defaults)
 from .._robot import Robot
 from .fused import ChainSpec, fused_balance, fused_eom
@@ -239,7 +239,7 @@ class AbstractClosedLoop(AbstractModel):
         )(jnp.eye(n), u_z)
         if not convective:
             return Motion(kin=kin, jac=jac, acc_p=None, acc_a=None)
-        ud = matvec(u_z, zdot)
+        ud = u_z @ zdot
 
         def second(f):
             # second derivative of f along (z', u') with u'' = 0

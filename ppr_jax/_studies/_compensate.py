@@ -265,7 +265,7 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
     - `knots`, `max_iter`: the optimisation's correction spline knots (3 x knots unknowns,
       3 to the command count) and iterations (at least 1).
     - `jacobian`: how the optimisation differentiates the replay: `"differences"` (one
-      batch of 3 x knots + 1 replays, vmapped, in slices on host threads, one a core, the
+      batch of 3 x knots + 1 replays, in slices on host threads, one a core, the
       default: on 2 CPU cores, as one batch, 8 times faster than
       forward mode, agreeing to about 1e-6 relative) or `"forward"` (forward mode through the
       solve).
