@@ -13,7 +13,7 @@ benchmarks/results/compensate.json.
 With `--optimise`, `method="optimise"` (Levenberg-Marquardt from the inversion's commands, 12
 knots, 4 iterations, no replays, its default Jacobian by differences) is timed too: its first
 call and a warm second one; and one Jacobian of the 36 unknowns each way, warm: by differences
-(one vmapped batch of 37 replays) and by forward mode, with their largest difference.
+(one batch of 37 replays) and by forward mode, with their largest difference.
 """
 
 from __future__ import annotations

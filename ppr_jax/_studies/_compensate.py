@@ -266,8 +266,8 @@ def compensate(scene: Union[AbstractScene, Callable, str], model: Union[Abstract
       3 to the command count) and iterations (at least 1).
     - `jacobian`: how the optimisation differentiates the replay: `"differences"` (one
       batch of 3 x knots + 1 replays, in slices on host threads, one a core, the
-      default: on 2 CPU cores, as one batch, 8 times faster than
-      forward mode, agreeing to about 1e-6 relative) or `"forward"` (forward mode through the
+      default: on 2 CPU cores 4-11 times faster than forward mode on a 6 s figure eight,
+      agreeing to 8e-6 relative under the motion drive) or `"forward"` (forward mode through the
       solve).
     - `verify`: replay the nominal and the compensated commands through the model (the
       result's `before`, `after`, `error`; the band needs them); False: the inversion only

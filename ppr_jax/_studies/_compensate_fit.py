@@ -9,11 +9,10 @@ at the output times (x, y in m; phi weighted by `PHI_SCALE` m/rad) and, with a r
 rates' excess over it (weighted by `RATE_WEIGHT`). The Jacobian is forward mode through the
 scene's solve (diffrax's `ForwardMode`), knots x 3 tangents (`jacobian="forward"`), or by
 forward differences of one batch of knots x 3 + 1 replays (`jacobian="differences"`, the
-default). Measured on an L2 figure eight (1 s, 101 commands, 36 unknowns, 2 cores): the batch
-took 1.05 s and the forward-mode Jacobian 8.6 s, and they agree to 2.6e-6 relative. Forward
-mode costs about 4 primal runs a tangent there (XLA's CPU fusion recomputes the tangents'
-shared terms of the fused equations of motion inside each sum's kernel), a batched replay a
-fraction of one: the batch shares each step's kernels and vectorises its arithmetic. The
+default). Measured on an L2 figure eight (6 s, 601 commands, 36 unknowns, 2 cores,
+`benchmarks/results/compensate.json`): the differences took 0.37 / 0.30 s (motion / torque
+drive) and forward mode 4.1 / 1.5 s, agreeing to 8e-6 / 3e-4 relative (the torque drive's open
+loop is unstable). The
 difference step `FD_STEP` x max |u0| (1e-6 rad for angles of order 1) keeps the columns' error
 (truncation, and the members' own adaptive steps) near 1e-6 relative; Levenberg-Marquardt
 needs no more. A batch with a failed member falls back to forward mode.
