@@ -158,11 +158,11 @@ def lean_applies(solver, controller, dt0, throw, progress_meter, saveat) -> bool
     `ClipStepSizeController` with `step_ts` only (no `jump_ts`, no stored rejections); the
     first step chosen by the controller (dt0 None); no `throw`, no progress meter; output at
     given times only."""
-    if type(controller) is diffrax.ClipStepSizeController:
-        if (controller.jump_ts is not None or controller.store_rejected_steps is not None
-                or controller.callback_on_reject is not None):
-            return False
-        controller = controller.controller
+    if type(controller) is diffrax.ClipStepSizeController and (
+            controller.jump_ts is not None or controller.store_rejected_steps is not None
+            or controller.callback_on_reject is not None):
+        return False
+    controller, _ = clipped(controller)
     if type(solver) not in LEAN_SOLVERS or type(controller) is not diffrax.PIDController:
         return False
     c = controller

@@ -208,43 +208,26 @@ class SmallLU(lx.AbstractLinearSolver):
         return True
 
 
-#: the longest contraction `matvec` and `matmat` write as elementwise sums (the generic
-#: equations of motion's up to 12 coordinates, `_dynamics.SUMS_MAX_DOF`); longer ones are dots
-SUMS_MAX = 12
-
-
 def matvec(A, v):
-    """A v (A (..., m, n), v (..., n)) by columns, as elementwise products of slices: no dot.
+    """A v (A (..., m, n), v (n,)) by columns, as elementwise products of slices: no dot.
 
     XLA's CPU compiler makes a product of small matrices a dot, and a dot that is not a
     matrix-vector product (the one a forward-mode derivative makes of A v when it carries
-    several tangents, (m, n) x (n, k)) is a library call, which keeps the loop of steps that
-    holds it from compiling as one kernel (`_devices`). Contractions longer than `SUMS_MAX`
-    stay dots."""
-    n = A.shape[-1]
-    if n > SUMS_MAX:
-        return jnp.einsum("...mn,...n->...m", A, v)
-    if v.ndim > 1:
-        # v's entries as A's columns' rank (explicit: promotion is strict in the tests)
-        v = v.reshape((1,) * (A.ndim - v.ndim - 1) + v.shape)[..., None, :]
-        col = lambda k: v[..., k]  # noqa: E731
-    else:
-        col = lambda k: v[k]  # noqa: E731
-    out = A[..., :, 0] * col(0)
-    for k in range(1, n):
-        out = out + A[..., :, k] * col(k)
+    several tangents) is a library call, which keeps the loop of steps that holds it from
+    compiling as one kernel (`_devices`)."""
+    out = A[..., :, 0] * v[0]
+    for k in range(1, A.shape[-1]):
+        out = out + A[..., :, k] * v[k]
     return out
 
 
 def matmat(A, B):
-    """A B (A (..., m, n), B (..., n, p)) by columns of A, as `matvec`."""
-    n = A.shape[-1]
-    if n > SUMS_MAX:
-        return A @ B
+    """A B (A (..., m, n), B (..., n, p), either without the leading axes) by columns of A,
+    as `matvec`."""
     A = A.reshape((1,) * (B.ndim - A.ndim) + A.shape)
     B = B.reshape((1,) * (A.ndim - B.ndim) + B.shape)
     out = A[..., :, 0:1] * B[..., 0:1, :]
-    for k in range(1, n):
+    for k in range(1, A.shape[-1]):
         out = out + A[..., :, k : k + 1] * B[..., k : k + 1, :]
     return out
 

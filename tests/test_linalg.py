@@ -135,19 +135,17 @@ def test_arrow_solve_matches_numpy_with_derivatives(s, k):
     np.testing.assert_allclose(t, t_ref, rtol=1e-9)
 
 
-@pytest.mark.parametrize("A, v", [((6, 6), (6,)), ((3, 2, 6), (6,)), ((3, 2, 6), (3, 6)),
-                                  ((4, 13), (13,))])
+@pytest.mark.parametrize("A, v", [((6, 6), (6,)), ((3, 2, 6), (6,)), ((6, 3), (3,))])
 def test_matvec_is_the_product(A, v):
-    """`matvec` (elementwise sums up to `SUMS_MAX` columns, an einsum above) against NumPy's
-    product, with the batch dimensions of either side."""
+    """`matvec` (elementwise sums) against NumPy's product, with batch dimensions on A."""
     rng = np.random.default_rng(0)
     a, b = rng.normal(size=A), rng.normal(size=v)
     np.testing.assert_allclose(matvec(jnp.asarray(a), jnp.asarray(b)),
-                               np.einsum("...mn,...n->...m", a, b), rtol=0, atol=1e-14)
+                               np.einsum("...mn,n->...m", a, b), rtol=0, atol=1e-14)
 
 
 @pytest.mark.parametrize("A, B", [((3, 2, 2), (3, 2, 6)), ((3, 3), (3, 4)), ((2, 2), (3, 2, 5)),
-                                  ((2, 13), (13, 2))])
+                                  ((3, 2, 2), (2, 1))])
 def test_matmat_is_the_product(A, B):
     rng = np.random.default_rng(1)
     a, b = rng.normal(size=A), rng.normal(size=B)
