@@ -13,12 +13,14 @@ error instead of returning NaN.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Float
-from ._fusion import cos_sin
+from ._fusion import cos_sin, materialize
 from ._linalg import solve
 from ._robot import Robot
 
@@ -48,8 +50,13 @@ def _e_jvp(primals, tangents):
 
 def turn(v, alpha):
     """Vector(s) v (..., 2) turned by the angle alpha (broadcast against v's leading axes):
-    e(a + alpha) = turn(e(a), alpha) with one sine and cosine of alpha however many v."""
-    ca = e(alpha)
+    e(a + alpha) = turn(e(a), alpha) with one sine and cosine of alpha however many v (a
+    scalar alpha's computed once however many kernels read them, `cos_sin`)."""
+    if jnp.ndim(alpha) == 0:
+        (c,), (s,) = cos_sin(jnp.atleast_1d(alpha))
+        ca = jnp.stack([c[0], s[0]])
+    else:
+        ca = e(alpha)
     # explicit broadcasting (the package runs under JAX's strict rank promotion in its tests)
     shape = jnp.broadcast_shapes(ca.shape[:-1], v.shape[:-1]) + (1,)
     c, s = jnp.broadcast_to(ca[..., 0:1], shape), jnp.broadcast_to(ca[..., 1:2], shape)
@@ -74,8 +81,12 @@ def base_points(robot: Robot) -> Float[Array, "3 2"]:
 
 def platform_points(robot: Robot, X: Float[Array, "3"]) -> Float[Array, "3 2"]:
     """Platform joints E_i = (x, y) + rho_E e(beta_i + phi) (m)."""
-    # e(beta_i + phi) as e(beta_i) turned by phi: one sine and cosine instead of three
-    return X[None, :2] + robot.rho_E * turn(np.stack([np.cos(BETA), np.sin(BETA)], -1), X[2])
+    # e(beta_i + phi) as e(beta_i) turned by phi: one sine and cosine instead of three, and
+    # computed once however many kernels read them (`cos_sin`: XLA copied this sine into
+    # every kernel of L1's right-hand side that reads a chain vector, five of them)
+    (c,), (s,) = cos_sin(X[2:3])
+    bx, by = np.cos(BETA), np.sin(BETA)
+    return X[None, :2] + robot.rho_E * jnp.stack([c * bx - s * by, s * bx + c * by], -1)
 
 
 def wrap(x):
@@ -92,17 +103,34 @@ def two_link(d, la, lb, elbow):
     (a singular, stretched or folded, configuration) and negative when d is out of reach; the angles
     are then computed from the clipped cosine and must not be used (callers check `margin`).
     """
-    dd = jnp.sum(d**2, axis=-1)
+    th_a, th_b, margin, _ = two_link_trig(d, la, lb, elbow)
+    return th_a, th_b, margin
+
+
+def two_link_trig(d, la, lb, elbow):
+    """`two_link` with the cosines and sines of its angles, computed without evaluating a sine:
+    (th_a, th_b, margin, ((cos th_a, cos th_b), (sin th_a, sin th_b))).
+
+    With delta = th_b - th_a = elbow arccos(c) and k = (la + lb cos delta, lb sin delta), e(th_a)
+    is e(d) turned back by e(k), i.e. (d . k, d x k) / (|d| |k|), and e(th_b) is e(th_a) turned by
+    (c, elbow sqrt(1 - c^2)). Where d is in reach |k| = |d| and these are the angles' cosines and
+    sines to rounding; out of reach (margin < 0) they are those of the clipped solution's.
+    """
+    dx, dy = d[..., 0], d[..., 1]
+    dd = dx**2 + dy**2
     c = (dd - la**2 - lb**2) / (2 * la * lb)
     margin = 1 - jnp.abs(c)
     # Clip away from +-1 so that neither the value nor the gradient is NaN at the reach limit;
     # the margin reports the problem.
     cc = jnp.clip(c, -1 + 1e-15, 1 - 1e-15)
+    sd = elbow * jnp.sqrt((1 - cc) * (1 + cc))  # sin(delta), without evaluating it
     delta = elbow * jnp.arccos(cc)
-    th_a = jnp.arctan2(d[..., 1], d[..., 0]) - jnp.arctan2(
-        lb * jnp.sin(delta), la + lb * jnp.cos(delta)
-    )
-    return th_a, th_a + delta, margin
+    kx, ky = la + lb * cc, lb * sd
+    th_a = jnp.arctan2(dy, dx) - jnp.arctan2(ky, kx)
+    inv = 1 / jnp.sqrt(dd * (kx**2 + ky**2))
+    ca, sa = (dx * kx + dy * ky) * inv, (dy * kx - dx * ky) * inv
+    cb, sb = ca * cc - sa * sd, sa * cc + ca * sd
+    return th_a, th_a + delta, margin, ((ca, cb), (sa, sb))
 
 
 def _chain_vectors(robot: Robot, X):
@@ -123,29 +151,99 @@ NEWTON_IK_TOL = 1e-15
 N_NEWTON_DIFF = 3
 
 
+class ChainTrig(NamedTuple):
+    """The cosines and sines of a chain's angles, where the closure computes them anyway:
+    `cos`, `sin` lists of (3,) arrays (one entry per chain), in the order of the chain angles
+    th[:, k]. The equations of motion and the outputs read them instead of evaluating the
+    angles' sines again (`_models/fused.py`, `AbstractDouble1R.chain_bodies`)."""
+
+    cos: list
+    sin: list
+
+
+#: |turn| (rad) up to which `_rotated` turns by it exactly (to rounding)
+_TURN_MAX = 1e-2
+
+
+def _rotated(c, s, d):
+    """(cos(a + d), sin(a + d)) from (c, s) = (cos a, sin a): cos d and sin d as their Taylor
+    polynomials to d^4 and d^5, equal to them to rounding (1e-15) for |d| <= `_TURN_MAX`, with
+    d clipped there. d is L1's Newton correction: rounding at the closed form's root, 1e-6 rad
+    where the closed form's equal links differ by a finite difference's step (a derivative
+    checked against central differences); beyond `_TURN_MAX` the chain does not close (out of
+    reach), and the clipped turn keeps the sines bounded, the loop residual near the
+    stretched chain's gap. No sine is evaluated."""
+    d = jnp.clip(d, -_TURN_MAX, _TURN_MAX)
+    d2 = d * d
+    cd = 1.0 - 0.5 * d2 * (1.0 - d2 / 12.0)
+    sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0))
+    return c * cd - s * sd, s * cd + c * sd
+
+
+@jax.custom_jvp
+def _trig_of(a, cs):
+    """cs = (cos a, sin a) of a 1-D array of angles a, given (computed without evaluating
+    sines, `ik_reduced_trig`), once however many kernels read it (`_fusion.materialize`). Its
+    derivative is that of the cosines and sines of a, read from cs (as `_fusion.cos_sin`'s):
+    differentiated through the products that computed cs, a JVP of the output kinematics took
+    more than the sines it saved."""
+    return materialize(cs)
+
+
+@_trig_of.defjvp
+def _trig_of_jvp(primals, tangents):
+    (a, cs), (da, _) = primals, tangents
+    out = _trig_of(a, cs)  # through this rule again at higher orders
+    k = a.shape[0]
+    return out, jnp.concatenate([-out[k:] * da, out[:k] * da])
+
+
 def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     """L1 inverse kinematics under the quasi-static assumption th_i1 - 2 th_i2 + th_i3 = 0 (eq 29).
 
-    Returns (th (3, 3) chain angles [i, (th_i1, th_i2, th_i3)], margin (3,)).
+    Returns (th (3, 3) chain angles [i, (th_i1, th_i2, th_i3)], margin (3,)); `ik_reduced_trig`
+    also returns their cosines and sines.
+    """
+    th, margin, _ = ik_reduced_trig(robot, X)
+    return th, margin
+
+
+def ik_reduced_trig(robot: Robot, X: Float[Array, "3"]):
+    """L1 inverse kinematics (`ik_reduced`) with the chain angles' cosines and sines.
+
+    Returns (th (3, 3) chain angles [i, (th_i1, th_i2, th_i3)], margin (3,), `ChainTrig`).
     The closed form (MODEL.md section 4) with u = (th1 + th3)/2, v = (th3 - th1)/2:
     (2 r cos v + r2) e(u) = E_i - A_i, is exact when r1 = r3; for r1 != r3 it is the initial guess
     of Newton's method on the 2x2 chain closure, iterated to a step below `NEWTON_IK_TOL` (at most
     `N_NEWTON_IK` iterations, without derivatives), then `N_NEWTON_DIFF` differentiable Newton
     steps from the root, which carry exact derivatives up to that order. `robot.equal_links`
     (static) picks the branch.
+
+    With equal links no sine is evaluated for the chain angles: e(u) is the chain vector's
+    direction, cos v the closed form's c and sin v = sigma sqrt(1 - c^2), so th1 = u - v,
+    th3 = u + v and th2 = u + c2 are sums of angles whose sines and cosines are products of
+    those, turned by the implicit correction (`_rotated`: rounding at the root, more where
+    traced link lengths differ from the equal ones the branch was chosen for). They are the
+    returned angles' sines to rounding (1e-16), and their derivatives, of every order, are taken
+    from the angles' (`_trig_of`). Out of reach (margin < 0) the correction is not small and
+    they are not the angles' sines; the margin and the loop residual report that pose either
+    way. (An L1 right-hand side evaluated 20 sines and 20 cosines and took 600 ns on the
+    2-core CPU; now it evaluates the platform angle's and c2's, and takes 410 ns. The inverse
+    trigonometric functions remain, for the angles themselves.)
     """
     d = _chain_vectors(robot, X)
     rbar = (robot.r1 + robot.r3) / 2
     dist = jnp.linalg.norm(d, axis=-1)
     c = (dist - robot.r2) / (2 * rbar)
     margin = 1 - jnp.abs(c)
-    v = robot.sigma * jnp.arccos(jnp.clip(c, -1 + 1e-15, 1 - 1e-15))
+    cc = jnp.clip(c, -1 + 1e-15, 1 - 1e-15)
+    v = robot.sigma * jnp.arccos(cc)
     u = jnp.arctan2(d[:, 1], d[:, 0])
     th1, th3 = u - v, u + v
 
     # d_i1 = d_i2 (eq 29) puts the middle angle at the mean plus a constant, nonzero only for the
-    # strip geometry with unequal links: th_i2 = (th_i1 + th_i3)/2 + c,
-    # c = sigma (delta3 - delta1)/2
+    # strip geometry with unequal links: th_i2 = (th_i1 + th_i3)/2 + c2,
+    # c2 = sigma (delta3 - delta1)/2
     c2 = robot.sigma * (robot.delta3 - robot.delta1) / 2
 
     def resid(th13, di):
@@ -174,31 +272,42 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
         th13, _, _ = jax.lax.while_loop(cond, body, (th13, 0, jnp.asarray(jnp.inf)))
         return th13
 
-    def implicit_correction(t1, t3):
+    def implicit_correction(cv, sv, cm, sm):
         # At the closed-form root the Newton update is zero, but its derivative is the
         # implicit-function derivative -J^-1 dr: exact also in l1 or l3 alone. J multiplies
         # r = 0, so it is held constant (its derivatives would multiply zero): the correction
         # costs one residual and a 2 x 2 inverse in closed form, which matters because it runs
         # inside every right-hand side under two nested derivatives. Written out on the three
         # chains' (3,) arrays, so that XLA fuses it (stacks and 2 x 2 products were a dozen
-        # kernels of each L1 right-hand side).
-        t2 = (t1 + t3) / 2 + c2
-        # each sine once, not once per kernel that reads it (`_fusion.py`)
-        (c1, c2_, c3), (s1, s2_, s3) = cos_sin(t1, t2, t3)
-        rx = robot.r1 * c1 + robot.r2 * c2_ + robot.r3 * c3 - d[:, 0]
-        ry = robot.r1 * s1 + robot.r2 * s2_ + robot.r3 * s3 - d[:, 1]
-        hx, hy = -(robot.r2 / 2) * s2_, (robot.r2 / 2) * c2_
+        # kernels of each L1 right-hand side). The residual and J are the chain's turned by -u
+        # (r1 e(-v) + r2 e(c2) + r3 e(v) - (|d|, 0), the same function of every parameter and of
+        # X, and the same Newton step): they need no sine of u, and the correction waits only
+        # for the closed form's cosine, not for the chain vector's direction.
+        rx = (robot.r1 + robot.r3) * cv + robot.r2 * cm - dist
+        ry = (robot.r3 - robot.r1) * sv + robot.r2 * sm
+        hx, hy = -(robot.r2 / 2) * sm, (robot.r2 / 2) * cm
         # columns d/dt1 = (j00, j10) and d/dt3 = (j01, j11)
         j00, j10, j01, j11 = jax.lax.stop_gradient(
-            (hx - robot.r1 * s1, hy + robot.r1 * c1, hx - robot.r3 * s3, hy + robot.r3 * c3)
+            (hx + robot.r1 * sv, hy + robot.r1 * cv, hx - robot.r3 * sv, hy + robot.r3 * cv)
         )
         inv_det = 1.0 / (j00 * j11 - j01 * j10)
-        return t1 - (j11 * rx - j01 * ry) * inv_det, t3 - (j00 * ry - j10 * rx) * inv_det
+        return -(j11 * rx - j01 * ry) * inv_det, -(j00 * ry - j10 * rx) * inv_det
 
     # A static choice (`Robot.equal_links`), not a `lax.cond` that vmap would turn into a select
     # running Newton for every member.
     if robot.equal_links:
-        th1, th3 = implicit_correction(th1, th3)
+        # e(u) = d / |d|, e(v) = (c, sigma sqrt(1 - c^2)) (docstring)
+        cv, sv = cc, robot.sigma * jnp.sqrt((1 - cc) * (1 + cc))
+        (cm,), (sm,) = cos_sin(jnp.atleast_1d(c2))
+        # computed once, however many kernels read them (`_fusion.materialize`)
+        d13 = materialize(jnp.concatenate(implicit_correction(cv, sv, cm, sm)))
+        d1, d3 = d13[:3], d13[3:]
+        th1, th3 = th1 + d1, th3 + d3
+        # the angles less u, (-v + d1, c2 + (d1 + d3)/2, v + d3), then turned by u
+        rel = [_rotated(cv, -sv, d1), _rotated(cm, sm, (d1 + d3) / 2), _rotated(cv, sv, d3)]
+        cu, su = d[:, 0] / dist, d[:, 1] / dist
+        trig = ([cu * c - su * s for c, s in rel], [su * c + cu * s for c, s in rel])
+        chain_trig = _chain_trig([th1, (th1 + th3) / 2 + c2, th3], trig)
     else:
         th13 = jnp.stack([th1, th3], axis=-1)
         # Converged without derivatives, then N_NEWTON_DIFF differentiable Newton steps: at the
@@ -213,6 +322,7 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
         for _ in range(N_NEWTON_DIFF):
             th13 = jax.vmap(step)(th13, d)
         th1, th3 = th13[:, 0], th13[:, 1]
+        chain_trig = ChainTrig(*cos_sin(th1, (th1 + th3) / 2 + c2, th3))
     # (th1, th3) -> (th1, mean + c2, th3) as a product with a constant matrix. Stacked
     # elementwise, XLA's CPU fusion computed th1 and th3 (the closed form or the Newton
     # correction, with their sines) again for every entry of th and of each of its tangents: an
@@ -226,7 +336,17 @@ def ik_reduced(robot: Robot, X: Float[Array, "3"]):
     zero = jnp.zeros_like(th1)
     mid = jnp.broadcast_to(c2, th1.shape)  # c2 is a scalar or one per chain
     th = jnp.stack([th1, th3], axis=-1) @ P + jnp.stack([zero, mid, zero], axis=-1)
-    return th, margin
+    return th, margin, chain_trig
+
+
+def _chain_trig(angles, trig) -> ChainTrig:
+    """`ChainTrig` of the chain angles `angles` (a list of (3,) arrays) from their cosines and
+    sines `trig` (two such lists), computed without evaluating sines; derivatives through
+    `_trig_of`."""
+    k = len(angles)
+    cs = _trig_of(jnp.concatenate(angles), jnp.concatenate(list(trig[0]) + list(trig[1])))
+    return ChainTrig(cos=[cs[3 * j : 3 * j + 3] for j in range(k)],
+                     sin=[cs[3 * (k + j) : 3 * (k + j) + 3] for j in range(k)])
 
 
 def ik_rigid(robot: Robot, X: Float[Array, "3"]):
@@ -242,27 +362,41 @@ def ik_rigid(robot: Robot, X: Float[Array, "3"]):
 def chain_closure_double1r(robot: Robot, X, th_a):
     """L2: given the platform pose X and the actuated angles th_a (3,), close each chain with the
     two-link (r2, r3) solution on the elbow branch sigma. Returns (th (3, 3) chain angles, margin
-    (3,)); the first chain angle is th_a + sigma delta1 (th_a itself on the centre lines)."""
+    (3,)); the first chain angle is th_a + sigma delta1 (th_a itself on the centre lines).
+    `chain_closure_double1r_trig` also returns their cosines and sines."""
+    th, margin, _ = chain_closure_double1r_trig(robot, X, th_a)
+    return th, margin
+
+
+def chain_closure_double1r_trig(robot: Robot, X, th_a):
+    """`chain_closure_double1r` with the angles' `ChainTrig`: th_a's sines evaluated once, the
+    two-link angles' from `two_link_trig`."""
     t1 = th_a + robot.sigma * robot.delta1
-    B = base_points(robot) + robot.r1 * e(t1)
+    (c1,), (s1,) = cos_sin(t1)
+    B = base_points(robot) + robot.r1 * jnp.stack([c1, s1], axis=-1)
     d = platform_points(robot, X) - B
-    t2, t3, margin = two_link(d, robot.r2, robot.r3, robot.sigma)
+    t2, t3, margin, (cs, sn) = two_link_trig(d, robot.r2, robot.r3, robot.sigma)
     # th_a is an unbounded coordinate while atan2 wraps: keep the chain's angles continuous with
-    # it so that joint angles, plots and deflections never jump by 2 pi.
+    # it so that joint angles, plots and deflections never jump by 2 pi (their sines unchanged).
     t2 = t1 + wrap(t2 - t1)
     t3 = t2 + wrap(t3 - t2)
-    return jnp.stack([t1, t2, t3], axis=-1), margin
+    trig = _chain_trig([t1, t2, t3], ((c1, *cs), (s1, *sn)))
+    return jnp.stack([t1, t2, t3], axis=-1), margin, trig
 
 
-def loop_residual(robot: Robot, th, X) -> Float[Array, "3 2"]:
-    """Loop closure (eq 12): A_i + r1 e(th_i1) + r2 e(th_i2) + r3 e(th_i3) - E_i (m), th (3, 3)."""
-    chain = (
-        base_points(robot)
-        + robot.r1 * e(th[:, 0])
-        + robot.r2 * e(th[:, 1])
-        + robot.r3 * e(th[:, 2])
-    )
+def loop_residual(robot: Robot, th, X, trig=None) -> Float[Array, "3 2"]:
+    """Loop closure (eq 12): A_i + r1 e(th_i1) + r2 e(th_i2) + r3 e(th_i3) - E_i (m), th (3, 3);
+    `trig`, where given, the angles' `ChainTrig`."""
+    ev = unit_vectors(th, trig)
+    chain = base_points(robot) + robot.r1 * ev[0] + robot.r2 * ev[1] + robot.r3 * ev[2]
     return chain - platform_points(robot, X)
+
+
+def unit_vectors(th, trig=None) -> list:
+    """[e(th[:, k]) for each k] (each (3, 2)), from `trig` (a `ChainTrig`) where given."""
+    if trig is None:
+        return [e(th[:, k]) for k in range(th.shape[-1])]
+    return [jnp.stack([c, s], axis=-1) for c, s in zip(trig.cos, trig.sin)]
 
 
 def loop_residual_rigid(robot: Robot, th, X) -> Float[Array, "3 2"]:

@@ -387,3 +387,118 @@ def test_a_spline_path_through_the_singularity_is_refused_at_the_table_nodes():
         if not crosses:
             assert bool(r.ok)
             np.testing.assert_allclose(r.X, r.X_nominal, rtol=0, atol=1e-8)
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def _ik_trig_both(X, l1, equal, order, l3_rel=1.0):
+    """(the closed form's cosines and sines, those of its angles) of L1's inverse kinematics at
+    X, and their derivatives in (X, l1) of the given order (forward mode), one program each.
+    l3 = 0.3 m on Newton's path, l1 * `l3_rel` on the closed form's."""
+    from ppr_jax._geometry import ik_reduced_trig
+
+    def both(X, l1):
+        p = pj.RobotParams().replace(l1=l1, l3=0.3 if not equal else l1 * l3_rel)
+        th, _, trig = ik_reduced_trig(pj.Robot(p, equal_links=equal), X)
+        given = jnp.concatenate(list(trig.cos) + list(trig.sin))
+        own = jnp.concatenate([jnp.cos(th[:, k]) for k in range(3)]
+                              + [jnp.sin(th[:, k]) for k in range(3)])
+        return jnp.stack([given, own])
+
+    f = both
+    for _ in range(order):
+        f = jax.jacfwd(f, argnums=(0, 1))
+        f = (lambda g: lambda X, l1: jnp.concatenate(
+            [a.reshape(2, -1) for a in jax.tree_util.tree_leaves(g(X, l1))], axis=1))(f)
+    return f(X, l1)
+
+
+@pytest.mark.parametrize("equal", [True, False])
+def test_the_closed_forms_sines_are_its_angles_sines(equal):
+    """L1's inverse kinematics hands its chain angles' cosines and sines to the equations of
+    motion and the outputs without evaluating them (`ik_reduced_trig`: products of the chain
+    vector's direction and the closed form's cosine, turned by the Newton correction's Taylor
+    polynomial). At random poses off the paper's circle, on the closed form's path (equal links)
+    and Newton's (l3 = 0.3 m), they equal jnp.cos / jnp.sin of the returned angles in value and
+    in first and second derivatives in the pose and in l1 alone (which breaks the symmetry the
+    closed form assumes), and in reverse mode."""
+    rng = np.random.default_rng(7)
+    l1 = 0.24 if equal else 0.26
+    for _ in range(3):
+        r, a = 0.07 * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
+        X = jnp.array([0.45 + r * np.cos(a), 0.26 + r * np.sin(a), rng.uniform(-0.15, 0.15)])
+        for order, tol in [(0, 2e-15), (1, 1e-12), (2, 1e-9)]:
+            given, own = _ik_trig_both(X, l1, equal, order)
+            scale = max(1.0, float(jnp.abs(own).max()))
+            np.testing.assert_allclose(given, own, rtol=0, atol=tol * scale,
+                                       err_msg=f"order {order} at {X}")
+        rev = jax.jacrev(lambda X, l: _ik_trig_both(X, l, equal, 0), argnums=(0, 1))(X, l1)
+        for g in rev:
+            np.testing.assert_allclose(g[0], g[1], rtol=0, atol=1e-12)
+        if equal:
+            # traced link lengths a finite difference's step from the equal ones that chose
+            # the closed form (a sensitivity's central differences): the correction turns them
+            given, own = _ik_trig_both(X, l1, True, 0, 1 + 1e-5)
+            np.testing.assert_allclose(given, own, rtol=0, atol=2e-15)
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def _closure_trig_both(X, th_a, level, order):
+    """(the two-link closure's cosines and sines, those of its angles) of L0's inverse
+    kinematics (`level` 0) or L2's chain closure at (X, th_a) (`level` 2), and their
+    derivatives in (X, th_a) of the given order (forward mode)."""
+    from ppr_jax._geometry import (
+        ChainTrig,
+        base_points,
+        chain_closure_double1r_trig,
+        platform_points,
+        two_link_trig,
+    )
+
+    def both(X, th_a):
+        robot = pj.Robot(pj.RobotParams())
+        if level == 0:
+            d = platform_points(robot, X) - base_points(robot)
+            t1, t3, _, trig = two_link_trig(d, robot.R1, robot.R3, robot.sigma)
+            th, trig = jnp.stack([t1, t3], axis=-1), ChainTrig(*trig)
+        else:
+            th, _, trig = chain_closure_double1r_trig(robot, X, th_a)
+        k = th.shape[-1]
+        given = jnp.concatenate(list(trig.cos) + list(trig.sin))
+        own = jnp.concatenate([jnp.cos(th[:, j]) for j in range(k)]
+                              + [jnp.sin(th[:, j]) for j in range(k)])
+        return jnp.stack([given, own])
+
+    f = both
+    for _ in range(order):
+        f = jax.jacfwd(f, argnums=(0, 1))
+        f = (lambda g: lambda X, a: jnp.concatenate(
+            [b.reshape(2, -1) for b in jax.tree_util.tree_leaves(g(X, a))], axis=1))(f)
+    return f(X, th_a)
+
+
+@pytest.mark.parametrize("level", [0, 2])
+def test_the_two_link_closures_sines_are_its_angles_sines(level):
+    """The two-link closure (L0's inverse kinematics, L2's chain closure) computes its angles'
+    cosines and sines without evaluating them (`two_link_trig`: the chain vector turned back by
+    the closure's triangle), and L2's hands them on. At random poses off the paper's circle
+    (and, for L2, actuated angles off the pose's own, unwrapped by 2 pi) they equal jnp.cos /
+    jnp.sin of the returned angles in value and in first and second derivatives, and in
+    reverse mode."""
+    rng = np.random.default_rng(11)
+    robot = pj.Robot(pj.RobotParams())
+    for _ in range(3):
+        r, a = 0.06 * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
+        X = jnp.array([0.45 + r * np.cos(a), 0.26 + r * np.sin(a), rng.uniform(-0.15, 0.15)])
+        th_a = pj.inverse_kinematics(pj.RobotParams(), X).th_a
+        th_a = jnp.asarray(th_a) + rng.uniform(-0.02, 0.02, 3) + 2 * np.pi * rng.integers(-1, 2, 3)
+        if level == 2:
+            assert float(jnp.min(pj.Double1R().kinematics(
+                robot, jnp.concatenate([X, th_a])).margin)) > 0
+        for order, tol in [(0, 2e-15), (1, 1e-12), (2, 1e-9)]:
+            given, own = _closure_trig_both(X, th_a, level, order)
+            scale = max(1.0, float(jnp.abs(own).max()))
+            np.testing.assert_allclose(given, own, rtol=0, atol=tol * scale,
+                                       err_msg=f"order {order} at {X}")
+        rev = jax.jacrev(lambda X, a: _closure_trig_both(X, a, level, 0), argnums=(0, 1))(X, th_a)
+        for g in rev:
+            np.testing.assert_allclose(g[0], g[1], rtol=0, atol=1e-12)

@@ -35,7 +35,8 @@ class Kin(eqx.Module):
     X (3,) platform pose; th (3, k) chain link angles (k = 3 for L1/L2: th_i1, th_i2, th_i3;
     k = 2 for L0: th_i1, th_i3; N + 2 for L3); body_p (nb, 2) body centres of mass; body_ang
     (nb,) body angles; deflection (ns,) spring deflections (rad); th_a (3,) actuated angles; margin
-    (3,) reach margin of each chain's closed-form closure (<= 0: out of reach / singular).
+    (3,) reach margin of each chain's closed-form closure (<= 0: out of reach / singular);
+    trig the chain angles' cosines and sines where known.
     """
 
     X: Array
@@ -45,6 +46,9 @@ class Kin(eqx.Module):
     deflection: Array
     th_a: Array
     margin: Array
+    #: the chain angles' cosines and sines (`_geometry.ChainTrig`) where the closure computed
+    #: them, or None: the loop residual reads them instead of evaluating them again
+    trig: Optional[object] = None
 
 
 class AbstractModel(eqx.Module):
@@ -184,36 +188,45 @@ class AbstractClosedLoop(AbstractModel):
     def closure_residual(self, robot: Robot, z, u) -> Float[Array, "3 k"]:
         """Phi(z, u): chain i's k closure equations in row i, zero on the closed loop."""
 
+    def dependent_trig(self, robot: Robot, z: Float[Array, " n"]) -> tuple[Array, Array, object]:
+        """(u, margin, trig): `dependent`, and the chain angles' cosines and sines
+        (`_geometry.ChainTrig`) where the closure computes them without evaluating sines (L1's
+        closed form), else None (the default). `kinematics` and the fused terms hand them on
+        to `kin_at` and `chain_spec`."""
+        u, margin = self.dependent(robot, z)
+        return u, margin, None
+
     @abc.abstractmethod
-    def kin_at(self, robot: Robot, z, u, margin) -> Kin:
-        """`Kin` from (z, u) on the closed loop (plain trigonometry, no closure solve)."""
+    def kin_at(self, robot: Robot, z, u, margin, trig=None) -> Kin:
+        """`Kin` from (z, u) on the closed loop (plain trigonometry, no closure solve); `trig`
+        the chain angles' `ChainTrig` where known (`dependent_trig`)."""
 
     def kinematics(self, robot, z):
-        u, margin = self.dependent(robot, z)
-        return self.kin_at(robot, z, u, margin)
+        return self.kin_at(robot, z, *self.dependent_trig(robot, z))
 
-    def chain_spec(self, robot: Robot, z, u) -> Optional[ChainSpec]:
-        """The chains as sums of links (`_models/fused.ChainSpec`) at (z, u), for the fused
-        equations of motion; None (the default) keeps the generic projection."""
+    def chain_spec(self, robot: Robot, z, u, trig=None) -> Optional[ChainSpec]:
+        """The chains as sums of links (`_models/fused.ChainSpec`) at (z, u) (`trig` as in
+        `kin_at`), for the fused equations of motion; None (the default) keeps the generic
+        projection."""
         return None
 
     def fused_eom(self, robot, z, zdot):
-        u, margin = self.dependent(robot, z)
-        spec = self.chain_spec(robot, z, u)
+        u, margin, trig = self.dependent_trig(robot, z)
+        spec = self.chain_spec(robot, z, u, trig)
         if spec is None:
             return None
-        kin = self.kin_at(robot, z, u, margin)
+        kin = self.kin_at(robot, z, u, margin, trig)
         return (kin, *fused_eom(spec, robot, z, zdot, kin, self.stiffness(robot),
                                 self.damping(robot)))
 
     def fused_balance(self, robot, z, zdot, zdd, once=None):
         """(kin, Q_passive - M z'' - h, Jth, JX) at (z, z', z'') as straight-line arithmetic
         (`_models/fused.fused_balance`), or None where the model has no `chain_spec`."""
-        u, margin = self.dependent(robot, z)
-        spec = self.chain_spec(robot, z, u)
+        u, margin, trig = self.dependent_trig(robot, z)
+        spec = self.chain_spec(robot, z, u, trig)
         if spec is None:
             return None
-        kin = self.kin_at(robot, z, u, margin)
+        kin = self.kin_at(robot, z, u, margin, trig)
         return (kin, *fused_balance(spec, robot, z, zdot, zdd, kin, self.stiffness(robot),
                                     self.damping(robot), once=once))
 

@@ -21,12 +21,12 @@ import numpy as np
 
 from .._geometry import (
     base_points,
-    chain_closure_double1r,
+    chain_closure_double1r_trig,
     deflections,
-    e,
     ik_reduced,
     loop_residual,
     turn,
+    unit_vectors,
 )
 from .._robot import Robot
 from .base import ATOL, RTOL, AbstractClosedLoop, Kin, rotor_inertia
@@ -38,18 +38,19 @@ class AbstractDouble1R(AbstractClosedLoop):
     Subclasses say which chain angles are their dependent coordinates u and how u closes the
     loops (`dependent`, `closure_residual`, `kin_at` of `AbstractClosedLoop`)."""
 
-    def chain_bodies(self, robot: Robot, th, X):
+    def chain_bodies(self, robot: Robot, th, X, trig=None):
         """Bodies of the chains and the platform: (p (10, 2), ang (10,)), chain-major by body
         type (3 drive links, 3 pseudo-links, 3 connecting links, platform). The links keep their
         centre lines whatever the joint geometry: their angles are the chain angles less the
-        fixed offsets delta1, delta3 (zero on the centre lines)."""
+        fixed offsets delta1, delta3 (zero on the centre lines). `trig`: the angles'
+        `_geometry.ChainTrig`, where the closure computed it."""
         A = base_points(robot)
         sig = robot.sigma
         th1 = th[:, 0] - sig * robot.delta1  # the drive link's centre line (= th_a)
         th3 = th[:, 2] + sig * robot.delta3  # the connecting link's centre line
         # The links' centre lines are the chain angles turned by the robot's fixed offsets:
         # turning the unit vectors saves a sine and cosine per link in every evaluation.
-        e1, e2, e3 = e(th[:, 0]), e(th[:, 1]), e(th[:, 2])
+        e1, e2, e3 = unit_vectors(th, trig)
         B = A + robot.r1 * e1
         p1 = A + (robot.l1 / 2) * turn(e1, -sig * robot.delta1)
         p2 = B + (robot.r2 / 2) * e2
@@ -59,18 +60,19 @@ class AbstractDouble1R(AbstractClosedLoop):
         ang = jnp.concatenate([th1, th[:, 1], th3, X[2:3]])
         return p, ang
 
-    def kin_from_angles(self, robot: Robot, X, th, margin) -> Kin:
-        """`Kin` from the pose X and the chain angles th (3, 3)."""
-        p, ang = self.chain_bodies(robot, th, X)
+    def kin_from_angles(self, robot: Robot, X, th, margin, trig=None) -> Kin:
+        """`Kin` from the pose X and the chain angles th (3, 3) (their `ChainTrig` where
+        known)."""
+        p, ang = self.chain_bodies(robot, th, X, trig)
         return Kin(
             X=X, th=th, body_p=p, body_ang=ang, deflection=deflections(robot, th).reshape(-1),
-            th_a=th[:, 0] - robot.sigma * robot.delta1, margin=margin,
+            th_a=th[:, 0] - robot.sigma * robot.delta1, margin=margin, trig=trig,
         )
 
-    def double1r_spec(self, robot: Robot, th, Gz, Gu, own=()) -> ChainSpec:
-        """The `ChainSpec` of the double-1R chains with angles th (3, 3) and their derivatives
-        Gz (3, 3, n), Gu (3, 2) (the subclass's choice of u), the chains' own coordinates
-        `own`: the bodies of `chain_bodies`."""
+    def double1r_spec(self, robot: Robot, th, Gz, Gu, own=(), trig=None) -> ChainSpec:
+        """The `ChainSpec` of the double-1R chains with angles th (3, 3) (their `ChainTrig`
+        where known) and their derivatives Gz (3, 3, n), Gu (3, 2) (the subclass's choice of
+        u), the chains' own coordinates `own`: the bodies of `chain_bodies`."""
         sig = robot.sigma
         return ChainSpec(
             alpha=[th[:, 0], th[:, 1], th[:, 2]], Gz=Gz, Gu=Gu,
@@ -83,7 +85,7 @@ class AbstractDouble1R(AbstractClosedLoop):
                       Link(2, -robot.l3 / 2, sig * robot.delta3)), 2, robot.m3, robot.I3),
             ),
             springs=(np.array([-1.0, 1.0, 0.0]), np.array([0.0, -1.0, 1.0])),
-            actuated=0, own=own,
+            actuated=0, own=own, trig=trig,
         )
 
     def masses(self, robot):
@@ -98,7 +100,7 @@ class AbstractDouble1R(AbstractClosedLoop):
         return robot.K
 
     def loop_residual(self, robot, kin):
-        return loop_residual(robot, kin.th, kin.X)
+        return loop_residual(robot, kin.th, kin.X, kin.trig)
 
     def joint_end_rotations(self, robot, kin):
         """The two pivot deflections (d_i1, d_i2) of each chain (rad)."""
@@ -127,23 +129,27 @@ class Double1R(AbstractDouble1R):
         return jnp.concatenate([t1[:, None], u], axis=1)
 
     def dependent(self, robot, z):
-        th, margin = chain_closure_double1r(robot, z[:3], z[3:])
-        return th[:, 1:], margin
+        u, margin, _ = self.dependent_trig(robot, z)
+        return u, margin
+
+    def dependent_trig(self, robot, z):
+        th, margin, trig = chain_closure_double1r_trig(robot, z[:3], z[3:])
+        return th[:, 1:], margin, trig
 
     def closure_residual(self, robot, z, u):
         return loop_residual(robot, self._angles(robot, z, u), z[:3])
 
-    def kin_at(self, robot, z, u, margin):
-        return self.kin_from_angles(robot, z[:3], self._angles(robot, z, u), margin)
+    def kin_at(self, robot, z, u, margin, trig=None):
+        return self.kin_from_angles(robot, z[:3], self._angles(robot, z, u), margin, trig)
 
-    def chain_spec(self, robot, z, u):
+    def chain_spec(self, robot, z, u, trig=None):
         # th_i1 = th_a,i (+ a fixed offset) is coordinate 3 + i; u = (th_i2, th_i3)
         Gz = np.zeros((3, 3, 6))
         Gz[0, np.arange(3), 3 + np.arange(3)] = 1.0
         Gu = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
         # each chain's actuated angle moves that chain alone
         return self.double1r_spec(robot, self._angles(robot, z, u), Gz, Gu,
-                                  own=self.actuated_index)
+                                  own=self.actuated_index, trig=trig)
 
     def coords_from_pose(self, robot, X):
         th, _ = ik_reduced(robot, X)

@@ -70,7 +70,9 @@ class ChainSpec(NamedTuple):
     Jacobian is coef . d alpha/dz; its value comes from `Kin.deflection`, chain-major);
     `actuated`: the chain angle whose derivative is the actuated angle's;
     `own`: the coordinates that each chain depends on alone, one per chain in chain order, the
-    last of z (L2's actuated angles), or () (L0, L1: every coordinate is the platform's)."""
+    last of z (L2's actuated angles), or () (L0, L1: every coordinate is the platform's);
+    `trig`: the angles' cosines and sines (`_geometry.ChainTrig`) where the closure computed
+    them, or None (they are evaluated here)."""
 
     alpha: list
     Gz: np.ndarray
@@ -80,6 +82,7 @@ class ChainSpec(NamedTuple):
     springs: tuple
     actuated: int
     own: tuple = ()
+    trig: object = None
 
 
 #: entries per stack in the sums over the chains (`fused_eom`)
@@ -95,7 +98,10 @@ def _turned(ev, offset):
     offset instead of one per chain."""
     if offset is None:
         return ev
-    c, s = jnp.cos(offset), jnp.sin(offset)
+    # once however many kernels read them (`cos_sin`), the offset a scalar or one per chain
+    (c,), (s,) = cos_sin(jnp.atleast_1d(offset))
+    if jnp.ndim(offset) == 0:
+        c, s = c[0], s[0]
     return (c * ev[0] - s * ev[1], s * ev[0] + c * ev[1])
 
 
@@ -140,8 +146,12 @@ def _chains(spec: ChainSpec, robot: Robot, z, zdot, kin, stiffness, damping,
     zd = [zdot[j] for j in range(ns)] + ([zdot[ns:]] if own else [])
     phi = z[2]
     # the sines and cosines once, not once per kernel that reads them (`_fusion.py`)
-    cos_, sin_ = cos_sin(*spec.alpha, phi[None])
-    ev = list(zip(cos_[:-1], sin_[:-1]))
+    if spec.trig is None:
+        cos_, sin_ = cos_sin(*spec.alpha, phi[None])
+        ev = list(zip(cos_[:-1], sin_[:-1]))
+    else:
+        cos_, sin_ = cos_sin(phi[None])
+        ev = list(zip(spec.trig.cos, spec.trig.sin))
     ep = [_perp(v) for v in ev]
     # platform joint directions psi_i = beta_i + phi, turned from the constant beta_i
     eb = (np.cos(BETA), np.sin(BETA))

@@ -12,7 +12,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .._geometry import ik_reduced, loop_residual
+from .._geometry import ik_reduced_trig, loop_residual
 from .base import ATOL, RTOL
 from .double1r import AbstractDouble1R
 
@@ -38,19 +38,24 @@ class Reduced(AbstractDouble1R):
         return jnp.stack([u[:, 0], (u[:, 0] + u[:, 1]) / 2 + c2, u[:, 1]], axis=-1)
 
     def dependent(self, robot, z):
-        th, margin = ik_reduced(robot, z)
-        return th[:, ::2], margin
+        u, margin, _ = self.dependent_trig(robot, z)
+        return u, margin
+
+    def dependent_trig(self, robot, z):
+        th, margin, trig = ik_reduced_trig(robot, z)
+        return th[:, ::2], margin, trig
 
     def closure_residual(self, robot, z, u):
         return loop_residual(robot, self._angles(robot, u), z)
 
-    def kin_at(self, robot, z, u, margin):
-        return self.kin_from_angles(robot, z, self._angles(robot, u), margin)
+    def kin_at(self, robot, z, u, margin, trig=None):
+        return self.kin_from_angles(robot, z, self._angles(robot, u), margin, trig)
 
-    def chain_spec(self, robot, z, u):
+    def chain_spec(self, robot, z, u, trig=None):
         # th_i2 = (th_i1 + th_i3)/2 + c: the chain angles depend on z through u alone
         Gu = np.array([[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]])
-        return self.double1r_spec(robot, self._angles(robot, u), np.zeros((3, 3, 3)), Gu)
+        return self.double1r_spec(robot, self._angles(robot, u), np.zeros((3, 3, 3)), Gu,
+                                  trig=trig)
 
     def coords_from_pose(self, robot, X):
         return X
