@@ -278,21 +278,13 @@ def _residual_and_jacobian(prob: _Problem, z):
     directory, prob = prob.program_dir, _anonymous(prob)
 
     def run(fn, args):
-        # (V J^T, values): the result's structure is all the store needs (no trace for it)
-        return cached_program(fn, args, (0, 0), directory, f"identify-{prob.model.name}")(*args)
+        # (V J^T, values, (codes, poses)): the result's structure is all the store needs (no
+        # trace for it)
+        return cached_program(fn, args, (0, 0, (0, 0)), directory,
+                              f"identify-{prob.model.name}")(*args)
 
-    J, v = forward_jacobian(_residual_and_jacobian_jit, z, prob, run=run)
-    n_r, n_e = prob.X.size, prob.ts.shape[0]
-    # the codes are small integers carried as floats (their derivative is zero)
-    codes = jnp.round(v[n_r:n_r + n_e]).astype(jnp.int32)
-    return v[:n_r], J[:n_r], codes, v[n_r + n_e:].reshape(prob.X.shape)
-
-
-def _values(z, prob: _Problem):
-    """(r (N,), the result codes (E,) as floats, the simulated poses (E m 3,)) in one vector:
-    what `forward_jacobian` differentiates (the codes' and poses' rows of J are dropped)."""
-    r, (codes, X) = _residual_vector(prob, z)
-    return jnp.concatenate([r, codes.astype(r.dtype), X.reshape(-1)])
+    J, r, (codes, X) = forward_jacobian(_residual_and_jacobian_jit, z, prob, run=run)
+    return r, J, codes, X.reshape(prob.X.shape)
 
 
 @eqx.filter_jit
@@ -301,7 +293,9 @@ def _residual_and_jacobian_jit(z, V, prob: _Problem):
     # CPU each slice's loop of steps is one kernel where it carries one tangent; jax.jacfwd's
     # two tangents of an L2 `servo-circle` fit (7.54 s) were not, and took 0.41 s against one
     # tangent's 0.08 s
-    return derivatives_along(_values, z, V, prob)
+    # the result codes and the simulated poses ride along, not differentiated
+    return derivatives_along(lambda z, prob: _residual_vector(prob, z), z, V, prob,
+                             has_aux=True)
 
 
 def _succeeded(codes) -> bool:
