@@ -40,9 +40,9 @@ class Rigid(AbstractClosedLoop):
     # The dependent coordinates u (3, 2) are each chain's (th_i1, th_i3).
 
     # `dependent_trig` stays the default (no sines handed on): L0's two-link closure could hand
-    # its angles' sines on as L1's and L2's closures do (`_geometry.two_link_trig`), but its
-    # right-hand side then measured slower, 410 -> 540 ns on the 2-core CPU, against 600 -> 410
-    # ns for L1 and 725 -> 680 ns for L2; the fused terms evaluate its seven sines once instead.
+    # its angles' sines on as L1's closed form does, but its right-hand side then measured
+    # slower, 410 -> 540 ns on the 2-core CPU (L1: 600 -> 410 ns); the fused terms evaluate its
+    # seven sines once instead.
 
     def dependent(self, robot, z):
         return ik_rigid(robot, z)
