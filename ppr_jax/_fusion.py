@@ -66,6 +66,14 @@ def cos_sin(*angles: Float[Array, " k"]) -> tuple[list, list]:
             [trig[half + a : half + b] for a, b in zip(ends, ends[1:])])
 
 
+def cos_sin_of(a: Float[Array, "..."]) -> tuple[Array, Array]:
+    """(cos a, sin a) of a scalar or 1-D array, in a's shape, computed once however many
+    kernels read them (`cos_sin`): a robot's fixed angle (a link's offset, L1's c2) or the
+    platform's, which XLA otherwise copied into every kernel that reads it (up to nine)."""
+    (c,), (s,) = cos_sin(jnp.atleast_1d(a))
+    return c.reshape(jnp.shape(a)), s.reshape(jnp.shape(a))
+
+
 @jax.custom_jvp
 def _cos_sin_once(a):
     """(cos a, sin a) of a 1-D array, concatenated and computed once (`materialize`)."""

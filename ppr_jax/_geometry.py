@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Float
-from ._fusion import cos_sin, materialize
+from ._fusion import cos_sin, cos_sin_of, materialize
 from ._linalg import solve
 from ._robot import Robot
 
@@ -51,12 +51,8 @@ def _e_jvp(primals, tangents):
 def turn(v, alpha):
     """Vector(s) v (..., 2) turned by the angle alpha (broadcast against v's leading axes):
     e(a + alpha) = turn(e(a), alpha) with one sine and cosine of alpha however many v (a
-    scalar alpha's computed once however many kernels read them, `cos_sin`)."""
-    if jnp.ndim(alpha) == 0:
-        (c,), (s,) = cos_sin(jnp.atleast_1d(alpha))
-        ca = jnp.stack([c[0], s[0]])
-    else:
-        ca = e(alpha)
+    scalar alpha's computed once however many kernels read them, `cos_sin_of`)."""
+    ca = jnp.stack(cos_sin_of(alpha)) if jnp.ndim(alpha) == 0 else e(alpha)
     # explicit broadcasting (the package runs under JAX's strict rank promotion in its tests)
     shape = jnp.broadcast_shapes(ca.shape[:-1], v.shape[:-1]) + (1,)
     c, s = jnp.broadcast_to(ca[..., 0:1], shape), jnp.broadcast_to(ca[..., 1:2], shape)
@@ -82,11 +78,9 @@ def base_points(robot: Robot) -> Float[Array, "3 2"]:
 def platform_points(robot: Robot, X: Float[Array, "3"]) -> Float[Array, "3 2"]:
     """Platform joints E_i = (x, y) + rho_E e(beta_i + phi) (m)."""
     # e(beta_i + phi) as e(beta_i) turned by phi: one sine and cosine instead of three, and
-    # computed once however many kernels read them (`cos_sin`: XLA copied this sine into
-    # every kernel of L1's right-hand side that reads a chain vector, five of them)
-    (c,), (s,) = cos_sin(X[2:3])
-    bx, by = np.cos(BETA), np.sin(BETA)
-    return X[None, :2] + robot.rho_E * jnp.stack([c * bx - s * by, s * bx + c * by], -1)
+    # computed once however many kernels read them (`turn`: XLA copied this sine into every
+    # kernel of L1's right-hand side that reads a chain vector, five of them)
+    return X[None, :2] + robot.rho_E * turn(np.stack([np.cos(BETA), np.sin(BETA)], -1), X[2])
 
 
 def wrap(x):
@@ -282,7 +276,7 @@ def ik_reduced_trig(robot: Robot, X: Float[Array, "3"]):
     if robot.equal_links:
         # e(u) = d / |d|, e(v) = (c, sigma sqrt(1 - c^2)) (docstring)
         cv, sv = cc, robot.sigma * jnp.sqrt((1 - cc) * (1 + cc))
-        (cm,), (sm,) = cos_sin(jnp.atleast_1d(c2))
+        cm, sm = cos_sin_of(c2)  # c2 a scalar or one per chain
         # computed once, however many kernels read them (`_fusion.materialize`)
         d13 = materialize(jnp.concatenate(implicit_correction(cv, sv, cm, sm)))
         d1, d3 = d13[:3], d13[3:]

@@ -35,7 +35,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from .._fusion import cos_sin
+from .._fusion import cos_sin, cos_sin_of
 from .._geometry import BETA
 from .._robot import Robot
 
@@ -98,10 +98,7 @@ def _turned(ev, offset):
     offset instead of one per chain."""
     if offset is None:
         return ev
-    # once however many kernels read them (`cos_sin`), the offset a scalar or one per chain
-    (c,), (s,) = cos_sin(jnp.atleast_1d(offset))
-    if jnp.ndim(offset) == 0:
-        c, s = c[0], s[0]
+    c, s = cos_sin_of(offset)  # a scalar or one per chain
     return (c * ev[0] - s * ev[1], s * ev[0] + c * ev[1])
 
 
