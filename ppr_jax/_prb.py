@@ -7,11 +7,13 @@ together with the mass properties of section 1 and L0's rigid-model lengths.
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._custom_types import Array
 from ._params import RobotParams
-from ._prb_table import prb_parameters
+from ._prb_table import prb_parameters, prb_parameters_numpy
 
 
 class Derived(eqx.Module):
@@ -73,40 +75,45 @@ class Derived(eqx.Module):
 
 def derived(params: RobotParams) -> Derived:
     """All derived quantities of MODEL.md section 3 and the mass properties of section 1."""
-    p = params
+    return _derived(params, jnp, prb_parameters)
+
+
+def _derived(p: RobotParams, xp, prb) -> Derived:
+    """`derived` in the array namespace `xp` (`jax.numpy`, or `numpy` for concrete values), with
+    `prb` the PRB table's interpolant in the same namespace."""
     r_i = p.r + p.b_r / 2  # eq 1
     l = r_i * p.theta_c  # eq 2
     l_h = l / 2
     kappa0 = l_h / r_i  # eq 3 (the printed "r" is r_i): = theta_c / 2
-    a_i = r_i * jnp.sin(kappa0)
-    b_i = r_i * (1 - jnp.cos(kappa0))
+    a_i = r_i * xp.sin(kappa0)
+    b_i = r_i * (1 - xp.cos(kappa0))
     if p.gamma is None or p.K_theta is None:
-        gamma_t, _, K_theta_t = prb_parameters(kappa0)
+        gamma_t, _, K_theta_t = prb(kappa0)
     gamma = gamma_t if p.gamma is None else p.gamma
     K_theta = K_theta_t if p.K_theta is None else p.K_theta
     s = (1 - gamma) * l_h
-    Theta_i = jnp.arctan2(b_i, a_i - s)  # eq 4, with l/2
-    rho = jnp.sqrt((a_i - s) ** 2 + b_i**2) / l_h if p.rho is None else p.rho
-    Theta_0 = 2 * Theta_i + jnp.pi - p.theta_c  # eq 5
+    Theta_i = xp.arctan2(b_i, a_i - s)  # eq 4, with l/2
+    rho = xp.sqrt((a_i - s) ** 2 + b_i**2) / l_h if p.rho is None else p.rho
+    Theta_0 = 2 * Theta_i + xp.pi - p.theta_c  # eq 5
     I_s = p.w * p.t**3 / 12
     L = p.r * p.theta_c  # eq 7
     K = 2 * p.E * I_s * rho * K_theta / L  # eq 6
-    r2 = rho * l_h * jnp.sqrt(2 * (1 - jnp.cos(Theta_0)))  # eq 8
+    r2 = rho * l_h * xp.sqrt(2 * (1 - xp.cos(Theta_0)))  # eq 8
     r1 = p.l1 + s  # eq 10
     r3 = p.l3 + s  # eq 11
-    delta1 = delta3 = jnp.zeros_like(r1)
+    delta1 = delta3 = xp.zeros_like(r1)
     if p.joint_geometry == "strip":
         # MODEL.md 3a: the same joint scaled to the strip's radius, its pivots offset b_r/2 from
         # the centre lines towards the bend; the bodies keep their centre lines.
         s = (1 - gamma) * p.r * p.theta_c / 2
         r2 = r2 * p.r / r_i
         off = p.b_r / 2
-        r1, delta1 = jnp.hypot(p.l1 + s, off), jnp.arctan2(off, p.l1 + s)
-        r3, delta3 = jnp.hypot(p.l3 + s, off), jnp.arctan2(off, p.l3 + s)
+        r1, delta1 = xp.hypot(p.l1 + s, off), xp.arctan2(off, p.l1 + s)
+        r3, delta3 = xp.hypot(p.l3 + s, off), xp.arctan2(off, p.l3 + s)
     # The joint is symmetric, so the rest turn at each pivot is half the arc angle whatever gamma
     # and rho are; eq 9 as printed breaks that symmetry (MODEL.md section 3).
     psi0 = p.theta_c / 2
-    corner = r_i * jnp.tan(p.theta_c / 2)
+    corner = r_i * xp.tan(p.theta_c / 2)
     R1 = p.l1 + corner
     R3 = p.l3 + corner
     K0 = p.E * I_s / L
@@ -116,9 +123,9 @@ def derived(params: RobotParams) -> Derived:
     I3 = m3 * (p.l3**2 + p.b_r**2) / 12
     m2 = p.rho_m * p.w * p.t * L
     I2 = m2 * r2**2 / 12
-    m4 = p.rho_m * (jnp.sqrt(3.0) / 4) * p.h**2 * p.t_p
+    m4 = p.rho_m * (xp.sqrt(3.0) / 4) * p.h**2 * p.t_p
     I4 = m4 * p.h**2 / 12
-    rho_E = p.h / jnp.sqrt(3.0)
+    rho_E = p.h / xp.sqrt(3.0)
     return Derived(
         r_i=r_i, l=l, l_h=l_h, kappa0=kappa0, a_i=a_i, b_i=b_i, gamma=gamma, rho=rho,
         K_theta=K_theta, s=s, Theta_i=Theta_i, Theta_0=Theta_0, I_s=I_s, L=L, K=K, r2=r2, r1=r1,
@@ -127,6 +134,12 @@ def derived(params: RobotParams) -> Derived:
     )
 
 
-#: `derived` for concrete parameters as one compiled program: op by op it would dispatch about
-#: fifty small computations, each compiled on its first use (about 1 s per process).
-derived_concrete = eqx.filter_jit(derived)
+def derived_concrete(params: RobotParams) -> Derived:
+    """`derived` for concrete parameters, in numpy: its leaves are numpy arrays, which a
+    compiled program takes as it takes JAX's. As JAX operations it would be one more compiled
+    program (0.2 s of every process's first scene, and again for every new batch size), or,
+    op by op, about fifty small computations, each compiled on its first use (about 1 s per
+    process). numpy's and XLA's transcendental functions may differ in the last bit: a
+    trajectory moves by rounding."""
+    p = jax.tree_util.tree_map(np.asarray, params)
+    return jax.tree_util.tree_map(np.asarray, _derived(p, np, prb_parameters_numpy))

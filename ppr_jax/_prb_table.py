@@ -117,9 +117,9 @@ def _splines():
     return np.asarray(k), coef
 
 
-def _spline_eval(knots, c, x):
-    knots, c = jnp.asarray(knots), jnp.asarray(c)
-    i = jnp.clip(jnp.searchsorted(knots, x, side="right") - 1, 0, knots.shape[0] - 2)
+def _spline_eval(knots, c, x, xp=jnp):
+    knots, c = xp.asarray(knots), xp.asarray(c)
+    i = xp.clip(xp.searchsorted(knots, x, side="right") - 1, 0, knots.shape[0] - 2)
     t = x - knots[i]
     return ((c[0, i] * t + c[1, i]) * t + c[2, i]) * t + c[3, i]
 
@@ -142,9 +142,8 @@ def prb_parameters(kappa0):
         k_np = np.asarray(kappa0, dtype=np.float64)
     except (jax.errors.JAXTypeError, TypeError):
         k_np = None
-    if k_np is not None and not np.all((k_np >= lo - tol) & (k_np <= hi + tol)):
-        raise PPRError(f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range); "
-                       f"got {kappa0}.")
+    if k_np is not None:
+        _check_range(k_np)
     k = jnp.asarray(kappa0, jnp.float64)
     k = eqx.error_if(
         k,
@@ -156,3 +155,21 @@ def prb_parameters(kappa0):
     K_theta = _spline_eval(knots, coef["K_theta"], k)
     rho, _ = prb_geometry(k, gamma)
     return gamma, rho, K_theta
+
+
+def prb_parameters_numpy(kappa0):
+    """`prb_parameters` for concrete values, in numpy (numpy arrays, no compiled program)."""
+    k = _check_range(np.asarray(kappa0, dtype=np.float64))
+    knots, coef = _splines()
+    gamma = _spline_eval(knots, coef["gamma"], k, np)
+    K_theta = _spline_eval(knots, coef["K_theta"], k, np)
+    rho, _ = prb_geometry(k, gamma)
+    return gamma, rho, K_theta
+
+
+def _check_range(k):
+    lo, hi = KAPPA0_RANGE
+    if not np.all((k >= lo - 1e-12) & (k <= hi + 1e-12)):
+        raise PPRError(f"prb_parameters: kappa0 must lie in [{lo}, {hi}] (the PRB table's range); "
+                       f"got {k}.")
+    return k
