@@ -91,26 +91,15 @@ def _lu_unrolled(A):
     return jnp.stack([jnp.stack(r) for r in a]), jnp.stack(perm)
 
 
-def _permuted(b, perm):
-    """b[perm] as selects (no gather), for the unrolled sizes."""
+def _permuted(b, perm, inverse: bool = False):
+    """b[perm] (`inverse`: x with x[perm] = b) as selects, no gather or scatter, for the
+    unrolled sizes."""
     n = b.shape[0]
     out = []
     for i in range(n):
         x = b[0]
         for j in range(1, n):
-            x = jnp.where(perm[i] == j, b[j], x)
-        out.append(x)
-    return jnp.stack(out)
-
-
-def _unpermuted(w, perm):
-    """x with x[perm] = w as selects (no scatter), for the unrolled sizes."""
-    n = w.shape[0]
-    out = []
-    for i in range(n):
-        x = w[0]
-        for j in range(1, n):
-            x = jnp.where(perm[j] == i, w[j], x)
+            x = jnp.where((perm[j] == i) if inverse else (perm[i] == j), b[j], x)
         out.append(x)
     return jnp.stack(out)
 
@@ -167,7 +156,7 @@ def lu_solve(lu_perm: tuple[Array, Array], b: Float[Array, " n"], trans: bool = 
     # A^T = U^T L^T P: solve U^T z = b, L^T w = z, then P x = w.
     z = _triangular(LU.T, b, lower=True, unit=False)
     w = _triangular(LU.T, z, lower=False, unit=True)
-    return _unpermuted(w, perm) if small else jnp.zeros_like(w).at[perm].set(w)
+    return _permuted(w, perm, inverse=True) if small else jnp.zeros_like(w).at[perm].set(w)
 
 
 def _factor(A):
