@@ -32,7 +32,7 @@ side 31 -> 20-28 us, a `paper-circle` run 1.78 -> 1.2-1.5 s on this noisy machin
 `N_FIRST` steps are unrolled and the loop after them tests the residual, which it needs anyway
 (the caller's check): an update-based test took a fourth step to see that the third had
 converged (`_iterate`; the `paper-circle` run 0.65 -> 0.57 s with the block mass solve of
-`_linalg`). The solve is a `jax.custom_jvp`: the implicit derivatives solve
+`_linalg`). Two are unrolled, not three: each is a copy of the solve in the program. The solve is a `jax.custom_jvp`: the implicit derivatives solve
 J dy = -dF/dp dp with the same `solve_kkt`, so derivatives of any order are exact and never go
 through the iterations.
 """
@@ -49,10 +49,13 @@ from .._custom_types import Array, Float
 
 #: iterations at most of the strip's equilibrium
 MAX_ITER = 60
-#: iterations taken before any convergence test: the robot's states need 3 from the unloaded
-#: arc to a residual of 1e-14 (`paper-circle`, N = 4-8); unrolled, they carry no loop control
-#: and XLA fuses across them
-N_FIRST = 3
+#: iterations taken before any convergence test, unrolled (no loop control, XLA fuses across
+#: them). The robot's states need 3 from the unloaded arc to a residual of 1e-14 (`paper-circle`,
+#: N = 4-8), but every unrolled step is a copy of the solve in the program, vectorised wherever
+#: the strips are (the start's stencil and its Newton points too): with 3, N = 16 compiled
+#: `paper-circle` in 27.7 s, with 2 in 19.7 s, at the same warm run (149 ms; N = 4: 13.2 ->
+#: 11.1 s, 204 -> 198 ms); with 1 the warm run at N = 16 was 6 % slower
+N_FIRST = 2
 #: converged when the KKT residual (rad, segment lengths) is below this
 TOL = 1e-13
 #: below this a residual that no longer shrinks is rounding noise (its floor grows with N)
