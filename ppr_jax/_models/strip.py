@@ -32,9 +32,9 @@ side 31 -> 20-28 us, a `paper-circle` run 1.78 -> 1.2-1.5 s on this noisy machin
 `N_FIRST` steps are unrolled and the loop after them tests the residual, which it needs anyway
 (the caller's check): an update-based test took a fourth step to see that the third had
 converged (`_iterate`; the `paper-circle` run 0.65 -> 0.57 s with the block mass solve of
-`_linalg`). Two are unrolled, not three: each is a copy of the solve in the program. The solve is a `jax.custom_jvp`: the implicit derivatives solve
-J dy = -dF/dp dp with the same `solve_kkt`, so derivatives of any order are exact and never go
-through the iterations.
+`_linalg`). Two are unrolled, not three: each is a copy of the solve in the program. The
+solve is a `jax.custom_jvp`: the implicit derivatives solve J dy = -dF/dp dp with the same
+`solve_kkt`, so derivatives of any order are exact and never go through the iterations.
 """
 
 from __future__ import annotations
