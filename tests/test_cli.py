@@ -246,6 +246,25 @@ def test_simulate_writes_summary_csv_and_figures(tmp_path, capsys, paper_circle_
     assert "Scene paper-circle" in capsys.readouterr().out
 
 
+def test_simulate_no_figures_writes_the_same_files_but_the_figures(tmp_path, capsys,
+                                                                   paper_circle_L1):
+    """`--no-figures`: the summary and CSV equal a run with figures, and no image is written;
+    the table is printed before the files are listed."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    common = ["simulate", "--model", "reduced", "--t-end", "2.0", "--out"]
+    assert main(common + [str(a)]) == 0
+    capsys.readouterr()
+    assert main(common + [str(b), "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    assert sorted(os.listdir(b)) == ["summary.json", "trajectory.csv"]
+    assert (a / "trajectory.csv").read_text() == (b / "trajectory.csv").read_text()
+    sa, sb = (json.loads((d / "summary.json").read_text()) for d in (a, b))
+    assert sa["models"]["reduced"]["radial_error_max_m"] == sb["models"]["reduced"][
+        "radial_error_max_m"]
+    assert out.index("Scene paper-circle") < out.index(f"wrote {b}/summary.json, trajectory.csv")
+    assert out.rstrip().endswith("trajectory.csv")
+
+
 def _prb_kappa0_figure(command, tmp_path, capsys):
     """`command --kappa0 0 --json --figure`: the straight strip's gamma and K_theta (the PRB
     table's 0.85 and 2.65) and a figure written: (the captured output, the JSON, the figure)."""

@@ -101,8 +101,9 @@ def model_from_args(args, name: str):
 
 def parent_parsers() -> dict:
     """Options shared by several commands, as argparse parent parsers (one definition each):
-    `params` (--set), `model` (--model, --elements), `solve` (solver, tolerances, step limit,
-    times), `out` (--out). A command takes the ones it needs with `parents=[...]`."""
+    `params` (--set), `model` (--model, --elements), `solve` (solver, tolerances, step limit),
+    `times` (--t-end, --n-out), `files` (a path of one's own and its command logs), `figures`
+    (--figures / --no-figures). A command takes the ones it needs with `parents=[...]`."""
     params = argparse.ArgumentParser(add_help=False)
     params.add_argument("--params-file", dest="params_file", default=None, metavar="FILE",
                         help="read the robot's parameters from a TOML or JSON file (names as "
@@ -161,7 +162,13 @@ def parent_parsers() -> dict:
                        help="with --path and no command log: the torque model's inverse-dynamics "
                             "torques along the path (torque), or its inverse-kinematics angles "
                             "(motion)")
-    return {"params": params, "model": model, "solve": solve, "times": times, "files": files}
+    figures = argparse.ArgumentParser(add_help=False)
+    figures.add_argument("--figures", action=argparse.BooleanOptionalAction, default=True,
+                         help="draw the figures; --no-figures writes only the JSON and CSV "
+                              "files and prints the summary (the plotting library is then not "
+                              "imported)")
+    return {"params": params, "model": model, "solve": solve, "times": times, "files": files,
+            "figures": figures}
 
 
 #: the shared options of a command that runs a scene (`parent_parsers`' keys)

@@ -98,21 +98,24 @@ def cmd_compensate(args):
     summary = dict(comp.summary(), path_file=args.path, scene=args.scene,
                    params=_params_dict(params), command_log=os.path.basename(log))
     _write_json(os.path.join(args.out, "summary.json"), summary)
-    fig = error_figure(os.path.join(args.out, "tracking_error.png"), comp)
     b, a = comp.error["before"], comp.error["after"]
     print(f"position error max {b['position_max'] * 1e3:.4g} mm -> {a['position_max'] * 1e3:.4g}"
           f" mm ({comp.improvement:.3g}x), |phi error| max {b['phi_max'] * 1e3:.4g} mrad -> "
           f"{a['phi_max'] * 1e3:.4g} mrad")
     for flag in comp.flags:
         print(f"warning: {flag}")
-    print(f"wrote {log}, {args.out}/summary.json, {os.path.basename(fig)}")
+    # the figure after the answer (the plotting library's import and drawing)
+    figs = ([error_figure(os.path.join(args.out, "tracking_error.png"), comp)]
+            if args.figures else [])
+    print(f"wrote {log}, {args.out}/summary.json"
+          + "".join(", " + os.path.basename(f) for f in figs))
     return 2 if comp.flags else 0
 
 
 def add_compensate(sub, parents, fmt):
     c = sub.add_parser(
         "compensate", formatter_class=fmt,
-        parents=[parents["params"], parents["model"], parents["solve"]],
+        parents=[parents["params"], parents["model"], parents["solve"], parents["figures"]],
         help="commands that cancel the robot's compliance along a path (model inversion)",
         description="Compute the actuated angles (--drive motion) or torques (--drive torque) "
                     "that make the model's platform follow the path, by inverting the model, "

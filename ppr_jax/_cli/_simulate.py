@@ -29,7 +29,6 @@ def cmd_simulate(args):
     from .._errors import PPRError
     from .._metrics import is_circle
     from .._scenes import check_scene_args, modes_scene, run_scene, scene_names
-    from ._figures import scene_figures
 
     # `modes` is a static solve, not a scene; every other choice (and --path) is a scene
     static = args.path is None and args.scene not in scene_names()
@@ -106,10 +105,16 @@ def cmd_simulate(args):
         results.append(r)
         write()
     if results:
-        figs = scene_figures(results, args.out, center, radius)
+        # the table first: the figures (the plotting library's import and drawing) come after
+        # the answer, not before it
         _print_table(scene, results, circle)
-        print(f"wrote {args.out}/summary.json, trajectory.csv, "
-              + ", ".join(os.path.basename(f) for f in figs))
+        figs = []
+        if args.figures:
+            from ._figures import scene_figures
+
+            figs = scene_figures(results, args.out, center, radius)
+        print(f"wrote {args.out}/summary.json, trajectory.csv"
+              + "".join(", " + os.path.basename(f) for f in figs))
     if failed:
         raise PPRError(f"{len(failed)} of {len(models)} models failed ({', '.join(failed)}); "
                        f"see above and {args.out}/summary.json")
@@ -188,7 +193,7 @@ def _write_csv(path, results, center, R):
 def _add_simulate(sub, parents, fmt):
     kinematic = list(KINEMATIC_MODELS)  # pose = coordinates
     s = sub.add_parser("simulate", formatter_class=fmt,
-        parents=[parents[k] for k in ("params", "model", "solve", "times", "files")],
+        parents=[parents[k] for k in ("params", "model", "solve", "times", "files", "figures")],
         help="run a scene and write summary.json, trajectory.csv, figures")
     s.add_argument("--scene", default="paper-circle", choices=list(SIMULATE_CHOICES),
                    help="scene to run")
