@@ -28,13 +28,17 @@ there for a strip loaded near its reach: the full q of an early iterate makes K 
 indefinite), and takes Newton's steps once the residual is below NEWTON_SWITCH: 3 steps to a
 residual of 1e-14 at the robot's states, where the chord iteration alone, through K's
 eigenvectors with six small matrix products each, took 5-7 (one quasi-static L3 right-hand
-side 31 -> 20-28 us, a `paper-circle` run 1.78 -> 1.2-1.5 s on this noisy machine). The first
-`N_FIRST` steps are unrolled and the loop after them tests the residual, which it needs anyway
-(the caller's check): an update-based test took a fourth step to see that the third had
-converged (`_iterate`; the `paper-circle` run 0.65 -> 0.57 s with the block mass solve of
-`_linalg`). Two are unrolled, not three: each is a copy of the solve in the program. The
-solve is a `jax.custom_jvp`: the implicit derivatives solve J dy = -dF/dp dp with the same
-`solve_kkt`, so derivatives of any order are exact and never go through the iterations.
+side 31 -> 20-28 us, a `paper-circle` run 1.78 -> 1.2-1.5 s on this noisy machine). The loop
+tests the residual, which it needs anyway (the caller's check): an update-based test took a
+fourth step to see that the third had converged (`_iterate`; the `paper-circle` run 0.65 ->
+0.57 s with the block mass solve of `_linalg`). No step is unrolled before the loop: each
+unrolled step is a copy of the solve in the program, vectorised wherever the strips are (the
+start's stencil and its Newton points too), and since the loop of integration steps compiles as
+one kernel they bought no run time (N = 16 `paper-circle`, two unrolled steps against none:
+first call 26.5-27.3 -> 15.7-17.3 s, warm runs 1.02-1.06 and 1.00-1.07 s; a vmapped batch of
+16 at N = 4 over 1 s: 0.66-0.68 -> 0.61-0.64 s). The solve is a `jax.custom_jvp`: the implicit
+derivatives solve J dy = -dF/dp dp with the same `solve_kkt`, so derivatives of any order are
+exact and never go through the iterations.
 """
 
 from __future__ import annotations
@@ -49,13 +53,6 @@ from .._custom_types import Array, Float
 
 #: iterations at most of the strip's equilibrium
 MAX_ITER = 60
-#: iterations taken before any convergence test, unrolled (no loop control, XLA fuses across
-#: them). The robot's states need 3 from the unloaded arc to a residual of 1e-14 (`paper-circle`,
-#: N = 4-8), but every unrolled step is a copy of the solve in the program, vectorised wherever
-#: the strips are (the start's stencil and its Newton points too): with 3, N = 16 compiled
-#: `paper-circle` in 27.7 s, with 2 in 19.7 s, at the same warm run (149 ms; N = 4: 13.2 ->
-#: 11.1 s, 204 -> 198 ms); with 1 the warm run at N = 16 was 6 % slower
-N_FIRST = 2
 #: converged when the KKT residual (rad, segment lengths) is below this
 TOL = 1e-13
 #: below this a residual that no longer shrinks is rounding noise (its floor grows with N)
@@ -185,13 +182,11 @@ def _solve_kkt_q(y, q, R):
 
 
 def _iterate(step, residual, y0):
-    """(y, max |residual(y)|): `N_FIRST` steps y <- step(y) unrolled, then steps until the
-    residual is below TOL, or below STALL and no longer shrinking (the rounding floor), at most
-    MAX_ITER steps in all. At the robot's states the loop takes no step: the convergence test
-    is one residual where an update-based test took a fourth step to see the third's."""
+    """(y, max |residual(y)|): steps y <- step(y) until the residual is below TOL, or below
+    STALL and no longer shrinking (the rounding floor), at most MAX_ITER. At the robot's states
+    three steps: the convergence test is one residual where an update-based test took a fourth
+    step to see the third's."""
     y = y0
-    for _ in range(N_FIRST):
-        y = step(y)
 
     def err(y):
         return jnp.max(jnp.abs(residual(y)))
@@ -208,7 +203,7 @@ def _iterate(step, residual, y0):
         return (r > TOL) & ~stalled & (i < MAX_ITER)
 
     inf = jnp.asarray(jnp.inf, y0.dtype)
-    y, r, _, _ = jax.lax.while_loop(cond, body, (y, err(y), inf, N_FIRST))
+    y, r, _, _ = jax.lax.while_loop(cond, body, (y, err(y), inf, 0))
     return y, r
 
 
