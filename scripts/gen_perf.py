@@ -869,6 +869,21 @@ def compensate_headline() -> str:
             f"{m['cold_s']:.0f} / {t['cold_s']:.0f} s")
 
 
+def simulate_headline() -> str:
+    """The README's `ppr-jax simulate` cell, from benchmarks/results/latency.json (the new
+    checkout's whole-command walls): first process (cold) / second process (warm), L0-L2 as a
+    range and the quasi-static L3 (N = 16)."""
+    d = _load("latency.json")
+    wall = {r["name"]: r["new"]["wall_s"] for r in d["rows"] if r.get("new")}
+
+    def side(kind):
+        v = [wall[f"simulate {m} {kind}"] for m in ("rigid", "reduced", "double1r")]
+        return f"{min(v):.1f}-{max(v):.1f} s (L0-L2)"
+
+    return (f"{side('cold')}, {wall['simulate beam cold']:.0f} s (L3) / {side('warm')}, "
+            f"{wall['simulate beam warm']:.1f} s (L3)")
+
+
 def headline() -> dict:
     """The contenders' matched times, which the README's headline table quotes (to check it)."""
     d = _load("cpu", "contenders.json")

@@ -127,3 +127,11 @@ def test_readme_contenders_row_quotes_the_benchmark():
     for tok, key in ((ours, "ppr_jax@2e-08"), (mujoco, "mujoco@2e-08"), (scipy, "scipy@2e-08")):
         digits = len(tok.partition(".")[2])
         assert abs(1e3 * times[key] - float(tok)) <= 0.5 * 10.0 ** -digits, (key, tok)
+
+
+def test_readme_simulate_row_quotes_the_latency_benchmark():
+    """README's `ppr-jax simulate` row (first / second process) is `latency.json`'s whole-command
+    walls of the new checkout (`gen_perf.simulate_headline`)."""
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    cell = _gen_perf().simulate_headline()
+    assert f"| `ppr-jax simulate` (1 s), whole command, first / second process | {cell} |" in readme
