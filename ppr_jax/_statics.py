@@ -544,9 +544,10 @@ def onto_slow_manifold(model, robot, actuation, wrench, t, z, zd, fast, target):
         zz = z.at[fs].set(s)
         return accelerations(model, robot, actuation, wrench, t, zz[fr], zd[fr])[2][fs] - target
 
-    s = z[fs]
-    for _ in range(SLOW_NEWTON):
-        s = s - solve(jax.jacfwd(resid)(s), resid(s))
+    # a loop, not unrolled: each unrolled step was a copy of the full L3's accelerations and
+    # their Jacobian in the program (N = 4 and 16: a first call 27-29 -> 20 s)
+    s = jax.lax.fori_loop(0, SLOW_NEWTON,
+                          lambda _, s: s - solve(jax.jacfwd(resid)(s), resid(s)), z[fs])
     return z.at[fs].set(s)
 
 
