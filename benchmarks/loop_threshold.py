@@ -14,7 +14,7 @@ and per quantity the minimum and the median over the processes. Single runs and 
 (the batch benchmark's settings), L2 over 1 s with 101 output times (the sensitivities' scene),
 the quasi-static L3 at N = 4 and 8 (minimum of 4). Writes benchmarks/results/loop_threshold.json;
 `--bytes A B` compares two thresholds of one's choice (the second column's ratios are B / A),
-`--out` elsewhere.
+`--out` elsewhere; `--quick` one short L0 run per process (the script's test).
 
 Run: python benchmarks/loop_threshold.py [--repeats 3]
      python benchmarks/loop_threshold.py --bytes 65536 262144 --repeats 2 \
@@ -51,6 +51,13 @@ def best(f, n):
     return min(ts)
 
 out = {}
+if len(sys.argv) > 2:  # --quick: one short L0 run, that the script runs (its test)
+    o = pj.SceneOptions(t_end=0.1, n_out=3)
+    pj.solve_scene("paper-circle", model="rigid", options=o)
+    out["rigid run, 0.1 s (s)"] = best(
+        lambda: pj.solve_scene("paper-circle", model="rigid", options=o), 1)
+    print(json.dumps(out))
+    sys.exit(0)
 for m in ("rigid", "reduced", "double1r"):
     pj.solve_scene("paper-circle", model=m)
     out[f"{m} run (s)"] = best(lambda: pj.solve_scene("paper-circle", model=m), 15)
@@ -104,26 +111,27 @@ def _jax_version() -> str:
     return version("jax")
 
 
-def _process(threshold: int, cache: str) -> dict:
+def _process(threshold: int, cache: str, quick: bool = False) -> dict:
     env = dict(os.environ, PYTHONPATH=ROOT, EQX_ON_ERROR="nan", JAX_ENABLE_X64="1",
                XLA_FLAGS=("--xla_backend_extra_options="
                           f"xla_cpu_small_while_loop_byte_threshold={threshold}"))
     env.pop("PPR_JAX_CACHE_DIR", None)
-    p = subprocess.run([sys.executable, "-c", _CHILD, cache], capture_output=True, text=True,
+    p = subprocess.run([sys.executable, "-c", _CHILD, cache, *(["quick"] if quick else [])],
+                       capture_output=True, text=True,
                        env=env, timeout=1800, cwd=ROOT)
     if p.returncode != 0:
         return {"failed": (p.stderr.strip().splitlines() or ["?"])[-1]}
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
-def main(repeats: int, pair=None, out: str = OUT):
+def main(repeats: int, pair=None, out: str = OUT, quick: bool = False):
     settings = _settings(pair)
     raw = {name: [] for name in settings}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(repeats):
             for name, threshold in settings.items():
-                raw[name].append(_process(threshold, os.path.join(tmp, str(threshold))))
+                raw[name].append(_process(threshold, os.path.join(tmp, str(threshold)), quick))
                 print(name, raw[name][-1], flush=True)
     names = list(settings)
     rows = []
@@ -157,6 +165,9 @@ if __name__ == "__main__":
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--bytes", nargs=2, default=None, metavar=("A", "B"),
                     help="two thresholds (bytes) instead of the import's and derivatives'")
+    ap.add_argument("--quick", action="store_true",
+                    help="one short L0 run per process: checks that the script runs, measures "
+                         "nothing of interest")
     ap.add_argument("--out", default=OUT)
     a = ap.parse_args()
-    main(a.repeats, a.bytes, os.path.abspath(a.out))
+    main(a.repeats, a.bytes, os.path.abspath(a.out), a.quick)

@@ -84,6 +84,7 @@ CASES = {
     "sensitivity_cost": (["--t-end", "0.1", "--n-out", "3", "--rtol", "1e-4", "--repeats", "1",
                           "--skip-jacfwd", "--only-grad"], ["sensitivity_cost.json"]),
     "start_sensitivity": (["--quick"], ["start_sensitivity.json"]),
+    "loop_threshold": (["--quick", "--repeats", "1"], ["loop_threshold.json"]),
     "sweep_sharding": (["--members", "2", "--chunk", "2", "--t-end", "0.1", "--model", "rigid",
                         "--repeats", "1"], ["sweep_sharding.json"]),
 }
