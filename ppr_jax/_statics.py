@@ -42,12 +42,15 @@ def assemble(n, idx_u, zu, idx_k, zk):
 
 class _StepTested(optx.AbstractRootFinder):
     """A Newton iteration that stops once its last step (`state.relative_step`, in units of
-    atol + rtol |y|, the step taken) is below 1: `_Newton` and `_FDNewton` implement `init`
-    and `step`."""
+    atol + rtol |y|, the step taken) is below 1, or at once, diverged, when that step is NaN
+    (a singular Jacobian, a balance out of reach: not another `max_steps` of NaN iterations):
+    `_Newton` and `_FDNewton` implement `init` and `step`."""
 
     def terminate(self, fn, y, args, options, state, tags):
         del fn, y, args, options, tags
-        return state.relative_step < 1, optx.RESULTS.successful
+        nan = jnp.isnan(state.relative_step)
+        return (state.relative_step < 1) | nan, optx.RESULTS.where(
+            nan, optx.RESULTS.nonlinear_divergence, optx.RESULTS.successful)
 
     def postprocess(self, fn, y, aux, args, options, state, tags, result):
         del fn, args, options, state, tags, result
