@@ -222,7 +222,14 @@ def _jvp_residuals_once(fn, primals, tangents):
     fusion of the tangents, once per tangent entry (19 parameters' tangents of L2's
     balance: 292,000 primal operations a right-hand side inside tangent kernels, against
     145,000 tangent operations)."""
-    diff, nondiff = eqx.partition(primals, eqx.is_inexact_array)
+    # Linearised in the inputs that carry a tangent only (a custom rule's None is a symbolic
+    # zero): an input held constant, such as the robot of an `InverseDynamicsTorque` that
+    # drives the model, would otherwise have its whole derivative in the program, multiplied
+    # by zeros (getting_started's gradient: 37,860 -> 27,442 StableHLO lines, 6.9 -> 4.8 s of
+    # tracing).
+    moves = jax.tree_util.tree_map(lambda p, t: eqx.is_inexact_array(p) and t is not None,
+                                   primals, tangents, is_leaf=lambda x: x is None)
+    diff, nondiff = eqx.partition(primals, moves)
     _, lin = jax.linearize(lambda d: fn(*eqx.combine(d, nondiff)), diff)
     leaves, treedef = jax.tree_util.tree_flatten(lin)
     floats = [i for i, x in enumerate(leaves)
@@ -235,10 +242,8 @@ def _jvp_residuals_once(fn, primals, tangents):
         # over 1 s, one parameter: 34 -> 6.2 ms)
         leaves[i] = materialize(leaves[i])
     lin = jax.tree_util.tree_unflatten(treedef, leaves)
-    dt = jax.tree_util.tree_map(
-        lambda p, t: None if p is None else (jnp.zeros_like(p) if t is None else t), diff,
-        tangents,
-        is_leaf=lambda x: x is None)
+    dt = jax.tree_util.tree_map(lambda p, t: None if p is None else t, diff, tangents,
+                                is_leaf=lambda x: x is None)
     return lin(dt)
 
 

@@ -1,3 +1,4 @@
+import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -5,7 +6,7 @@ import numpy as np
 import pytest
 
 import ppr_jax as pj
-from tests.helpers import rotate_pose, rotate_vel
+from tests.helpers import raises_in_compiled_code, rotate_pose, rotate_vel
 
 TS = jnp.linspace(0.0, 1.5, 151)
 
@@ -127,6 +128,35 @@ def test_max_steps_is_a_clear_error(params):
     with pytest.raises(pj.SimulationError, match="maximum number of solver steps"):
         pj.simulate(model, params, pj.TorqueDriven(pj.Hold(jnp.zeros(3))), X0,
                     jnp.array([0.1, 0.0, 0.3]), TS, max_steps=3)
+
+
+def test_max_steps_raises_under_jit_and_grad_from_the_lean_loop(params):
+    """Traced (a caller's jit, `jax.grad`), `simulate` cannot return a `SimulationError`: its
+    failed solve raises inside the program, after the lean loop that computes it (not
+    diffrax's loop, whose reverse pass compiled four times longer), and a good solve's
+    gradient is the lean loop's."""
+    from ppr_jax._simulate import _LeanSolution, _solve, default_controller, get_solver
+
+    model = pj.Reduced()
+    X0 = pj.home_pose(params)
+    act = pj.TorqueDriven(pj.Hold(jnp.zeros(3)))
+
+    def final_x(t, max_steps):
+        p = params.replace(t=t)
+        s = pj.simulate(model, pj.Robot(p), act, X0, jnp.array([0.1, 0.0, 0.3]), TS,
+                        max_steps=max_steps)
+        return s.z[-1, 0]
+
+    with raises_in_compiled_code("maximum number of solver steps"):
+        jax.jit(final_x, static_argnums=1)(params.t, 3)
+    with raises_in_compiled_code("maximum number of solver steps"):
+        jax.jit(jax.grad(final_x), static_argnums=1)(params.t, 3)
+    solver = get_solver("tsit5")
+    y0 = jnp.concatenate([X0, jnp.array([0.1, 0.0, 0.3])])
+    sol = _solve((pj.Robot(params), act, jnp.zeros(3), y0, TS), model, solver,
+                 default_controller(solver, 1e-8, 1e-10), None, 1000, True,
+                 diffrax.NoProgressMeter(), diffrax.RecursiveCheckpointAdjoint(), None)
+    assert isinstance(sol, _LeanSolution)
 
 
 @pytest.mark.slow  # second tier: docs/getting_started.md, 'The two tiers'
