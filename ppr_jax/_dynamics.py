@@ -363,8 +363,13 @@ def energy_of(model: AbstractModel, robot: Robot, k, kd):
     `model.kinematics`): for callers that already hold them."""
     m, I = model.masses(robot)
     T = 0.5 * (jnp.sum(m * jnp.sum(kd.body_p**2, axis=-1)) + jnp.sum(I * kd.body_ang**2))
-    U = 0.5 * jnp.sum(model.stiffness(robot) * k.deflection**2)
-    return T, U
+    return T, potential_of(model, robot, k)
+
+
+def potential_of(model: AbstractModel, robot: Robot, k):
+    """The springs' potential energy (J) from the kinematics k: at rest, Q_passive is its
+    gradient's negative (no damping or friction without velocity)."""
+    return 0.5 * jnp.sum(model.stiffness(robot) * k.deflection**2)
 
 
 def lagrangian_eom(model: AbstractModel, robot: Robot, z, zdot):

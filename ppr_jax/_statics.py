@@ -21,7 +21,7 @@ from ._actuation import (
     MotionDriven,
     TorqueDriven,
 )
-from ._dynamics import eom_terms, generalized_force
+from ._dynamics import eom_terms, generalized_force, potential_of
 from ._errors import PPRError, raise_if, result_code
 from ._kinematics import fk_solve
 from ._linalg import SmallLU, solve
@@ -118,6 +118,18 @@ def free_coordinates(model: AbstractModel, locked: bool) -> tuple:
     return tuple(i for i in range(model.n_dof) if i not in tuple(model.actuated_index))
 
 
+def springs_from_potential(model: AbstractModel) -> bool:
+    """Whether the static balances of `model` are taken as gradients of its springs'
+    potential energy (`potential_of`; decided from its class before tracing): where the
+    springs' force is the deflections' own (`AbstractModel.spring_force` not overridden), at
+    rest it is -dU/dz exactly, and the potential's derivatives hold no mass matrix or velocity
+    terms, which a derivative of the balance differentiates once more. A model whose springs
+    are implicit in z (the quasi-static L3) keeps its own spring force, whose derivatives never
+    differentiate its inner solve (the potential's Hessian would: its modes' first call 6.3 ->
+    7.2 s)."""
+    return type(model).spring_force is AbstractModel.spring_force
+
+
 def static_equilibrium(
     model: AbstractModel,
     robot: RobotLike,
@@ -130,7 +142,8 @@ def static_equilibrium(
     return_failed: bool = False,
 ):
     """Static equilibrium z* of `model` near `z_guess` (Newton on the free rows of
-    M z'' + h = Q at zero velocity and acceleration).
+    M z'' + h = Q at zero velocity and acceleration, that is Q = 0 at rest: minus the gradient
+    of the total potential energy under the constant loads, `springs_from_potential`).
 
     **Arguments:**
 
@@ -169,7 +182,18 @@ def static_equilibrium(
     known = tuple(i for i in range(n) if i not in free)
     zk = z_guess[jnp.array(known)] if known else None
 
+    def potential(zf):
+        # at rest Q = -dU/dz + Jth^T tau + JX^T w (no damping or friction without velocity):
+        # minus the gradient of the total potential energy under the constant loads
+        z = assemble(n, free, zf, known, zk)
+        k = model.kinematics(robot, z)
+        return potential_of(model, robot, k) - jnp.sum(k.th_a * tau) - jnp.sum(k.X * w)
+
     def resid(zf, _):
+        if springs_from_potential(model):
+            # the balance as the potential's gradient, equal to the equations of motion's Q at
+            # rest (equilibria the same to 1e-16, modes to 1e-13 relative)
+            return -jax.grad(potential)(zf)
         z = assemble(n, free, zf, known, zk)
         eom = eom_terms(model, robot, z, jnp.zeros(n))
         return generalized_force(eom, tau, w)[jnp.array(free)]
