@@ -546,3 +546,32 @@ def test_sigint_while_compiling_exits_130_with_one_line(tmp_path):
         assert "compiling" in lines[-1], lines
         assert proc.returncode == 130, (delay, proc.returncode, err)
         assert err.strip().splitlines() == ["ppr-jax: interrupted; kept: nothing written"], err
+
+
+def _path_with_a_nan_row(path):
+    """A short path file (a slow arc near home) whose fourth data row has an empty cell."""
+    ts = np.arange(0.0, 0.2 + 1e-9, 0.01)
+    rows = [f"{t:.3f},{0.45 + 0.01 * np.sin(t):.9f},{0.26 + 0.01 * np.cos(t):.9f},0.0"
+            for t in ts]
+    rows[3] = rows[3].rsplit(",", 1)[0] + ","
+    path.write_text("time,x,y,phi\n" + "\n".join(rows) + "\n")
+    return str(path)
+
+
+@pytest.mark.parametrize("command,extra", [
+    ("simulate", []), ("sweep", ["--vary", "t=1e-4:2e-4:2"]), ("sensitivity", []),
+    ("synth", []), ("compensate", []),
+])
+def test_every_command_that_reads_a_path_takes_drop_nan(tmp_path, capsys, command, extra):
+    """The loaders' refusal of a NaN row advises --drop-nan: every command that reads a --path
+    file takes it, and with it the row is dropped (the command then goes on to its next check,
+    here the refused thickness, before anything is compiled)."""
+    f = _path_with_a_nan_row(tmp_path / "nan.csv")
+    out = str(tmp_path / ("o.csv" if command == "synth" else "o"))
+    argv = [command, "--path", f, "--set", "t=-1", *extra, "--out", out]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "line 5" in err and "--drop-nan" in err, err
+    assert main(argv + ["--drop-nan"]) == 2
+    err = capsys.readouterr().err
+    assert "'t'" in err and "NaN" not in err, err

@@ -99,6 +99,11 @@ def model_from_args(args, name: str):
                      strip_loss=loss if name == "beam" else 0.0)
 
 
+#: help of --drop-nan, an option of every command that reads a path or a command log
+DROP_NAN_HELP = ("drop the rows of the --path, --angles and --torques files that hold NaN, empty "
+                 "or infinite cells (otherwise such a file is refused, naming its lines)")
+
+
 def parent_parsers() -> dict:
     """Options shared by several commands, as argparse parent parsers (one definition each):
     `params` (--set), `model` (--model, --elements), `solve` (solver, tolerances, step limit),
@@ -158,6 +163,7 @@ def parent_parsers() -> dict:
                             "samples cut out of a motion), not-a-knot, or auto (default): what "
                             "the file's header declares (# spline: ...), else clamped when the "
                             "file is at rest at both ends, else natural")
+    files.add_argument("--drop-nan", action="store_true", help=DROP_NAN_HELP)
     files.add_argument("--drive", default="torque", choices=["torque", "motion"],
                        help="with --path and no command log: the torque model's inverse-dynamics "
                             "torques along the path (torque), or its inverse-kinematics angles "
@@ -227,10 +233,11 @@ def scene_from_args(args):
     from .._paths import check_same_rate, load_commands, load_path
     from .._scenes import PathScene
 
-    bc = getattr(args, "bc", "auto")
-    traj = load_path(path, bc=bc)
-    log = (load_commands(angles, kind="angles", bc=bc) if angles is not None
-           else load_commands(torques, kind="torque", bc=bc) if torques is not None else None)
+    bc, drop = getattr(args, "bc", "auto"), getattr(args, "drop_nan", False)
+    traj = load_path(path, bc=bc, drop_nan=drop)
+    log = (load_commands(angles, kind="angles", bc=bc, drop_nan=drop) if angles is not None
+           else load_commands(torques, kind="torque", bc=bc, drop_nan=drop)
+           if torques is not None else None)
     if log is not None:
         check_same_rate(traj, log)
     drive = "motion" if angles is not None else "torque" if torques is not None else args.drive

@@ -71,7 +71,7 @@ def cmd_compensate(args):
         raise PPRError("give the path to follow: --path FILE.csv or --scene paper-circle|"
                        "servo-circle (one of them)")
     if args.path is not None:
-        target = load_path(args.path, bc=args.bc)
+        target = load_path(args.path, bc=args.bc, drop_nan=args.drop_nan)
         if float(target.ts[0]) != 0.0:
             raise PPRError(f"{args.path}: the path's first time is {float(target.ts[0]):g} s; "
                            f"the scenes start at t = 0 (shift the file's times)")
@@ -130,6 +130,9 @@ def add_compensate(sub, parents, fmt):
                    help="or a paper scene's circle (eq 55) with its robot")
     c.add_argument("--bc", default="auto", choices=["auto", "clamped", "natural", "not-a-knot"],
                    help="the path spline's ends (as simulate's --bc)")
+    c.add_argument("--drop-nan", action="store_true",
+                   help="drop the rows of the --path file that hold NaN, empty or infinite "
+                        "cells (otherwise the file is refused, naming its lines)")
     c.add_argument("--drive", default=None, choices=["motion", "torque"],
                    help="motion: actuated angles; torque: torques (default: motion for a path, "
                         "the scene's own for --scene)")
