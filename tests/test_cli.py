@@ -575,3 +575,23 @@ def test_every_command_that_reads_a_path_takes_drop_nan(tmp_path, capsys, comman
     assert main(argv + ["--drop-nan"]) == 2
     err = capsys.readouterr().err
     assert "'t'" in err and "NaN" not in err, err
+
+
+@pytest.mark.parametrize("command,extra", [
+    ("simulate", []), ("sweep", ["--vary", "t=1e-4:2e-4:2"]), ("sensitivity", []),
+    ("synth", []),
+])
+def test_scene_and_path_given_together_are_refused(tmp_path, capsys, command, extra):
+    """--scene and --path are alternatives: both given is one line and exit 2 (the scene was
+    silently ignored); the default scene alone stands aside for --path (the command goes on to
+    its next check, the refused thickness)."""
+    f = _path_with_a_nan_row(tmp_path / "nan.csv")
+    out = str(tmp_path / ("o.csv" if command == "synth" else "o"))
+    argv = [command, "--path", f, "--drop-nan", "--set", "t=-1", *extra, "--out", out]
+    assert main(argv + ["--scene", "servo-circle"]) == 2
+    err = capsys.readouterr().err
+    assert "--scene servo-circle and --path are alternatives" in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "'t'" in err and "alternatives" not in err, err

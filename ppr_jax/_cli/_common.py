@@ -177,6 +177,16 @@ def parent_parsers() -> dict:
             "figures": figures}
 
 
+class SceneAction(argparse.Action):
+    """--scene's action: stores the scene and marks it given on the command line
+    (`args.scene_given`), so that a --path beside it is refused (`scene_from_args`), while the
+    default scene stands aside for a --path."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        namespace.scene_given = True
+
+
 #: the shared options of a command that runs a scene (`parent_parsers`' keys)
 SCENE_OPTIONS = ("params", "model", "solve", "times", "files")
 
@@ -188,7 +198,8 @@ def scene_command(sub, name: str, parents: dict, fmt, *, uses=SCENE_OPTIONS,
     --torque-model (a kinematic model, default reduced), with their help texts; `kwargs` (help,
     description) as `add_parser`'s."""
     p = sub.add_parser(name, formatter_class=fmt, parents=[parents[k] for k in uses], **kwargs)
-    p.add_argument("--scene", default=scene, choices=list(SCENE_NAMES))
+    p.add_argument("--scene", default=scene, choices=list(SCENE_NAMES), action=SceneAction,
+                   help="the paper's scene to run (or --path: your own experiment)")
     p.add_argument("--model", default="double1r", choices=list(MODEL_NAMES), help=model_help)
     p.add_argument("--torque-model", default="reduced", choices=list(KINEMATIC_MODELS),
                    help=torque_help)
@@ -209,7 +220,7 @@ def scene_from_args(args):
     `PathScene` of the commanded poses of `--path` driven by `--angles` or `--torques` (or by
     the torque model's inverse dynamics or kinematics, `--drive`). Sets `args.t_end` where it
     is None: the path file's last time, else the scenes' `T_END`. Refuses, naming the option,
-    a command log without a path and two logs at once."""
+    a command log without a path, two logs at once, and a --scene given beside --path."""
     import os
 
     from .._errors import PPRError
@@ -226,6 +237,9 @@ def scene_from_args(args):
         if getattr(args, "t_end", T_END) is None:
             args.t_end = T_END
         return get_scene(args.scene, getattr(args, "torque_model", None))
+    if getattr(args, "scene_given", False):
+        raise PPRError(f"--scene {args.scene} and --path are alternatives (a scene of the "
+                       f"paper's, or your own experiment): give one")
     if angles is not None and torques is not None:
         raise PPRError("give one command log: --angles (a motion drive) or --torques (a torque "
                        "drive), not both")

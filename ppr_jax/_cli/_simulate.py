@@ -9,6 +9,7 @@ import time
 from .._files import write_file
 from .._names import KINEMATIC_MODELS, MODEL_NAMES, SIMULATE_CHOICES
 from ._common import (
+    SceneAction,
     _derived_dict,
     _log,
     _models,
@@ -196,7 +197,9 @@ def _add_simulate(sub, parents, fmt):
         parents=[parents[k] for k in ("params", "model", "solve", "times", "files", "figures")],
         help="run a scene and write summary.json, trajectory.csv, figures")
     s.add_argument("--scene", default="paper-circle", choices=list(SIMULATE_CHOICES),
-                   help="scene to run")
+                   action=SceneAction,
+                   help="scene to run (or --path: your own experiment; modes: the natural "
+                        "frequencies at home)")
     s.add_argument("--model", default=None,
                    help="a model (" + ", ".join(MODEL_NAMES) + ") or a comma list (default: rigid, "
                         "reduced, double1r). beam is L3 with quasi-static strips (see "
