@@ -70,6 +70,9 @@ def test_prb_json_derived_quantities_equal_the_closed_forms(capsys):
         (["prb", "--set", "t"], "NAME=VALUE"),
         (["prb", "--set", "gamma=abc"], "cannot read"),
         (["torques", "--model", "reduced", "--set", "a=3", "--out", "x"], "unreachable"),
+        (["modes", "--pose", "1,2"], "--pose expects x,y,phi: three comma-separated numbers "
+                                     "(m, m, rad)"),
+        (["modes", "--pose", "0.45,0.26,zero"], "--pose expects x,y,phi"),
     ],
 )
 def test_bad_input_is_a_clear_error(capsys, tmp_path, args, msg):

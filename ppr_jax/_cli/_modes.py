@@ -11,11 +11,26 @@ from ._common import (
 )
 
 
+def _pose(text):
+    """--pose: three comma-separated numbers x,y,phi (m, m, rad), or None."""
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        X = [float(v) for v in parts]
+    except ValueError:
+        X = None
+    if X is None or len(X) != 3:
+        raise ValueError(f"--pose expects x,y,phi: three comma-separated numbers (m, m, rad), "
+                         f"e.g. --pose 0.45,0.26,0; got {text!r}")
+    return X
+
+
 def cmd_modes(args):
     from .._scenes import modes_scene
 
+    X = _pose(args.pose)
     params = _parse_sets(args.set, "modes", getattr(args, "params_file", None))
-    X = None if args.pose is None else [float(v) for v in args.pose.split(",")]
     r = modes_scene(params, model=model_from_args(args, args.model), actuators=args.actuators,
                     X=X, program_dir=getattr(args, "program_dir", None))
     if args.json:
@@ -32,6 +47,8 @@ def _add_modes(sub, parents, fmt):
         help="natural frequencies about a static equilibrium (Hz)")
     m.add_argument("--model", default="double1r", choices=list(MODEL_NAMES))
     m.add_argument("--actuators", default="locked", choices=["locked", "free"])
-    m.add_argument("--pose", default=None, help="x,y,phi (default: home)")
+    m.add_argument("--pose", default=None, metavar="x,y,phi",
+                   help="the pose near which the equilibrium is sought: x,y,phi in m, m, rad "
+                        "(default: home)")
     m.add_argument("--json", action="store_true")
     m.set_defaults(func=cmd_modes)
