@@ -168,13 +168,14 @@ def check_params(params: RobotParams) -> None:
         bad = nonfinite | (arr < lo) | (arr > hi)
         if np.any(bad):
             where = "" if arr.ndim == 0 else f" at batch index {np.flatnonzero(bad).tolist()}"
+            rng = f"[{lo:g}, {hi:g}] {unit}".rstrip()
             what = (("is not finite" + (" (an integer beyond the range of a float reads as "
-                                         "inf)" if np.any(np.isinf(arr[bad])) else ""))
-                    if np.all(nonfinite[bad]) else
-                    f"is out of its physical range [{lo:g}, {hi:g}] {unit}")
+                                         "inf)" if np.any(np.isinf(arr[bad])) else "")
+                     + f" (allowed range {rng})")
+                    if np.all(nonfinite[bad]) else f"is out of its allowed range {rng}")
             raise PPRError(
                 f"parameter {name!r} ({meaning}) = {arr[bad].tolist() if arr.ndim else float(arr)}"
-                f"{where} {what} (allowed range [{lo:g}, {hi:g}] {unit})"
+                f"{where} {what}"
             )
 
 

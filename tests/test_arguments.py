@@ -164,7 +164,8 @@ SPEC = DESIGN_SPEC
      ["[params]", "E = an integer of 401 digits"]),
     ("[settings]", "[params]\nE = \"abc\"\n\n[settings]", ["[params]", "E = 'abc'",
                                                           "not a number"]),
-    ("[settings]", "[params]\nt = -1.0\n\n[settings]", ["[params]", "'t'", "physical range"]),
+    ("[settings]", "[params]\nt = -1.0\n\n[settings]",
+     ["[params]", "'t'", "allowed range [1e-06, 0.01] m"]),
     ("[settings]", "[params]\nthickness = 1.0\n\n[settings]", ["[params]", "thickness"]),
 ])
 def test_spec_errors_name_the_file_and_the_key(tmp_path, capsys, old, new, words):

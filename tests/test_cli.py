@@ -81,6 +81,16 @@ def test_bad_input_is_a_clear_error(capsys, tmp_path, args, msg):
     assert msg in capsys.readouterr().err
 
 
+def test_a_parameter_out_of_range_names_its_range_once(capsys):
+    """The parameter, its meaning and its allowed range, said once (it was printed twice: "out
+    of its physical range [1e-06, 0.01] m (allowed range [1e-06, 0.01] m)")."""
+    assert main(["prb", "--set", "t=-1"]) == 2
+    err = capsys.readouterr().err
+    assert ("parameter 't' (strip thickness) = -1.0 is out of its allowed range [1e-06, 0.01] m"
+            in err), err
+    assert err.count("[1e-06, 0.01]") == 1, err
+
+
 def _eq55(t):
     """The nominal circle of eq 55 (MODEL.md section 6) and its first two time derivatives."""
     w = 5 / 6

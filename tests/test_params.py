@@ -80,8 +80,10 @@ def test_explicit_rho_overrides(params):
     [("t", -0.3e-3), ("E", 0.0), ("theta_c", 4.0), ("gamma", 1.5), ("a", float("nan"))],
 )
 def test_out_of_range_parameter_names_parameter_and_range(name, value):
-    with pytest.raises(pj.PPRError, match=rf"'{name}'.*range \["):
+    with pytest.raises(pj.PPRError, match=rf"'{name}'.*range \[") as info:
         pj.RobotParams(**{name: value})
+    # the range said once (it was "out of its physical range [...] (allowed range [...])")
+    assert str(info.value).count("range [") == 1, info.value
 
 
 def test_unknown_parameter_and_bad_sigma(params):
