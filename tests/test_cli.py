@@ -608,3 +608,25 @@ def test_scene_and_path_given_together_are_refused(tmp_path, capsys, command, ex
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "'t'" in err and "alternatives" not in err, err
+
+
+@pytest.mark.parametrize("which", ["circle", "path", "long"])
+def test_sensitivity_table_headers_name_every_metric_whole(which):
+    """The sensitivity table's column headers, read back column by column, are the metrics'
+    whole names (they were cut to 14 characters: radial_error_max_m and radial_error_min_m
+    both read "radial error m"), and the numbers' columns line up under them."""
+    from ppr_jax._cli._sensitivity import WIDTH, header_lines
+    from ppr_jax._names import PATH_SENSITIVITY_METRICS, SENSITIVITY_METRICS
+
+    metrics = {"circle": SENSITIVITY_METRICS, "path": PATH_SENSITIVITY_METRICS,
+               "long": ("first_locked_natural_frequency_of_the_platform_hz", "t")}[which]
+    lines = header_lines(metrics)
+    assert lines[-1].startswith(" parameter ")
+    for i, m in enumerate(metrics):
+        start = 11 + i * (WIDTH + 1)
+        words = " ".join(ln[start:start + WIDTH].strip() for ln in lines).split()
+        assert " ".join(words) == m.replace("_", " ")
+    # a header never runs into its neighbour: the column before the next one is blank
+    for ln in lines:
+        assert all(ln[11 + i * (WIDTH + 1) - 1:11 + i * (WIDTH + 1) + 1].strip() == ""
+                   for i in range(1, len(metrics)) if len(ln) > 11 + i * (WIDTH + 1))

@@ -67,17 +67,38 @@ def cmd_sensitivity(args):
     print(f"\nNormalised sensitivities (p / m) dm/dp, scene {scene.name}, model {s.info['model']} "
           f"(input of {s.info['input_model']}; base frequency of {s.info['frequency_model']}, "
           f"locked), {s.mode} mode")
-    w = max(len(m) for m in s.metrics)
-    short = [m.replace("_", " ")[:14] for m in s.metrics]
-    print(f"{'parameter':>10s} " + " ".join(f"{h:>14s}" for h in short))
-    print(f"{'value':>10s} " + " ".join(f"{s.values[m]:14.6g}" for m in s.metrics))
+    for line in header_lines(s.metrics):
+        print(line)
+    print(f"{'value':>10s} " + " ".join(f"{s.values[m]:{WIDTH}.6g}" for m in s.metrics))
     for j, p in enumerate(s.parameters):
-        print(f"{p:>10s} " + " ".join(f"{s.normalized[i, j]:14.4g}" for i in range(len(s.metrics))))
-    del w
+        print(f"{p:>10s} " + " ".join(f"{s.normalized[i, j]:{WIDTH}.4g}"
+                                      for i in range(len(s.metrics))))
     print(f"compile {s.timing['compile_s']:.1f} s, run (values and derivatives) "
           f"{s.timing['run_s'] * 1e3:.1f} ms")
     print(f"wrote {args.out}/sensitivity.csv, sensitivity.json")
     return 0
+
+
+#: width of a metric's column in the printed table (a header line at most one less: two spaces
+#: between columns)
+WIDTH = 15
+
+
+def header_lines(metrics) -> list:
+    """The printed table's header: each metric's whole name (underscores as spaces) wrapped
+    over as many lines as the longest needs, right-aligned in its column of `WIDTH` and
+    bottom-aligned above its numbers, "parameter" on the last line. (Cut to the column's width,
+    radial_error_max_m and radial_error_min_m both read "radial error m".)"""
+    import textwrap
+
+    wrapped = [textwrap.wrap(m.replace("_", " "), WIDTH - 1) for m in metrics]
+    n = max((len(w) for w in wrapped), default=1)
+    wrapped = [[""] * (n - len(w)) + w for w in wrapped]
+    lines = []
+    for k in range(n):
+        head = "parameter" if k == n - 1 else ""
+        lines.append((f"{head:>10s} " + " ".join(f"{w[k]:>{WIDTH}s}" for w in wrapped)).rstrip())
+    return lines
 
 
 def add_sensitivity(sub, parents, fmt):
