@@ -630,3 +630,37 @@ def test_sensitivity_table_headers_name_every_metric_whole(which):
     for ln in lines:
         assert all(ln[11 + i * (WIDTH + 1) - 1:11 + i * (WIDTH + 1) + 1].strip() == ""
                    for i in range(1, len(metrics)) if len(ln) > 11 + i * (WIDTH + 1))
+
+
+def _help(capsys, command):
+    with pytest.raises(SystemExit) as info:
+        main([command, "--help"])
+    assert info.value.code == 0
+    return capsys.readouterr().out
+
+
+def test_help_texts_say_each_default_once_and_describe_every_option(capsys):
+    """Every command's --help: each option has a help text, none ends in a bare "(default:
+    None)" or a flag's "(default: False)", a text that states its default gets no second one,
+    and torques (which reads no --path) does not speak of a --path file."""
+    import argparse
+
+    from ppr_jax._cli._main import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    for name, parser in sub.choices.items():
+        for action in parser._actions:
+            assert action.help, (name, action.option_strings)
+        text = " ".join(_help(capsys, name).split())
+        assert "(default: None)" not in text and "(default: False)" not in text, name
+    torques = " ".join(_help(capsys, "torques").split())
+    assert "--path" not in torques and "default 7.54 (one turn of the paper's circle)" in torques
+    simulate = " ".join(_help(capsys, "simulate").split())
+    # stated in the text: no second default
+    rtol = simulate[simulate.index("--rtol RTOL relative"):simulate.index("--atol ATOL absolute")]
+    assert rtol.count("default") == 1, rtol
+    loss = simulate[simulate.index("--strip-loss SECONDS Kelvin"):
+                    simulate.index("--solver {", simulate.index("--strip-loss SECONDS Kelvin"))]
+    assert "default 0 (undamped)" in loss and "(default: 0.0)" not in loss, loss
+    # not stated in the text: argparse's, once
+    assert "(default: quasi-static)" in simulate and "(default: 755)" in simulate

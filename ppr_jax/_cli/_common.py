@@ -99,6 +99,22 @@ def model_from_args(args, name: str):
                      strip_loss=loss if name == "beam" else 0.0)
 
 
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """argparse's formatter that appends "(default: ...)" to an option's help, except where
+    that says nothing or says it twice: a default of None (the help says what happens without
+    the option), a flag's False, and a help text that states its default itself ("(default",
+    "default:", "default 0")."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        d = action.default
+        shown = f"{d:g}" if isinstance(d, float) else str(d)
+        if (d is None or (d is False and action.nargs == 0) or "(default" in text
+                or "default:" in text or f"default {shown}" in text):
+            return text
+        return super()._get_help_string(action)
+
+
 #: help of --drop-nan, an option of every command that reads a path or a command log
 DROP_NAN_HELP = ("drop the rows of the --path, --angles and --torques files that hold NaN, empty "
                  "or infinite cells (otherwise such a file is refused, naming its lines)")
@@ -107,8 +123,9 @@ DROP_NAN_HELP = ("drop the rows of the --path, --angles and --torques files that
 def parent_parsers() -> dict:
     """Options shared by several commands, as argparse parent parsers (one definition each):
     `params` (--set), `model` (--model, --elements), `solve` (solver, tolerances, step limit),
-    `times` (--t-end, --n-out), `files` (a path of one's own and its command logs), `figures`
-    (--figures / --no-figures). A command takes the ones it needs with `parents=[...]`."""
+    `times` (--t-end, --n-out; `circle_times` the same for a command without --path), `files`
+    (a path of one's own and its command logs), `figures` (--figures / --no-figures). A command
+    takes the ones it needs with `parents=[...]`."""
     params = argparse.ArgumentParser(add_help=False)
     params.add_argument("--params-file", dest="params_file", default=None, metavar="FILE",
                         help="read the robot's parameters from a TOML or JSON file (names as "
@@ -146,6 +163,13 @@ def parent_parsers() -> dict:
                        help=f"end time (s); default {T_END:g} (one turn of the paper's circle), "
                             f"or the last time of a --path file")
     times.add_argument("--n-out", type=int, default=N_OUT, help="number of output times")
+    # the paper's circle alone (a command without --path)
+    circle_times = argparse.ArgumentParser(add_help=False)
+    circle_times.add_argument("--t-end", type=float, default=None,
+                              help=f"end time (s); default {T_END:g} (one turn of the paper's "
+                                   f"circle)")
+    circle_times.add_argument("--n-out", type=int, default=N_OUT,
+                              help="number of output times")
     files = argparse.ArgumentParser(add_help=False)
     files.add_argument("--path", default=None, metavar="FILE.csv",
                        help="your own experiment instead of --scene: a CSV of commanded poses "
@@ -173,8 +197,8 @@ def parent_parsers() -> dict:
                          help="draw the figures; --no-figures writes only the JSON and CSV "
                               "files and prints the summary (the plotting library is then not "
                               "imported)")
-    return {"params": params, "model": model, "solve": solve, "times": times, "files": files,
-            "figures": figures}
+    return {"params": params, "model": model, "solve": solve, "times": times,
+            "circle_times": circle_times, "files": files, "figures": figures}
 
 
 class SceneAction(argparse.Action):

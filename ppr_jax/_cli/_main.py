@@ -16,6 +16,7 @@ import time
 
 from .._names import T_END
 from ._common import (
+    HelpFormatter,
     _log,
     parent_parsers,
 )
@@ -39,7 +40,7 @@ COMMANDS = [
 
 
 def build_parser():
-    fmt = argparse.ArgumentDefaultsHelpFormatter
+    fmt = HelpFormatter
     p = argparse.ArgumentParser(prog="ppr-jax",
                                 description="Command line interface of ppr_jax (docs/cli.md).",
                                 formatter_class=fmt)

@@ -45,10 +45,15 @@ def _add_modes(sub, parents, fmt):
     m = sub.add_parser("modes", formatter_class=fmt,
         parents=[parents["params"], parents["model"]],
         help="natural frequencies about a static equilibrium (Hz)")
-    m.add_argument("--model", default="double1r", choices=list(MODEL_NAMES))
-    m.add_argument("--actuators", default="locked", choices=["locked", "free"])
+    m.add_argument("--model", default="double1r", choices=list(MODEL_NAMES),
+                   help="the model linearised about its static equilibrium")
+    m.add_argument("--actuators", default="locked", choices=["locked", "free"],
+                   help="locked: the actuated angles held (L0 and L1 then have no free "
+                        "coordinate); free: zero actuator torque, every coordinate free")
     m.add_argument("--pose", default=None, metavar="x,y,phi",
                    help="the pose near which the equilibrium is sought: x,y,phi in m, m, rad "
                         "(default: home)")
-    m.add_argument("--json", action="store_true")
+    m.add_argument("--json", action="store_true",
+                   help="print the whole result as JSON (frequencies, growth rates of unstable "
+                        "modes, eigenvalues, the equilibrium)")
     m.set_defaults(func=cmd_modes)

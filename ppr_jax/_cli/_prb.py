@@ -146,7 +146,9 @@ def _add_prb(sub, parents, fmt):
                     "pre-deflection at home. The PRB parameters of a curved cantilever from the "
                     "elastica-fitted table are 'ppr-jax prb-table' ('prb --kappa0/--fit/--figure' "
                     "still works as a deprecated alias of it).")
-    r.add_argument("--json", action="store_true")
+    r.add_argument("--json", action="store_true",
+                   help="print the parameters, derived quantities and pre-deflection as JSON "
+                        "instead of text")
     # Deprecated alias of prb-table (hidden from the help; forwarded with a notice on stderr).
     r.add_argument("--kappa0", type=float, default=None, help=argparse.SUPPRESS)
     r.add_argument("--fit", action="store_true", help=argparse.SUPPRESS)

@@ -111,7 +111,9 @@ def add_sensitivity(sub, parents, fmt):
                     "printed as normalised sensitivities and written to sensitivity.csv/json.",
         model_help="the model whose response is measured (L0 or L1 under its own torques "
                    "follows the circle exactly: its radial error is the solver's, and is "
-                   "refused)")
+                   "refused)",
+        torque_help="the model whose inverse dynamics (or kinematics) gives a torque-driven "
+                    "scene's torques (or a --path's input without a command log)")
     s.add_argument("--frequency-model", default="double1r",
                    choices=[n for n in MODEL_NAMES if n not in kinematic],
                    help="the model whose first locked natural frequency is the base frequency")

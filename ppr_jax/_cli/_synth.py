@@ -54,6 +54,7 @@ def add_synth(sub, parents, fmt):
         description="Simulate a scene with a model and write what a tracker would record: the "
                     "platform pose at --rate Hz with Gaussian noise (seeded), the actuated "
                     "angles and torques, in the CSV format that 'identify' reads.",
+        model_help="the model simulated: its platform poses are what the tracker records",
         torque_help="the model whose inverse dynamics (or kinematics) gives a torque-driven "
                     "scene's torques (or a --path's input without a command log)")
     p.add_argument("--noise-pos", type=float, default=0.1e-3, help="position noise std (m)")
@@ -65,5 +66,5 @@ def add_synth(sub, parents, fmt):
     p.add_argument("--length-unit", default="mm", choices=["m", "mm"], help="unit of x, y")
     p.add_argument("--angle-unit", default="rad", choices=["rad", "mrad", "deg"],
                    help="unit of phi and th_i")
-    p.add_argument("--out", required=True, metavar="FILE.csv")
+    p.add_argument("--out", required=True, metavar="FILE.csv", help="the CSV file written")
     p.set_defaults(func=cmd_synth)

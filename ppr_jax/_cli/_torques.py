@@ -35,8 +35,11 @@ def cmd_torques(args):
 def _add_torques(sub, parents, fmt):
     kinematic = list(KINEMATIC_MODELS)
     t = sub.add_parser("torques", formatter_class=fmt,
-        parents=[parents["params"], parents["times"]],
+        parents=[parents["params"], parents["circle_times"]],
         help="inverse-dynamics torques along eq 55 as CSV")
-    t.add_argument("--model", default="reduced", choices=kinematic)
-    t.add_argument("--out", required=True)
+    t.add_argument("--model", default="reduced", choices=kinematic,
+                   help="the kinematic model (L0 rigid, L1 reduced) whose inverse dynamics "
+                        "gives the torques")
+    t.add_argument("--out", required=True, metavar="DIR",
+                   help="output directory: DIR/torques.csv (t, tau_1..tau_3 in s and N m)")
     t.set_defaults(func=cmd_torques)
