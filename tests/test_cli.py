@@ -664,3 +664,32 @@ def test_help_texts_say_each_default_once_and_describe_every_option(capsys):
     assert "default 0 (undamped)" in loss and "(default: 0.0)" not in loss, loss
     # not stated in the text: argparse's, once
     assert "(default: quasi-static)" in simulate and "(default: 755)" in simulate
+
+
+def test_simulate_runs_each_model_once_and_refuses_an_empty_model_list(tmp_path, capsys,
+                                                                         monkeypatch):
+    """`--model double1r,double1r,rigid` runs double1r once, then rigid (the order given);
+    `--model ""` (or only commas) is refused in one line naming the option, where it silently
+    ran the default models. The runs are stubs: nothing is compiled."""
+    import ppr_jax._cli._simulate as simulate
+    import ppr_jax._scenes as scenes
+    from ppr_jax._errors import PPRError
+
+    ran = []
+
+    def run_scene(scene, params, model, **kw):
+        ran.append(model.name)
+        raise PPRError("not run here")
+
+    monkeypatch.setattr(scenes, "run_scene", run_scene)
+    monkeypatch.setattr(simulate, "_derived_dict", lambda params: {})
+    out = str(tmp_path / "o")
+    assert main(["simulate", "--model", "double1r,double1r, rigid,double1r", "--no-figures",
+                 "--out", out]) == 2
+    assert ran == ["double1r", "rigid"]
+    assert "2 of 2 models failed (double1r, rigid)" in capsys.readouterr().err
+    for text in ("", " , "):
+        assert main(["simulate", "--model", text, "--out", str(tmp_path / "e")]) == 2
+        err = capsys.readouterr().err
+        assert f"--model {text!r} names no model" in err and len(err.splitlines()) == 1, err
+    assert ran == ["double1r", "rigid"] and not os.path.exists(tmp_path / "e")

@@ -75,11 +75,17 @@ def _log(msg):
 
 
 def _models(text, default):
-    names = [m.strip() for m in (text or default).split(",") if m.strip()]
+    """--model: a model or a comma list (None: `default`'s), each once in the order given.
+    Refuses an unknown name and a list with no name (`--model ""`)."""
+    from .._errors import PPRError
+
+    names = list(dict.fromkeys(m.strip() for m in (default if text is None else text).split(",")
+                               if m.strip()))
+    if not names:
+        raise PPRError(f"--model {text!r} names no model; give one or a comma list of "
+                       f"{', '.join(MODEL_NAMES)} (without --model: {default})")
     for m in names:
         if m not in MODEL_NAMES:
-            from .._errors import PPRError
-
             raise PPRError(f"unknown model {m!r}; allowed: {', '.join(MODEL_NAMES)}")
     return names
 

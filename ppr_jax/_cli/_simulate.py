@@ -33,11 +33,11 @@ def cmd_simulate(args):
 
     # `modes` is a static solve, not a scene; every other choice (and --path) is a scene
     static = args.path is None and args.scene not in scene_names()
+    models = _models(args.model, "reduced,double1r" if static else "rigid,reduced,double1r")
     scene = args.scene if static else scene_from_args(args)
     params = _parse_sets(args.set, scene, getattr(args, "params_file", None))
     check_out_dir(args.out)
     if static:
-        models = _models(args.model, "reduced,double1r")
         res = []
         for m in models:
             for act in ("locked", "free"):
@@ -51,7 +51,6 @@ def cmd_simulate(args):
             print(f"{r['model']:>9s} actuators {r['actuators']:>6s}: {f} Hz")
         print(f"wrote {args.out}/summary.json")
         return 0
-    models = _models(args.model, "rigid,reduced,double1r")
     options = options_from_args(args)
     results, failed = [], {}
     traj = scene.trajectory()
