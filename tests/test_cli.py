@@ -693,3 +693,25 @@ def test_simulate_runs_each_model_once_and_refuses_an_empty_model_list(tmp_path,
         err = capsys.readouterr().err
         assert f"--model {text!r} names no model" in err and len(err.splitlines()) == 1, err
     assert ran == ["double1r", "rigid"] and not os.path.exists(tmp_path / "e")
+
+
+@pytest.mark.parametrize("argv", [["modes", "--model", "reduced"],
+                                  ["simulate", "--scene", "modes", "--model", "reduced"]])
+def test_modes_without_a_free_coordinate_print_no_unit(tmp_path, capsys, monkeypatch, argv):
+    """A model with no free coordinate (L1 with its actuators locked) has no frequency: the
+    line says "none (no free coordinate)", not "none (no free coordinate) Hz"; frequencies keep
+    their unit. The static solve is a stub: nothing is compiled."""
+    import ppr_jax._scenes as scenes
+
+    def modes_scene(params, *, model, actuators="locked", **kw):
+        freqs = [] if actuators == "locked" else [1.5, 2.25]
+        return {"scene": "modes", "model": model.name, "actuators": actuators,
+                "frequencies_hz": freqs, "note": "stub"}
+
+    monkeypatch.setattr(scenes, "modes_scene", modes_scene)
+    extra = ["--out", str(tmp_path / "o")] if argv[0] == "simulate" else []
+    assert main(argv + extra) == 0
+    out = capsys.readouterr().out
+    assert "locked: none (no free coordinate)\n" in out and "coordinate) Hz" not in out, out
+    if argv[0] == "simulate":
+        assert "free: 1.5, 2.25 Hz" in out, out

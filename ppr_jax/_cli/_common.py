@@ -70,6 +70,14 @@ def _derived_dict(params):
     return {f.name: float(getattr(dv, f.name)) for f in dataclasses.fields(dv)}
 
 
+def frequencies_text(freqs, spec: str = ".6g") -> str:
+    """A modes result's frequencies as printed: "f1, f2, ... Hz", or "none (no free
+    coordinate)" (no unit) where there is none."""
+    if len(freqs) == 0:
+        return "none (no free coordinate)"
+    return ", ".join(f"{x:{spec}}" for x in freqs) + " Hz"
+
+
 def _log(msg):
     print(msg, file=sys.stderr, flush=True)
 

@@ -7,6 +7,7 @@ import json
 from .._names import MODEL_NAMES
 from ._common import (
     _parse_sets,
+    frequencies_text,
     model_from_args,
 )
 
@@ -36,8 +37,8 @@ def cmd_modes(args):
     if args.json:
         print(json.dumps(r, indent=2))
     else:
-        f = ", ".join(f"{x:.6g}" for x in r["frequencies_hz"]) or "none"
-        print(f"{r['model']} actuators {r['actuators']}: {f} Hz\n{r['note']}")
+        print(f"{r['model']} actuators {r['actuators']}: "
+              f"{frequencies_text(r['frequencies_hz'])}\n{r['note']}")
     return 0
 
 

@@ -18,6 +18,7 @@ from ._common import (
     _write_json,
     check_commands_from_args,
     check_out_dir,
+    frequencies_text,
     model_from_args,
     options_from_args,
     scene_from_args,
@@ -47,8 +48,8 @@ def cmd_simulate(args):
         summary = {"scene": args.scene, "params": _params_dict(params), "modes": res}
         _write_json(os.path.join(args.out, "summary.json"), summary)
         for r in res:
-            f = ", ".join(f"{x:.4g}" for x in r["frequencies_hz"]) or "none (no free coordinate)"
-            print(f"{r['model']:>9s} actuators {r['actuators']:>6s}: {f} Hz")
+            print(f"{r['model']:>9s} actuators {r['actuators']:>6s}: "
+                  f"{frequencies_text(r['frequencies_hz'], '.4g')}")
         print(f"wrote {args.out}/summary.json")
         return 0
     options = options_from_args(args)
