@@ -715,3 +715,32 @@ def test_modes_without_a_free_coordinate_print_no_unit(tmp_path, capsys, monkeyp
     assert "locked: none (no free coordinate)\n" in out and "coordinate) Hz" not in out, out
     if argv[0] == "simulate":
         assert "free: 1.5, 2.25 Hz" in out, out
+
+
+def test_compensate_names_every_file_written_with_its_folder(tmp_path, capsys, monkeypatch):
+    """compensate's last line names each file it wrote the same way, with --out's folder
+    (the figure was named alone: "wrote D/angles.csv, D/summary.json, tracking_error.png").
+    The inversion and the figure are stubs: nothing is compiled."""
+    from types import SimpleNamespace
+
+    import ppr_jax._cli._compensate as command
+    import ppr_jax._studies as studies
+
+    err = {"position_max": 1e-3, "phi_max": 1e-3}
+    comp = SimpleNamespace(kind="angles", ts=[0.0, 0.1], commands=[[0.0] * 3] * 2,
+                           model="rigid", drive="motion", method="inversion",
+                           summary=lambda: {}, error={"before": err, "after": err},
+                           improvement=1.0, flags=[])
+    monkeypatch.setattr(studies, "compensate", lambda *a, **kw: comp)
+
+    def figure(path, comp):
+        open(path, "w").close()
+        return path
+
+    monkeypatch.setattr(command, "error_figure", figure)
+    out = os.path.join(str(tmp_path), "comp")
+    assert main(["compensate", "--scene", "servo-circle", "--model", "rigid", "--out", out]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    files = [os.path.join(out, f) for f in ("angles.csv", "summary.json", "tracking_error.png")]
+    assert last == "wrote " + ", ".join(files), last
+    assert all(os.path.exists(f) for f in files)

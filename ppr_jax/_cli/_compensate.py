@@ -97,7 +97,8 @@ def cmd_compensate(args):
     log = write_log(os.path.join(args.out, FILES[comp.kind]), comp)
     summary = dict(comp.summary(), path_file=args.path, scene=args.scene,
                    params=_params_dict(params), command_log=os.path.basename(log))
-    _write_json(os.path.join(args.out, "summary.json"), summary)
+    summary_path = os.path.join(args.out, "summary.json")
+    _write_json(summary_path, summary)
     b, a = comp.error["before"], comp.error["after"]
     print(f"position error max {b['position_max'] * 1e3:.4g} mm -> {a['position_max'] * 1e3:.4g}"
           f" mm ({comp.improvement:.3g}x), |phi error| max {b['phi_max'] * 1e3:.4g} mrad -> "
@@ -107,8 +108,8 @@ def cmd_compensate(args):
     # the figure after the answer (the plotting library's import and drawing)
     figs = ([error_figure(os.path.join(args.out, "tracking_error.png"), comp)]
             if args.figures else [])
-    print(f"wrote {log}, {args.out}/summary.json"
-          + "".join(", " + os.path.basename(f) for f in figs))
+    # every path as written, the folder with each
+    print(f"wrote {', '.join([log, summary_path, *figs])}")
     return 2 if comp.flags else 0
 
 
