@@ -135,3 +135,28 @@ def test_readme_simulate_row_quotes_the_latency_benchmark():
     readme = " ".join((ROOT / "README.md").read_text().split())
     cell = _gen_perf().simulate_headline()
     assert f"| `ppr-jax simulate` (1 s), whole command, first / second process | {cell} |" in readme
+
+
+def test_first_compile_time_sentences_agree_and_quote_the_benchmark():
+    """The first run's compile time per model is said the same way on the Getting started,
+    Command line and index pages (they said 5-10 s and 7-13 s), and it is the one a cold
+    `ppr-jax simulate` logs in `benchmarks/results/latency.json` (a fresh 2-core machine): L0-L2
+    and the L3 beam, rounded to whole seconds."""
+    d = json.loads((ROOT / "benchmarks/results/latency.json").read_text())
+    assert d["machine"]["cpus"] == 2
+    cold = {r["model"]: r["new"]["compile_s"] for r in d["rows"]
+            if r.get("part") == "simulate" and r.get("kind") == "cold"}
+    lo = round(min(cold[m] for m in ("rigid", "reduced", "double1r")))
+    hi = round(max(cold[m] for m in ("rigid", "reduced", "double1r")))
+    beam = f"about {cold['beam']:.0f} s for the L3 beam"
+
+    def text(path):
+        return " ".join((ROOT / path).read_text().split())
+
+    assert f"({lo}-{hi} s per model on a 2-core CPU for L0-L2, {beam})" in text(
+        "docs/getting_started.md")
+    assert f"takes {lo}-{hi} s per model on a 2-core CPU for L0-L2 ({beam})" in text(
+        "docs/cli.md")
+    assert f"compilation of {lo}-{hi} s per model" in text("docs/index.md")
+    for path in ("docs/getting_started.md", "docs/cli.md", "docs/index.md"):
+        assert not re.search(r"\b(5-10|7-13) s\b", text(path)), path
