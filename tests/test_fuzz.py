@@ -221,7 +221,7 @@ BAD_CLI = [
     (["sweep", "--vary", "t=0.3e-3,0.4e-3", "--rtol", "1", "--out", "OUT"], "rtol"),
     (["sweep", "--vary", "t=0.3e-3,0.4e-3", "--max-steps", "0", "--out", "OUT"], "max_steps"),
     (["sensitivity", "--rtol", "1", "--out", "OUT"], "rtol"),
-    (["modes", "--pose", "0.45,0.26"], "X must have shape (3,)"),
+    (["modes", "--pose", "0.45,0.26"], "--pose expects x,y,phi"),
     (["synth", "--noise-pos", "nan", "--out", "OUT"], "noise_pos must be finite"),
 ]
 
