@@ -482,26 +482,27 @@ def quasi_static_core(model: AbstractModel, robot: RobotLike, trajectory: Callab
     known = tuple(i for i in range(n) if i not in unknown)
     iu, ik = jnp.array(unknown), jnp.array(known)
 
-    def solve_at(t, zu_guess, zud, zudd, own):
-        """The balance at time t; with `own`, at the velocities and accelerations (zud, zudd)
-        of the unknowns' own quasi-static path instead of the reference's."""
+    def reference(t):
+        """(z_r, z_r', z_r'', tau) at time t: the reference's coordinates and rates, with the
+        actuation's own angles where it prescribes them, and the actuator torques."""
         z_r, zd_r, zdd_r = derivatives(ref, t)
+        ia = jnp.array(act)
         if prescribed:
             # The actuated angles, rates and accelerations are the actuation's own (MODEL.md
             # section 6): commands computed by another model, or measured angles, differ from
             # this robot's inverse kinematics of the trajectory, and a start on the latter is off
             # balance and rings through the whole run.
-            ia = jnp.array(act)
             tha, thad, thadd = actuation.angles_at(t)
             z_r, zd_r, zdd_r = z_r.at[ia].set(tha), zd_r.at[ia].set(thad), zdd_r.at[ia].set(thadd)
-            tau = jnp.zeros(3)
-        else:
-            # The torque at the reference motion (a servo's feedforward; a PD term is zero there);
-            # the actuated angles are coordinates of the models that reach this line.
-            ia = jnp.array(act)
-            tau = actuation.torque_at(t, z_r[ia], zd_r[ia])
-        zd_b = jnp.where(own, zd_r.at[iu].set(zud), zd_r)
-        zdd_b = jnp.where(own, zdd_r.at[iu].set(zudd), zdd_r)
+            return z_r, zd_r, zdd_r, jnp.zeros(3)
+        # The torque at the reference motion (a servo's feedforward; a PD term is zero there);
+        # the actuated angles are coordinates of the models that reach this line.
+        return z_r, zd_r, zdd_r, actuation.torque_at(t, z_r[ia], zd_r[ia])
+
+    def solve_at(zu_guess, zud, zudd, z_r, zd_r, zdd_r, tau):
+        """The balance at the reference (z_r, z_r', z_r'', tau), the unknowns from zu_guess at
+        the velocities and accelerations (zud, zudd)."""
+        zd_b, zdd_b = zd_r.at[iu].set(zud), zdd_r.at[iu].set(zudd)
 
         def full(zu):
             # the balance, and the chains' reach (which the balance needs: below)
@@ -510,10 +511,9 @@ def quasi_static_core(model: AbstractModel, robot: RobotLike, trajectory: Callab
             r = (eom.M @ zdd_b + eom.h - generalized_force(eom, tau, w))[iu]
             return r, jnp.min(eom.kin.margin)
 
-        guess = jnp.where(own, zu_guess, z_r[iu])
-        return (*_fd_newton_solve(full, guess), z_r, zd_r)
+        return _fd_newton_solve(full, zu_guess)
 
-    # The solutions at t - 2 dt ... t + 2 dt in one vmapped solve; their rates and accelerations
+    # The solutions at t - 2 dt ... t + 2 dt, one after another; their rates and accelerations
     # by differentiating the interpolating quartic (exact derivatives would need third
     # derivatives of the kinematics, whose compilation cost more than the whole simulation).
     # Two passes of one traced body (a scan): the first balances at the reference's velocities
@@ -523,18 +523,25 @@ def quasi_static_core(model: AbstractModel, robot: RobotLike, trajectory: Callab
     # about 1e-4, of that.
     offsets, d1, d2, c, dt, t_at = start_stencil(trajectory, t, actuation)
     ts = t_at + offsets * dt
-    nu = len(unknown)
+    refs = jax.vmap(reference)(ts)
+    z_rs, zd_rs, zdd_rs, _ = refs
 
-    def one_pass(carry, own):
-        zus_prev, zud, zudd = carry
-        out = jax.vmap(solve_at, in_axes=(0, 0, 0, 0, None))(ts, zus_prev, zud, zudd, own)
+    def one_pass(carry, _):
+        # the stencil's solves one after another (a map), not vectorised: traced once without
+        # the batching interpreter, and its Newton loop unbatched (first calls L2 4.2 -> 3.8 s,
+        # quasi-static L3 at N = 8 9.9 -> 9.0 s, the full L3 at N = 4 24 -> 22 s; the start
+        # moves by rounding, 4e-16 rad)
+        out = jax.lax.map(lambda a: solve_at(*a), (*carry, *refs))
         zus = out[0]
         return (zus, d1 @ zus / dt, d2 @ zus / dt**2), out
 
-    zero = jnp.zeros((STENCIL.shape[0], nu))
-    (zus, zud, zudd), outs = jax.lax.scan(one_pass, (zero, zero, zero),
-                                       jnp.array([False] + [True] * (QS_PASSES - 1)))
-    _, errs, results, margins, z_rs, zd_rs = jax.tree.map(lambda a: a[-1], outs)
+    # The first pass starts from the reference (its coordinates are Newton's guess, its rates
+    # and accelerations those the balance takes): a carry that depends on the parameters from
+    # the start, so that a derivative's scan finds which of its carries move in one pass (from
+    # zeros, forward mode differentiated the whole start twice)
+    init = (z_rs[:, iu], zd_rs[:, iu], zdd_rs[:, iu])
+    (zus, zud, zudd), outs = jax.lax.scan(one_pass, init, length=QS_PASSES)
+    _, errs, results, margins = jax.tree.map(lambda a: a[-1], outs)
     zu, zu_dot = zus[c], zud[c]
     z_r, zd_r = z_rs[c], zd_rs[c]
     # Running out of Newton steps is no failure when the residual is down to rounding: a residual
