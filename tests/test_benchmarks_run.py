@@ -48,6 +48,8 @@ CASES = {
     "compensate": (["--models", "rigid", "--drives", "torque", "--t-end", "0.2", "--repeats",
                     "1", "--optimise"], ["compensate.json"]),
     "beam_convergence": (["--max-n", "4"], ["beam_convergence.json"]),
+    "derivative_latency": (["--new", str(ROOT), "--quick", "--rows", "modes"],
+                           ["derivative_latency.json"]),
     "beam_stiffness": (["--n", "2", "--t-end", "0.005", "--rtols", "1e-4", "--solvers", "tsit5"],
                        ["beam_stiffness.json"]),
     "compile_budget": (["--models", "rigid", "--scenes", "servo-circle", "--repeats", "1"],
