@@ -147,7 +147,8 @@ def experiment(ts, X, th=None, tau=None, *, name: str = "experiment",
     bad = ~np.all(np.isfinite(allv), axis=1)
     if bad.any():
         raise DataError(f"{_where(name, lines[bad].tolist())}: NaN or infinite values "
-                        f"({int(bad.sum())} rows); drop them with drop_nan=True (CLI --drop-nan)")
+                        f"({int(bad.sum())} rows); remove those rows from the arrays (the file "
+                        f"readers drop them with drop_nan=True, CLI --drop-nan)")
     if n < min_samples:
         raise DataError(f"{name}: too few samples: {n} (at least {min_samples} needed)")
     dt = np.diff(ts)

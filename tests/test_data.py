@@ -355,3 +355,13 @@ def test_line_above_the_length_limit_is_refused(tmp_path):
     p.write_bytes(b"time,x,y,phi\n" + b"1" * (_data.MAX_LINE_CHARS + 10))
     with pytest.raises(DataError, match=r"oneline\.csv: line 2 is longer than"):
         pj.load_csv(str(p))
+
+
+def test_nan_in_arrays_is_refused_with_advice_that_fits_arrays():
+    """`experiment` from arrays has no drop_nan: its refusal of a NaN row says to remove the row
+    (the file readers' drop_nan is named as what drops it from a file)."""
+    ts = np.linspace(0.0, 1.0, 10)
+    X = np.zeros((10, 3))
+    X[3, 0] = np.nan
+    with pytest.raises(DataError, match=r"line 4: NaN.*remove those rows from the arrays"):
+        pj.experiment(ts, X)
